@@ -1,0 +1,1 @@
+"""Decision makers that choose actions: scripted oracles now, planned baselines and learned policies later."""

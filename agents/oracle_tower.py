@@ -1,0 +1,108 @@
+"""Oracle tower scripts: build a tower and push it over using the simulator's true block poses.
+
+*Oracle*: these read ground truth from the :class:`~panda_grasp_env.workcell.Workcell`
+instead of perceiving it, so their failures are the primitives' failures, not
+perception's.  They are the reference the perception-based agents are measured
+against, and the demo of the simulation core.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from panda_grasp_env.primitives import PrimitiveResult, grasp, place, push
+from panda_grasp_env.workcell import Workcell
+
+#: The four push directions of the source study, as headings about world z (radians).
+PUSH_DIRECTIONS = {"+x": 0.0, "+y": np.pi / 2, "-x": np.pi, "-y": -np.pi / 2}
+
+
+def wrap_quarter_turn(angle: np.ndarray | float) -> np.ndarray | float:
+    """Angle modulo a cube's 90 degree symmetry, into [-pi/4, pi/4)."""
+    return (np.asarray(angle) + np.pi / 4) % (np.pi / 2) - np.pi / 4
+
+
+@dataclass
+class TowerOutcome:
+    success: bool
+    base: str
+    #: Primitive results in order (3 grasps + 3 places for an ideal 4-block build).
+    steps: list[PrimitiveResult] = field(default_factory=list)
+    #: Worst yaw misalignment of a block against the base, degrees (modulo 90).
+    max_yaw_error_deg: float = float("nan")
+
+
+def clearest_grasp_yaw(cell: Workcell, index: int) -> float:
+    """Of a cube's two grasp headings, the one whose fingers point least towards the other blocks.
+
+    The open hand is ~20 cm wide along its closing axis; aiming it along the
+    line to a nearby tower knocks the tower over.
+    """
+    positions = cell.block_positions()[:, :2]
+    yaw = float(cell.block_yaws()[index])
+    offsets = np.delete(positions - positions[index], index, axis=0)
+    distances = np.linalg.norm(offsets, axis=1)
+    directions = offsets / distances[:, None]
+
+    def crowding(heading: float) -> float:
+        return float(np.sum(np.abs(directions @ [np.cos(heading), np.sin(heading)]) / distances))
+
+    return min((yaw, yaw + np.pi / 2), key=crowding)
+
+
+def tower_is_built(cell: Workcell, base_index: int, tolerance: float | None = None) -> bool:
+    """All blocks stacked on the base: centred within ``tolerance`` (default a fifth of the block size), consecutive heights."""
+    size = cell.config.block_size
+    tolerance = size / 5 if tolerance is None else tolerance
+    positions = cell.block_positions()
+    centred = np.linalg.norm(positions[:, :2] - positions[base_index, :2], axis=1) <= tolerance
+    heights = np.sort(positions[:, 2]) - positions[base_index, 2]
+    stacked = np.allclose(heights, size * np.arange(len(positions)), atol=size / 10)
+    return bool(centred.all() and stacked)
+
+
+def build_tower(cell: Workcell) -> TowerOutcome:
+    """Stack every block on the one nearest the workspace centre, yaw-aligned to it."""
+    positions = cell.block_positions()
+    base = int(np.argmin(np.linalg.norm(positions[:, :2] - [0.5, 0.0], axis=1)))
+    base_xy, base_yaw = positions[base, :2].copy(), float(cell.block_yaws()[base])
+    outcome = TowerOutcome(success=False, base=cell.block_names[base])
+    stacked = [base]
+    for index in (i for i in range(len(positions)) if i != base):
+        position = cell.block_positions()[index]
+        result = grasp(cell, *position, clearest_grasp_yaw(cell, index))
+        outcome.steps.append(result)
+        if not result.success:
+            return outcome
+        # Turn the hand so the held block's yaw matches the base's (modulo 90 degrees).
+        held_relative_yaw = float(wrap_quarter_turn(cell.block_yaws()[index] - cell.robot.ee_yaw))
+        top = cell.block_positions()[stacked, 2].max() + cell.config.block_size / 2
+        result = place(cell, base_xy[0], base_xy[1], top, base_yaw - held_relative_yaw)
+        outcome.steps.append(result)
+        if not result.success:
+            return outcome
+        stacked.append(index)
+    outcome.max_yaw_error_deg = float(np.degrees(np.abs(wrap_quarter_turn(cell.block_yaws() - base_yaw))).max())
+    outcome.success = tower_is_built(cell, base)
+    return outcome
+
+
+def push_tower(cell: Workcell, direction: str, distance: float = 0.16) -> PrimitiveResult:
+    """Push the standing tower with the closed gripper at mid-height, towards ``direction`` (one of PUSH_DIRECTIONS)."""
+    if direction not in PUSH_DIRECTIONS:
+        raise ValueError(f"unknown push direction {direction!r}; valid: {list(PUSH_DIRECTIONS)}")
+    positions = cell.block_positions()
+    centre = positions[int(np.argmin(positions[:, 2])), :2]
+    heading = PUSH_DIRECTIONS[direction]
+    unit = np.array([np.cos(heading), np.sin(heading)])
+    start = centre - unit * (cell.config.block_size / 2 + 0.04)
+    height = min(positions[:, 2].max() / 2 + 0.01, 0.12)
+    return push(cell, start[0], start[1], height, heading, distance)
+
+
+def blocks_displaced(cell: Workcell, footprint_centre: np.ndarray) -> int:
+    """Number of blocks whose centre is at least one block size (horizontally) away from the tower's footprint centre."""
+    offsets = np.linalg.norm(cell.block_positions()[:, :2] - footprint_centre, axis=1)
+    return int(np.sum(offsets >= cell.config.block_size))

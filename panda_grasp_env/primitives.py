@@ -1,0 +1,212 @@
+"""Motion primitives in world coordinates, parametrised as in Visual Pushing and Grasping.
+
+``grasp(x, y, z, yaw)``, ``push(x, y, z, yaw, distance)`` and ``place(x, y, z, yaw)``
+each run a complete motion on a :class:`Workcell` and return a
+:class:`PrimitiveResult`.  They never raise for a bad *target* (outside the
+workspace, unreachable, blocked): the result says why it failed.  They raise
+``ValueError`` only for malformed arguments (NaN, wrong length, wrong type).
+
+Positions are metres in the world frame; ``yaw`` is the heading (radians about
+world z) of the gripper's closing axis for grasp and place, and the direction
+of motion for push.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from panda_grasp_env.workcell import WORKSPACE, PhysicsError, Workcell, body_bottom_height
+
+#: Lowest grasp-site height: the fingertips reach 15 mm below the site.
+MIN_GRASP_HEIGHT = 0.02
+APPROACH_HEIGHT = 0.10  # pre-grasp / pre-place hover above the target, metres
+LIFT_HEIGHT = 0.15  # how high a grasped object is lifted, metres
+MIN_LIFT = 0.05  # a grasp succeeds only if the object rose at least this much
+HOLD_TIME = 0.5  # ... and stayed held this long, seconds
+SLOW_SPEED = 0.12  # m/s for the last approach and pushes
+PLACE_SPEED = 0.04  # m/s while lowering a held object to contact
+REASONS = ("ok", "missed", "dropped", "unreachable", "collision", "out_of_workspace", "not_holding", "placed_off", "physics_error")
+
+
+@dataclass
+class PrimitiveResult:
+    """Outcome of one primitive: ``reason`` is ``"ok"`` on success, else one of ``REASONS``."""
+
+    primitive: str
+    success: bool
+    reason: str
+    #: Simulated seconds the primitive took.
+    sim_time: float = 0.0
+    #: Physics steps it took.
+    physics_steps: int = 0
+    #: Name of the object grasped / placed, if any.
+    object: str | None = None
+    params: dict[str, float] = field(default_factory=dict)
+
+
+def _check_number(primitive: str, name: str, value: float) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{primitive}: argument {name!r} must be a real number, got {type(value).__name__}")
+    if not np.isfinite(value):
+        raise ValueError(f"{primitive}: argument {name!r} must be finite, got {value}")
+    return float(value)
+
+
+def _in_workspace(*points: np.ndarray) -> bool:
+    return all(bool(np.all((p >= WORKSPACE[:, 0]) & (p <= WORKSPACE[:, 1]))) for p in points)
+
+
+def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]:
+    """Validate arguments, measure simulated time/steps and turn divergence into a result."""
+    names = fn.__code__.co_varnames[1 : fn.__code__.co_argcount]
+
+    def wrapper(cell: Workcell, *args: float) -> PrimitiveResult:
+        if len(args) != len(names):
+            raise ValueError(f"{fn.__name__} takes {len(names)} arguments {list(names)}, got {len(args)}")
+        values = [_check_number(fn.__name__, n, v) for n, v in zip(names, args)]
+        start_time, start_steps = cell.sim_time, cell.physics_steps
+        try:
+            result = fn(cell, *values)
+        except PhysicsError:
+            result = PrimitiveResult(fn.__name__, False, "physics_error")
+        result.sim_time = cell.sim_time - start_time
+        result.physics_steps = cell.physics_steps - start_steps
+        result.params = dict(zip(names, values))
+        return result
+
+    wrapper.__name__ = fn.__name__
+    wrapper.__doc__ = fn.__doc__
+    return wrapper
+
+
+def _lift_clear(cell: Workcell, height: float) -> None:
+    """Rise vertically to at least ``height`` above the table before travelling."""
+    position = cell.robot.ee_position
+    if position[2] < height:
+        cell.move_to(np.array([position[0], position[1], height]), cell.robot.ee_yaw, settle_timeout=0.2, tolerance=0.02)
+
+
+def _fail(cell: Workcell, primitive: str, reason: str, obj: str | None = None) -> PrimitiveResult:
+    """Open, retreat upwards and go home, then report the failure."""
+    cell.actuate_gripper(close=False, timeout=0.4)
+    _lift_clear(cell, cell.robot.ee_position[2] + 0.05)
+    cell.move_home()
+    return PrimitiveResult(primitive, False, reason, object=obj)
+
+
+@_timed
+def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> PrimitiveResult:
+    """Top-down grasp with the grasp site at (x, y, z) and closing axis at ``yaw``.
+
+    Open, hover ``APPROACH_HEIGHT`` above, descend, close with the force-limited
+    gripper, lift ``LIFT_HEIGHT``, hold ``HOLD_TIME``.  Success: the fingers
+    stopped short of closing on a body that rose >= 5 cm and is still held.  On
+    success the object stays in the hand above the grasp point; on failure the
+    arm retreats home.  ``z`` is raised to ``MIN_GRASP_HEIGHT`` if lower.
+    """
+    z = max(z, MIN_GRASP_HEIGHT)
+    target = np.array([x, y, z])
+    above = target + [0.0, 0.0, APPROACH_HEIGHT]
+    if not _in_workspace(target, above):
+        return PrimitiveResult("grasp", False, "out_of_workspace")
+    cell.actuate_gripper(close=False, timeout=0.4)
+    _lift_clear(cell, above[2])
+    if not cell.move_to(above, yaw, tolerance=0.01).reached:
+        return _fail(cell, "grasp", "unreachable")
+    # Descend; if the fingers land on something the grasp is still attempted where they stopped.
+    cell.move_to(target, yaw, speed=SLOW_SPEED, settle_timeout=0.3)
+    cell.actuate_gripper(close=True)
+    body = cell.robot.body_between_pads()
+    if body is None or cell.robot.finger_gap < 0.002:
+        return _fail(cell, "grasp", "missed")
+    start_height = cell.data.xpos[body][2]
+    cell.move_to(target + [0.0, 0.0, LIFT_HEIGHT], yaw, settle_timeout=0.2, tolerance=0.01)
+    cell.wait(HOLD_TIME)
+    held = cell.robot.body_between_pads() == body
+    if not held or cell.data.xpos[body][2] - start_height < MIN_LIFT:
+        return _fail(cell, "grasp", "dropped", cell.name_of(body))
+    return PrimitiveResult("grasp", True, "ok", object=cell.name_of(body))
+
+
+@_timed
+def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> PrimitiveResult:
+    """Put the held object down with its centre over (x, y) and its bottom on a surface at height ``z``.
+
+    Move above, lower slowly until the object touches something, open, retreat
+    and go home.  Success: the object was released, rests with its centre within
+    a quarter of the block size of (x, y) and its bottom within 1 cm of ``z``.
+    ``yaw`` is the closing-axis heading during the place.
+    """
+    body = cell.robot.body_between_pads()
+    if body is None:
+        return PrimitiveResult("place", False, "not_holding")
+    name = cell.name_of(body)
+
+    def site_goal(height_above: float) -> np.ndarray:
+        """Grasp-site position that puts the held object's bottom ``height_above`` over (x, y, z)."""
+        hang = cell.robot.ee_position - [*cell.data.xpos[body][:2], body_bottom_height(cell.model, cell.data, body)]
+        return np.array([x, y, z + height_above]) + hang
+
+    above = site_goal(APPROACH_HEIGHT)
+    if not _in_workspace(above, above - [0.0, 0.0, APPROACH_HEIGHT]):
+        return PrimitiveResult("place", False, "out_of_workspace", object=name)
+    _lift_clear(cell, above[2])
+    if not cell.move_to(above, yaw, tolerance=0.01).reached:
+        return _fail(cell, "place", "unreachable", name)
+    # The object may have shifted in the fingers while travelling: re-aim from where it hangs now.
+    cell.move_to(site_goal(0.01), yaw, speed=SLOW_SPEED, settle_timeout=0.3)
+    contact_height = site_goal(0.0)
+    cell.move_to(
+        contact_height - [0.0, 0.0, 0.02], yaw, speed=PLACE_SPEED, settle_timeout=0.2, stop_when=lambda: cell.touches_world(body)
+    )
+    cell.actuate_gripper(close=False, timeout=0.5)
+    _lift_clear(cell, cell.robot.ee_position[2] + 0.08)
+    cell.move_home()
+    centre_error = np.linalg.norm(cell.data.xpos[body][:2] - [x, y])
+    bottom_error = abs(body_bottom_height(cell.model, cell.data, body) - z)
+    if cell.robot.body_between_pads() == body or centre_error > cell.config.block_size / 4 or bottom_error > 0.01:
+        return PrimitiveResult("place", False, "placed_off", object=name)
+    return PrimitiveResult("place", True, "ok", object=name)
+
+
+@_timed
+def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: float) -> PrimitiveResult:
+    """Push with the closed gripper from (x, y, z) in a straight line ``distance`` metres along heading ``yaw``.
+
+    The fingers' flat side faces the motion.  Fails with ``"collision"`` if the
+    gripper cannot get down to the start point (something is in the way).
+    """
+    if distance <= 0 or distance > 0.3:
+        raise ValueError(f"push: argument 'distance' must be in (0, 0.3] m, got {distance}")
+    z = max(z, MIN_GRASP_HEIGHT)
+    start = np.array([x, y, z])
+    end = start + distance * np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    above = start + [0.0, 0.0, APPROACH_HEIGHT]
+    if not _in_workspace(start, end, above):
+        return PrimitiveResult("push", False, "out_of_workspace")
+    grip_yaw = yaw + np.pi / 2
+    cell.actuate_gripper(close=True, timeout=0.4)
+    _lift_clear(cell, above[2])
+    if not cell.move_to(above, grip_yaw, tolerance=0.01).reached:
+        return _fail(cell, "push", "unreachable")
+    if not cell.move_to(start, grip_yaw, speed=SLOW_SPEED, settle_timeout=0.3, tolerance=0.01).reached:
+        return _fail(cell, "push", "collision")
+    cell.move_to(end, grip_yaw, speed=SLOW_SPEED, settle_timeout=0.2, tolerance=0.02)
+    _lift_clear(cell, end[2] + APPROACH_HEIGHT)
+    cell.move_home()
+    cell.actuate_gripper(close=False, timeout=0.3)
+    return PrimitiveResult("push", True, "ok")
+
+
+PRIMITIVES: dict[str, Callable[..., PrimitiveResult]] = {"grasp": grasp, "push": push, "place": place}
+
+
+def run_primitive(cell: Workcell, name: str, params: Sequence[float]) -> PrimitiveResult:
+    """Run primitive ``name`` with a parameter vector (x, y, z, yaw[, distance])."""
+    if name not in PRIMITIVES:
+        raise ValueError(f"unknown primitive {name!r}; valid: {sorted(PRIMITIVES)}")
+    values = np.asarray(params, dtype=float).ravel()
+    return PRIMITIVES[name](cell, *values.tolist())

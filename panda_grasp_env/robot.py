@@ -1,0 +1,138 @@
+"""The Panda arm and hand: state, gripper and joint commands on a live ``MjData``.
+
+Joint angles are radians; positions metres in the world frame; the end-effector
+is the ``grasp_site`` between the finger pads, whose z axis is the approach
+direction and whose x axis is the closing axis.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from panda_grasp_env.scene import (
+    ARM_ACTUATORS,
+    ARM_JOINTS,
+    FINGER_ACTUATORS,
+    FINGER_BODIES,
+    FINGER_JOINTS,
+    GRASP_SITE,
+    MAX_FINGER_GAP,
+    PAD_PROTRUSION,
+)
+
+#: Home configuration: grasp site at (0.2, 0, 0.45) m, pulled back so the overhead
+#: camera sees the whole workspace; gripper pointing down, closing axis along world y.
+HOME_QPOS = np.array([0.0, -1.1266, 0.0, -2.5112, 0.0, -0.1856, 0.0])
+HOME_POSITION = np.array([0.2, 0.0, 0.45])
+HOME_YAW = -np.pi / 2
+#: Finger joint command when open / closed (each finger slides 0-0.04 m).
+FINGER_OPEN = 0.04
+FINGER_CLOSED = 0.0
+
+
+def top_down_rotation(yaw: float) -> np.ndarray:
+    """Rotation matrix of a gripper pointing straight down whose closing axis has heading ``yaw``."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])
+
+
+class PandaRobot:
+    """Typed view of the Panda inside a workcell ``MjModel``/``MjData`` pair."""
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        self.model = model
+        self.data = data
+        self.arm_qpos_idx = np.array([model.jnt_qposadr[model.joint(n).id] for n in ARM_JOINTS])
+        self.arm_qvel_idx = np.array([model.jnt_dofadr[model.joint(n).id] for n in ARM_JOINTS])
+        self.finger_qpos_idx = np.array([model.jnt_qposadr[model.joint(n).id] for n in FINGER_JOINTS])
+        self.finger_qvel_idx = np.array([model.jnt_dofadr[model.joint(n).id] for n in FINGER_JOINTS])
+        self.arm_ctrl_idx = np.array([model.actuator(n).id for n in ARM_ACTUATORS])
+        self.finger_ctrl_idx = np.array([model.actuator(n).id for n in FINGER_ACTUATORS])
+        self.site_id = model.site(GRASP_SITE).id
+        self.body_ids = {
+            i for i in range(model.nbody) if mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, i).startswith("panda0_")
+        }
+        self.finger_body_ids = tuple(model.body(n).id for n in FINGER_BODIES)
+        self.pad_geom_ids = tuple(model.geom(f"{n}_pad").id for n in FINGER_BODIES)
+        self.arm_lower = model.jnt_range[[model.joint(n).id for n in ARM_JOINTS], 0].copy()
+        self.arm_upper = model.jnt_range[[model.joint(n).id for n in ARM_JOINTS], 1].copy()
+
+    # --- state -------------------------------------------------------------
+    @property
+    def joint_positions(self) -> np.ndarray:
+        """Arm joint angles (7,), radians."""
+        return self.data.qpos[self.arm_qpos_idx].copy()
+
+    @property
+    def joint_velocities(self) -> np.ndarray:
+        """Arm joint velocities (7,), rad/s."""
+        return self.data.qvel[self.arm_qvel_idx].copy()
+
+    @property
+    def ee_position(self) -> np.ndarray:
+        """Grasp-site position (3,) in the world frame, metres."""
+        return self.data.site_xpos[self.site_id].copy()
+
+    @property
+    def ee_rotation(self) -> np.ndarray:
+        """Grasp-site orientation (3, 3) in the world frame."""
+        return self.data.site_xmat[self.site_id].reshape(3, 3).copy()
+
+    @property
+    def ee_yaw(self) -> float:
+        """Heading of the closing axis about world z, radians."""
+        x_axis = self.ee_rotation[:, 0]
+        return float(np.arctan2(x_axis[1], x_axis[0]))
+
+    @property
+    def finger_gap(self) -> float:
+        """Distance between the two finger pads, metres (0 when closed on nothing)."""
+        gap = self.data.qpos[self.finger_qpos_idx].sum() - 2 * PAD_PROTRUSION
+        return float(np.clip(gap, 0.0, MAX_FINGER_GAP))
+
+    @property
+    def finger_speed(self) -> float:
+        """Largest finger joint speed, m/s."""
+        return float(np.abs(self.data.qvel[self.finger_qvel_idx]).max())
+
+    # --- commands ----------------------------------------------------------
+    def command_joints(self, qpos: np.ndarray) -> None:
+        """Set the arm's position-servo targets (7,), clipped to the joint limits."""
+        self.data.ctrl[self.arm_ctrl_idx] = np.clip(qpos, self.arm_lower, self.arm_upper)
+
+    def open_gripper(self) -> None:
+        self.data.ctrl[self.finger_ctrl_idx] = FINGER_OPEN
+
+    def close_gripper(self) -> None:
+        """Close both fingers; each squeezes with at most the scene's ``gripper_force``."""
+        self.data.ctrl[self.finger_ctrl_idx] = FINGER_CLOSED
+
+    @property
+    def gripper_closing(self) -> bool:
+        return bool(self.data.ctrl[self.finger_ctrl_idx[0]] < FINGER_OPEN / 2)
+
+    def set_home(self) -> None:
+        """Teleport to the home configuration at rest with the gripper open (for resets)."""
+        self.data.qpos[self.arm_qpos_idx] = HOME_QPOS
+        self.data.qvel[self.arm_qvel_idx] = 0.0
+        self.data.qpos[self.finger_qpos_idx] = FINGER_OPEN
+        self.data.qvel[self.finger_qvel_idx] = 0.0
+        self.command_joints(HOME_QPOS)
+        self.open_gripper()
+
+    def contacts_with_pads(self) -> dict[int, set[int]]:
+        """Bodies (not the robot's) touching each finger pad: ``{pad_geom: {body ids}}``."""
+        touching: dict[int, set[int]] = {g: set() for g in self.pad_geom_ids}
+        geom_body = self.model.geom_bodyid
+        for contact in self.data.contact[: self.data.ncon]:
+            for mine, other in ((contact.geom1, contact.geom2), (contact.geom2, contact.geom1)):
+                if mine in touching and geom_body[other] not in self.body_ids:
+                    touching[mine].add(int(geom_body[other]))
+        return touching
+
+    def body_between_pads(self) -> int | None:
+        """The body touched by both finger pads (the one being held), or None."""
+        left, right = self.contacts_with_pads().values()
+        both = left & right
+        return min(both) if both else None

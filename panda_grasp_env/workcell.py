@@ -1,0 +1,272 @@
+"""The workcell: one MuJoCo model and data, the robot, its controller and the blocks.
+
+This is the physics layer the motion primitives and the Gymnasium env drive.
+It owns stepping (control rate, divergence detection), motion helpers and the
+reset layouts.  World frame, metres, radians throughout.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from panda_grasp_env.controller import CartesianController, ControllerLimits
+from panda_grasp_env.robot import HOME_QPOS, PandaRobot
+from panda_grasp_env.scene import SceneConfig, build_spec
+
+#: Reachable region for primitive targets: x, y, z bounds of the grasp site, metres.
+WORKSPACE = np.array([[0.25, 0.75], [-0.35, 0.35], [0.0, 0.45]])
+#: Region in which reset places blocks (inside WORKSPACE with a margin).
+SPAWN_REGION = np.array([[0.35, 0.65], [-0.22, 0.22]])
+_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL)
+
+
+class PhysicsError(RuntimeError):
+    """The simulation diverged (MuJoCo warning or non-finite state)."""
+
+
+@dataclass
+class MoveOutcome:
+    reached: bool
+    #: Distance between the grasp site and the goal when the move ended, metres.
+    error: float
+
+
+def body_bottom_height(model: mujoco.MjModel, data: mujoco.MjData, body_id: int) -> float:
+    """Lowest world z of a body's collision geoms, metres (exact for boxes, spheres, capsules, cylinders)."""
+    lowest = np.inf
+    start, count = model.body_geomadr[body_id], model.body_geomnum[body_id]
+    for g in range(start, start + count):
+        size, z_axis = model.geom_size[g], data.geom_xmat[g].reshape(3, 3)[2]
+        kind = int(model.geom_type[g])
+        if kind == int(mujoco.mjtGeom.mjGEOM_BOX):
+            half = float(np.abs(z_axis) @ size)
+        elif kind == int(mujoco.mjtGeom.mjGEOM_SPHERE):
+            half = float(size[0])
+        elif kind == int(mujoco.mjtGeom.mjGEOM_CAPSULE):
+            half = float(size[0] + abs(z_axis[2]) * size[1])
+        elif kind == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
+            half = float(abs(z_axis[2]) * size[1] + size[0] * np.sqrt(max(0.0, 1.0 - z_axis[2] ** 2)))
+        else:
+            half = float(model.geom_rbound[g])
+        lowest = min(lowest, float(data.geom_xpos[g][2]) - half)
+    return lowest
+
+
+class Workcell:
+    """A Panda, a table and free objects in one MuJoCo simulation.
+
+    ``control_substeps`` physics steps make one control step (default 20 x 2 ms
+    = 25 Hz, the rate of the env's low-level action modes).
+    """
+
+    def __init__(
+        self,
+        config: SceneConfig | None = None,
+        control_substeps: int = 20,
+        limits: ControllerLimits | None = None,
+    ) -> None:
+        self.config = config or SceneConfig()
+        if not isinstance(control_substeps, int) or control_substeps < 1:
+            raise ValueError(f"control_substeps must be a positive int, got {control_substeps!r}")
+        self.spec = build_spec(self.config)
+        self.model = self.spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self.control_substeps = control_substeps
+        self.control_dt = control_substeps * self.model.opt.timestep
+        self.robot = PandaRobot(self.model, self.data)
+        self.controller = CartesianController(self.config, limits)
+        self.block_names = self.config.block_names
+        self.block_ids = np.array([self.model.body(n).id for n in self.block_names])
+        self.block_qpos_adr = np.array([self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.block_ids])
+        self.block_qvel_adr = np.array([self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.block_ids])
+        self.physics_steps = 0
+        #: Called with the workcell after every control step (video recording, logging).
+        self.step_hooks: list[Callable[[Workcell], None]] = []
+        self.reset_robot()
+
+    # --- state -------------------------------------------------------------
+    @property
+    def sim_time(self) -> float:
+        """Simulated seconds since the last reset."""
+        return float(self.data.time)
+
+    def block_positions(self) -> np.ndarray:
+        """Block centres (n, 3), world frame, metres."""
+        return self.data.xpos[self.block_ids].copy()
+
+    def block_quaternions(self) -> np.ndarray:
+        """Block orientations (n, 4) as (w, x, y, z) quaternions."""
+        return self.data.xquat[self.block_ids].copy()
+
+    def block_yaws(self) -> np.ndarray:
+        """Heading of each block's x axis about world z, radians."""
+        x_axes = self.data.xmat[self.block_ids].reshape(-1, 3, 3)[:, :, 0]
+        return np.arctan2(x_axes[:, 1], x_axes[:, 0])
+
+    def block_speeds(self) -> np.ndarray:
+        """Linear speed of each block, m/s."""
+        return np.array([np.linalg.norm(self.data.qvel[a : a + 3]) for a in self.block_qvel_adr])
+
+    def name_of(self, body_id: int | None) -> str | None:
+        return None if body_id is None else mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_BODY, body_id)
+
+    def touches_world(self, body_id: int) -> bool:
+        """Whether a body is in contact with anything other than the robot."""
+        geom_body = self.model.geom_bodyid
+        for contact in self.data.contact[: self.data.ncon]:
+            b1, b2 = geom_body[contact.geom1], geom_body[contact.geom2]
+            if body_id in (b1, b2):
+                other = b2 if b1 == body_id else b1
+                if other not in self.robot.body_ids:
+                    return True
+        return False
+
+    # --- stepping ----------------------------------------------------------
+    def step_physics(self, n_steps: int) -> None:
+        """Advance the physics ``n_steps`` steps with the current controls; raise PhysicsError on divergence."""
+        mujoco.mj_step(self.model, self.data, nstep=n_steps)
+        self.physics_steps += n_steps
+        if any(self.data.warning[w].number for w in _WARNINGS) or not np.isfinite(self.data.qacc).all():
+            raise PhysicsError("simulation diverged (MuJoCo reported bad qpos/qvel/qacc)")
+        for hook in self.step_hooks:
+            hook(self)
+
+    def control_step(self) -> None:
+        """One control step: advance the controller's reference, command the servos, step the physics."""
+        self.robot.command_joints(self.controller.step(self.control_dt))
+        self.step_physics(self.control_substeps)
+
+    def wait(self, seconds: float) -> None:
+        """Keep the current commands for ``seconds`` of simulated time."""
+        for _ in range(max(1, int(round(seconds / self.control_dt)))):
+            self.control_step()
+
+    # --- motion ------------------------------------------------------------
+    def move_to(
+        self,
+        position: np.ndarray,
+        yaw: float,
+        speed: float | None = None,
+        tolerance: float = 0.004,
+        settle_timeout: float = 1.0,
+        stop_when: Callable[[], bool] | None = None,
+    ) -> MoveOutcome:
+        """Drive the grasp site in a straight line to ``position`` with closing-axis heading ``yaw``.
+
+        The reference moves at ``speed`` m/s (default: the controller's limit).
+        Returns once within ``tolerance`` metres of the goal at rest, after the
+        settle timeout, or as soon as ``stop_when()`` is true.
+        """
+        limits = self.controller.limits
+        default_speed = limits.linear_speed
+        if speed is not None:
+            limits.linear_speed = speed
+        try:
+            self.controller.set_goal(position, yaw)
+            goal = self.controller.goal_position
+            travel_time = max(
+                self.controller.reference_error / limits.linear_speed, self.controller.reference_turn / limits.angular_speed
+            )
+            travel_steps = int(np.ceil(travel_time / self.control_dt))
+            settle_steps = int(np.ceil(settle_timeout / self.control_dt))
+            for i in range(travel_steps + 4 + settle_steps):
+                self.control_step()
+                if stop_when is not None and stop_when():
+                    break
+                error = float(np.linalg.norm(self.robot.ee_position - goal))
+                if i >= travel_steps and error < tolerance and np.abs(self.robot.joint_velocities).max() < 0.05:
+                    break
+        finally:
+            limits.linear_speed = default_speed
+        error = float(np.linalg.norm(self.robot.ee_position - goal))
+        return MoveOutcome(reached=error < tolerance, error=error)
+
+    def move_home(self, joint_speed: float = 1.2) -> None:
+        """Joint-space move to the home configuration at ``joint_speed`` rad/s, then settle."""
+        start = self.robot.joint_positions
+        n = max(1, int(np.ceil(np.abs(HOME_QPOS - start).max() / (joint_speed * self.control_dt))))
+        for fraction in np.linspace(0.0, 1.0, n + 1)[1:]:
+            self.robot.command_joints(start + fraction * (HOME_QPOS - start))
+            self.step_physics(self.control_substeps)
+        for _ in range(int(0.6 / self.control_dt)):
+            if np.abs(self.robot.joint_positions - HOME_QPOS).max() < 0.01:
+                break
+            self.step_physics(self.control_substeps)
+        self.controller.sync(self.robot.joint_positions)
+
+    def actuate_gripper(self, close: bool, timeout: float = 0.8) -> None:
+        """Open or close the gripper and wait until the fingers stop (or ``timeout`` seconds)."""
+        if close:
+            self.robot.close_gripper()
+        else:
+            self.robot.open_gripper()
+        still = 0
+        for _ in range(int(np.ceil(timeout / self.control_dt))):
+            self.control_step()
+            still = still + 1 if self.robot.finger_speed < 2e-3 else 0
+            if still >= 3:
+                break
+
+    # --- reset -------------------------------------------------------------
+    def reset_robot(self) -> None:
+        """Robot at home, at rest, gripper open; controller state cleared."""
+        self.robot.set_home()
+        mujoco.mj_forward(self.model, self.data)
+        self.controller.sync(self.robot.joint_positions)
+
+    def reset(self, rng: np.random.Generator, layout: str = "scattered", settle: float = 0.3) -> None:
+        """Reset physics, robot and blocks.
+
+        ``layout``: ``"scattered"`` (blocks apart at random positions and yaws in
+        the spawn region) or ``"tower"`` (all blocks stacked, in random colour
+        order, at a random spot and yaw).  All randomness comes from ``rng``.
+        """
+        mujoco.mj_resetData(self.model, self.data)  # also clears warm-starts and warnings
+        self.physics_steps = 0
+        self.robot.set_home()
+        if layout == "scattered":
+            positions, yaws = scattered_layout(rng, len(self.block_ids), self.config.block_size)
+        elif layout == "tower":
+            positions, yaws = tower_layout(rng, len(self.block_ids), self.config.block_size)
+        else:
+            raise ValueError(f"unknown layout {layout!r}; valid: ['scattered', 'tower']")
+        for adr, position, yaw in zip(self.block_qpos_adr, positions, yaws):
+            self.data.qpos[adr : adr + 3] = position
+            self.data.qpos[adr + 3 : adr + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+        mujoco.mj_forward(self.model, self.data)
+        self.controller.sync(self.robot.joint_positions)
+        if settle > 0:
+            self.wait(settle)
+        self.data.time = 0.0
+        self.physics_steps = 0
+
+
+def scattered_layout(
+    rng: np.random.Generator, n_blocks: int, block_size: float, region: np.ndarray = SPAWN_REGION
+) -> tuple[np.ndarray, np.ndarray]:
+    """Non-overlapping block centres (n, 3) and yaws (n,) resting on the table."""
+    min_distance = block_size * np.sqrt(2) + 0.03  # diagonal plus room for a finger
+    positions: list[np.ndarray] = []
+    while len(positions) < n_blocks:
+        candidate = np.array([rng.uniform(*region[0]), rng.uniform(*region[1]), block_size / 2])
+        if all(np.linalg.norm(candidate[:2] - p[:2]) >= min_distance for p in positions):
+            positions.append(candidate)
+    return np.array(positions), rng.uniform(-np.pi / 4, np.pi / 4, n_blocks)
+
+
+def tower_layout(
+    rng: np.random.Generator, n_blocks: int, block_size: float, region: np.ndarray = SPAWN_REGION
+) -> tuple[np.ndarray, np.ndarray]:
+    """A tower of all blocks in random order at a random spot and yaw: centres (n, 3) and yaws (n,)."""
+    x, y = rng.uniform(*region[0]), rng.uniform(*region[1])
+    yaw = rng.uniform(-np.pi / 4, np.pi / 4)
+    order = rng.permutation(n_blocks)
+    positions = np.zeros((n_blocks, 3))
+    for level, block in enumerate(order):
+        # A 0.1 mm gap per level avoids initial interpenetration; blocks settle onto each other.
+        positions[block] = [x, y, block_size / 2 + level * (block_size + 1e-4)]
+    return positions, np.full(n_blocks, yaw)
