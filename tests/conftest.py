@@ -1,0 +1,19 @@
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from panda_grasp_env.workcell import Workcell  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def cell() -> Workcell:
+    """One workcell for the session (building the model takes ~0.3 s); tests reset it."""
+    return Workcell()
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(1234)

@@ -1,0 +1,96 @@
+import numpy as np
+import pytest
+
+from agents.oracle_tower import PUSH_DIRECTIONS, blocks_displaced, build_tower, push_tower, wrap_quarter_turn
+from panda_grasp_env.primitives import REASONS, grasp, place, push, run_primitive
+from panda_grasp_env.robot import HOME_QPOS
+
+
+def _isolated_cube(cell, seed):
+    cell.reset(np.random.default_rng(seed), "scattered")
+    return cell.block_positions()[0], float(cell.block_yaws()[0])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_grasp_lifts_and_holds_a_cube(cell, seed):
+    position, yaw = _isolated_cube(cell, seed)
+    result = grasp(cell, *position, yaw)
+    assert result.success and result.reason == "ok" and result.object == "block_red"
+    assert cell.block_positions()[0][2] > position[2] + 0.05
+    assert 0.045 < cell.robot.finger_gap < 0.055  # stopped short of closing, on the 5 cm cube
+    assert result.physics_steps > 0 and result.sim_time == pytest.approx(result.physics_steps * 0.002)
+
+
+def test_grasp_on_empty_table_misses_and_retreats_home(cell):
+    cell.reset(np.random.default_rng(0), "scattered")
+    result = grasp(cell, 0.7, 0.3, 0.025, 0.0)
+    assert not result.success and result.reason == "missed"
+    np.testing.assert_allclose(cell.robot.joint_positions, HOME_QPOS, atol=0.02)
+
+
+def test_place_stacks_a_block_aligned_to_the_one_below(cell):
+    cell.reset(np.random.default_rng(3), "scattered")
+    positions, yaws = cell.block_positions(), cell.block_yaws()
+    assert grasp(cell, *positions[1], float(yaws[1])).success
+    held = float(wrap_quarter_turn(cell.block_yaws()[1] - cell.robot.ee_yaw))
+    result = place(cell, positions[0][0], positions[0][1], 0.05, float(yaws[0]) - held)
+    assert result.success, result
+    stacked = cell.block_positions()[1]
+    assert np.linalg.norm(stacked[:2] - positions[0][:2]) < 0.005
+    assert stacked[2] == pytest.approx(0.075, abs=2e-3)
+    assert abs(np.degrees(wrap_quarter_turn(cell.block_yaws()[1] - yaws[0]))) < 2.0
+
+
+def test_place_without_holding_fails_cleanly(cell):
+    cell.reset(np.random.default_rng(0), "scattered")
+    result = place(cell, 0.5, 0.0, 0.0, 0.0)
+    assert not result.success and result.reason == "not_holding"
+
+
+def test_oracle_builds_a_tower(cell):
+    cell.reset(np.random.default_rng(5), "scattered")
+    outcome = build_tower(cell)
+    assert outcome.success and len(outcome.steps) == 6
+    assert outcome.max_yaw_error_deg < 3.0
+
+
+@pytest.mark.parametrize("direction", list(PUSH_DIRECTIONS))
+def test_push_knocks_the_tower_over(cell, direction):
+    cell.reset(np.random.default_rng(9), "tower")
+    centre = cell.block_positions()[0, :2].copy()
+    result = push_tower(cell, direction)
+    cell.wait(1.0)
+    assert result.success
+    assert blocks_displaced(cell, centre) >= 2
+
+
+@pytest.mark.parametrize(
+    "call, reason",
+    [
+        (lambda c: grasp(c, 1.5, 0.0, 0.02, 0.0), "out_of_workspace"),
+        (lambda c: grasp(c, 0.5, 0.0, 0.9, 0.0), "out_of_workspace"),
+        (lambda c: push(c, 0.5, -0.3, 0.03, -np.pi / 2, 0.2), "out_of_workspace"),
+        (lambda c: place(c, -0.5, 0.0, 0.05, 0.0), "not_holding"),
+    ],
+)
+def test_unreachable_targets_fail_with_a_reason(cell, call, reason):
+    cell.reset(np.random.default_rng(0), "scattered")
+    result = call(cell)
+    assert not result.success and result.reason == reason and reason in REASONS
+
+
+@pytest.mark.parametrize(
+    "call, culprit",
+    [
+        (lambda c: grasp(c, float("nan"), 0.0, 0.02, 0.0), "'x'"),
+        (lambda c: grasp(c, 0.5, 0.0, 0.02, float("inf")), "'yaw'"),
+        (lambda c: grasp(c, 0.5, "0", 0.02, 0.0), "'y'"),
+        (lambda c: push(c, 0.5, 0.0, 0.02, 0.0, -0.1), "'distance'"),
+        (lambda c: grasp(c, 0.5, 0.0, 0.02), "4 arguments"),
+        (lambda c: run_primitive(c, "grasp", [0.5, 0.0, 0.02]), "4 arguments"),
+        (lambda c: run_primitive(c, "throw", [0.5, 0.0, 0.02, 0.0]), "throw"),
+    ],
+)
+def test_malformed_arguments_raise_value_error(cell, call, culprit):
+    with pytest.raises(ValueError, match=culprit):
+        call(cell)

@@ -1,0 +1,68 @@
+import numpy as np
+import pytest
+
+from panda_grasp_env.rendering import CameraRenderer, RenderCache
+
+
+@pytest.fixture(scope="module")
+def tower_cell(cell):
+    cell.reset(np.random.default_rng(0), "tower")
+    return cell
+
+
+@pytest.mark.parametrize("camera", ["overhead", "front", "wrist"])
+def test_every_camera_renders_all_modalities(tower_cell, camera):
+    cache = RenderCache(tower_cell.model)
+    try:
+        rgb = cache.render(tower_cell.data, camera, 84, 84, "rgb")
+        depth = cache.render(tower_cell.data, camera, 84, 84, "depth")
+        segmentation = cache.render(tower_cell.data, camera, 84, 84, "segmentation")
+    finally:
+        cache.close()
+    assert rgb.shape == (84, 84, 3) and rgb.dtype == np.uint8 and rgb.std() > 5
+    assert depth.shape == (84, 84) and depth.dtype == np.float32 and np.isfinite(depth).all()
+    assert segmentation.shape == (84, 84) and segmentation.dtype == np.int32
+
+
+def test_overhead_sees_the_blocks_with_metric_depth(tower_cell):
+    renderer = CameraRenderer(tower_cell.model, 640, 480, "fast")
+    try:
+        segmentation = renderer.render(tower_cell.data, "overhead", "segmentation")
+        depth = renderer.render(tower_cell.data, "overhead", "depth")
+    finally:
+        renderer.close()
+    top = int(np.argmax(tower_cell.block_positions()[:, 2]))
+    top_geom = tower_cell.model.body_geomadr[tower_cell.block_ids[top]]
+    mask = segmentation == top_geom
+    assert mask.sum() > 200
+    # Camera 1.05 m above the table; the top face of a 4-block tower is at 0.2 m.
+    assert np.median(depth[mask]) == pytest.approx(1.05 - 0.2, abs=0.005)
+    table = tower_cell.model.geom("table").id
+    assert np.median(depth[segmentation == table]) == pytest.approx(1.05, abs=0.01)
+
+
+def test_fast_profile_draws_collision_geoms_pretty_draws_visual_meshes(tower_cell):
+    fast = CameraRenderer(tower_cell.model, 64, 48, "fast")
+    pretty = CameraRenderer(tower_cell.model, 64, 48, "pretty")
+    try:
+        seg_fast = fast.render(tower_cell.data, "front", "segmentation")
+        seg_pretty = pretty.render(tower_cell.data, "front", "segmentation")
+    finally:
+        fast.close()
+        pretty.close()
+    groups = tower_cell.model.geom_group
+    assert set(groups[np.unique(seg_fast[seg_fast >= 0])]) <= {0, 2}
+    assert set(groups[np.unique(seg_pretty[seg_pretty >= 0])]) <= {0, 1}
+
+
+def test_bad_render_arguments(tower_cell):
+    with pytest.raises(ValueError, match="profile"):
+        CameraRenderer(tower_cell.model, 64, 64, "cinematic")
+    with pytest.raises(ValueError, match="width"):
+        CameraRenderer(tower_cell.model, 0, 64)
+    renderer = CameraRenderer(tower_cell.model, 32, 32)
+    try:
+        with pytest.raises(ValueError, match="modality"):
+            renderer.render(tower_cell.data, "front", "infrared")
+    finally:
+        renderer.close()

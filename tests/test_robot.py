@@ -1,0 +1,44 @@
+import numpy as np
+import pytest
+
+from panda_grasp_env.robot import HOME_POSITION, HOME_YAW
+from panda_grasp_env.scene import MAX_FINGER_GAP
+
+
+def test_home_pose_points_down_above_the_workspace(cell, rng):
+    cell.reset(rng)
+    np.testing.assert_allclose(cell.robot.ee_position, HOME_POSITION, atol=2e-3)
+    assert cell.robot.ee_rotation[:, 2] == pytest.approx([0, 0, -1], abs=1e-2)
+    assert np.cos(cell.robot.ee_yaw - HOME_YAW) ** 2 == pytest.approx(1.0, abs=1e-3)
+    assert cell.robot.finger_gap == pytest.approx(MAX_FINGER_GAP, abs=1e-3)
+
+
+def test_gripper_closes_and_opens(cell, rng):
+    cell.reset(rng)
+    cell.actuate_gripper(close=True)
+    assert cell.robot.finger_gap < 1e-3
+    cell.actuate_gripper(close=False)
+    assert cell.robot.finger_gap > MAX_FINGER_GAP - 2e-3
+
+
+@pytest.mark.parametrize("target, yaw", [((0.5, 0.2, 0.15), 0.3), ((0.65, -0.25, 0.05), -1.2), ((0.3, 0.0, 0.3), 1.5)])
+def test_cartesian_controller_reaches_targets_within_joint_limits(cell, rng, target, yaw):
+    cell.reset(rng)
+    outcome = cell.move_to(np.array(target), yaw)
+    assert outcome.reached and outcome.error < 4e-3
+    # Parallel gripper: heading is defined modulo a half turn.
+    assert np.sin(cell.robot.ee_yaw - yaw) == pytest.approx(0.0, abs=0.02)
+    q = cell.robot.joint_positions
+    assert np.all(q >= cell.robot.arm_lower - 1e-3) and np.all(q <= cell.robot.arm_upper + 1e-3)
+
+
+def test_reference_speed_is_bounded(cell, rng):
+    cell.reset(rng)
+    positions = []
+    cell.step_hooks.append(lambda c: positions.append(c.robot.ee_position))
+    try:
+        cell.move_to(np.array([0.6, 0.2, 0.2]), HOME_YAW)
+    finally:
+        cell.step_hooks.clear()
+    speeds = np.linalg.norm(np.diff(positions, axis=0), axis=1) / cell.control_dt
+    assert speeds.max() < cell.controller.limits.linear_speed * 1.5

@@ -1,0 +1,54 @@
+import mujoco
+import numpy as np
+import pytest
+
+from panda_grasp_env.scene import CAMERA_NAMES, GRASP_SITE, SceneConfig, build_model, franka_asset_dir
+
+
+def test_panda_is_loaded_from_installed_gymnasium_robotics():
+    folder = franka_asset_dir()
+    assert "gymnasium_robotics" in str(folder) and (folder / "chain.xml").is_file()
+
+
+def test_default_scene_contents():
+    model = build_model()
+    for name in ("block_red", "block_green", "block_blue", "block_yellow"):
+        body = model.body(name)
+        geom = model.geom(f"{name}_geom")
+        np.testing.assert_allclose(model.geom_size[geom.id], [0.025] * 3)
+        assert model.body_mass[body.id] == pytest.approx(0.1)
+    for camera in CAMERA_NAMES:
+        assert model.camera(camera).id >= 0
+    model.site(GRASP_SITE)
+    assert model.opt.timestep == pytest.approx(0.002)
+    assert int(model.opt.cone) == int(mujoco.mjtCone.mjCONE_ELLIPTIC)
+    # Gravity compensation on every robot link.
+    robot_bodies = [i for i in range(model.nbody) if model.body(i).name.startswith("panda0_")]
+    assert all(model.body_gravcomp[i] == 1.0 for i in robot_bodies)
+
+
+def test_scene_is_configurable():
+    config = SceneConfig(n_blocks=2, block_size=0.04, block_mass=0.05, block_friction=(0.8, 0.01, 0.0001))
+    model = build_model(config)
+    assert config.block_names == ["block_red", "block_green"]
+    with pytest.raises(KeyError):
+        model.body("block_blue")
+    np.testing.assert_allclose(model.geom_size[model.geom("block_green_geom").id], [0.02] * 3)
+    assert model.geom_friction[model.geom("block_red_geom").id][0] == pytest.approx(0.8)
+
+
+@pytest.mark.parametrize(
+    "kwargs, culprit",
+    [
+        ({"n_blocks": 0}, "n_blocks"),
+        ({"n_blocks": 9}, "n_blocks"),
+        ({"block_size": float("nan")}, "block_size"),
+        ({"block_mass": -1.0}, "block_mass"),
+        ({"block_size": 0.2}, "block_size"),
+        ({"cameras": {"ceiling": None}}, "ceiling"),
+        ({"block_friction": (1.0, 0.1)}, "block_friction"),
+    ],
+)
+def test_bad_scene_config_names_the_culprit(kwargs, culprit):
+    with pytest.raises(ValueError, match=culprit):
+        SceneConfig(**kwargs)
