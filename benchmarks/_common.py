@@ -1,0 +1,48 @@
+"""Shared helpers for the benchmark scripts: medians, atomic JSON results, resumable sections."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+def median_rate(run: Callable[[], int], repeats: int = 5) -> float:
+    """Median of ``repeats`` measurements of ``run()``'s count per wall-clock second."""
+    rates = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        count = run()
+        rates.append(count / (time.perf_counter() - start))
+    return statistics.median(rates)
+
+
+def machine() -> dict[str, Any]:
+    import mujoco
+
+    return {"python": platform.python_version(), "mujoco": mujoco.__version__, "cpus": os.cpu_count(), "machine": platform.machine()}
+
+
+class Results:
+    """Sections of a benchmark saved to one JSON file, atomically after each section; ``resume`` skips finished ones."""
+
+    def __init__(self, path: Path, resume: bool) -> None:
+        self.path = path
+        self.data: dict[str, Any] = json.loads(path.read_text()) if resume and path.exists() else {}
+        self.data["machine"] = machine()
+
+    def section(self, name: str, compute: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+        if name not in self.data:
+            self.data[name] = compute()
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.path.with_suffix(".json.tmp")
+            tmp.write_text(json.dumps(self.data, indent=2))
+            os.replace(tmp, self.path)
+        return self.data[name]
