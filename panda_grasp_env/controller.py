@@ -30,8 +30,8 @@ class ControllerLimits:
 
     linear_speed: float = 0.35  # m/s
     angular_speed: float = 2.0  # rad/s
-    #: Joint speed cap handed to the IK, rad/s (below the Panda's 2.17-2.61 rad/s).
-    joint_speed: float = 1.5
+    #: Joint speed caps handed to the IK, rad/s: the Panda's datasheet limits (joints 1-4, 5-7).
+    joint_speed: tuple[float, ...] = (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61)
 
 
 def gripper_yaw_window_centre(position: np.ndarray) -> float:
@@ -63,7 +63,7 @@ class CartesianController:
         self.posture_task.set_target(q_home)
         self.ik_limits = [
             mink.ConfigurationLimit(self.ik_model, gain=0.9),
-            mink.VelocityLimit(self.ik_model, {n: self.limits.joint_speed for n in ARM_JOINTS}),
+            mink.VelocityLimit(self.ik_model, dict(zip(ARM_JOINTS, self.limits.joint_speed))),
         ]
         self.reference_position = np.zeros(3)
         self.reference_yaw = 0.0

@@ -42,3 +42,17 @@ def test_reference_speed_is_bounded(cell, rng):
         cell.step_hooks.clear()
     speeds = np.linalg.norm(np.diff(positions, axis=0), axis=1) / cell.control_dt
     assert speeds.max() < cell.controller.limits.linear_speed * 1.5
+
+
+def test_ik_keeps_up_with_large_combined_moves(cell):
+    """Regression: a 30 cm carry with a 78 degree turn once outran a 1.5 rad/s joint cap and sagged 12 cm."""
+    from agents.oracle_tower import build_tower
+
+    errors = []
+    cell.step_hooks.append(lambda c: errors.append(c.controller.tracking_error()))
+    try:
+        cell.reset(np.random.default_rng(59), "scattered")
+        assert build_tower(cell).success
+    finally:
+        cell.step_hooks.clear()
+    assert max(errors) < 0.005
