@@ -6,12 +6,13 @@ import json
 import os
 import platform
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+sys.stdout.reconfigure(line_buffering=True)  # figures appear as they are measured, even when piped
 
 
 def median_rate(run: Callable[[], int], repeats: int = 5) -> float:
@@ -27,7 +28,12 @@ def median_rate(run: Callable[[], int], repeats: int = 5) -> float:
 def machine() -> dict[str, Any]:
     import mujoco
 
-    return {"python": platform.python_version(), "mujoco": mujoco.__version__, "cpus": os.cpu_count(), "machine": platform.machine()}
+    return {
+        "python": platform.python_version(),
+        "mujoco": mujoco.__version__,
+        "cpus": os.cpu_count(),
+        "machine": platform.machine(),
+    }
 
 
 class Results:

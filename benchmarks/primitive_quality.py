@@ -17,17 +17,18 @@ saved atomically after each section; ``--resume`` skips finished sections.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections import Counter
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._common import Results  # noqa: E402  (sets MUJOCO_GL first)
+os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first mujoco import
 
 import numpy as np  # noqa: E402
 
 from agents.oracle_tower import PUSH_DIRECTIONS, blocks_displaced, build_tower, push_tower  # noqa: E402
+from benchmarks._common import Results  # noqa: E402
 from panda_grasp_env.primitives import grasp  # noqa: E402
 from panda_grasp_env.scene import SceneConfig  # noqa: E402
 from panda_grasp_env.workcell import Workcell  # noqa: E402
@@ -136,7 +137,9 @@ def main(argv: list[str] | None = None) -> None:
     g = results.section("grasp_isolated_cube", lambda: grasp_isolated(args.grasps))
     print(f"grasp, isolated 5 cm cube:     {_fmt(g)}  reasons {g['reasons']}   (goal >= 98 %)")
     d = results.section("tower_drift_10s", lambda: tower_drift(args.drift))
-    print(f"reset tower, 10 s untouched:   max drift {d['max_drift_mm']:.3f} mm, median {d['median_drift_mm']:.3f} mm over {d['n']}   (goal < 2 mm)")
+    print(
+        f"reset tower, 10 s untouched:   max drift {d['max_drift_mm']:.3f} mm, median {d['median_drift_mm']:.3f} mm over {d['n']}   (goal < 2 mm)"
+    )
     t = results.section("oracle_tower_build", lambda: oracle_towers(args.towers))
     print(
         f"oracle 4-block tower:          {_fmt(t)}  mean actions {t['mean_actions']:.2f}, "
@@ -145,7 +148,9 @@ def main(argv: list[str] | None = None) -> None:
     )
     p = results.section("push_tower", lambda: pushes(args.pushes))
     for direction, figures in p.items():
-        print(f"push {direction} displaces >= 2:    {_fmt(figures)}  mean displaced {figures['mean_blocks_displaced']:.2f}   (goal >= 95 %)")
+        print(
+            f"push {direction} displaces >= 2:    {_fmt(figures)}  mean displaced {figures['mean_blocks_displaced']:.2f}   (goal >= 95 %)"
+        )
     det = results.section("determinism", determinism)
     print(f"same seed -> bit-identical state: {det['bit_identical']}")
     print(f"saved {args.out}")

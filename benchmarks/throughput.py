@@ -16,16 +16,17 @@ Every figure is the median of ``--repeats`` runs.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._common import Results, median_rate  # noqa: E402  (sets MUJOCO_GL first)
+os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first mujoco import
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
+from benchmarks._common import Results, median_rate  # noqa: E402
 from panda_grasp_env.primitives import grasp, place  # noqa: E402
 from panda_grasp_env.rendering import CameraRenderer  # noqa: E402
 from panda_grasp_env.workcell import Workcell  # noqa: E402

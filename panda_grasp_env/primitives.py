@@ -28,7 +28,17 @@ MIN_LIFT = 0.05  # a grasp succeeds only if the object rose at least this much
 HOLD_TIME = 0.5  # ... and stayed held this long, seconds
 SLOW_SPEED = 0.12  # m/s for the last approach and pushes
 PLACE_SPEED = 0.04  # m/s while lowering a held object to contact
-REASONS = ("ok", "missed", "dropped", "unreachable", "collision", "out_of_workspace", "not_holding", "placed_off", "physics_error")
+REASONS = (
+    "ok",
+    "missed",
+    "dropped",
+    "unreachable",
+    "collision",
+    "out_of_workspace",
+    "not_holding",
+    "placed_off",
+    "physics_error",
+)
 
 
 @dataclass
@@ -86,7 +96,9 @@ def _lift_clear(cell: Workcell, height: float) -> None:
     """Rise vertically to at least ``height`` above the table before travelling."""
     position = cell.robot.ee_position
     if position[2] < height:
-        cell.move_to(np.array([position[0], position[1], height]), cell.robot.ee_yaw, settle_timeout=0.2, tolerance=0.02)
+        cell.move_to(
+            np.array([position[0], position[1], height]), cell.robot.ee_yaw, settle_timeout=0.2, tolerance=0.02
+        )
 
 
 def _fail(cell: Workcell, primitive: str, reason: str, obj: str | None = None) -> PrimitiveResult:
@@ -160,7 +172,11 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     cell.move_to(site_goal(0.01), yaw, speed=SLOW_SPEED, settle_timeout=0.3)
     contact_height = site_goal(0.0)
     cell.move_to(
-        contact_height - [0.0, 0.0, 0.02], yaw, speed=PLACE_SPEED, settle_timeout=0.2, stop_when=lambda: cell.touches_world(body)
+        contact_height - [0.0, 0.0, 0.02],
+        yaw,
+        speed=PLACE_SPEED,
+        settle_timeout=0.2,
+        stop_when=lambda: cell.touches_world(body),
     )
     cell.actuate_gripper(close=False, timeout=0.5)
     _lift_clear(cell, cell.robot.ee_position[2] + 0.08)

@@ -84,6 +84,12 @@ class CameraRenderer:
     def close(self) -> None:
         self._renderer.close()
 
+    def __enter__(self) -> CameraRenderer:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
 
 class RenderCache:
     """One renderer per (width, height, profile), created on first use."""

@@ -19,7 +19,9 @@ class VideoRecorder:
     The video plays in real time: its frame rate is the control rate / ``every``.
     """
 
-    def __init__(self, cell: Workcell, camera: str = "front", width: int = 640, height: int = 480, every: int = 2) -> None:
+    def __init__(
+        self, cell: Workcell, camera: str = "front", width: int = 640, height: int = 480, every: int = 2
+    ) -> None:
         self.cell = cell
         self.camera = camera
         self.every = every

@@ -169,7 +169,8 @@ class Workcell:
             self.controller.set_goal(position, yaw)
             goal = self.controller.goal_position
             travel_time = max(
-                self.controller.reference_error / limits.linear_speed, self.controller.reference_turn / limits.angular_speed
+                self.controller.reference_error / limits.linear_speed,
+                self.controller.reference_turn / limits.angular_speed,
             )
             travel_steps = int(np.ceil(travel_time / self.control_dt))
             settle_steps = int(np.ceil(settle_timeout / self.control_dt))

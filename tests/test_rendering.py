@@ -25,12 +25,9 @@ def test_every_camera_renders_all_modalities(tower_cell, camera):
 
 
 def test_overhead_sees_the_blocks_with_metric_depth(tower_cell):
-    renderer = CameraRenderer(tower_cell.model, 640, 480, "fast")
-    try:
+    with CameraRenderer(tower_cell.model, 640, 480, "fast") as renderer:
         segmentation = renderer.render(tower_cell.data, "overhead", "segmentation")
         depth = renderer.render(tower_cell.data, "overhead", "depth")
-    finally:
-        renderer.close()
     top = int(np.argmax(tower_cell.block_positions()[:, 2]))
     top_geom = tower_cell.model.body_geomadr[tower_cell.block_ids[top]]
     mask = segmentation == top_geom
@@ -42,14 +39,12 @@ def test_overhead_sees_the_blocks_with_metric_depth(tower_cell):
 
 
 def test_fast_profile_draws_collision_geoms_pretty_draws_visual_meshes(tower_cell):
-    fast = CameraRenderer(tower_cell.model, 64, 48, "fast")
-    pretty = CameraRenderer(tower_cell.model, 64, 48, "pretty")
-    try:
+    with (
+        CameraRenderer(tower_cell.model, 64, 48, "fast") as fast,
+        CameraRenderer(tower_cell.model, 64, 48, "pretty") as pretty,
+    ):
         seg_fast = fast.render(tower_cell.data, "front", "segmentation")
         seg_pretty = pretty.render(tower_cell.data, "front", "segmentation")
-    finally:
-        fast.close()
-        pretty.close()
     groups = tower_cell.model.geom_group
     assert set(groups[np.unique(seg_fast[seg_fast >= 0])]) <= {0, 2}
     assert set(groups[np.unique(seg_pretty[seg_pretty >= 0])]) <= {0, 1}
@@ -60,9 +55,5 @@ def test_bad_render_arguments(tower_cell):
         CameraRenderer(tower_cell.model, 64, 64, "cinematic")
     with pytest.raises(ValueError, match="width"):
         CameraRenderer(tower_cell.model, 0, 64)
-    renderer = CameraRenderer(tower_cell.model, 32, 32)
-    try:
-        with pytest.raises(ValueError, match="modality"):
-            renderer.render(tower_cell.data, "front", "infrared")
-    finally:
-        renderer.close()
+    with CameraRenderer(tower_cell.model, 32, 32) as renderer, pytest.raises(ValueError, match="modality"):
+        renderer.render(tower_cell.data, "front", "infrared")
