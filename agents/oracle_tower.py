@@ -89,16 +89,21 @@ def build_tower(cell: Workcell) -> TowerOutcome:
     return outcome
 
 
+def tower_footprint_centre(cell: Workcell) -> np.ndarray:
+    """(x, y) of the lowest block: the centre of a standing tower's footprint, metres."""
+    positions = cell.block_positions()
+    return positions[int(np.argmin(positions[:, 2])), :2].copy()
+
+
 def push_tower(cell: Workcell, direction: str, distance: float = 0.16) -> PrimitiveResult:
     """Push the standing tower with the closed gripper at mid-height, towards ``direction`` (one of PUSH_DIRECTIONS)."""
     if direction not in PUSH_DIRECTIONS:
         raise ValueError(f"unknown push direction {direction!r}; valid: {list(PUSH_DIRECTIONS)}")
-    positions = cell.block_positions()
-    centre = positions[int(np.argmin(positions[:, 2])), :2]
+    centre = tower_footprint_centre(cell)
     heading = PUSH_DIRECTIONS[direction]
     unit = np.array([np.cos(heading), np.sin(heading)])
     start = centre - unit * (cell.config.block_size / 2 + 0.04)
-    height = min(positions[:, 2].max() / 2 + 0.01, 0.12)
+    height = min(cell.block_positions()[:, 2].max() / 2 + 0.01, 0.12)
     return push(cell, start[0], start[1], height, heading, distance)
 
 

@@ -27,7 +27,13 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede th
 
 import numpy as np  # noqa: E402
 
-from agents.oracle_tower import PUSH_DIRECTIONS, blocks_displaced, build_tower, push_tower  # noqa: E402
+from agents.oracle_tower import (  # noqa: E402
+    PUSH_DIRECTIONS,
+    blocks_displaced,
+    build_tower,
+    push_tower,
+    tower_footprint_centre,
+)
 from benchmarks._common import Results  # noqa: E402
 from panda_grasp_env.primitives import grasp  # noqa: E402
 from panda_grasp_env.scene import SceneConfig  # noqa: E402
@@ -97,7 +103,7 @@ def pushes(trials: int) -> dict:
         knocked, displaced_counts = 0, []
         for seed in range(trials):
             cell.reset(np.random.default_rng(10_000 * (offset + 1) + seed), "tower")
-            centre = cell.block_positions()[int(np.argmin(cell.block_positions()[:, 2])), :2].copy()
+            centre = tower_footprint_centre(cell)
             push_tower(cell, direction)
             cell.wait(1.0)
             displaced = blocks_displaced(cell, centre)

@@ -69,6 +69,7 @@ class CartesianController:
         self.reference_yaw = 0.0
         self.goal_position = np.zeros(3)
         self.goal_yaw = 0.0
+        self.goal_speed = self.limits.linear_speed
 
     def sync(self, arm_qpos: np.ndarray) -> None:
         """Re-seed the commanded configuration and reference pose from measured joints."""
@@ -86,14 +87,28 @@ class CartesianController:
         self.goal_position = self.reference_position.copy()
         self.goal_yaw = self.reference_yaw
 
-    def set_goal(self, position: np.ndarray, yaw: float) -> None:
+    def set_goal(self, position: np.ndarray, yaw: float, speed: float | None = None) -> None:
         """New goal: grasp site at ``position`` (world, metres), pointing down, closing axis at ``yaw``.
 
+        The reference travels there at ``speed`` m/s (default and cap: ``limits.linear_speed``).
         A parallel gripper is symmetric under a half turn, so ``yaw`` is wrapped
         into the half-turn window that keeps joint 7 near the middle of its range.
         """
         self.goal_position = np.asarray(position, dtype=float).copy()
         self.goal_yaw = wrap_gripper_yaw(yaw, self.goal_position)
+        self.goal_speed = self.limits.linear_speed if speed is None else min(speed, self.limits.linear_speed)
+
+    def stop(self) -> None:
+        """Make the current reference the goal: the hand stays where it is commanded now."""
+        self.goal_position = self.reference_position.copy()
+        self.goal_yaw = self.reference_yaw
+
+    @property
+    def time_to_goal(self) -> float:
+        """Seconds the speed-limited reference still needs to reach the goal."""
+        return max(
+            self.reference_error / self.goal_speed, abs(self.goal_yaw - self.reference_yaw) / self.limits.angular_speed
+        )
 
     @property
     def commanded_qpos(self) -> np.ndarray:
@@ -104,16 +119,11 @@ class CartesianController:
         """Distance between the speed-limited reference and the goal, metres."""
         return float(np.linalg.norm(self.goal_position - self.reference_position))
 
-    @property
-    def reference_turn(self) -> float:
-        """Yaw the reference still has to turn to reach the goal, radians."""
-        return abs(self.goal_yaw - self.reference_yaw)
-
     def step(self, dt: float) -> np.ndarray:
         """Advance the reference by ``dt`` seconds towards the goal and return arm joint targets (7,)."""
         offset = self.goal_position - self.reference_position
         distance = np.linalg.norm(offset)
-        max_step = self.limits.linear_speed * dt
+        max_step = self.goal_speed * dt
         if distance > max_step:
             offset *= max_step / distance
         self.reference_position = self.reference_position + offset

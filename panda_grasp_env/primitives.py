@@ -13,6 +13,7 @@ of motion for push.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -73,6 +74,7 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
     """Validate arguments, measure simulated time/steps and turn divergence into a result."""
     names = fn.__code__.co_varnames[1 : fn.__code__.co_argcount]
 
+    @functools.wraps(fn)
     def wrapper(cell: Workcell, *args: float) -> PrimitiveResult:
         if len(args) != len(names):
             raise ValueError(f"{fn.__name__} takes {len(names)} arguments {list(names)}, got {len(args)}")
@@ -87,8 +89,6 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
         result.params = dict(zip(names, values))
         return result
 
-    wrapper.__name__ = fn.__name__
-    wrapper.__doc__ = fn.__doc__
     return wrapper
 
 

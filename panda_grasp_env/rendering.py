@@ -45,6 +45,10 @@ class CameraRenderer:
         finally:
             model.vis.quality.offsamples = authored_samples
         self.width, self.height = width, height
+        # Scene flags persist across update_scene calls: set them once.
+        fancy = profile == "pretty"
+        self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = fancy
+        self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = fancy
         self.option = mujoco.MjvOption()
         self.option.geomgroup[:] = 0
         for group in _GEOM_GROUPS[profile]:
@@ -68,10 +72,6 @@ class CameraRenderer:
         """One frame: ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 metres, ``segmentation`` (H, W) int32 geom ids."""
         self._set_mode(modality)
         self._renderer.update_scene(data, camera=camera, scene_option=self.option)
-        flags = self._renderer.scene.flags
-        fancy = self.profile == "pretty"
-        flags[mujoco.mjtRndFlag.mjRND_SHADOW] = fancy
-        flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = fancy
         image = self._renderer.render()
         if modality == "depth":
             return image.astype(np.float32, copy=False)

@@ -82,7 +82,6 @@ class Workcell:
         self.block_names = self.config.block_names
         self.block_ids = np.array([self.model.body(n).id for n in self.block_names])
         self.block_qpos_adr = np.array([self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.block_ids])
-        self.block_qvel_adr = np.array([self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.block_ids])
         self.physics_steps = 0
         #: Called with the workcell after every control step (video recording, logging).
         self.step_hooks: list[Callable[[Workcell], None]] = []
@@ -98,18 +97,10 @@ class Workcell:
         """Block centres (n, 3), world frame, metres."""
         return self.data.xpos[self.block_ids].copy()
 
-    def block_quaternions(self) -> np.ndarray:
-        """Block orientations (n, 4) as (w, x, y, z) quaternions."""
-        return self.data.xquat[self.block_ids].copy()
-
     def block_yaws(self) -> np.ndarray:
         """Heading of each block's x axis about world z, radians."""
         x_axes = self.data.xmat[self.block_ids].reshape(-1, 3, 3)[:, :, 0]
         return np.arctan2(x_axes[:, 1], x_axes[:, 0])
-
-    def block_speeds(self) -> np.ndarray:
-        """Linear speed of each block, m/s."""
-        return np.array([np.linalg.norm(self.data.qvel[a : a + 3]) for a in self.block_qvel_adr])
 
     def name_of(self, body_id: int | None) -> str | None:
         return None if body_id is None else mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_BODY, body_id)
@@ -130,7 +121,8 @@ class Workcell:
         """Advance the physics ``n_steps`` steps with the current controls; raise PhysicsError on divergence."""
         mujoco.mj_step(self.model, self.data, nstep=n_steps)
         self.physics_steps += n_steps
-        if any(self.data.warning[w].number for w in _WARNINGS) or not np.isfinite(self.data.qacc).all():
+        # MuJoCo's own checks catch NaN/inf and runaway values (and reset the data when they fire).
+        if any(self.data.warning[w].number for w in _WARNINGS):
             raise PhysicsError("simulation diverged (MuJoCo reported bad qpos/qvel/qacc)")
         for hook in self.step_hooks:
             hook(self)
@@ -157,32 +149,22 @@ class Workcell:
     ) -> MoveOutcome:
         """Drive the grasp site in a straight line to ``position`` with closing-axis heading ``yaw``.
 
-        The reference moves at ``speed`` m/s (default: the controller's limit).
+        The reference moves at ``speed`` m/s (default and cap: the controller's limit).
         Returns once within ``tolerance`` metres of the goal at rest, after the
         settle timeout, or as soon as ``stop_when()`` is true.
         """
-        limits = self.controller.limits
-        default_speed = limits.linear_speed
-        if speed is not None:
-            limits.linear_speed = speed
-        try:
-            self.controller.set_goal(position, yaw)
-            goal = self.controller.goal_position
-            travel_time = max(
-                self.controller.reference_error / limits.linear_speed,
-                self.controller.reference_turn / limits.angular_speed,
-            )
-            travel_steps = int(np.ceil(travel_time / self.control_dt))
-            settle_steps = int(np.ceil(settle_timeout / self.control_dt))
-            for i in range(travel_steps + 4 + settle_steps):
-                self.control_step()
-                if stop_when is not None and stop_when():
-                    break
-                error = float(np.linalg.norm(self.robot.ee_position - goal))
-                if i >= travel_steps and error < tolerance and np.abs(self.robot.joint_velocities).max() < 0.05:
-                    break
-        finally:
-            limits.linear_speed = default_speed
+        self.controller.set_goal(position, yaw, speed)
+        goal = self.controller.goal_position
+        travel_steps = int(np.ceil(self.controller.time_to_goal / self.control_dt))
+        settle_steps = int(np.ceil(settle_timeout / self.control_dt))
+        for i in range(travel_steps + 4 + settle_steps):
+            self.control_step()
+            if stop_when is not None and stop_when():
+                self.controller.stop()  # don't keep driving towards the goal after stopping
+                break
+            error = float(np.linalg.norm(self.robot.ee_position - goal))
+            if i >= travel_steps and error < tolerance and np.abs(self.robot.joint_velocities).max() < 0.05:
+                break
         error = float(np.linalg.norm(self.robot.ee_position - goal))
         return MoveOutcome(reached=error < tolerance, error=error)
 
@@ -227,8 +209,6 @@ class Workcell:
         order, at a random spot and yaw).  All randomness comes from ``rng``.
         """
         mujoco.mj_resetData(self.model, self.data)  # also clears warm-starts and warnings
-        self.physics_steps = 0
-        self.robot.set_home()
         if layout == "scattered":
             positions, yaws = scattered_layout(rng, len(self.block_ids), self.config.block_size)
         elif layout == "tower":
@@ -238,8 +218,7 @@ class Workcell:
         for adr, position, yaw in zip(self.block_qpos_adr, positions, yaws):
             self.data.qpos[adr : adr + 3] = position
             self.data.qpos[adr + 3 : adr + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
-        mujoco.mj_forward(self.model, self.data)
-        self.controller.sync(self.robot.joint_positions)
+        self.reset_robot()
         if settle > 0:
             self.wait(settle)
         self.data.time = 0.0
