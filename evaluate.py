@@ -21,7 +21,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-from agents.oracle_tower import blocks_displaced, build_tower, push_tower, tower_footprint_centre  # noqa: E402
+from agents.oracle_tower import build_tower, push_tower  # noqa: E402
+from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
 from panda_grasp_env.video import VideoRecorder  # noqa: E402
 from panda_grasp_env.workcell import Workcell  # noqa: E402
 
@@ -49,12 +50,12 @@ def main(argv: list[str] | None = None) -> int:
         for step in build.steps:
             print(f"  {step.primitive:6s} {step.object or '':13s} {step.reason:12s} {step.sim_time:5.2f} s simulated")
         print(f"tower built: {build.success} (max yaw error {build.max_yaw_error_deg:.2f} deg)")
-        centre = tower_footprint_centre(cell)
+        centre = tower_footprint_centre(cell.block_positions())
         if recorder:
             recorder.caption = f"break: push {args.push}"
         push_result = push_tower(cell, args.push)
         cell.wait(1.5)
-        displaced = blocks_displaced(cell, centre)
+        displaced = blocks_displaced(cell.block_positions(), centre, cell.config.block_size)
         print(f"push {args.push}: {push_result.reason}, {displaced} blocks displaced")
     finally:
         if recorder:

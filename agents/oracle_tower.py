@@ -13,15 +13,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from panda_grasp_env.primitives import PrimitiveResult, grasp, place, push
+from panda_grasp_env.stacking import tower_footprint_centre, tower_is_built, wrap_quarter_turn
 from panda_grasp_env.workcell import Workcell
 
 #: The four push directions of the source study, as headings about world z (radians).
 PUSH_DIRECTIONS = {"+x": 0.0, "+y": np.pi / 2, "-x": np.pi, "-y": -np.pi / 2}
-
-
-def wrap_quarter_turn(angle: np.ndarray | float) -> np.ndarray | float:
-    """Angle modulo a cube's 90 degree symmetry, into [-pi/4, pi/4)."""
-    return (np.asarray(angle) + np.pi / 4) % (np.pi / 2) - np.pi / 4
 
 
 @dataclass
@@ -52,17 +48,6 @@ def clearest_grasp_yaw(cell: Workcell, index: int) -> float:
     return min((yaw, yaw + np.pi / 2), key=crowding)
 
 
-def tower_is_built(cell: Workcell, base_index: int, tolerance: float | None = None) -> bool:
-    """All blocks stacked on the base: centred within ``tolerance`` (default a fifth of the block size), consecutive heights."""
-    size = cell.config.block_size
-    tolerance = size / 5 if tolerance is None else tolerance
-    positions = cell.block_positions()
-    centred = np.linalg.norm(positions[:, :2] - positions[base_index, :2], axis=1) <= tolerance
-    heights = np.sort(positions[:, 2]) - positions[base_index, 2]
-    stacked = np.allclose(heights, size * np.arange(len(positions)), atol=size / 10)
-    return bool(centred.all() and stacked)
-
-
 def build_tower(cell: Workcell) -> TowerOutcome:
     """Stack every block on the one nearest the workspace centre, yaw-aligned to it."""
     positions = cell.block_positions()
@@ -85,29 +70,17 @@ def build_tower(cell: Workcell) -> TowerOutcome:
             return outcome
         stacked.append(index)
     outcome.max_yaw_error_deg = float(np.degrees(np.abs(wrap_quarter_turn(cell.block_yaws() - base_yaw))).max())
-    outcome.success = tower_is_built(cell, base)
+    outcome.success = tower_is_built(cell.block_positions(), base, cell.config.block_size)
     return outcome
-
-
-def tower_footprint_centre(cell: Workcell) -> np.ndarray:
-    """(x, y) of the lowest block: the centre of a standing tower's footprint, metres."""
-    positions = cell.block_positions()
-    return positions[int(np.argmin(positions[:, 2])), :2].copy()
 
 
 def push_tower(cell: Workcell, direction: str, distance: float = 0.16) -> PrimitiveResult:
     """Push the standing tower with the closed gripper at mid-height, towards ``direction`` (one of PUSH_DIRECTIONS)."""
     if direction not in PUSH_DIRECTIONS:
         raise ValueError(f"unknown push direction {direction!r}; valid: {list(PUSH_DIRECTIONS)}")
-    centre = tower_footprint_centre(cell)
+    centre = tower_footprint_centre(cell.block_positions())
     heading = PUSH_DIRECTIONS[direction]
     unit = np.array([np.cos(heading), np.sin(heading)])
     start = centre - unit * (cell.config.block_size / 2 + 0.04)
     height = min(cell.block_positions()[:, 2].max() / 2 + 0.01, 0.12)
     return push(cell, start[0], start[1], height, heading, distance)
-
-
-def blocks_displaced(cell: Workcell, footprint_centre: np.ndarray) -> int:
-    """Number of blocks whose centre is at least one block size (horizontally) away from the tower's footprint centre."""
-    offsets = np.linalg.norm(cell.block_positions()[:, :2] - footprint_centre, axis=1)
-    return int(np.sum(offsets >= cell.config.block_size))

@@ -27,16 +27,11 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede th
 
 import numpy as np  # noqa: E402
 
-from agents.oracle_tower import (  # noqa: E402
-    PUSH_DIRECTIONS,
-    blocks_displaced,
-    build_tower,
-    push_tower,
-    tower_footprint_centre,
-)
+from agents.oracle_tower import PUSH_DIRECTIONS, build_tower, push_tower  # noqa: E402
 from benchmarks._common import Results  # noqa: E402
 from panda_grasp_env.primitives import grasp  # noqa: E402
 from panda_grasp_env.scene import SceneConfig  # noqa: E402
+from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
 from panda_grasp_env.workcell import Workcell  # noqa: E402
 
 
@@ -103,10 +98,10 @@ def pushes(trials: int) -> dict:
         knocked, displaced_counts = 0, []
         for seed in range(trials):
             cell.reset(np.random.default_rng(10_000 * (offset + 1) + seed), "tower")
-            centre = tower_footprint_centre(cell)
+            centre = tower_footprint_centre(cell.block_positions())
             push_tower(cell, direction)
             cell.wait(1.0)
-            displaced = blocks_displaced(cell, centre)
+            displaced = blocks_displaced(cell.block_positions(), centre, cell.config.block_size)
             displaced_counts.append(displaced)
             knocked += displaced >= 2
         figures[direction] = rate(knocked, trials) | {"mean_blocks_displaced": float(np.mean(displaced_counts))}

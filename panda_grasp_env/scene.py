@@ -33,6 +33,7 @@ PAD_PROTRUSION = 0.0035
 #: Maximum distance between the finger pads when fully open (each finger slides 0-0.04 m).
 MAX_FINGER_GAP = 0.08 - 2 * PAD_PROTRUSION
 CAMERA_NAMES = ("overhead", "front", "wrist")
+MAX_OBJECTS = 30
 
 DEFAULT_COLOURS: dict[str, tuple[float, float, float]] = {
     "red": (0.85, 0.12, 0.10),
@@ -56,6 +57,9 @@ class SceneConfig:
     """Everything that shapes the MuJoCo model.  Lengths in metres, masses in kg."""
 
     n_blocks: int = 4
+    #: Free objects of variable shape (``object_<i>``) for grasping tasks; their
+    #: shape, size and colour are set at each reset (see ``panda_grasp_env.objects``).
+    n_objects: int = 0
     block_size: float = 0.05
     block_mass: float = 0.1
     #: Sliding, torsional and rolling friction coefficients of the blocks.
@@ -74,10 +78,14 @@ class SceneConfig:
     )
 
     def __post_init__(self) -> None:
-        if not isinstance(self.n_blocks, int) or not 1 <= self.n_blocks <= len(self.colours):
+        if not isinstance(self.n_blocks, int) or not 0 <= self.n_blocks <= len(self.colours):
             raise ValueError(
-                f"n_blocks must be an int between 1 and the number of colours ({len(self.colours)}), got {self.n_blocks!r}"
+                f"n_blocks must be an int between 0 and the number of colours ({len(self.colours)}), got {self.n_blocks!r}"
             )
+        if not isinstance(self.n_objects, int) or not 0 <= self.n_objects <= MAX_OBJECTS:
+            raise ValueError(f"n_objects must be an int between 0 and {MAX_OBJECTS}, got {self.n_objects!r}")
+        if self.n_blocks + self.n_objects == 0:
+            raise ValueError("the scene needs at least one block or object")
         for name in ("block_size", "block_mass", "gripper_force", "timestep"):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
@@ -93,6 +101,10 @@ class SceneConfig:
     @property
     def block_names(self) -> list[str]:
         return [f"block_{colour}" for colour in list(self.colours)[: self.n_blocks]]
+
+    @property
+    def object_names(self) -> list[str]:
+        return [f"object_{i}" for i in range(self.n_objects)]
 
 
 def franka_asset_dir() -> Path:
@@ -246,6 +258,8 @@ def build_spec(config: SceneConfig, with_environment: bool = True) -> mujoco.MjS
     for geom in spec.geoms:
         if geom.name.endswith("_pad") or geom.contype or geom.conaffinity:
             geom.group = 2
+            # Opaque, so they write depth in RGB-D renders (translucent geoms don't).
+            geom.rgba = [*geom.rgba[:3], 1.0]
         else:
             geom.group = 1
 
@@ -304,6 +318,21 @@ def _add_environment(spec: mujoco.MjSpec, config: SceneConfig) -> None:
         geom.friction = list(config.block_friction)
         geom.rgba = [*colour, 1.0]
         geom.condim = 3
+
+    for name in config.object_names:
+        # Placeholder shape: tasks set type, size, mass and colour at reset (Workcell.set_object_shape).
+        body = world.add_body()
+        body.name = name
+        body.pos = [0.5, 0.0, half]
+        joint = body.add_freejoint()
+        joint.name = f"{name}_joint"
+        geom = body.add_geom()
+        geom.name = f"{name}_geom"
+        geom.type = mujoco.mjtGeom.mjGEOM_BOX
+        geom.size = [half, half, half]
+        geom.mass = config.block_mass
+        geom.friction = list(config.block_friction)
+        geom.condim = 6  # rolling friction stops spheres and capsules rolling away forever
 
     overhead = world.add_camera()
     overhead.name = "overhead"

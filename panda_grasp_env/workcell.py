@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.controller import CartesianController, ControllerLimits
+from panda_grasp_env.objects import ObjectShape, apply_shape
 from panda_grasp_env.robot import HOME_QPOS, PandaRobot
 from panda_grasp_env.scene import SceneConfig, build_spec
 
@@ -21,6 +22,9 @@ from panda_grasp_env.scene import SceneConfig, build_spec
 WORKSPACE = np.array([[0.25, 0.75], [-0.35, 0.35], [0.0, 0.45]])
 #: Region in which reset places blocks (inside WORKSPACE with a margin).
 SPAWN_REGION = np.array([[0.35, 0.65], [-0.22, 0.22]])
+#: Where removed objects wait, out of every camera's view: a row on the floor beside the table.
+PARKING_ORIGIN = np.array([-1.0, -1.8, -0.75])
+PARKING_SPACING = 0.15
 _WARNINGS = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL)
 
 
@@ -80,8 +84,12 @@ class Workcell:
         self.robot = PandaRobot(self.model, self.data)
         self.controller = CartesianController(self.config, limits)
         self.block_names = self.config.block_names
-        self.block_ids = np.array([self.model.body(n).id for n in self.block_names])
-        self.block_qpos_adr = np.array([self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.block_ids])
+        self.block_ids = np.array([self.model.body(n).id for n in self.block_names], dtype=int)
+        #: Every free body: the coloured blocks, then the variable-shape object slots.
+        self.object_names = self.block_names + self.config.object_names
+        self.object_ids = np.array([self.model.body(n).id for n in self.object_names], dtype=int)
+        self._qpos_adr = {b: self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.object_ids}
+        self._dof_adr = {b: self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.object_ids}
         self.physics_steps = 0
         #: Called with the workcell after every control step (video recording, logging).
         self.step_hooks: list[Callable[[Workcell], None]] = []
@@ -96,6 +104,14 @@ class Workcell:
     def block_positions(self) -> np.ndarray:
         """Block centres (n, 3), world frame, metres."""
         return self.data.xpos[self.block_ids].copy()
+
+    def object_positions(self) -> np.ndarray:
+        """Centres (n, 3) of all free bodies (blocks, then object slots), world frame, metres."""
+        return self.data.xpos[self.object_ids].copy()
+
+    def is_parked(self, body_id: int) -> bool:
+        """Whether a free body is off the table (parked, fallen or pushed off)."""
+        return bool(self.data.xpos[body_id][2] < -0.1)
 
     def block_yaws(self) -> np.ndarray:
         """Heading of each block's x axis about world z, radians."""
@@ -194,6 +210,26 @@ class Workcell:
             if still >= 3:
                 break
 
+    # --- objects -----------------------------------------------------------
+    def set_body_pose(self, body_id: int, position: np.ndarray, quaternion: np.ndarray | None = None) -> None:
+        """Teleport a free body to ``position`` (world, metres) with ``quaternion`` (w, x, y, z), at rest."""
+        adr, dof = self._qpos_adr[body_id], self._dof_adr[body_id]
+        self.data.qpos[adr : adr + 3] = position
+        self.data.qpos[adr + 3 : adr + 7] = [1.0, 0.0, 0.0, 0.0] if quaternion is None else quaternion
+        self.data.qvel[dof : dof + 6] = 0.0
+
+    def park(self, body_id: int) -> None:
+        """Set a free body aside: onto the floor beside the table, out of view and out of the way."""
+        slot = int(np.flatnonzero(self.object_ids == body_id)[0])
+        lift = self.model.geom_rbound[self.model.body_geomadr[body_id]] + 0.002
+        self.set_body_pose(body_id, PARKING_ORIGIN + [slot * PARKING_SPACING, 0.0, lift])
+
+    def set_object_shapes(self, shapes: dict[int, ObjectShape]) -> None:
+        """Give object slots (body id -> shape) new shapes; the model's derived constants are recomputed."""
+        for body_id, shape in shapes.items():
+            apply_shape(self.model, body_id, shape)
+        mujoco.mj_setConst(self.model, self.data)
+
     # --- reset -------------------------------------------------------------
     def reset_robot(self) -> None:
         """Robot at home, at rest, gripper open; controller state cleared."""
@@ -201,28 +237,48 @@ class Workcell:
         mujoco.mj_forward(self.model, self.data)
         self.controller.sync(self.robot.joint_positions)
 
-    def reset(self, rng: np.random.Generator, layout: str = "scattered", settle: float = 0.3) -> None:
-        """Reset physics, robot and blocks.
-
-        ``layout``: ``"scattered"`` (blocks apart at random positions and yaws in
-        the spawn region) or ``"tower"`` (all blocks stacked, in random colour
-        order, at a random spot and yaw).  All randomness comes from ``rng``.
-        """
+    def clear(self) -> None:
+        """Fresh physics state: every free body parked, robot at home, time zero."""
         mujoco.mj_resetData(self.model, self.data)  # also clears warm-starts and warnings
+        for body_id in self.object_ids:
+            self.park(body_id)
+        self.reset_robot()
+        self.physics_steps = 0
+
+    def settle(self, seconds: float) -> None:
+        """Let the scene come to rest for ``seconds``, then restart the clock (time and step count at zero)."""
+        if seconds > 0:
+            self.wait(seconds)
+        self.data.time = 0.0
+        self.physics_steps = 0
+
+    def place_blocks(self, rng: np.random.Generator, layout: str = "scattered") -> None:
+        """Put the coloured blocks on the table in a ``"scattered"`` or ``"tower"`` layout drawn from ``rng``."""
         if layout == "scattered":
             positions, yaws = scattered_layout(rng, len(self.block_ids), self.config.block_size)
         elif layout == "tower":
             positions, yaws = tower_layout(rng, len(self.block_ids), self.config.block_size)
         else:
             raise ValueError(f"unknown layout {layout!r}; valid: ['scattered', 'tower']")
-        for adr, position, yaw in zip(self.block_qpos_adr, positions, yaws):
-            self.data.qpos[adr : adr + 3] = position
-            self.data.qpos[adr + 3 : adr + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
-        self.reset_robot()
-        if settle > 0:
-            self.wait(settle)
-        self.data.time = 0.0
-        self.physics_steps = 0
+        for body_id, position, yaw in zip(self.block_ids, positions, yaws):
+            self.set_body_pose(body_id, position, yaw_quaternion(yaw))
+        mujoco.mj_forward(self.model, self.data)
+
+    def reset(self, rng: np.random.Generator, layout: str = "scattered", settle: float = 0.3) -> None:
+        """Reset physics and robot and lay the blocks out (see ``place_blocks``); all randomness from ``rng``.
+
+        ``layout``: ``"scattered"`` (blocks apart at random positions and yaws in
+        the spawn region) or ``"tower"`` (all blocks stacked, in random colour
+        order, at a random spot and yaw).
+        """
+        self.clear()
+        self.place_blocks(rng, layout)
+        self.settle(settle)
+
+
+def yaw_quaternion(yaw: float) -> np.ndarray:
+    """Quaternion (w, x, y, z) of a rotation by ``yaw`` radians about world z."""
+    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
 
 
 def scattered_layout(

@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
 
-from agents.oracle_tower import PUSH_DIRECTIONS, blocks_displaced, build_tower, push_tower, wrap_quarter_turn
+from agents.oracle_tower import PUSH_DIRECTIONS, build_tower, push_tower
 from panda_grasp_env.primitives import REASONS, grasp, place, push, run_primitive
 from panda_grasp_env.robot import HOME_QPOS
+from panda_grasp_env.stacking import blocks_displaced, wrap_quarter_turn
 
 
 def _isolated_cube(cell, seed):
@@ -61,7 +62,7 @@ def test_push_knocks_the_tower_over(cell, direction):
     result = push_tower(cell, direction)
     cell.wait(1.0)
     assert result.success
-    assert blocks_displaced(cell, centre) >= 2
+    assert blocks_displaced(cell.block_positions(), centre, cell.config.block_size) >= 2
 
 
 @pytest.mark.parametrize(

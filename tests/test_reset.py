@@ -2,9 +2,9 @@ import itertools
 
 import numpy as np
 
-from agents.oracle_tower import tower_is_built
 from panda_grasp_env.primitives import grasp, place
 from panda_grasp_env.robot import HOME_QPOS
+from panda_grasp_env.stacking import tower_is_built
 from panda_grasp_env.workcell import SPAWN_REGION
 
 
@@ -21,7 +21,7 @@ def test_scattered_blocks_do_not_overlap_and_rest_on_the_table(cell):
 def test_reset_tower_stands_ten_seconds(cell):
     cell.reset(np.random.default_rng(7), "tower")
     base = int(np.argmin(cell.block_positions()[:, 2]))
-    assert tower_is_built(cell, base)
+    assert tower_is_built(cell.block_positions(), base, cell.config.block_size)
     before = cell.block_positions()
     cell.wait(10.0)
     assert np.linalg.norm(cell.block_positions() - before, axis=1).max() < 2e-3

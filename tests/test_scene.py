@@ -40,7 +40,9 @@ def test_scene_is_configurable():
 @pytest.mark.parametrize(
     "kwargs, culprit",
     [
-        ({"n_blocks": 0}, "n_blocks"),
+        ({"n_blocks": -1}, "n_blocks"),
+        ({"n_blocks": 0}, "at least one"),
+        ({"n_objects": 31}, "n_objects"),
         ({"n_blocks": 9}, "n_blocks"),
         ({"block_size": float("nan")}, "block_size"),
         ({"block_mass": -1.0}, "block_mass"),

@@ -1,0 +1,59 @@
+"""Tower geometry on true block poses: is a tower standing, how much of it, how broken.
+
+World frame, metres, radians.  Used by the tasks (success, progress) and by
+the oracle agents.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def wrap_quarter_turn(angle: np.ndarray | float) -> np.ndarray | float:
+    """Angle modulo a cube's 90 degree symmetry, into [-pi/4, pi/4)."""
+    return (np.asarray(angle) + np.pi / 4) % (np.pi / 2) - np.pi / 4
+
+
+def stack_height(
+    positions: np.ndarray, base: int, block_size: float, tolerance: float | None = None, order: list[int] | None = None
+) -> int:
+    """Number of blocks in the column standing on block ``base`` (the base counts; 0 if the base is off the table).
+
+    Level k (k = 1, 2, ...) is a block whose centre is within ``tolerance``
+    (default a fifth of the block size) of the base's in x, y and one block size
+    (+- 10 %) above the block of level k - 1.  With ``order`` (block indices
+    from the base up) only that order counts.
+    """
+    tolerance = block_size / 5 if tolerance is None else tolerance
+    base_position = positions[base]
+    if abs(base_position[2] - block_size / 2) > block_size / 10:
+        return 0
+    centred = np.linalg.norm(positions[:, :2] - base_position[:2], axis=1) <= tolerance
+    level, current = 1, base
+    while True:
+        expected = positions[current, 2] + block_size
+        candidates = [
+            i for i in range(len(positions)) if centred[i] and abs(positions[i, 2] - expected) <= block_size / 10
+        ]
+        if order is not None:
+            candidates = [i for i in candidates if level < len(order) and i == order[level]]
+        if not candidates:
+            return level
+        current = candidates[0]
+        level += 1
+
+
+def tower_is_built(positions: np.ndarray, base: int, block_size: float, tolerance: float | None = None) -> bool:
+    """All blocks stacked on ``base``: centred within ``tolerance``, consecutive heights."""
+    return stack_height(positions, base, block_size, tolerance) == len(positions)
+
+
+def tower_footprint_centre(positions: np.ndarray) -> np.ndarray:
+    """(x, y) of the lowest block: the centre of a standing tower's footprint, metres."""
+    return positions[int(np.argmin(positions[:, 2])), :2].copy()
+
+
+def blocks_displaced(positions: np.ndarray, footprint_centre: np.ndarray, block_size: float) -> int:
+    """Number of blocks whose centre is at least one block size (horizontally) from the footprint centre."""
+    offsets = np.linalg.norm(positions[:, :2] - footprint_centre, axis=1)
+    return int(np.sum(offsets >= block_size))

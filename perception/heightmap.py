@@ -1,0 +1,111 @@
+"""VPG-style top-down orthographic heightmaps from RGB-D images.
+
+Grid layout (matches the overhead camera's view, robot at the bottom):
+row ``i`` covers world x = ``x_max - (i + 0.5) * resolution`` and column ``j``
+covers world y = ``y_max - (j + 0.5) * resolution``.  Heights are metres above
+``z_min`` (the table top by default), clipped to ``[0, z_max - z_min]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from perception.camera import CameraModel
+
+#: VPG's workspace: a 0.448 m square in front of the robot (224 x 224 cells at 2 mm).
+DEFAULT_BOUNDS = ((0.276, 0.724), (-0.224, 0.224), (0.0, 0.3))
+
+
+@dataclass(frozen=True)
+class HeightmapGrid:
+    """A world-aligned grid over ``bounds`` ((x_min, x_max), (y_min, y_max), (z_min, z_max)) metres."""
+
+    bounds: tuple[tuple[float, float], tuple[float, float], tuple[float, float]] = DEFAULT_BOUNDS
+    resolution: float = 0.002  # metres per cell
+
+    def __post_init__(self) -> None:
+        b = np.asarray(self.bounds, dtype=float)
+        if b.shape != (3, 2) or not np.all(np.isfinite(b)) or np.any(b[:, 1] <= b[:, 0]):
+            raise ValueError(
+                f"heightmap bounds must be ((x0, x1), (y0, y1), (z0, z1)) with x0 < x1 ..., got {self.bounds}"
+            )
+        if not np.isfinite(self.resolution) or self.resolution <= 0:
+            raise ValueError(f"heightmap resolution must be a positive number of metres, got {self.resolution}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, columns)."""
+        (x0, x1), (y0, y1), _ = self.bounds
+        return int(round((x1 - x0) / self.resolution)), int(round((y1 - y0) / self.resolution))
+
+    def cell_centres(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """World (x, y) of cell centres, shape (..., 2)."""
+        (_, x1), (_, y1), _ = self.bounds
+        return np.stack(
+            [x1 - (np.asarray(rows) + 0.5) * self.resolution, y1 - (np.asarray(cols) + 0.5) * self.resolution], -1
+        )
+
+    def world_to_cell(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(row, column) indices of world points (..., 2); may lie outside the grid."""
+        (_, x1), (_, y1), _ = self.bounds
+        xy = np.asarray(xy, dtype=float)
+        return (
+            np.floor((x1 - xy[..., 0]) / self.resolution).astype(int),
+            np.floor((y1 - xy[..., 1]) / self.resolution).astype(int),
+        )
+
+
+def heightmap_from_points(
+    grid: HeightmapGrid, points: np.ndarray, colours: np.ndarray | None = None, fill_holes: bool = True
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Project world points (N, 3) (and their colours (N, 3) uint8) onto the grid, keeping the highest per cell.
+
+    Returns heights (rows, cols) float32 metres above ``z_min`` and colours
+    (rows, cols, 3) uint8 (or None).  Cells no point fell in are 0 (table) and
+    black; with ``fill_holes`` single-cell gaps between sampled points are
+    filled from their highest neighbour (the camera samples ~1 point per 2 mm
+    cell, so aliasing leaves such gaps).
+    """
+    rows_n, cols_n = grid.shape
+    (_, _), (_, _), (z0, z1) = grid.bounds
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    rows, cols = grid.world_to_cell(points[:, :2])
+    keep = (rows >= 0) & (rows < rows_n) & (cols >= 0) & (cols < cols_n) & np.isfinite(points[:, 2])
+    keep &= points[:, 2] <= z1
+    rows, cols = rows[keep], cols[keep]
+    heights = np.clip(points[keep, 2] - z0, 0.0, z1 - z0)
+    flat = rows * cols_n + cols
+    # Sort by cell, then by height within a cell; the last entry of each cell is its highest point.
+    order = np.lexsort((heights, flat))
+    flat, heights = flat[order], heights[order]
+    last = np.ones(len(flat), dtype=bool)
+    last[:-1] = flat[1:] != flat[:-1]
+    height_map = np.zeros(rows_n * cols_n, dtype=np.float32)
+    height_map[flat[last]] = heights[last]
+    observed = np.zeros(rows_n * cols_n, dtype=bool)
+    observed[flat[last]] = True
+    colour_map = None
+    if colours is not None:
+        colours = np.asarray(colours).reshape(-1, 3)[keep][order]
+        colour_map = np.zeros((rows_n * cols_n, 3), dtype=np.uint8)
+        colour_map[flat[last]] = colours[last]
+        colour_map = colour_map.reshape(rows_n, cols_n, 3)
+    height_map = height_map.reshape(rows_n, cols_n)
+    if fill_holes:
+        holes = ~observed.reshape(rows_n, cols_n)
+        kernel = np.ones((3, 3), np.uint8)
+        height_map[holes] = cv2.dilate(height_map, kernel)[holes]
+        if colour_map is not None:
+            colour_map[holes] = cv2.dilate(colour_map, kernel)[holes]
+    return height_map, colour_map
+
+
+def heightmap_from_rgbd(
+    grid: HeightmapGrid, camera: CameraModel, rgb: np.ndarray | None, depth: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Heightmap (and colour map) from one camera's depth (H, W) metres and optional RGB (H, W, 3)."""
+    points = camera.depth_to_world_points(depth)
+    return heightmap_from_points(grid, points.reshape(-1, 3), None if rgb is None else rgb.reshape(-1, 3))
