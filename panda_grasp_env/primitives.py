@@ -29,6 +29,7 @@ MIN_LIFT = 0.05  # a grasp succeeds only if the object rose at least this much
 HOLD_TIME = 0.5  # ... and stayed held this long, seconds
 SLOW_SPEED = 0.12  # m/s for the last approach and pushes
 PLACE_SPEED = 0.04  # m/s while lowering a held object to contact
+IMPULSE_SETTLE = 1.5  # seconds the scene runs after an impulse
 REASONS = (
     "ok",
     "missed",
@@ -217,11 +218,41 @@ def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: flo
     return PrimitiveResult("push", True, "ok")
 
 
-PRIMITIVES: dict[str, Callable[..., PrimitiveResult]] = {"grasp": grasp, "push": push, "place": place}
+@_timed
+def impulse(cell: Workcell, x: float, y: float, z: float, yaw: float, magnitude: float) -> PrimitiveResult:
+    """Strike the free object nearest (x, y, z) with a horizontal impulse of ``magnitude`` N s along heading ``yaw``.
+
+    The source study's way of toppling a tower: the robot does not move; the
+    impulse is applied at the object's centre over 10 ms, then the scene runs
+    ``IMPULSE_SETTLE`` seconds.  Fails with ``"missed"`` if no object centre is
+    within 5 cm of the point.
+    """
+    if not 0 < magnitude <= 1.0:
+        raise ValueError(f"impulse: argument 'magnitude' must be in (0, 1] N s, got {magnitude}")
+    distances = np.linalg.norm(cell.object_positions() - [x, y, z], axis=1)
+    nearest = int(np.argmin(distances))
+    if distances[nearest] > 0.05:
+        cell.wait(IMPULSE_SETTLE)
+        return PrimitiveResult("impulse", False, "missed")
+    body = int(cell.object_ids[nearest])
+    duration = 0.01
+    cell.data.xfrc_applied[body, :2] = magnitude / duration * np.array([np.cos(yaw), np.sin(yaw)])
+    cell.step_physics(max(1, round(duration / cell.model.opt.timestep)))
+    cell.data.xfrc_applied[body] = 0.0
+    cell.wait(IMPULSE_SETTLE)
+    return PrimitiveResult("impulse", True, "ok", object=cell.name_of(body))
+
+
+PRIMITIVES: dict[str, Callable[..., PrimitiveResult]] = {
+    "grasp": grasp,
+    "push": push,
+    "place": place,
+    "impulse": impulse,
+}
 
 
 def run_primitive(cell: Workcell, name: str, params: Sequence[float]) -> PrimitiveResult:
-    """Run primitive ``name`` with a parameter vector (x, y, z, yaw[, distance])."""
+    """Run primitive ``name`` with a parameter vector (x, y, z, yaw[, distance or magnitude])."""
     if name not in PRIMITIVES:
         raise ValueError(f"unknown primitive {name!r}; valid: {sorted(PRIMITIVES)}")
     values = np.asarray(params, dtype=float).ravel()

@@ -103,6 +103,10 @@ class PandaRobot:
     def open_gripper(self) -> None:
         self.data.ctrl[self.finger_ctrl_idx] = FINGER_OPEN
 
+    def command_fingers(self, opening: float) -> None:
+        """Finger position target, metres per finger (0 closed .. ``FINGER_OPEN``), force-limited."""
+        self.data.ctrl[self.finger_ctrl_idx] = float(np.clip(opening, FINGER_CLOSED, FINGER_OPEN))
+
     def close_gripper(self) -> None:
         """Close both fingers; each squeezes with at most the scene's ``gripper_force``."""
         self.data.ctrl[self.finger_ctrl_idx] = FINGER_CLOSED

@@ -26,6 +26,7 @@ FINGER_ACTUATORS = ("r_gripper_finger_joint", "l_gripper_finger_joint")
 HAND_BODY = "panda0_link7"
 FINGER_BODIES = ("panda0_leftfinger", "panda0_rightfinger")
 GRASP_SITE = "grasp_site"
+GOAL_MARKER = "goal_marker"
 #: Distance from link7's origin to the grasp site, along the hand axis (centre of the finger pads).
 GRASP_SITE_OFFSET = 0.2454
 #: How far each finger pad stands proud of the finger's rest position towards the other finger.
@@ -333,6 +334,16 @@ def _add_environment(spec: mujoco.MjSpec, config: SceneConfig) -> None:
         geom.mass = config.block_mass
         geom.friction = list(config.block_friction)
         geom.condim = 6  # rolling friction stops spheres and capsules rolling away forever
+
+    # Goal region marker for goal-conditioned tasks: a flat translucent disc,
+    # hidden under the table until a task moves it (it has no collision).
+    marker = world.add_site()
+    marker.name = GOAL_MARKER
+    marker.type = mujoco.mjtGeom.mjGEOM_CYLINDER
+    marker.size = [0.05, 0.0005, 0.0]
+    marker.pos = [0.5, 0.0, -0.5]
+    marker.rgba = [0.1, 0.9, 0.2, 0.5]
+    marker.group = 0
 
     overhead = world.add_camera()
     overhead.name = "overhead"

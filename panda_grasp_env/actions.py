@@ -1,0 +1,284 @@
+"""Action modes: how an env action becomes motion.
+
+* ``primitive`` -- ``Box``: one motion primitive per step, chosen by the
+  largest of its per-primitive scores, placed at normalised (x, y[, z]) with
+  heading ``yaw``;
+* ``pixel`` -- ``Discrete``: VPG's layout, primitive x rotation x heightmap
+  cell, with ``action_masks()`` for MaskablePPO;
+* ``ee_delta`` -- ``Box(4)``: end-effector displacement and gripper at 25 Hz
+  (Fetch / panda-gym style);
+* ``joint`` -- ``Box(8)``: arm joint-position deltas and gripper at 25 Hz.
+
+Every mode validates its input the same way: wrong shape or dtype, NaN or inf
+raise ``ValueError`` naming the problem; out-of-range continuous values are
+clipped and counted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import cv2
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from panda_grasp_env.primitives import MIN_GRASP_HEIGHT, PrimitiveResult, run_primitive
+from panda_grasp_env.robot import FINGER_OPEN, HOME_YAW
+from panda_grasp_env.workcell import WORKSPACE, Workcell
+from perception.heightmap import HeightmapGrid
+
+#: Where a grasp closes below the top surface it aims at, metres.
+GRASP_DEPTH = 0.02
+#: Heights (metres) between which a push runs: half the height of what is in its path.
+PUSH_HEIGHT_RANGE = (0.03, 0.12)
+#: Largest end-effector displacement per ee_delta step (metres; 25 Hz -> 0.75 m/s).
+EE_STEP = 0.03
+#: Largest joint change per joint step, radians.
+JOINT_STEP = 0.05
+#: Grasp-site box the ee_delta mode keeps its targets in (fingertips clear the table at z >= 0.015).
+LOW_LEVEL_BOUNDS = np.array([WORKSPACE[0], WORKSPACE[1], [0.015, 0.4]])
+_WORLD_GROUP = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # ray casts see geom group 0 only: table and objects
+
+
+@dataclass(frozen=True)
+class PrimitiveSettings:
+    """Options shared by the primitive-executing modes."""
+
+    primitives: tuple[str, ...]
+    with_z: bool = False
+    push_distance: float = 0.1  # metres (VPG)
+    impulse_magnitude: float = 0.06  # N s
+
+
+def surface_height(cell: Workcell, x: float, y: float, exclude_body: int = -1, radius: float = 0.01) -> float:
+    """Height of the highest table or object surface within ``radius`` of (x, y), metres (0 = table top).
+
+    Ray casts straight down through a 3 x 3 pattern; the robot is not seen.
+    """
+    best = 0.0
+    down = np.array([0.0, 0.0, -1.0])
+    geom = np.zeros(1, dtype=np.int32)
+    for dx in (-radius, 0.0, radius):
+        for dy in (-radius, 0.0, radius):
+            start = np.array([x + dx, y + dy, 1.0])
+            distance = mujoco.mj_ray(cell.model, cell.data, start, down, _WORLD_GROUP, 1, exclude_body, geom)
+            if distance >= 0:
+                best = max(best, 1.0 - distance)
+    return best
+
+
+def primitive_parameters(
+    cell: Workcell, settings: PrimitiveSettings, name: str, x: float, y: float, yaw: float, z: float | None
+) -> list[float]:
+    """Full parameter vector of primitive ``name`` at (x, y) with heading ``yaw``; ``z=None`` picks it from the scene.
+
+    Automatic heights: ``grasp`` closes ``GRASP_DEPTH`` below the surface at
+    (x, y); ``place`` puts the object on that surface; ``push`` runs at half
+    the height of what lies in its path (within ``PUSH_HEIGHT_RANGE``);
+    ``impulse`` strikes the top object at (x, y).
+    """
+    held = cell.robot.body_between_pads()
+    if name == "grasp":
+        z = max(surface_height(cell, x, y) - GRASP_DEPTH, MIN_GRASP_HEIGHT) if z is None else z
+        return [x, y, z, yaw]
+    if name == "place":
+        z = surface_height(cell, x, y, exclude_body=-1 if held is None else held, radius=0.015) if z is None else z
+        return [x, y, z, yaw]
+    if name == "push":
+        if z is None:
+            ahead = np.linspace(0.0, settings.push_distance, 6)
+            heights = [surface_height(cell, x + d * np.cos(yaw), y + d * np.sin(yaw)) for d in ahead]
+            z = float(np.clip(max(heights) / 2 + 0.01, *PUSH_HEIGHT_RANGE))
+        return [x, y, z, yaw, settings.push_distance]
+    if name == "impulse":
+        z = surface_height(cell, x, y) - 0.02 if z is None else z
+        return [x, y, z, yaw, settings.impulse_magnitude]
+    raise ValueError(f"unknown primitive {name!r}")
+
+
+def validate_box_action(action: Any, space: gym.spaces.Box) -> tuple[np.ndarray, int]:
+    """Checked float64 copy of a continuous action, clipped to the space, and how many components were clipped."""
+    array = np.asarray(action)
+    if array.dtype.kind not in "fiu":
+        raise ValueError(f"action must be a numeric array, got dtype {array.dtype}")
+    if array.shape != space.shape:
+        raise ValueError(f"action has shape {array.shape}, expected {space.shape}")
+    array = array.astype(np.float64)
+    bad = ~np.isfinite(array)
+    if bad.any():
+        raise ValueError(f"action contains NaN or inf at index {np.flatnonzero(bad).tolist()}: {array.tolist()}")
+    clipped = np.clip(array, space.low, space.high)
+    return clipped, int(np.count_nonzero(clipped != array))
+
+
+class ActionMode:
+    """One way of acting.  ``low_level`` modes run one 25 Hz control step per env step."""
+
+    name: ClassVar[str]
+    low_level: ClassVar[bool]
+    space: gym.Space
+
+    def validate(self, action: Any) -> tuple[Any, int]:
+        """Checked action and the number of clipped components."""
+        return validate_box_action(action, self.space)
+
+    def execute(self, cell: Workcell, action: Any) -> PrimitiveResult | None:
+        raise NotImplementedError
+
+
+class PrimitiveActions(ActionMode):
+    """``Box`` in [-1, 1]: [score per primitive (if more than one)] + [x, y, (z,) yaw].
+
+    x, y span ``WORKSPACE`` (metres, world frame), z spans 0-0.3 m and yaw
+    spans [-pi, pi] (closing-axis heading for grasp/place, travel heading for
+    push/impulse).  The primitive with the highest score runs.
+    """
+
+    name = "primitive"
+    low_level = False
+    Z_RANGE = (0.0, 0.3)
+
+    def __init__(self, settings: PrimitiveSettings) -> None:
+        self.settings = settings
+        self.n_scores = len(settings.primitives) if len(settings.primitives) > 1 else 0
+        size = self.n_scores + (4 if settings.with_z else 3)
+        self.space = gym.spaces.Box(-1.0, 1.0, (size,), dtype=np.float32)
+
+    @staticmethod
+    def _scale(value: float, low: float, high: float) -> float:
+        return low + (value + 1.0) / 2.0 * (high - low)
+
+    def decode(self, action: np.ndarray) -> tuple[str, float, float, float | None, float]:
+        """(primitive, x, y, z or None, yaw) in world units from a validated action."""
+        primitives = self.settings.primitives
+        name = primitives[int(np.argmax(action[: self.n_scores]))] if self.n_scores else primitives[0]
+        rest = action[self.n_scores :]
+        x = self._scale(rest[0], *WORKSPACE[0])
+        y = self._scale(rest[1], *WORKSPACE[1])
+        z = self._scale(rest[2], *self.Z_RANGE) if self.settings.with_z else None
+        yaw = float(rest[-1]) * np.pi
+        return name, x, y, z, yaw
+
+    def encode(self, name: str, x: float, y: float, yaw: float, z: float | None = None) -> np.ndarray:
+        """The action that runs primitive ``name`` at world (x, y[, z]) metres with heading ``yaw`` radians."""
+        if name not in self.settings.primitives:
+            raise ValueError(f"primitive {name!r} not available here; valid: {list(self.settings.primitives)}")
+        scores = [1.0 if p == name else -1.0 for p in self.settings.primitives][: self.n_scores]
+        position = [
+            2 * (x - WORKSPACE[0, 0]) / np.ptp(WORKSPACE[0]) - 1,
+            2 * (y - WORKSPACE[1, 0]) / np.ptp(WORKSPACE[1]) - 1,
+        ]
+        if self.settings.with_z:
+            if z is None:
+                raise ValueError("this env's primitive actions include z: pass z")
+            position.append(2 * (z - self.Z_RANGE[0]) / (self.Z_RANGE[1] - self.Z_RANGE[0]) - 1)
+        wrapped_yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
+        return np.array([*scores, *position, wrapped_yaw / np.pi], dtype=np.float32)
+
+    def execute(self, cell: Workcell, action: np.ndarray) -> PrimitiveResult:
+        name, x, y, z, yaw = self.decode(action)
+        return run_primitive(cell, name, primitive_parameters(cell, self.settings, name, x, y, yaw, z))
+
+
+class PixelActions(ActionMode):
+    """``Discrete(P * R * H * W)``: index = ((primitive * R + rotation) * H + row) * W + column (VPG's layout).
+
+    The cell's centre on the heightmap grid gives (x, y); rotation r gives the
+    heading 2 pi r / R; heights are automatic.  ``action_masks`` allows grasps
+    and pushes only on or near objects (heightmap > 1 cm, dilated by 3 cm)
+    with an empty hand, and places only with something in the hand.
+    """
+
+    name = "pixel"
+    low_level = False
+    OCCUPIED = 0.01  # metres: a heightmap cell above this holds an object
+    NEAR = 0.03  # metres: pushes may start this far from an object
+
+    def __init__(
+        self, settings: PrimitiveSettings, grid: HeightmapGrid, rotations: int, heightmap: Callable[[], np.ndarray]
+    ) -> None:
+        if not isinstance(rotations, int) or rotations < 1:
+            raise ValueError(f"rotations must be a positive int, got {rotations!r}")
+        self.settings, self.grid, self.rotations = settings, grid, rotations
+        self.heightmap = heightmap
+        self.shape = (len(settings.primitives), rotations, *grid.shape)
+        self.space = gym.spaces.Discrete(int(np.prod(self.shape)))
+
+    def validate(self, action: Any) -> tuple[int, int]:
+        array = np.asarray(action)
+        if array.shape not in ((), (1,)) or array.dtype.kind not in "iu":
+            raise ValueError(f"pixel action must be one integer index, got {action!r} (dtype {array.dtype})")
+        index = int(array.reshape(()))
+        if not 0 <= index < self.space.n:
+            raise ValueError(f"pixel action {index} outside [0, {self.space.n})")
+        return index, 0
+
+    def decode(self, index: int) -> tuple[str, float, float, float]:
+        """(primitive, x, y, yaw) of an action index."""
+        p, r, row, col = np.unravel_index(index, self.shape)
+        x, y = self.grid.cell_centres(row, col)
+        return self.settings.primitives[p], float(x), float(y), 2 * np.pi * r / self.rotations
+
+    def execute(self, cell: Workcell, action: int) -> PrimitiveResult:
+        name, x, y, yaw = self.decode(action)
+        return run_primitive(cell, name, primitive_parameters(cell, self.settings, name, x, y, yaw, None))
+
+    def action_masks(self, holding: bool) -> np.ndarray:
+        """Boolean mask over the flat action space (True = allowed)."""
+        occupied = (self.heightmap() > self.OCCUPIED).astype(np.uint8)
+        radius = max(1, int(round(self.NEAR / self.grid.resolution)))
+        near = cv2.dilate(occupied, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2)).astype(bool)
+        masks = np.zeros(self.shape, dtype=bool)
+        for p, name in enumerate(self.settings.primitives):
+            if name == "place":
+                masks[p] = holding
+            elif name == "grasp":
+                masks[p] = occupied.astype(bool) & (not holding)
+            else:  # push, impulse
+                masks[p] = near & (not holding)
+        if not masks.any():
+            masks[:] = True  # nothing sensible to do: let the agent act anyway
+        return masks.ravel()
+
+
+class EEDeltaActions(ActionMode):
+    """``Box(4)`` in [-1, 1]: grasp-site displacement (dx, dy, dz) x ``EE_STEP`` metres, and gripper.
+
+    The hand keeps pointing down with a fixed heading.  Gripper: -1 fully
+    open, +1 closed (position target between; squeeze force limited).
+    """
+
+    name = "ee_delta"
+    low_level = True
+
+    def __init__(self) -> None:
+        self.space = gym.spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
+
+    def execute(self, cell: Workcell, action: np.ndarray) -> None:
+        target = np.clip(cell.robot.ee_position + action[:3] * EE_STEP, LOW_LEVEL_BOUNDS[:, 0], LOW_LEVEL_BOUNDS[:, 1])
+        cell.controller.set_goal(target, HOME_YAW)
+        cell.robot.command_fingers(FINGER_OPEN * (1.0 - action[3]) / 2.0)
+        cell.control_step()
+        return None
+
+
+class JointActions(ActionMode):
+    """``Box(8)`` in [-1, 1]: arm joint-position deltas x ``JOINT_STEP`` radians (7) and gripper (as ee_delta)."""
+
+    name = "joint"
+    low_level = True
+
+    def __init__(self) -> None:
+        self.space = gym.spaces.Box(-1.0, 1.0, (8,), dtype=np.float32)
+
+    def execute(self, cell: Workcell, action: np.ndarray) -> None:
+        cell.robot.command_joints(cell.robot.joint_positions + action[:7] * JOINT_STEP)
+        cell.robot.command_fingers(FINGER_OPEN * (1.0 - action[7]) / 2.0)
+        cell.step_physics(cell.control_substeps)
+        return None
+
+
+ACTION_MODES = ("primitive", "pixel", "ee_delta", "joint")

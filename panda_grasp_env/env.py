@@ -1,0 +1,271 @@
+"""``PandaEnv``: the one Gymnasium env.  It joins a workcell, a task, an action mode and observations.
+
+The step loop (``PandaEnv.step``) reads top to bottom: validate the action,
+execute it (one primitive, or one 25 Hz control step), let the task judge the
+result, count, observe.  Tasks live in ``panda_grasp_env/tasks`` (one file
+each), action modes in ``actions.py``, observations in ``observations.py``.
+"""
+
+from __future__ import annotations
+
+import inspect
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from panda_grasp_env.actions import (
+    ACTION_MODES,
+    EE_STEP,
+    ActionMode,
+    EEDeltaActions,
+    JointActions,
+    PixelActions,
+    PrimitiveActions,
+    PrimitiveSettings,
+)
+from panda_grasp_env.controller import ControllerLimits
+from panda_grasp_env.observations import ObservationBuilder, Sensors, parse_obs_mode
+from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.rendering import CameraRenderer
+from panda_grasp_env.scene import CAMERA_NAMES, SceneConfig
+from panda_grasp_env.tasks import TaskStep, make_task
+from panda_grasp_env.workcell import PhysicsError, Workcell
+from perception.camera import CameraModel
+from perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
+
+COUNTERS = ("grasps_attempted", "grasps_succeeded", "places", "places_succeeded", "pushes", "impulses")
+
+
+class PandaEnv(gym.Env):
+    """A Franka Panda building, breaking and grasping in MuJoCo.
+
+    Args:
+        task: task name (``TowerBuild``, ``TowerBreak``, ``BuildAndBreak``, ``Grasp``, ``Push``).
+        obs_mode: ``state``, ``rgb``, ``depth``, ``segmentation``, ``heightmap`` or a ``+`` combination.
+        action_mode: ``primitive``, ``pixel``, ``ee_delta`` or ``joint`` (default: the task's).
+        render_mode: ``rgb_array`` / ``depth_array`` (front camera) or ``human`` (MuJoCo viewer).
+        cameras: cameras for image observations (``overhead``, ``front``, ``wrist``).
+        image_size: (width, height) of image observations, pixels.
+        heightmap_resolution: metres per heightmap cell (``heightmap`` obs and ``pixel`` actions).
+        heightmap_bounds: ((x0, x1), (y0, y1), (z0, z1)) world metres the heightmap covers.
+        rotations: number of headings in the ``pixel`` action mode (VPG: 16).
+        primitive_z: add a z component to ``primitive`` actions (default: heights chosen from the scene).
+        push_distance: push length, metres.
+        render_size: (width, height) of ``render()`` frames.
+        scene: base ``SceneConfig`` (block size, masses, friction, ...); the task sets the objects.
+        **task_options: passed to the task (see each task's docstring).
+    """
+
+    metadata = {"render_modes": ["rgb_array", "depth_array", "human"], "render_fps": 25}
+
+    def __init__(
+        self,
+        task: str = "TowerBuild",
+        obs_mode: str = "state",
+        action_mode: str | None = None,
+        render_mode: str | None = None,
+        cameras: tuple[str, ...] | str = ("overhead",),
+        image_size: tuple[int, int] = (84, 84),
+        heightmap_resolution: float = 0.002,
+        heightmap_bounds: tuple = DEFAULT_BOUNDS,
+        rotations: int = 16,
+        primitive_z: bool = False,
+        push_distance: float = 0.1,
+        render_size: tuple[int, int] = (640, 480),
+        scene: SceneConfig | None = None,
+        **task_options: Any,
+    ) -> None:
+        try:
+            self.task = make_task(task, task_options)
+        except ValueError as error:
+            env_options = [
+                p for p in inspect.signature(PandaEnv.__init__).parameters if p not in ("self", "task_options")
+            ]
+            raise ValueError(f"{error}; env options: {env_options}") from None
+        action_mode = self.task.default_action_mode if action_mode is None else action_mode
+        if action_mode not in ACTION_MODES:
+            raise ValueError(f"unknown action_mode {action_mode!r}; valid: {list(ACTION_MODES)}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"unknown render_mode {render_mode!r}; valid: {self.metadata['render_modes']} or None")
+        cameras = (cameras,) if isinstance(cameras, str) else tuple(cameras)
+        unknown = [c for c in cameras if c not in CAMERA_NAMES]
+        if unknown or not cameras:
+            raise ValueError(f"unknown camera(s) {unknown or cameras}; valid: {list(CAMERA_NAMES)}")
+        for name, size in (("image_size", image_size), ("render_size", render_size)):
+            if len(tuple(size)) != 2 or not all(isinstance(v, (int, np.integer)) and v > 0 for v in size):
+                raise ValueError(f"{name} must be (width, height) in positive ints, got {size!r}")
+        if not 0 < push_distance <= 0.3:
+            raise ValueError(f"push_distance must be in (0, 0.3] m, got {push_distance!r}")
+        modalities = parse_obs_mode(obs_mode)
+
+        self.obs_mode, self.action_mode, self.render_mode = obs_mode, action_mode, render_mode
+        low_level = action_mode in ("ee_delta", "joint")
+        scene_config = self.task.scene_config(scene or SceneConfig())
+        # Low-level modes let the reference move EE_STEP per control step; primitives keep their own speeds.
+        limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if low_level else None
+        self.cell = Workcell(scene_config, limits=limits)
+        self.cell.step_hooks.append(self.task.on_control_step)
+        grid = HeightmapGrid(tuple(map(tuple, heightmap_bounds)), heightmap_resolution)
+        self.sensors = Sensors(self.cell, tuple(image_size), grid)
+        settings = PrimitiveSettings(
+            self.task.primitives, primitive_z, push_distance, getattr(self.task, "impulse_magnitude", 0.06)
+        )
+        self.actions: ActionMode
+        if action_mode == "primitive":
+            self.actions = PrimitiveActions(settings)
+        elif action_mode == "pixel":
+            self.actions = PixelActions(settings, grid, rotations, lambda: self.sensors.heightmap()[0])
+        elif action_mode == "ee_delta":
+            self.actions = EEDeltaActions()
+        else:
+            self.actions = JointActions()
+        self.goal_conditioned = low_level and self.task.goal_conditioned
+        # Primitive-mode agents of goal tasks see the goal at the end of the state vector.
+        self._goal_in_state = self.task.goal_conditioned and not low_level
+        self.observations = ObservationBuilder(
+            self.cell,
+            modalities,
+            cameras,
+            self.sensors,
+            self.task.goal_size if self.goal_conditioned else None,
+            self.task.goal_size if self._goal_in_state else 0,
+        )
+        self.action_space = self.actions.space
+        self.observation_space = self.observations.space
+        self.render_size = tuple(render_size)
+        self._render_renderer: CameraRenderer | None = None
+        self._viewer = None
+        self._counters = dict.fromkeys(COUNTERS, 0)
+        self._clipped_total = 0
+
+    # --- the step loop -----------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        super().reset(seed=seed)
+        if options:
+            raise ValueError(f"reset options are not supported, got {sorted(options)}")
+        task_info = self.task.reset(self.cell, self.np_random)
+        self.sensors.invalidate()
+        self._counters = dict.fromkeys(COUNTERS, 0)
+        self._clipped_total = 0
+        info = {"is_success": False, **task_info, **self._counters, "physics_error": False, "sim_time": 0.0}
+        return self._observe(), info
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        command, clipped = self.actions.validate(action)
+        self._clipped_total += clipped
+        try:
+            result = self.actions.execute(self.cell, command)
+            physics_error = result is not None and result.reason == "physics_error"
+        except PhysicsError:
+            result, physics_error = None, True
+        physics_error = physics_error or not self._state_finite()
+        self.sensors.invalidate()
+        if physics_error:
+            verdict = TaskStep(0.0, False, False)
+        else:
+            verdict = self.task.evaluate(self.cell, result)
+        self._count(result)
+        info = {
+            "is_success": verdict.success,
+            **verdict.info,
+            **self._primitive_info(result),
+            **self._counters,
+            "actions_clipped": clipped,
+            "actions_clipped_total": self._clipped_total,
+            "physics_error": physics_error,
+            "sim_time": self.cell.sim_time,
+        }
+        return self._observe(physics_error), verdict.reward, verdict.terminated, physics_error, info
+
+    # --- helpers ------------------------------------------------------------------
+    def _state_finite(self) -> bool:
+        data = self.cell.data
+        return bool(np.isfinite(data.qpos).all() and np.isfinite(data.qvel).all())
+
+    def _count(self, result: PrimitiveResult | None) -> None:
+        if result is None:
+            return
+        if result.primitive == "grasp":
+            self._counters["grasps_attempted"] += 1
+            self._counters["grasps_succeeded"] += int(result.success)
+        elif result.primitive == "place":
+            self._counters["places"] += 1
+            self._counters["places_succeeded"] += int(result.success)
+        elif result.primitive == "push":
+            self._counters["pushes"] += 1
+        elif result.primitive == "impulse":
+            self._counters["impulses"] += 1
+
+    @staticmethod
+    def _primitive_info(result: PrimitiveResult | None) -> dict[str, Any]:
+        if result is None:
+            return {}
+        return {
+            "primitive": result.primitive,
+            "primitive_success": result.success,
+            "primitive_reason": result.reason,
+            "primitive_object": result.object or "",
+            "primitive_sim_time": result.sim_time,
+        }
+
+    def _goals(self) -> tuple[np.ndarray, np.ndarray] | None:
+        if not self.goal_conditioned:
+            return None
+        return self.task.achieved_goal(self.cell), self.task.desired_goal()
+
+    def _observe(self, sanitise: bool = False) -> Any:
+        extra = self.task.desired_goal() if self._goal_in_state else None
+        observation = self.observations.observe(self._goals(), extra)
+        if sanitise:  # after a divergence the state may hold NaN: never hand that to a learner
+            if isinstance(observation, dict):
+                return {k: np.nan_to_num(v, posinf=0.0, neginf=0.0) for k, v in observation.items()}
+            return np.nan_to_num(observation, posinf=0.0, neginf=0.0)
+        return observation
+
+    # --- public extras --------------------------------------------------------------
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
+        """The task's sparse goal reward, vectorised over leading batch dimensions (for HER)."""
+        return self.task.compute_reward(achieved_goal, desired_goal, info)
+
+    def action_masks(self) -> np.ndarray:
+        """Allowed actions of the ``pixel`` mode (for sb3-contrib's MaskablePPO)."""
+        if not isinstance(self.actions, PixelActions):
+            raise ValueError(f"action_masks is defined for action_mode='pixel' only, not {self.action_mode!r}")
+        return self.actions.action_masks(holding=self.cell.robot.body_between_pads() is not None)
+
+    def camera_model(
+        self, camera: str = "overhead", width: int | None = None, height: int | None = None
+    ) -> CameraModel:
+        """Pinhole model (intrinsics, pose) of a camera as it is now, for image sizes of the observations by default."""
+        if camera not in CAMERA_NAMES:
+            raise ValueError(f"unknown camera {camera!r}; valid: {list(CAMERA_NAMES)}")
+        return self.sensors.camera_model(camera, width, height)
+
+    # --- rendering ------------------------------------------------------------------
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode= to make()")
+            return None
+        if self.render_mode == "human":
+            if self._viewer is None:
+                import mujoco.viewer
+
+                self._viewer = mujoco.viewer.launch_passive(self.cell.model, self.cell.data)
+            self._viewer.sync()
+            return None
+        width, height = self.render_size
+        if self.render_mode == "depth_array":
+            return self.sensors.rgbd("front", width, height)[1]
+        if self._render_renderer is None:
+            self._render_renderer = CameraRenderer(self.cell.model, width, height, "pretty")
+        return self._render_renderer.render(self.cell.data, "front", "rgb")
+
+    def close(self) -> None:
+        self.sensors.close()
+        if self._render_renderer is not None:
+            self._render_renderer.close()
+            self._render_renderer = None
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None

@@ -1,0 +1,77 @@
+"""BuildAndBreak: a continuing task -- build the tower, break it, build it again, ..."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.scene import SceneConfig
+from panda_grasp_env.tasks.base import Task, TaskStep, register_task
+from panda_grasp_env.tasks.tower_break import TowerBreak
+from panda_grasp_env.tasks.tower_build import TowerBuild
+from panda_grasp_env.workcell import Workcell
+
+
+@register_task
+class BuildAndBreak(Task):
+    """Alternate TowerBuild and TowerBreak on the same blocks, forever (truncated by the step limit).
+
+    Starts from scattered blocks in the ``build`` phase.  A built tower (all
+    ``n_blocks`` stacked on the base, still and released for 0.5 s) counts a
+    build and switches to ``break``; knocking ``n_blocks - 1`` blocks out of that
+    tower counts a break and switches back.  ``info`` carries ``phase``,
+    ``builds`` and ``breaks``; ``is_success`` is true once a full build-and-break
+    cycle is complete.  Reward: the phase's own reward (stack progress while
+    building, blocks moved while breaking), +1 per completed phase.  Terminates
+    only if a block leaves the table.
+    """
+
+    name = "BuildAndBreak"
+    primitives = ("grasp", "place", "push")
+
+    def __init__(self, n_blocks: int = 4) -> None:
+        self.build = TowerBuild(n_blocks=n_blocks)
+        self.breaker = TowerBreak(n_blocks=n_blocks)
+        self.n_blocks = n_blocks
+        self.phase = "build"
+        self.builds = self.breaks = 0
+
+    def scene_config(self, base: SceneConfig) -> SceneConfig:
+        return self.build.scene_config(base)
+
+    @property
+    def ideal_actions(self) -> int:
+        """Per build-and-break cycle."""
+        return self.build.ideal_actions + self.breaker.ideal_actions
+
+    def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
+        self.build.reset(cell, rng)
+        self.phase, self.builds, self.breaks = "build", 0, 0
+        return self._info(cell)
+
+    def _info(self, cell: Workcell) -> dict[str, Any]:
+        return {"phase": self.phase, "builds": self.builds, "breaks": self.breaks, "cycles": self.breaks}
+
+    def on_control_step(self, cell: Workcell) -> None:
+        if self.phase == "build":
+            self.build.on_control_step(cell)
+
+    def evaluate(self, cell: Workcell, result: PrimitiveResult | None) -> TaskStep:
+        if self.phase == "build":
+            reward = self.build.evaluate(cell, result).reward if result is not None else 0.0
+            if self.build.built(cell):
+                self.builds += 1
+                self.phase = "break"
+                self.breaker.mark_tower(cell)
+        else:
+            moved, change = self.breaker.newly_moved(cell)
+            reward = float(change)
+            if moved >= self.breaker.k:
+                self.breaks += 1
+                reward += 1.0
+                self.phase = "build"
+                self.build.restart(cell)
+        lost = any(cell.is_parked(b) for b in cell.block_ids)
+        return TaskStep(reward, self.breaks > 0, lost, self._info(cell))

@@ -1,0 +1,163 @@
+"""Grasp: pick objects of many shapes off the table, one at a time (VPG's clutter protocol)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from panda_grasp_env.objects import SHAPES, ObjectShape, sample_shape, validate_shape_options
+from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.scene import SceneConfig
+from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, register_task, with_scene
+from panda_grasp_env.workcell import SPAWN_REGION, Workcell, yaw_quaternion
+
+#: VPG drops its clutter into the middle of the workspace; a 0.2 m square here.
+CLUTTER_REGION = np.array([[0.4, 0.6], [-0.1, 0.1]])
+#: A push "changed the scene" if some object moved at least this far (metres): VPG's push reward condition.
+SCENE_CHANGE = 0.01
+#: Low-level lift goal: this many metres above the object's resting centre (range).
+LIFT_GOAL_HEIGHT = (0.05, 0.15)
+
+
+def spawn_quaternion(shape: ObjectShape, yaw: float) -> np.ndarray:
+    """Resting orientation: upright, except capsules, which lie on their side (axis horizontal)."""
+    q = yaw_quaternion(yaw)
+    if shape.kind != "capsule":
+        return q
+    lie = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0])  # quarter turn about x
+    w1, x1, y1, z1 = q
+    w2, x2, y2, z2 = lie
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+@register_task
+class Grasp(Task):
+    """Grasp every object off the table.
+
+    Options: ``n_objects`` (default 1; 10 with ``clutter``); ``shapes``: the
+    object kinds drawn from (default all of cube, box, cylinder, sphere,
+    capsule); ``size_ranges``: per-kind size ranges overriding
+    ``objects.DEFAULT_SIZE_RANGES``; ``clutter``: drop the objects into a
+    0.2 m square heap as VPG does (default: spread apart); ``max_failures``:
+    consecutive failed attempts that end the episode (VPG's rule, default 10).
+    A successful grasp sets the object aside (off the table).  Terminates when
+    the table is clear (success if every object was grasped) or after
+    ``max_failures`` consecutive failures.  Reward: 1 per successful grasp,
+    0.5 for a push that moved something (VPG).
+    Goal-conditioned (low-level modes, lift): lift object 0 to a point 5-15 cm
+    above where it rests; success = within 5 cm.
+    """
+
+    name = "Grasp"
+    primitives = ("grasp", "push")
+    goal_conditioned = True
+
+    def __init__(
+        self,
+        n_objects: int | None = None,
+        shapes: tuple[str, ...] = SHAPES,
+        size_ranges: dict | None = None,
+        clutter: bool = False,
+        max_failures: int = 10,
+    ) -> None:
+        check_option("clutter", clutter, isinstance(clutter, bool), "a bool")
+        n_objects = (10 if clutter else 1) if n_objects is None else n_objects
+        check_option("n_objects", n_objects, isinstance(n_objects, int) and 1 <= n_objects <= 30, "an int in [1, 30]")
+        check_option("max_failures", max_failures, isinstance(max_failures, int) and max_failures >= 1, "an int >= 1")
+        shapes = (shapes,) if isinstance(shapes, str) else tuple(shapes)
+        validate_shape_options(shapes, size_ranges)
+        self.n_objects, self.shapes, self.size_ranges = n_objects, shapes, size_ranges
+        self.clutter, self.max_failures = clutter, max_failures
+        self.grasped = 0
+        self.consecutive_failures = 0
+        self._goal = np.zeros(3)
+        self._positions = np.zeros((0, 3))  # object positions after the previous step
+
+    def scene_config(self, base: SceneConfig) -> SceneConfig:
+        return with_scene(base, n_blocks=0, n_objects=self.n_objects)
+
+    @property
+    def ideal_actions(self) -> int:
+        return self.n_objects
+
+    def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
+        cell.clear()
+        shapes = [sample_shape(rng, self.shapes, self.size_ranges) for _ in range(self.n_objects)]
+        cell.set_object_shapes(dict(zip(cell.object_ids.tolist(), shapes)))
+        if self.clutter:
+            for level, (body, shape) in enumerate(zip(cell.object_ids, shapes)):
+                xy = [rng.uniform(*CLUTTER_REGION[0]), rng.uniform(*CLUTTER_REGION[1])]
+                height = shape.bounding_radius + 0.01 + 0.06 * level  # staggered, so they fall onto each other
+                cell.set_body_pose(body, [*xy, height], spawn_quaternion(shape, rng.uniform(-np.pi, np.pi)))
+            cell.settle(1.5)
+        else:
+            placed: list[tuple[np.ndarray, float]] = []
+            for body, shape in zip(cell.object_ids, shapes):
+                for _ in range(1000):  # rejection sampling; the region holds 30 small objects easily
+                    xy = np.array([rng.uniform(*SPAWN_REGION[0]), rng.uniform(*SPAWN_REGION[1])])
+                    if all(np.linalg.norm(xy - p) >= shape.bounding_radius + r + 0.04 for p, r in placed):
+                        break
+                placed.append((xy, shape.bounding_radius))
+                position = [*xy, shape.resting_half_height + 0.001]
+                cell.set_body_pose(body, position, spawn_quaternion(shape, rng.uniform(-np.pi / 4, np.pi / 4)))
+            cell.settle(0.3)
+        # Objects that rolled or fell off the table in the drop are out of the episode.
+        for body in cell.object_ids:
+            if cell.data.xpos[body][2] < -0.05:
+                cell.park(body)
+        self.grasped = 0
+        self.consecutive_failures = 0
+        self._positions = cell.object_positions()
+        rest = cell.data.xpos[cell.object_ids[0]].copy()
+        self._goal = rest + [0.0, 0.0, rng.uniform(*LIFT_GOAL_HEIGHT)]
+        return {"shapes": [s.kind for s in shapes], **self._info(cell)}
+
+    def on_table(self, cell: Workcell) -> list[int]:
+        """Body ids of the objects still on the table (not set aside, not fallen off)."""
+        return [int(b) for b in cell.object_ids if not cell.is_parked(b)]
+
+    def _info(self, cell: Workcell) -> dict[str, Any]:
+        return {
+            "objects_grasped": self.grasped,
+            "objects_remaining": len(self.on_table(cell)),
+            "consecutive_failures": self.consecutive_failures,
+        }
+
+    def evaluate(self, cell: Workcell, result: PrimitiveResult | None) -> TaskStep:
+        if result is None:
+            achieved = self.achieved_goal(cell)
+            reward = float(self.compute_reward(achieved, self._goal, None))
+            return TaskStep(reward, bool(goals_reached(achieved, self._goal)), False, self._info(cell))
+        reward = 0.0
+        if result.primitive == "grasp" and result.success:
+            body = cell.model.body(result.object).id
+            cell.park(body)  # set the grasped object aside, then return home with an open hand
+            cell.actuate_gripper(close=False, timeout=0.4)
+            cell.move_home()
+            self.grasped += 1
+            self.consecutive_failures = 0
+            reward = 1.0
+        else:
+            self.consecutive_failures += 1
+            moved = np.linalg.norm(cell.object_positions() - self._positions, axis=1).max()
+            if result.primitive == "push" and moved >= SCENE_CHANGE:
+                reward = 0.5
+        self._positions = cell.object_positions()
+        remaining = len(self.on_table(cell))
+        success = remaining == 0 and self.grasped == self.n_objects
+        terminated = remaining == 0 or self.consecutive_failures >= self.max_failures
+        return TaskStep(reward, success, terminated, self._info(cell))
+
+    def achieved_goal(self, cell: Workcell) -> np.ndarray:
+        return cell.data.xpos[cell.object_ids[0]].copy()
+
+    def desired_goal(self) -> np.ndarray:
+        return self._goal.copy()

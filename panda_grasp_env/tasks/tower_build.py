@@ -1,0 +1,123 @@
+"""TowerBuild: blocks scattered; stack all N on the base block (the first colour, red by default)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.scene import SceneConfig
+from panda_grasp_env.stacking import stack_height
+from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, register_task, with_scene
+from panda_grasp_env.workcell import Workcell
+
+#: A tower must stand still this long, with the gripper released, to count as built (seconds).
+STABLE_TIME = 0.5
+#: Block speed below which it counts as still, m/s.
+STILL_SPEED = 0.01
+
+
+def blocks_still(cell: Workcell) -> bool:
+    """Every block moving slower than ``STILL_SPEED``."""
+    return bool(np.all(np.linalg.norm(cell.data.cvel[cell.block_ids, 3:], axis=1) < STILL_SPEED))
+
+
+def holding_a_block(cell: Workcell) -> bool:
+    return cell.robot.body_between_pads() in set(cell.block_ids.tolist())
+
+
+@register_task
+class TowerBuild(Task):
+    """Build a tower of ``n_blocks`` on the base block.
+
+    Options: ``n_blocks`` (2-4, default 4: the base and three to stack);
+    ``order``: ``"any"`` (any colour order above the base) or ``"fixed"`` (the
+    scene's colour order: red, green, blue, yellow); ``tolerance``: how far (m)
+    a block's centre may sit from the base's axis (default a fifth of the block).
+    Success (primitive modes): all blocks stacked, still and released for 0.5 s.
+    Goal-conditioned (low-level modes): goal = where each non-base block stands
+    in the finished tower, in the fixed order; success = all within 5 cm.
+    Terminates (primitive modes) on success or when a block leaves the table.
+    Reward (primitive modes): change in stack height (levels, negative when the
+    tower loses blocks), +0.5 per successful grasp, +1 on success.
+    """
+
+    name = "TowerBuild"
+    primitives = ("grasp", "place", "push")
+    goal_conditioned = True
+
+    def __init__(self, n_blocks: int = 4, order: str = "any", tolerance: float | None = None) -> None:
+        check_option("n_blocks", n_blocks, isinstance(n_blocks, int) and 2 <= n_blocks <= 4, "an int in [2, 4]")
+        check_option("order", order, order in ("any", "fixed"), "'any' or 'fixed'")
+        check_option(
+            "tolerance", tolerance, tolerance is None or 0 < float(tolerance) <= 0.025, "None or in (0, 0.025] m"
+        )
+        self.n_blocks = n_blocks
+        self.order = order
+        self.tolerance = tolerance
+        self._stable_since: float | None = None
+        self._levels = 1
+        self._goal = np.zeros(3 * (n_blocks - 1))
+
+    def scene_config(self, base: SceneConfig) -> SceneConfig:
+        return with_scene(base, n_blocks=self.n_blocks, n_objects=0)
+
+    @property
+    def ideal_actions(self) -> int:
+        return 2 * (self.n_blocks - 1)
+
+    def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
+        cell.clear()
+        cell.place_blocks(rng, "scattered")
+        cell.settle(0.3)
+        size = cell.config.block_size
+        base = cell.block_positions()[0]
+        self._goal = np.concatenate([base + [0.0, 0.0, size * level] for level in range(1, self.n_blocks)])
+        self.restart(cell)
+        return {"base": cell.block_names[0], "stack_height": self._levels}
+
+    def restart(self, cell: Workcell) -> None:
+        """Start building from the blocks as they lie now."""
+        self._stable_since = None
+        self._levels = self.levels(cell)
+
+    def levels(self, cell: Workcell) -> int:
+        """Blocks in the column on the base (the base counts)."""
+        order = list(range(self.n_blocks)) if self.order == "fixed" else None
+        return stack_height(cell.block_positions(), 0, cell.config.block_size, self.tolerance, order)
+
+    def on_control_step(self, cell: Workcell) -> None:
+        complete = self.levels(cell) == self.n_blocks and blocks_still(cell) and not holding_a_block(cell)
+        if not complete:
+            self._stable_since = None
+        elif self._stable_since is None:
+            self._stable_since = cell.sim_time
+
+    def built(self, cell: Workcell) -> bool:
+        """The tower is complete and has stood still, released, for ``STABLE_TIME``."""
+        return self._stable_since is not None and cell.sim_time - self._stable_since >= STABLE_TIME - 1e-9
+
+    def evaluate(self, cell: Workcell, result: PrimitiveResult | None) -> TaskStep:
+        levels = self.levels(cell)
+        info = {"stack_height": levels}
+        if result is None:
+            achieved = self.achieved_goal(cell)
+            reward = float(self.compute_reward(achieved, self._goal, info))
+            return TaskStep(reward, bool(goals_reached(achieved, self._goal)), False, info)
+        success = self.built(cell)
+        reward = float(levels - self._levels) + (0.5 if result.primitive == "grasp" and result.success else 0.0)
+        reward += 1.0 if success else 0.0
+        self._levels = levels
+        lost = any(cell.is_parked(b) for b in cell.block_ids)
+        return TaskStep(reward, success, success or lost, info)
+
+    @property
+    def goal_size(self) -> int:
+        return 3 * (self.n_blocks - 1)
+
+    def achieved_goal(self, cell: Workcell) -> np.ndarray:
+        return cell.block_positions()[1:].ravel()
+
+    def desired_goal(self) -> np.ndarray:
+        return self._goal.copy()
