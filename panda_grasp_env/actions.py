@@ -39,7 +39,7 @@ EE_STEP = 0.03
 #: Largest joint change per joint step, radians.
 JOINT_STEP = 0.05
 #: Grasp-site box the ee_delta mode keeps its targets in (fingertips clear the table at z >= 0.015).
-LOW_LEVEL_BOUNDS = np.array([WORKSPACE[0], WORKSPACE[1], [0.015, 0.4]])
+LOW_LEVEL_BOUNDS = np.array([WORKSPACE[0], WORKSPACE[1], [0.015, WORKSPACE[2, 1]]])
 _WORLD_GROUP = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # ray casts see geom group 0 only: table and objects
 
 

@@ -33,6 +33,9 @@ MODALITIES = ("state", "rgb", "depth", "segmentation", "heightmap")
 IMAGE_MODALITIES = ("rgb", "depth", "segmentation")
 #: Camera whose RGB-D the heightmap is projected from, and its resolution (a Kinect's).
 HEIGHTMAP_CAMERA = ("overhead", 640, 480)
+#: State and goal entries are clipped to +- this (positions are within metres of the origin;
+#: anything faster than 100 m/s or rad/s has diverged anyway).
+STATE_BOUND = 100.0
 ROBOT_STATE_SIZE = 23
 OBJECT_STATE_SIZE = 14
 
@@ -161,7 +164,7 @@ class ObservationBuilder:
         for modality in modalities:
             if modality == "state":
                 key = "observation" if goal_size is not None else "state"
-                spaces[key] = gym.spaces.Box(-np.inf, np.inf, (self.state_size,), dtype=np.float32)
+                spaces[key] = gym.spaces.Box(-STATE_BOUND, STATE_BOUND, (self.state_size,), dtype=np.float32)
             elif modality == "heightmap":
                 rows, cols = sensors.grid.shape
                 high = np.full((rows, cols, 4), 1.0, dtype=np.float32)
@@ -171,8 +174,8 @@ class ObservationBuilder:
                 for camera in cameras:
                     spaces[self.image_key(camera, modality)] = self._image_space(modality, height, width)
         if goal_size is not None:
-            spaces["achieved_goal"] = gym.spaces.Box(-np.inf, np.inf, (goal_size,), dtype=np.float32)
-            spaces["desired_goal"] = gym.spaces.Box(-np.inf, np.inf, (goal_size,), dtype=np.float32)
+            spaces["achieved_goal"] = gym.spaces.Box(-STATE_BOUND, STATE_BOUND, (goal_size,), dtype=np.float32)
+            spaces["desired_goal"] = gym.spaces.Box(-STATE_BOUND, STATE_BOUND, (goal_size,), dtype=np.float32)
         self.keys = list(spaces)
         self.space: gym.Space = spaces[self.keys[0]] if len(spaces) == 1 else gym.spaces.Dict(spaces)
 
@@ -183,7 +186,8 @@ class ObservationBuilder:
         if modality == "rgb":
             return gym.spaces.Box(0, 255, (height, width, 3), dtype=np.uint8)
         if modality == "depth":
-            return gym.spaces.Box(0.0, np.inf, (height, width, 1), dtype=np.float32)
+            far = self.cell.model.vis.map.zfar * self.cell.model.stat.extent
+            return gym.spaces.Box(0.0, far, (height, width, 1), dtype=np.float32)
         return gym.spaces.Box(0, 2 + self.n_objects, (height, width, 1), dtype=np.uint8)
 
     def state(self, extra: np.ndarray | None = None) -> np.ndarray:
@@ -205,7 +209,8 @@ class ObservationBuilder:
             parts.append(per_object.ravel())
         if extra is not None:
             parts.append(extra)
-        return np.concatenate([np.asarray(p, dtype=np.float32).ravel() for p in parts])
+        state = np.concatenate([np.asarray(p, dtype=np.float32).ravel() for p in parts])
+        return np.clip(state, -STATE_BOUND, STATE_BOUND, out=state)
 
     def observe(self, goals: tuple[np.ndarray, np.ndarray] | None, extra: np.ndarray | None = None) -> Any:
         out: dict[str, Any] = {}
@@ -226,6 +231,6 @@ class ObservationBuilder:
                         rgb, depth = self.sensors.rgbd(camera)
                         out[key] = rgb if modality == "rgb" else depth[..., None]
         if goals is not None:
-            out["achieved_goal"] = goals[0].astype(np.float32)
-            out["desired_goal"] = goals[1].astype(np.float32)
+            out["achieved_goal"] = np.clip(goals[0], -STATE_BOUND, STATE_BOUND).astype(np.float32)
+            out["desired_goal"] = np.clip(goals[1], -STATE_BOUND, STATE_BOUND).astype(np.float32)
         return out[self.keys[0]] if len(self.keys) == 1 else out

@@ -197,6 +197,25 @@ class Workcell:
             self.step_physics(self.control_substeps)
         self.controller.sync(self.robot.joint_positions)
 
+    def teleport_hand(self, position: np.ndarray, yaw: float, max_iterations: int = 300) -> float:
+        """Put the arm, at rest, in the configuration that holds the grasp site at ``position`` with heading ``yaw``.
+
+        Solves the IK on its own (no physics time passes); for resets.  Returns
+        the remaining position error, metres.
+        """
+        self.controller.sync(self.robot.joint_positions)
+        self.controller.set_goal(position, yaw)
+        for _ in range(max_iterations):
+            self.controller.step(self.control_dt)
+            if self.controller.reference_error == 0.0 and self.controller.tracking_error() < 1e-4:
+                break
+        self.data.qpos[self.robot.arm_qpos_idx] = self.controller.commanded_qpos
+        self.data.qvel[self.robot.arm_qvel_idx] = 0.0
+        self.robot.command_joints(self.controller.commanded_qpos)
+        mujoco.mj_forward(self.model, self.data)
+        self.controller.sync(self.robot.joint_positions)
+        return float(np.linalg.norm(self.robot.ee_position - position))
+
     def actuate_gripper(self, close: bool, timeout: float = 0.8) -> None:
         """Open or close the gripper and wait until the fingers stop (or ``timeout`` seconds)."""
         if close:

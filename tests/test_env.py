@@ -1,0 +1,176 @@
+"""The Gymnasium API: checkers, determinism, vector envs, bad input, divergence."""
+
+import subprocess
+import sys
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+from panda_grasp_env import ENV_IDS
+
+ACTION_MODES = ("primitive", "pixel", "ee_delta", "joint")
+#: The mode combinations the README lists as supported, checked on every id.
+OBS_MODES = ("state", "rgbd+segmentation+heightmap+state")
+SMALL = {"image_size": (32, 24), "heightmap_resolution": 0.008}  # keep the checks quick
+
+
+def make(env_id: str, **kwargs):
+    return gym.make(f"panda_grasp_env:{env_id}", **(SMALL | kwargs))
+
+
+@pytest.mark.parametrize("obs_mode", OBS_MODES)
+@pytest.mark.parametrize("action_mode", ACTION_MODES)
+@pytest.mark.parametrize("env_id", sorted(ENV_IDS))
+def test_checkers_pass(env_id, action_mode, obs_mode):
+    env = make(env_id, action_mode=action_mode, obs_mode=obs_mode)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # gymnasium's checker must be clean, not just pass
+        gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped, warn=False)
+    env.close()
+
+
+def test_make_in_a_fresh_interpreter_without_import():
+    code = (
+        "import gymnasium as gym; env = gym.make('panda_grasp_env:PandaTowerBuild-v0', obs_mode='state', "
+        "action_mode='primitive'); o, i = env.reset(seed=0); print(o.shape, env.spec.max_episode_steps)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert out.stdout.split() == ["(88,)", "30"]
+
+
+def _rollout(env_id: str, seed: int, n_steps: int, **kwargs) -> list:
+    env = make(env_id, **kwargs)
+    env.action_space.seed(seed)
+    actions = [env.action_space.sample() for _ in range(n_steps)]
+    observations = [env.reset(seed=seed)[0]]
+    for action in actions:
+        observations.append(env.step(action)[0])
+    env.close()
+    return observations
+
+
+def _flatten(observations: list) -> list[np.ndarray]:
+    return [np.concatenate([np.ravel(v) for v in o.values()]) if isinstance(o, dict) else o for o in observations]
+
+
+@pytest.mark.parametrize("env_id", sorted(ENV_IDS))
+def test_same_seed_same_observations(env_id):
+    obs_mode = "state+rgb"
+    first = _flatten(_rollout(env_id, 7, 3, obs_mode=obs_mode))
+    second = _flatten(_rollout(env_id, 7, 3, obs_mode=obs_mode))
+    assert all(np.array_equal(a, b) for a, b in zip(first, second))
+    other = _flatten(_rollout(env_id, 8, 0, obs_mode=obs_mode))
+    assert not np.array_equal(first[0], other[0])
+
+
+@pytest.mark.parametrize("env_id", sorted(ENV_IDS))
+def test_async_vector_env_runs_every_id(env_id):
+    # forkserver/spawn: a worker forked from a parent that already owns a GL context hangs (DESIGN section 6).
+    envs = gym.vector.AsyncVectorEnv([lambda: make(env_id, obs_mode="state+rgb")] * 2, context="forkserver")
+    envs.reset(seed=3)
+    observations, rewards, terminated, truncated, infos = envs.step(envs.action_space.sample())
+    assert rewards.shape == (2,) and "is_success" in infos
+    envs.close()
+
+
+def test_async_vector_env_pixel_mode_with_spawn():
+    envs = gym.vector.AsyncVectorEnv(
+        [lambda: make("PandaTowerBreak-v0", action_mode="pixel", obs_mode="heightmap")] * 2, context="spawn"
+    )
+    observations, _ = envs.reset(seed=0)
+    assert observations.shape == (2, 56, 56, 4)
+    envs.step(envs.action_space.sample())
+    envs.close()
+
+
+@pytest.mark.parametrize("env_id", sorted(ENV_IDS))
+def test_sb3_subproc_vec_env_runs_every_id(env_id):
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    envs = make_vec_env(
+        f"panda_grasp_env:{env_id}",
+        n_envs=2,
+        seed=0,
+        vec_env_cls=SubprocVecEnv,
+        env_kwargs=SMALL | {"obs_mode": "state+rgb"},
+        vec_env_kwargs={"start_method": "spawn"},
+    )
+    envs.reset()
+    actions = np.array([envs.action_space.sample() for _ in range(2)])
+    _, rewards, _, infos = envs.step(actions)
+    assert rewards.shape == (2,) and all("is_success" in i for i in infos)
+    envs.close()
+
+
+# --- bad input ------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def push_env():
+    env = make("PandaPush-v0")
+    env.reset(seed=0)
+    yield env
+    env.close()
+
+
+@pytest.mark.parametrize(
+    "action, message",
+    [
+        (np.zeros(3), "shape"),
+        (np.zeros((4, 1)), "shape"),
+        (np.array(["a", "b", "c", "d"]), "numeric"),
+        (np.array([0.0, np.nan, 0.0, 0.0]), "NaN or inf at index \\[1\\]"),
+        (np.array([0.0, 0.0, np.inf, 0.0]), "NaN or inf at index \\[2\\]"),
+    ],
+)
+def test_bad_actions_raise_naming_the_problem(push_env, action, message):
+    with pytest.raises(ValueError, match=message):
+        push_env.step(action)
+
+
+def test_out_of_range_actions_are_clipped_and_counted(push_env):
+    _, _, _, _, info = push_env.step(np.array([3.0, -2.0, 0.5, 0.0]))
+    assert info["actions_clipped"] == 2 and info["actions_clipped_total"] >= 2
+
+
+def test_bad_pixel_actions_raise():
+    env = make("PandaTowerBreak-v0", action_mode="pixel")
+    env.reset(seed=0)
+    for action, message in ((-1, "outside"), (env.action_space.n, "outside"), (1.5, "integer")):
+        with pytest.raises(ValueError, match=message):
+            env.step(action)
+    env.close()
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"obs_mode": "lidar"}, "valid: \\['state', 'rgb'"),
+        ({"action_mode": "torque"}, "valid: \\['primitive', 'pixel', 'ee_delta', 'joint'\\]"),
+        ({"n_blocks": 7}, "n_blocks"),
+        ({"colour": "red"}, "unknown option\\(s\\) \\['colour'\\] for task 'TowerBuild'; valid: \\['n_blocks'"),
+        ({"cameras": ("ceiling",)}, "valid: \\['overhead', 'front', 'wrist'\\]"),
+        ({"render_mode": "ascii"}, "render_mode"),
+        ({"image_size": (0, 10)}, "image_size"),
+    ],
+)
+def test_bad_options_raise_at_make(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        gym.make("panda_grasp_env:PandaTowerBuild-v0", **kwargs)
+
+
+def test_physics_divergence_truncates_and_reset_recovers():
+    env = make("PandaPush-v0")
+    env.reset(seed=0)
+    env.unwrapped.cell.data.qvel[:] = np.nan
+    observation, reward, terminated, truncated, info = env.step(np.zeros(4))
+    assert truncated and not terminated and info["physics_error"]
+    assert all(np.isfinite(v).all() for v in observation.values())
+    _, info = env.reset(seed=1)
+    _, _, _, truncated, info = env.step(np.zeros(4))
+    assert not truncated and not info["physics_error"]
+    env.close()

@@ -1,0 +1,199 @@
+"""Task behaviour through env.step: success, termination, counters, masks, goals, HER."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from panda_grasp_env.stacking import wrap_quarter_turn
+
+SMALL = {"image_size": (32, 24), "heightmap_resolution": 0.008}
+
+
+def make(env_id: str, **kwargs):
+    return gym.make(f"panda_grasp_env:{env_id}", **(SMALL | kwargs))
+
+
+def build_tower_through_env(env) -> dict:
+    """Scripted grasp/place actions (from true poses) that stack every block on the base; returns the last info."""
+    unwrapped = env.unwrapped
+    cell, encode = unwrapped.cell, unwrapped.actions.encode
+    base, base_yaw = cell.block_positions()[0], cell.block_yaws()[0]
+    info = {}
+    for i in range(1, len(cell.block_ids)):
+        position, yaw = cell.block_positions()[i], cell.block_yaws()[i]
+        _, _, _, _, info = env.step(encode("grasp", position[0], position[1], yaw))
+        assert info["primitive_reason"] == "ok"
+        held = float(wrap_quarter_turn(cell.block_yaws()[i] - cell.robot.ee_yaw))
+        _, _, terminated, _, info = env.step(encode("place", base[0], base[1], base_yaw - held))
+        assert info["primitive_reason"] == "ok"
+    return info | {"terminated": terminated}
+
+
+def push_tower_through_env(env, heading: float = np.pi / 2) -> tuple:
+    cell = env.unwrapped.cell
+    centre = cell.block_positions()[0, :2]
+    start = centre - 0.065 * np.array([np.cos(heading), np.sin(heading)])
+    return env.step(env.unwrapped.actions.encode("push", start[0], start[1], heading))
+
+
+def test_tower_build_succeeds_in_ideal_actions_and_terminates():
+    env = make("PandaTowerBuild-v0")
+    env.reset(seed=0)
+    info = build_tower_through_env(env)
+    assert info["is_success"] and info["terminated"] and info["stack_height"] == 4
+    assert (info["grasps_attempted"], info["grasps_succeeded"], info["places"]) == (3, 3, 3)
+    assert env.unwrapped.task.ideal_actions == 6
+    env.close()
+
+
+def test_tower_break_by_push_and_by_impulse():
+    env = make("PandaTowerBreak-v0")
+    env.reset(seed=0)
+    _, reward, terminated, _, info = push_tower_through_env(env)
+    assert info["is_success"] and terminated and info["blocks_moved"] >= 3 and reward >= 4
+    env.close()
+    env = make("PandaTowerBreak-v0", allow_impulse=True, impulse_magnitude=0.1)
+    env.reset(seed=0)
+    cell = env.unwrapped.cell
+    top = cell.block_positions()[np.argmax(cell.block_positions()[:, 2])]
+    _, _, _, _, info = env.step(env.unwrapped.actions.encode("impulse", top[0], top[1], 0.0))
+    assert info["primitive"] == "impulse" and info["primitive_success"] and info["impulses"] == 1
+    assert info["blocks_moved"] >= 1
+    env.close()
+
+
+def test_build_and_break_counts_cycles_and_continues():
+    env = make("PandaBuildAndBreak-v0")
+    env.reset(seed=2)
+    info = build_tower_through_env(env)
+    assert (info["builds"], info["breaks"], info["phase"]) == (1, 0, "break") and not info["terminated"]
+    _, _, terminated, _, info = push_tower_through_env(env)
+    assert (info["builds"], info["breaks"], info["cycles"], info["phase"]) == (1, 1, 1, "build")
+    assert info["is_success"] and not terminated
+    env.close()
+
+
+def test_grasp_removes_objects_until_the_table_is_clear():
+    env = make("PandaGrasp-v0", n_objects=2, shapes=("cube", "cylinder"))
+    env.reset(seed=0)
+    cell = env.unwrapped.cell
+    for expected_remaining in (1, 0):
+        body = next(b for b in cell.object_ids if not cell.is_parked(b))
+        x, y, _ = cell.data.xpos[body]
+        yaw = float(np.arctan2(*cell.data.xmat[body].reshape(3, 3)[[1, 0], 0]))
+        _, reward, terminated, _, info = env.step(env.unwrapped.actions.encode("grasp", x, y, yaw))
+        assert info["primitive_reason"] == "ok" and reward == 1.0
+        assert info["objects_remaining"] == expected_remaining
+    assert terminated and info["is_success"] and info["objects_grasped"] == 2
+    env.close()
+
+
+def test_grasp_ends_after_k_consecutive_failures():
+    env = make("PandaGrasp-v0", max_failures=2)
+    env.reset(seed=0)
+    empty = env.unwrapped.actions.encode("grasp", 0.3, 0.3, 0.0)  # a corner with nothing in it
+    assert not env.step(empty)[2]
+    _, _, terminated, _, info = env.step(empty)
+    assert terminated and not info["is_success"] and info["consecutive_failures"] == 2
+    env.close()
+
+
+@pytest.mark.parametrize("shape", ["cube", "box", "cylinder", "sphere", "capsule"])
+def test_every_shape_rests_on_the_table(shape):
+    env = make("PandaGrasp-v0", n_objects=3, shapes=(shape,))
+    env.reset(seed=1)
+    cell = env.unwrapped.cell
+    assert np.all(np.abs(cell.data.cvel[cell.object_ids, 3:]).max(axis=1) < 0.02)
+    assert np.all(cell.object_positions()[:, 2] > 0.005)
+    env.close()
+
+
+def test_clutter_drops_ten_objects_into_a_heap():
+    env = make("PandaGraspClutter-v0")
+    _, info = env.reset(seed=0)
+    assert len(info["shapes"]) == 10 and info["objects_remaining"] >= 9
+    env.close()
+
+
+def test_push_goal_dict_and_vectorised_compute_reward():
+    env = make("PandaPush-v0")
+    observation, info = env.reset(seed=0)
+    assert set(observation) == {"observation", "achieved_goal", "desired_goal"}
+    compute = env.unwrapped.compute_reward
+    achieved = np.stack([observation["desired_goal"], observation["desired_goal"] + 0.2])
+    desired = np.stack([observation["desired_goal"]] * 2)
+    assert compute(achieved, desired, [info, info]).tolist() == [0.0, -1.0]
+    env.close()
+
+
+def test_ee_delta_moves_the_hand_and_closes_the_gripper():
+    env = make("PandaPush-v0")
+    observation, _ = env.reset(seed=0)
+    start = observation["observation"][:3].copy()
+    for _ in range(10):
+        observation, *_ = env.step(np.array([1.0, 0.0, 0.0, 1.0]))
+    moved = observation["observation"][:3] - start
+    assert 0.08 < moved[0] < 0.31 and abs(moved[1]) < 0.02 and abs(moved[2]) < 0.02  # <= 10 x EE_STEP
+    assert observation["observation"][5] < 0.005  # finger gap: closed
+    env.close()
+
+
+def test_her_replay_buffer_trains_on_push():
+    from stable_baselines3 import SAC, HerReplayBuffer
+
+    env = make("PandaPush-v0")
+    model = SAC(
+        "MultiInputPolicy",
+        env,
+        replay_buffer_class=HerReplayBuffer,
+        replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
+        learning_starts=60,
+        batch_size=32,
+        policy_kwargs={"net_arch": [32, 32]},
+        seed=0,
+        device="cpu",
+    )
+    model.learn(120)
+    assert model.replay_buffer.size() > 0 and model.num_timesteps == 120
+    env.close()
+
+
+def test_pixel_masks_follow_objects_and_the_hand():
+    env = make("PandaTowerBuild-v0", action_mode="pixel", obs_mode="heightmap", rotations=4)
+    heightmap, _ = env.reset(seed=0)
+    masks = env.unwrapped.action_masks().reshape(3, 4, *heightmap.shape[:2])  # grasp, place, push
+    occupied = heightmap[..., 3] > 0.01
+    assert masks[0, 0].sum() == occupied.sum() > 0 and not masks[1].any()
+    assert masks[2, 0].sum() > masks[0, 0].sum()
+    # A grasp chosen from the mask picks a block up; then only places are allowed.
+    index = int(np.flatnonzero(masks[0].ravel())[len(np.flatnonzero(masks[0].ravel())) // 2])
+    _, _, _, _, info = env.step(index)
+    if info["primitive_success"]:
+        masks = env.unwrapped.action_masks().reshape(masks.shape)
+        assert masks[1].all() and not masks[0].any() and not masks[2].any()
+    env.close()
+
+
+def test_image_observations_see_the_blocks():
+    env = make("PandaTowerBreak-v0", obs_mode="rgb+depth+segmentation+heightmap", image_size=(64, 48))
+    observation, _ = env.reset(seed=0)
+    assert observation["rgb"].shape == (48, 64, 3) and observation["depth"].shape == (48, 64, 1)
+    labels = set(np.unique(observation["segmentation"]).tolist())
+    top_slot = int(np.argmax(env.unwrapped.cell.block_positions()[:, 2]))
+    assert {0, 2 + top_slot} <= labels <= {0, 1, 2, 3, 4, 5}  # background, the top block; robot and sides maybe
+    top = env.unwrapped.cell.block_positions()[:, 2].max() + 0.025
+    assert abs(observation["heightmap"][..., 3].max() - top) < 0.005
+    assert 1.0 < observation["depth"].max() < 1.2  # the table, about 1.05 m below the camera
+    env.close()
+
+
+def test_render_modes():
+    env = make("PandaPush-v0", render_mode="rgb_array", render_size=(160, 120))
+    env.reset(seed=0)
+    assert env.render().shape == (120, 160, 3)
+    env.close()
+    env = make("PandaPush-v0", render_mode="depth_array", render_size=(160, 120))
+    env.reset(seed=0)
+    depth = env.render()
+    assert depth.shape == (120, 160) and np.isfinite(depth).all()
+    env.close()
