@@ -25,6 +25,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from panda_grasp_env.controller import JacobianServo
 from panda_grasp_env.primitives import MIN_GRASP_HEIGHT, PrimitiveResult, run_primitive
 from panda_grasp_env.robot import FINGER_OPEN, HOME_YAW
 from panda_grasp_env.workcell import WORKSPACE, Workcell
@@ -38,8 +39,8 @@ PUSH_HEIGHT_RANGE = (0.03, 0.12)
 EE_STEP = 0.03
 #: Largest joint change per joint step, radians.
 JOINT_STEP = 0.05
-#: Grasp-site box the ee_delta mode keeps its targets in (fingertips clear the table at z >= 0.015).
-LOW_LEVEL_BOUNDS = np.array([WORKSPACE[0], WORKSPACE[1], [0.015, WORKSPACE[2, 1]]])
+#: Grasp-site box the ee_delta mode keeps its targets in (fingertips stay clear of the table).
+LOW_LEVEL_BOUNDS = np.array([WORKSPACE[0], WORKSPACE[1], [MIN_GRASP_HEIGHT, WORKSPACE[2, 1]]])
 _WORLD_GROUP = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # ray casts see geom group 0 only: table and objects
 
 
@@ -110,7 +111,7 @@ def validate_box_action(action: Any, space: gym.spaces.Box) -> tuple[np.ndarray,
     bad = ~np.isfinite(array)
     if bad.any():
         raise ValueError(f"action contains NaN or inf at index {np.flatnonzero(bad).tolist()}: {array.tolist()}")
-    clipped = np.clip(array, space.low, space.high)
+    clipped = np.minimum(np.maximum(array, space.low), space.high)
     return clipped, int(np.count_nonzero(clipped != array))
 
 
@@ -124,6 +125,9 @@ class ActionMode:
     def validate(self, action: Any) -> tuple[Any, int]:
         """Checked action and the number of clipped components."""
         return validate_box_action(action, self.space)
+
+    def reset(self, cell: Workcell) -> None:
+        """Called at every env reset, after the task laid out the scene."""
 
     def execute(self, cell: Workcell, action: Any) -> PrimitiveResult | None:
         raise NotImplementedError
@@ -253,15 +257,29 @@ class EEDeltaActions(ActionMode):
 
     name = "ee_delta"
     low_level = True
+    MAX_LAG = 0.02  # metres
+    LOW, HIGH = LOW_LEVEL_BOUNDS[:, 0].copy(), LOW_LEVEL_BOUNDS[:, 1].copy()
 
-    def __init__(self) -> None:
+    def __init__(self, cell: Workcell) -> None:
         self.space = gym.spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
+        self.servo = JacobianServo(cell.model, cell.data)
+        self.target = np.zeros(3)
+
+    def reset(self, cell: Workcell) -> None:
+        self.target = cell.robot.ee_position
 
     def execute(self, cell: Workcell, action: np.ndarray) -> None:
-        target = np.clip(cell.robot.ee_position + action[:3] * EE_STEP, LOW_LEVEL_BOUNDS[:, 0], LOW_LEVEL_BOUNDS[:, 1])
-        cell.controller.set_goal(target, HOME_YAW)
+        # The target integrates the commanded displacements (so a zero action holds the hand where it
+        # was told to be), but never runs more than MAX_LAG ahead of the hand (pushing on the table).
+        position = cell.robot.ee_position
+        lag = self.target - position
+        distance = float(np.sqrt(lag @ lag))
+        if distance > self.MAX_LAG:
+            self.target = position + lag * (self.MAX_LAG / distance)
+        self.target = np.minimum(np.maximum(self.target + action[:3] * EE_STEP, self.LOW), self.HIGH)
+        cell.robot.command_joints(self.servo.command(self.target, HOME_YAW, cell.control_dt))
         cell.robot.command_fingers(FINGER_OPEN * (1.0 - action[3]) / 2.0)
-        cell.control_step()
+        cell.step_physics(cell.control_substeps)
         return None
 
 

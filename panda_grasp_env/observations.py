@@ -40,6 +40,11 @@ ROBOT_STATE_SIZE = 23
 OBJECT_STATE_SIZE = 14
 
 
+def bounded(values: np.ndarray) -> np.ndarray:
+    """float32 copy clipped to +- ``STATE_BOUND``."""
+    return np.minimum(np.maximum(values, -STATE_BOUND), STATE_BOUND).astype(np.float32)
+
+
 def parse_obs_mode(obs_mode: str) -> tuple[str, ...]:
     """Modalities of an ``obs_mode`` string; ``ValueError`` listing the valid ones if unknown."""
     if not isinstance(obs_mode, str) or not obs_mode:
@@ -159,6 +164,7 @@ class ObservationBuilder:
             [cell.model.jnt_dofadr[cell.model.body_jntadr[b]] for b in cell.object_ids], dtype=int
         ).reshape(-1, 1) + np.arange(6)
         self._velocity = np.zeros(6)
+        self._buffer = np.zeros(self.state_size)
         spaces: dict[str, gym.Space] = {}
         height, width = sensors.height, sensors.width
         for modality in modalities:
@@ -193,24 +199,27 @@ class ObservationBuilder:
     def state(self, extra: np.ndarray | None = None) -> np.ndarray:
         """The state vector (see ``state_layout``), float32."""
         cell, robot, data = self.cell, self.cell.robot, self.cell.data
+        buffer = self._buffer
+        buffer[0:3] = data.site_xpos[robot.site_id]
+        x_axis = data.site_xmat[robot.site_id][[0, 3]]  # the closing axis, projected on the table
+        buffer[3:5] = x_axis / max(float(np.hypot(*x_axis)), 1e-9)
+        buffer[5] = robot.finger_gap
         mujoco.mj_objectVelocity(cell.model, data, mujoco.mjtObj.mjOBJ_SITE, robot.site_id, self._velocity, 0)
-        yaw = robot.ee_yaw
-        parts = [
-            robot.ee_position,
-            [np.cos(yaw), np.sin(yaw), robot.finger_gap],
-            self._velocity[3:],
-            robot.joint_positions,
-            robot.joint_velocities,
-        ]
+        buffer[6:9] = self._velocity[3:]
+        buffer[9:16] = data.qpos[robot.arm_qpos_idx]
+        buffer[16:23] = data.qvel[robot.arm_qvel_idx]
         if self.n_objects:
             ids = cell.object_ids
-            on_table = (data.xpos[ids, 2] > -0.1).astype(float)[:, None]
-            per_object = np.hstack([data.xpos[ids], data.xquat[ids], data.qvel[self._free_qvel], on_table])
-            parts.append(per_object.ravel())
+            objects = buffer[ROBOT_STATE_SIZE : ROBOT_STATE_SIZE + OBJECT_STATE_SIZE * self.n_objects].reshape(
+                self.n_objects, OBJECT_STATE_SIZE
+            )
+            objects[:, 0:3] = data.xpos[ids]
+            objects[:, 3:7] = data.xquat[ids]
+            objects[:, 7:13] = data.qvel[self._free_qvel]
+            objects[:, 13] = data.xpos[ids, 2] > -0.1
         if extra is not None:
-            parts.append(extra)
-        state = np.concatenate([np.asarray(p, dtype=np.float32).ravel() for p in parts])
-        return np.clip(state, -STATE_BOUND, STATE_BOUND, out=state)
+            buffer[self.state_size - len(extra) :] = extra
+        return bounded(buffer)
 
     def observe(self, goals: tuple[np.ndarray, np.ndarray] | None, extra: np.ndarray | None = None) -> Any:
         out: dict[str, Any] = {}
@@ -231,6 +240,6 @@ class ObservationBuilder:
                         rgb, depth = self.sensors.rgbd(camera)
                         out[key] = rgb if modality == "rgb" else depth[..., None]
         if goals is not None:
-            out["achieved_goal"] = np.clip(goals[0], -STATE_BOUND, STATE_BOUND).astype(np.float32)
-            out["desired_goal"] = np.clip(goals[1], -STATE_BOUND, STATE_BOUND).astype(np.float32)
+            out["achieved_goal"] = bounded(goals[0])
+            out["desired_goal"] = bounded(goals[1])
         return out[self.keys[0]] if len(self.keys) == 1 else out

@@ -37,13 +37,20 @@ class CameraRenderer:
             model.vis.global_.offheight = max(height, model.vis.global_.offheight)
         self.model = model
         self.profile = profile
-        # The offscreen buffer's multisampling is fixed when the GL context is made.
-        authored_samples = model.vis.quality.offsamples
-        model.vis.quality.offsamples = 0 if profile == "fast" else max(4, authored_samples)
+        # Multisampling and the tessellation of built-in shapes are fixed when the GL context is made.
+        # The fast profile draws capsules and cylinders with 16 x 8 facets instead of 28 x 16: the
+        # robot's 24 capsules were 80 % of an 84 x 84 frame's cost (2.6 -> 1.1 ms), for a radial error
+        # of at most 2 % of the radius.
+        quality = model.vis.quality
+        authored = (quality.offsamples, quality.numslices, quality.numstacks)
+        if profile == "fast":
+            quality.offsamples, quality.numslices, quality.numstacks = 0, 16, 8
+        else:
+            quality.offsamples = max(4, authored[0])
         try:
             self._renderer = mujoco.Renderer(model, height=height, width=width)
         finally:
-            model.vis.quality.offsamples = authored_samples
+            quality.offsamples, quality.numslices, quality.numstacks = authored
         self.width, self.height = width, height
         # Scene flags persist across update_scene calls: set them once.
         fancy = profile == "pretty"

@@ -88,7 +88,7 @@ class PandaRobot:
     def finger_gap(self) -> float:
         """Distance between the two finger pads, metres (0 when closed on nothing)."""
         gap = self.data.qpos[self.finger_qpos_idx].sum() - 2 * PAD_PROTRUSION
-        return float(np.clip(gap, 0.0, MAX_FINGER_GAP))
+        return min(max(float(gap), 0.0), MAX_FINGER_GAP)
 
     @property
     def finger_speed(self) -> float:
@@ -98,14 +98,14 @@ class PandaRobot:
     # --- commands ----------------------------------------------------------
     def command_joints(self, qpos: np.ndarray) -> None:
         """Set the arm's position-servo targets (7,), clipped to the joint limits."""
-        self.data.ctrl[self.arm_ctrl_idx] = np.clip(qpos, self.arm_lower, self.arm_upper)
+        self.data.ctrl[self.arm_ctrl_idx] = np.minimum(np.maximum(qpos, self.arm_lower), self.arm_upper)
 
     def open_gripper(self) -> None:
         self.data.ctrl[self.finger_ctrl_idx] = FINGER_OPEN
 
     def command_fingers(self, opening: float) -> None:
         """Finger position target, metres per finger (0 closed .. ``FINGER_OPEN``), force-limited."""
-        self.data.ctrl[self.finger_ctrl_idx] = float(np.clip(opening, FINGER_CLOSED, FINGER_OPEN))
+        self.data.ctrl[self.finger_ctrl_idx] = min(max(float(opening), FINGER_CLOSED), FINGER_OPEN)
 
     def close_gripper(self) -> None:
         """Close both fingers; each squeezes with at most the scene's ``gripper_force``."""

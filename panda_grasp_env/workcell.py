@@ -25,7 +25,10 @@ SPAWN_REGION = np.array([[0.35, 0.65], [-0.22, 0.22]])
 #: Where removed objects wait, out of every camera's view: a row on the floor beside the table.
 PARKING_ORIGIN = np.array([-1.0, -1.8, -0.75])
 PARKING_SPACING = 0.15
-_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL)
+_WARNINGS = [
+    int(w)
+    for w in (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL)
+]
 
 
 class PhysicsError(RuntimeError):
@@ -91,6 +94,7 @@ class Workcell:
         self._qpos_adr = {b: self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.object_ids}
         self._dof_adr = {b: self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.object_ids}
         self.physics_steps = 0
+        self._teleport_solutions: dict[tuple, np.ndarray] = {}
         #: Called with the workcell after every control step (video recording, logging).
         self.step_hooks: list[Callable[[Workcell], None]] = []
         self.reset_robot()
@@ -138,7 +142,7 @@ class Workcell:
         mujoco.mj_step(self.model, self.data, nstep=n_steps)
         self.physics_steps += n_steps
         # MuJoCo's own checks catch NaN/inf and runaway values (and reset the data when they fire).
-        if any(self.data.warning[w].number for w in _WARNINGS):
+        if self.data.warning.number[_WARNINGS].any():
             raise PhysicsError("simulation diverged (MuJoCo reported bad qpos/qvel/qacc)")
         for hook in self.step_hooks:
             hook(self)
@@ -203,15 +207,18 @@ class Workcell:
         Solves the IK on its own (no physics time passes); for resets.  Returns
         the remaining position error, metres.
         """
-        self.controller.sync(self.robot.joint_positions)
-        self.controller.set_goal(position, yaw)
-        for _ in range(max_iterations):
-            self.controller.step(self.control_dt)
-            if self.controller.reference_error == 0.0 and self.controller.tracking_error() < 1e-4:
-                break
-        self.data.qpos[self.robot.arm_qpos_idx] = self.controller.commanded_qpos
+        key = (*np.round(position, 4), round(yaw, 4), *np.round(self.robot.joint_positions, 4))
+        if key not in self._teleport_solutions:  # the IK is deterministic: solve each start and goal once
+            self.controller.sync(self.robot.joint_positions)
+            self.controller.set_goal(position, yaw)
+            for _ in range(max_iterations):
+                self.controller.step(self.control_dt)
+                if self.controller.converged:
+                    break
+            self._teleport_solutions[key] = self.controller.commanded_qpos
+        self.data.qpos[self.robot.arm_qpos_idx] = self._teleport_solutions[key]
         self.data.qvel[self.robot.arm_qvel_idx] = 0.0
-        self.robot.command_joints(self.controller.commanded_qpos)
+        self.robot.command_joints(self._teleport_solutions[key])
         mujoco.mj_forward(self.model, self.data)
         self.controller.sync(self.robot.joint_positions)
         return float(np.linalg.norm(self.robot.ee_position - position))

@@ -133,9 +133,8 @@ class Grasp(Task):
 
     def evaluate(self, cell: Workcell, result: PrimitiveResult | None) -> TaskStep:
         if result is None:
-            achieved = self.achieved_goal(cell)
-            reward = float(self.compute_reward(achieved, self._goal, None))
-            return TaskStep(reward, bool(goals_reached(achieved, self._goal)), False, self._info(cell))
+            reached = bool(goals_reached(self.achieved_goal(cell), self._goal))
+            return TaskStep(0.0 if reached else -1.0, reached, False, self._info(cell))  # as compute_reward
         reward = 0.0
         if result.primitive == "grasp" and result.success:
             body = cell.model.body(result.object).id

@@ -70,7 +70,7 @@ class TowerBuild(Task):
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
         cell.clear()
         cell.place_blocks(rng, "scattered")
-        cell.settle(0.3)
+        cell.settle(0.1)  # blocks start at rest on the table
         size = cell.config.block_size
         base = cell.block_positions()[0]
         self._goal = np.concatenate([base + [0.0, 0.0, size * level] for level in range(1, self.n_blocks)])
@@ -102,9 +102,8 @@ class TowerBuild(Task):
         levels = self.levels(cell)
         info = {"stack_height": levels}
         if result is None:
-            achieved = self.achieved_goal(cell)
-            reward = float(self.compute_reward(achieved, self._goal, info))
-            return TaskStep(reward, bool(goals_reached(achieved, self._goal)), False, info)
+            reached = bool(goals_reached(self.achieved_goal(cell), self._goal))
+            return TaskStep(0.0 if reached else -1.0, reached, False, info)  # as compute_reward
         success = self.built(cell)
         reward = float(levels - self._levels) + (0.5 if result.primitive == "grasp" and result.success else 0.0)
         reward += 1.0 if success else 0.0
