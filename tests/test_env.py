@@ -158,6 +158,7 @@ def test_bad_pixel_actions_raise():
         ({"image_size": (0, 10)}, "image_size"),
     ],
 )
+@pytest.mark.filterwarnings("ignore:.*render_mode")  # gymnasium warns before our error
 def test_bad_options_raise_at_make(kwargs, message):
     with pytest.raises(ValueError, match=message):
         gym.make("panda_grasp_env:PandaTowerBuild-v0", **kwargs)
