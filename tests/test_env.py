@@ -34,6 +34,17 @@ def test_checkers_pass(env_id, action_mode, obs_mode):
     env.close()
 
 
+@pytest.mark.parametrize("obs_mode", ("rgb", "depth", "segmentation", "heightmap"))
+@pytest.mark.parametrize("env_id, action_mode", [("PandaTowerBreak-v0", "primitive"), ("PandaPush-v0", "ee_delta")])
+def test_checkers_pass_for_single_image_modalities(env_id, action_mode, obs_mode):
+    env = make(env_id, action_mode=action_mode, obs_mode=obs_mode, cameras=("overhead", "wrist"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped, warn=False)
+    env.close()
+
+
 def test_make_in_a_fresh_interpreter_without_import():
     code = (
         "import gymnasium as gym; env = gym.make('panda_grasp_env:PandaTowerBuild-v0', obs_mode='state', "
