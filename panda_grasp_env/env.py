@@ -165,21 +165,22 @@ class PandaEnv(gym.Env):
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0
         info = {"is_success": False, **task_info, **self._counters, "physics_error": False, "sim_time": 0.0}
+        if self.render_mode == "human":
+            self.render()
         return self._observe(), info
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         command, clipped = self.actions.validate(action)
         self._clipped_total += clipped
+        result, verdict = None, TaskStep(0.0, False, False)
         try:
             result = self.actions.execute(self.cell, command)
             physics_error = result is not None and result.reason == "physics_error"
+            if not physics_error:
+                verdict = self.task.evaluate(self.cell, result)  # may move things too (Grasp sets objects aside)
         except PhysicsError:
-            result, physics_error = None, True
+            physics_error = True
         self.sensors.invalidate()
-        if physics_error:
-            verdict = TaskStep(0.0, False, False)
-        else:
-            verdict = self.task.evaluate(self.cell, result)
         self._count(result)
         info = {
             "is_success": verdict.success,
@@ -191,6 +192,8 @@ class PandaEnv(gym.Env):
             "physics_error": physics_error,
             "sim_time": self.cell.sim_time,
         }
+        if self.render_mode == "human":
+            self.render()
         return self._observe(physics_error), verdict.reward, verdict.terminated, physics_error, info
 
     # --- helpers ------------------------------------------------------------------

@@ -101,12 +101,20 @@ class ObjectShape:
         elif self.kind == "sphere":
             mass = DENSITY * 4 / 3 * np.pi * size[0] ** 3
             inertia = np.full(3, 0.4 * mass * size[0] ** 2)
-        else:
+        elif self.kind == "cylinder":
             radius, half = size[0], size[1]
-            length = 2 * half + (4 / 3 * radius if self.kind == "capsule" else 0.0)  # capsule: cylinder of equal volume
-            mass = DENSITY * np.pi * radius**2 * length
-            side = mass * (3 * radius**2 + (2 * half + (2 * radius if self.kind == "capsule" else 0.0)) ** 2) / 12
+            mass = DENSITY * np.pi * radius**2 * 2 * half
+            side = mass * (3 * radius**2 + (2 * half) ** 2) / 12
             inertia = np.array([side, side, 0.5 * mass * radius**2])
+        else:  # capsule: a cylinder plus two hemispherical caps
+            radius, half = size[0], size[1]
+            body_mass = DENSITY * np.pi * radius**2 * 2 * half
+            cap_mass = DENSITY * 2 / 3 * np.pi * radius**3  # each
+            mass = body_mass + 2 * cap_mass
+            cap_side = 83 / 320 * cap_mass * radius**2 + cap_mass * (half + 3 * radius / 8) ** 2
+            side = body_mass * (3 * radius**2 + (2 * half) ** 2) / 12 + 2 * cap_side
+            axial = 0.5 * body_mass * radius**2 + 2 * 0.4 * cap_mass * radius**2
+            inertia = np.array([side, side, axial])
         return float(mass), inertia
 
 
@@ -133,9 +141,9 @@ def validate_shape_options(kinds: tuple[str, ...], size_ranges: dict | None) -> 
         if kind not in SHAPES:
             raise ValueError(f"size_ranges: unknown shape {kind!r}; valid: {list(SHAPES)}")
         expected = len(DEFAULT_SIZE_RANGES[kind])
-        if len(ranges) != expected or not all(len(r) == 2 and 0.005 <= r[0] <= r[1] <= 0.08 for r in ranges):
+        if len(ranges) != expected or not all(len(r) == 2 and 0.005 <= r[0] <= r[1] <= 0.07 for r in ranges):
             raise ValueError(
-                f"size_ranges[{kind!r}] must be {expected} (low, high) pairs with 0.005 <= low <= high <= 0.08 m, "
+                f"size_ranges[{kind!r}] must be {expected} (low, high) pairs with 0.005 <= low <= high <= 0.07 m, "
                 f"got {ranges!r}"
             )
 

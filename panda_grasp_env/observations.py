@@ -11,8 +11,9 @@
   above the table, VPG-style, projected from the overhead camera's RGB-D.
 
 One modality gives a bare ``Box``; several give a ``Dict``.  Goal-conditioned
-low-level envs always give a ``Dict`` with ``observation`` (the state),
-``achieved_goal`` and ``desired_goal`` (plus any image keys).  Image keys are
+low-level envs always give a ``Dict`` with ``achieved_goal`` and
+``desired_goal``, plus ``observation`` (the state) when ``state`` is asked for,
+plus any image keys.  Image keys are
 the modality name, or ``<camera>_<modality>`` when several cameras are used.
 """
 
@@ -215,7 +216,10 @@ class ObservationBuilder:
             )
             objects[:, 0:3] = data.xpos[ids]
             objects[:, 3:7] = data.xquat[ids]
-            objects[:, 7:13] = data.qvel[self._free_qvel]
+            velocity = data.qvel[self._free_qvel]
+            objects[:, 7:10] = velocity[:, :3]  # a free joint's linear velocity is in the world frame,
+            rotations = data.xmat[ids].reshape(-1, 3, 3)  # its angular velocity in the body frame
+            objects[:, 10:13] = np.einsum("nij,nj->ni", rotations, velocity[:, 3:])
             objects[:, 13] = data.xpos[ids, 2] > -0.1
         if extra is not None:
             buffer[self.state_size - len(extra) :] = extra

@@ -108,7 +108,8 @@ class CameraRenderer:
         extent = self.model.stat.extent
         near, far = self.model.vis.map.znear * extent, self.model.vis.map.zfar * extent
         depth = (near / (depth.astype(np.float64) * (1.0 - near / far) + near / far)).astype(np.float32)
-        return np.flipud(rgb), np.flipud(depth)
+        # OpenGL rows run bottom-up; contiguous copies, since torch rejects negative strides.
+        return np.ascontiguousarray(rgb[::-1]), np.ascontiguousarray(depth[::-1])
 
     def close(self) -> None:
         self._renderer.close()

@@ -17,7 +17,14 @@ def wrap_quarter_turn(angle: np.ndarray | float) -> np.ndarray | float:
 def stack_height(
     positions: np.ndarray, base: int, block_size: float, tolerance: float | None = None, order: list[int] | None = None
 ) -> int:
-    """Number of blocks in the column standing on block ``base`` (the base counts; 0 if the base is off the table).
+    """Number of blocks in the column standing on block ``base`` (see ``stack_column``)."""
+    return len(stack_column(positions, base, block_size, tolerance, order))
+
+
+def stack_column(
+    positions: np.ndarray, base: int, block_size: float, tolerance: float | None = None, order: list[int] | None = None
+) -> list[int]:
+    """Indices of the blocks in the column standing on block ``base``, bottom up (empty if the base is off the table).
 
     Level k (k = 1, 2, ...) is a block whose centre is within ``tolerance``
     (default a fifth of the block size) of the base's in x, y and one block size
@@ -27,20 +34,19 @@ def stack_height(
     tolerance = block_size / 5 if tolerance is None else tolerance
     base_position = positions[base]
     if abs(base_position[2] - block_size / 2) > block_size / 10:
-        return 0
+        return []
     centred = np.linalg.norm(positions[:, :2] - base_position[:2], axis=1) <= tolerance
-    level, current = 1, base
+    column = [base]
     while True:
-        expected = positions[current, 2] + block_size
+        expected = positions[column[-1], 2] + block_size
         candidates = [
             i for i in range(len(positions)) if centred[i] and abs(positions[i, 2] - expected) <= block_size / 10
         ]
         if order is not None:
-            candidates = [i for i in candidates if level < len(order) and i == order[level]]
+            candidates = [i for i in candidates if len(column) < len(order) and i == order[len(column)]]
         if not candidates:
-            return level
-        current = candidates[0]
-        level += 1
+            return column
+        column.append(candidates[0])
 
 
 def tower_is_built(positions: np.ndarray, base: int, block_size: float, tolerance: float | None = None) -> bool:

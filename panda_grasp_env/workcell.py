@@ -24,7 +24,9 @@ WORKSPACE = np.array([[0.25, 0.75], [-0.35, 0.35], [0.0, 0.45]])
 SPAWN_REGION = np.array([[0.35, 0.65], [-0.22, 0.22]])
 #: Where removed objects wait, out of every camera's view: a row on the floor beside the table.
 PARKING_ORIGIN = np.array([-1.0, -1.8, -0.75])
-PARKING_SPACING = 0.15
+PARKING_SPACING = 0.3  # more than twice the largest object's bounding radius
+#: Reset IK solutions kept (least recently used dropped first).
+TELEPORT_CACHE_SIZE = 64
 _WARNINGS = [
     int(w)
     for w in (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL)
@@ -207,18 +209,27 @@ class Workcell:
         Solves the IK on its own (no physics time passes); for resets.  Returns
         the remaining position error, metres.
         """
-        key = (*np.round(position, 4), round(yaw, 4), *np.round(self.robot.joint_positions, 4))
-        if key not in self._teleport_solutions:  # the IK is deterministic: solve each start and goal once
-            self.controller.sync(self.robot.joint_positions)
+        # The IK is deterministic, so each (start, goal) is solved once; goals are rounded to 0.1 mm
+        # first, so the answer never depends on which nearby goal came first.
+        position = np.round(np.asarray(position, dtype=float), 4)
+        yaw = round(float(yaw), 4)
+        start = self.robot.joint_positions
+        key = (*position, yaw, *start)
+        solution = self._teleport_solutions.pop(key, None)
+        if solution is None:
+            self.controller.sync(start)
             self.controller.set_goal(position, yaw)
             for _ in range(max_iterations):
                 self.controller.step(self.control_dt)
                 if self.controller.converged:
                     break
-            self._teleport_solutions[key] = self.controller.commanded_qpos
-        self.data.qpos[self.robot.arm_qpos_idx] = self._teleport_solutions[key]
+            solution = self.controller.commanded_qpos
+            if len(self._teleport_solutions) >= TELEPORT_CACHE_SIZE:
+                del self._teleport_solutions[next(iter(self._teleport_solutions))]  # least recently used
+        self._teleport_solutions[key] = solution
+        self.data.qpos[self.robot.arm_qpos_idx] = solution
         self.data.qvel[self.robot.arm_qvel_idx] = 0.0
-        self.robot.command_joints(self._teleport_solutions[key])
+        self.robot.command_joints(solution)
         mujoco.mj_forward(self.model, self.data)
         self.controller.sync(self.robot.joint_positions)
         return float(np.linalg.norm(self.robot.ee_position - position))
@@ -249,12 +260,17 @@ class Workcell:
         slot = int(np.flatnonzero(self.object_ids == body_id)[0])
         lift = self.model.geom_rbound[self.model.body_geomadr[body_id]] + 0.002
         self.set_body_pose(body_id, PARKING_ORIGIN + [slot * PARKING_SPACING, 0.0, lift])
+        mujoco.mj_kinematics(self.model, self.data)  # positions read right after parking are current
 
     def set_object_shapes(self, shapes: dict[int, ObjectShape]) -> None:
         """Give object slots (body id -> shape) new shapes; the model's derived constants are recomputed."""
         for body_id, shape in shapes.items():
             apply_shape(self.model, body_id, shape)
+        # mj_setConst uses the data as scratch space and leaves it at qpos0: keep the state.
+        state = self.data.qpos.copy(), self.data.qvel.copy(), self.data.ctrl.copy()
         mujoco.mj_setConst(self.model, self.data)
+        self.data.qpos[:], self.data.qvel[:], self.data.ctrl[:] = state
+        mujoco.mj_forward(self.model, self.data)
 
     # --- reset -------------------------------------------------------------
     def reset_robot(self) -> None:

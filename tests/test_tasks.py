@@ -197,3 +197,42 @@ def test_render_modes():
     depth = env.render()
     assert depth.shape == (120, 160) and np.isfinite(depth).all()
     env.close()
+
+
+def test_grasp_reset_leaves_the_arm_at_home_at_rest():
+    from panda_grasp_env.robot import HOME_QPOS
+
+    env = make("PandaGraspClutter-v0")
+    env.reset(seed=3)
+    robot = env.unwrapped.cell.robot
+    assert np.abs(robot.joint_positions - HOME_QPOS).max() < 0.01 and np.abs(robot.joint_velocities).max() < 0.05
+    env.close()
+
+
+def test_tower_build_pays_the_grasp_bonus_once_per_block():
+    env = make("PandaTowerBuild-v0")
+    env.reset(seed=0)
+    cell, encode = env.unwrapped.cell, env.unwrapped.actions.encode
+    rewards = []
+    for _ in range(2):  # grasp block 1, put it back down beside where it was, grasp it again
+        position, yaw = cell.block_positions()[1], cell.block_yaws()[1]
+        rewards.append(env.step(encode("grasp", position[0], position[1], yaw))[1])
+        env.step(encode("place", position[0], position[1] + 0.02, yaw))
+    assert rewards == [0.5, 0.0]
+    env.close()
+
+
+def test_a_push_that_moves_something_is_not_a_failed_attempt():
+    env = make("PandaGrasp-v0", max_failures=1, shapes=("cube",))
+    env.reset(seed=0)
+    x, y, _ = env.unwrapped.cell.object_positions()[0]
+    _, reward, terminated, _, info = env.step(env.unwrapped.actions.encode("push", x - 0.06, y, 0.0))
+    assert reward == 0.5 and not terminated and info["consecutive_failures"] == 0
+    env.close()
+
+
+def test_image_observations_are_contiguous_arrays():
+    env = make("PandaPush-v0", obs_mode="rgbd")
+    observation, _ = env.reset(seed=0)
+    assert observation["rgb"].flags.c_contiguous and observation["depth"].flags.c_contiguous
+    env.close()

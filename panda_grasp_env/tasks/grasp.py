@@ -49,8 +49,9 @@ class Grasp(Task):
     0.2 m square heap as VPG does (default: spread apart); ``max_failures``:
     consecutive failed attempts that end the episode (VPG's rule, default 10).
     A successful grasp sets the object aside (off the table).  Terminates when
-    the table is clear (success if every object was grasped) or after
-    ``max_failures`` consecutive failures.  Reward: 1 per successful grasp,
+    the table is clear (success if every object still on it after the reset
+    drop was grasped) or after ``max_failures`` consecutive failed attempts
+    (failed grasps and pushes that moved nothing).  Reward: 1 per successful grasp,
     0.5 for a push that moved something (VPG).
     Goal-conditioned (low-level modes, lift): lift object 0 to a point 5-15 cm
     above where it rests; success = within 5 cm.
@@ -80,6 +81,8 @@ class Grasp(Task):
         self.consecutive_failures = 0
         self._goal = np.zeros(3)
         self._positions = np.zeros((0, 3))  # object positions after the previous step
+        self.in_play = 0  # objects on the table after the reset drop
+        self._goal_body = 0
 
     def scene_config(self, base: SceneConfig) -> SceneConfig:
         return with_scene(base, n_blocks=0, n_objects=self.n_objects)
@@ -116,8 +119,11 @@ class Grasp(Task):
         self.grasped = 0
         self.consecutive_failures = 0
         self._positions = cell.object_positions()
-        rest = cell.data.xpos[cell.object_ids[0]].copy()
-        self._goal = rest + [0.0, 0.0, rng.uniform(*LIFT_GOAL_HEIGHT)]
+        on_table = self.on_table(cell)
+        self.in_play = len(on_table)
+        # Low-level modes lift the first object still on the table.
+        self._goal_body = on_table[0] if on_table else int(cell.object_ids[0])
+        self._goal = cell.data.xpos[self._goal_body] + [0.0, 0.0, rng.uniform(*LIFT_GOAL_HEIGHT)]
         return {"shapes": [s.kind for s in shapes], **self._info(cell)}
 
     def on_table(self, cell: Workcell) -> list[int]:
@@ -145,18 +151,19 @@ class Grasp(Task):
             self.consecutive_failures = 0
             reward = 1.0
         else:
-            self.consecutive_failures += 1
             moved = np.linalg.norm(cell.object_positions() - self._positions, axis=1).max()
             if result.primitive == "push" and moved >= SCENE_CHANGE:
-                reward = 0.5
+                reward = 0.5  # a push that changed the scene is not a failed attempt
+            else:
+                self.consecutive_failures += 1
         self._positions = cell.object_positions()
         remaining = len(self.on_table(cell))
-        success = remaining == 0 and self.grasped == self.n_objects
+        success = remaining == 0 and self.grasped == self.in_play
         terminated = remaining == 0 or self.consecutive_failures >= self.max_failures
         return TaskStep(reward, success, terminated, self._info(cell))
 
     def achieved_goal(self, cell: Workcell) -> np.ndarray:
-        return cell.data.xpos[cell.object_ids[0]].copy()
+        return cell.data.xpos[self._goal_body].copy()
 
     def desired_goal(self) -> np.ndarray:
         return self._goal.copy()

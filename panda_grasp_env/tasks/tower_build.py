@@ -8,7 +8,7 @@ import numpy as np
 
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.scene import SceneConfig
-from panda_grasp_env.stacking import stack_height
+from panda_grasp_env.stacking import stack_column
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, register_task, with_scene
 from panda_grasp_env.workcell import Workcell
 
@@ -40,7 +40,8 @@ class TowerBuild(Task):
     in the finished tower, in the fixed order; success = all within 5 cm.
     Terminates (primitive modes) on success or when a block leaves the table.
     Reward (primitive modes): change in stack height (levels, negative when the
-    tower loses blocks), +0.5 per successful grasp, +1 on success.
+    tower loses blocks), +0.5 the first time each block is grasped from
+    outside the tower, +1 on success.
     """
 
     name = "TowerBuild"
@@ -58,6 +59,8 @@ class TowerBuild(Task):
         self.tolerance = tolerance
         self._stable_since: float | None = None
         self._levels = 1
+        self._column: list[int] = [0]
+        self._grasp_rewarded: set[str] = set()
         self._goal = np.zeros(3 * (n_blocks - 1))
 
     def scene_config(self, base: SceneConfig) -> SceneConfig:
@@ -80,12 +83,18 @@ class TowerBuild(Task):
     def restart(self, cell: Workcell) -> None:
         """Start building from the blocks as they lie now."""
         self._stable_since = None
-        self._levels = self.levels(cell)
+        self._column = self.column(cell)
+        self._levels = len(self._column)
+        self._grasp_rewarded: set[str] = set()
+
+    def column(self, cell: Workcell) -> list[int]:
+        """Block indices in the column on the base, bottom up (the base first)."""
+        order = list(range(self.n_blocks)) if self.order == "fixed" else None
+        return stack_column(cell.block_positions(), 0, cell.config.block_size, self.tolerance, order)
 
     def levels(self, cell: Workcell) -> int:
         """Blocks in the column on the base (the base counts)."""
-        order = list(range(self.n_blocks)) if self.order == "fixed" else None
-        return stack_height(cell.block_positions(), 0, cell.config.block_size, self.tolerance, order)
+        return len(self.column(cell))
 
     def on_control_step(self, cell: Workcell) -> None:
         complete = self.levels(cell) == self.n_blocks and blocks_still(cell) and not holding_a_block(cell)
@@ -105,9 +114,15 @@ class TowerBuild(Task):
             reached = bool(goals_reached(self.achieved_goal(cell), self._goal))
             return TaskStep(0.0 if reached else -1.0, reached, False, info)  # as compute_reward
         success = self.built(cell)
-        reward = float(levels - self._levels) + (0.5 if result.primitive == "grasp" and result.success else 0.0)
-        reward += 1.0 if success else 0.0
+        reward = float(levels - self._levels) + (1.0 if success else 0.0)
+        # Grasp bonus: once per block and episode, and not for lifting a block off the tower
+        # (otherwise grasp-and-put-back would pay forever).
+        if result.primitive == "grasp" and result.success and result.object not in self._grasp_rewarded:
+            if cell.block_names.index(result.object) not in self._column:
+                reward += 0.5
+                self._grasp_rewarded.add(result.object)
         self._levels = levels
+        self._column = self.column(cell)
         lost = any(cell.is_parked(b) for b in cell.block_ids)
         return TaskStep(reward, success, success or lost, info)
 
