@@ -8,6 +8,7 @@ metres along the optical axis (what MuJoCo's depth render gives).  Pixel
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import mujoco
@@ -47,22 +48,33 @@ class CameraModel:
         return cls(width, height, K, rotation, data.cam_xpos[cam_id].copy())
 
     def pixel_rays(self) -> np.ndarray:
-        """Camera-frame direction (H, W, 3) of every pixel, scaled so z = 1."""
-        u, v = np.meshgrid(np.arange(self.width), np.arange(self.height))
-        x = (u - self.K[0, 2]) / self.K[0, 0]
-        y = (v - self.K[1, 2]) / self.K[1, 1]
-        return np.stack([x, y, np.ones_like(x)], axis=-1)
+        """Camera-frame direction (H, W, 3) of every pixel, scaled so z = 1 (cached per intrinsics; read-only)."""
+        return _pixel_rays(self.width, self.height, *self.K[[0, 1, 0, 1], [0, 1, 2, 2]])
 
-    def depth_to_camera_points(self, depth: np.ndarray) -> np.ndarray:
-        """Back-project a depth image (H, W) metres to camera-frame points (H, W, 3)."""
+    def depth_to_camera_points(self, depth: np.ndarray, window: tuple[slice, slice] | None = None) -> np.ndarray:
+        """Back-project a depth image (H, W) metres to camera-frame points (H, W, 3).
+
+        ``window`` (rows, columns) back-projects only that part of the image (``depth`` is still whole).
+        """
         depth = np.asarray(depth)
         if depth.shape != (self.height, self.width):
             raise ValueError(f"depth image has shape {depth.shape}, camera is {(self.height, self.width)}")
-        return self.pixel_rays() * depth[..., None]
+        window = window or (slice(None), slice(None))
+        return self.pixel_rays()[window] * depth[window][..., None]
 
-    def depth_to_world_points(self, depth: np.ndarray) -> np.ndarray:
-        """Back-project a depth image (H, W) metres to world-frame points (H, W, 3)."""
-        return self.depth_to_camera_points(depth) @ self.rotation.T + self.position
+    def depth_to_world_points(self, depth: np.ndarray, window: tuple[slice, slice] | None = None) -> np.ndarray:
+        """Back-project a depth image (H, W) metres to world-frame points (H, W, 3) (or of a ``window``)."""
+        return self.depth_to_camera_points(depth, window) @ self.rotation.T + self.position
+
+    def window_around(self, corners: np.ndarray, margin: int = 2) -> tuple[slice, slice]:
+        """The image rows and columns that can see world points inside the box spanned by ``corners`` (N, 3)."""
+        uv, depth = self.world_to_pixel(corners)
+        if np.any(depth <= 0):
+            return slice(None), slice(None)  # part of the box is behind the camera: keep everything
+        (u0, v0), (u1, v1) = np.floor(uv.min(axis=0)) - margin, np.ceil(uv.max(axis=0)) + margin
+        rows = slice(int(np.clip(v0, 0, self.height)), int(np.clip(v1 + 1, 0, self.height)))
+        cols = slice(int(np.clip(u0, 0, self.width)), int(np.clip(u1 + 1, 0, self.width)))
+        return rows, cols
 
     def world_to_pixel(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Project world points (..., 3) to pixel coordinates (..., 2) as (u, v), and their depth (...)."""
@@ -70,3 +82,11 @@ class CameraModel:
         depth = camera_points[..., 2]
         uv = camera_points[..., :2] / depth[..., None] * np.diag(self.K)[:2] + self.K[:2, 2]
         return uv, depth
+
+
+@functools.lru_cache(maxsize=16)
+def _pixel_rays(width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    u, v = np.meshgrid(np.arange(width), np.arange(height))
+    rays = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones((height, width))], axis=-1)
+    rays.flags.writeable = False
+    return rays

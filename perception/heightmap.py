@@ -106,6 +106,12 @@ def heightmap_from_points(
 def heightmap_from_rgbd(
     grid: HeightmapGrid, camera: CameraModel, rgb: np.ndarray | None, depth: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Heightmap (and colour map) from one camera's depth (H, W) metres and optional RGB (H, W, 3)."""
-    points = camera.depth_to_world_points(depth)
-    return heightmap_from_points(grid, points.reshape(-1, 3), None if rgb is None else rgb.reshape(-1, 3))
+    """Heightmap (and colour map) from one camera's depth (H, W) metres and optional RGB (H, W, 3).
+
+    Only the part of the image that sees the grid's box is back-projected.
+    """
+    corners = np.array([[x, y, z] for x in grid.bounds[0] for y in grid.bounds[1] for z in grid.bounds[2]])
+    window = camera.window_around(corners)
+    points = camera.depth_to_world_points(depth, window)
+    colours = None if rgb is None else np.asarray(rgb)[window].reshape(-1, 3)
+    return heightmap_from_points(grid, points.reshape(-1, 3), colours)
