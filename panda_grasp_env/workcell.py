@@ -22,8 +22,8 @@ from panda_grasp_env.scene import SceneConfig, build_spec
 WORKSPACE = np.array([[0.25, 0.75], [-0.35, 0.35], [0.0, 0.45]])
 #: Region in which reset places blocks (inside WORKSPACE with a margin).
 SPAWN_REGION = np.array([[0.35, 0.65], [-0.22, 0.22]])
-#: Where removed objects wait, out of every camera's view: a row on the floor beside the table.
-PARKING_ORIGIN = np.array([-1.0, -1.8, -0.75])
+#: Where removed objects wait, out of every camera's view: a row on the floor behind the front camera.
+PARKING_ORIGIN = np.array([2.5, 1.5, -0.75])
 PARKING_SPACING = 0.3  # more than twice the largest object's bounding radius
 #: Reset IK solutions kept (least recently used dropped first).
 TELEPORT_CACHE_SIZE = 64

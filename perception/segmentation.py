@@ -18,9 +18,9 @@ from perception.images import check_rgb
 
 #: Hue half-window (OpenCV units, 0-179) around each colour's hue.
 HUE_WINDOW = 10
-#: Minimum saturation and value (0-255) of a block pixel.
+#: Minimum saturation and value (0-255) of a block pixel (side faces facing away from the light are dark, V ~ 20).
 MIN_SATURATION = 100
-MIN_VALUE = 40
+MIN_VALUE = 12
 #: Connected components smaller than this many pixels are dropped (noise, slivers).
 MIN_COMPONENT = 12
 

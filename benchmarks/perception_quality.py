@@ -1,0 +1,165 @@
+"""Perception against the simulator's ground truth, over seeded scenes.
+
+    python benchmarks/perception_quality.py [--scenes 500] [--out results/benchmarks/perception.json] [--resume]
+
+* block pose error (position: 3-D distance of centres, mm; yaw modulo 90 degrees)
+  from the overhead and front cameras at 640x480, half the scenes scattered and
+  half a standing tower, with the Kinect-like noise model on and off
+  (goal with noise: median <= 2 mm, 95th percentile <= 5 mm, median yaw <= 2 deg);
+* tower detection: the detected stack equals the true bottom-up order;
+* colour segmentation IoU per colour against the simulator's segmentation
+  render, over the pixels either marks (goal: mean >= 0.95);
+* heightmap time for the default 224 x 224 grid from one 640x480 RGB-D image (goal <= 10 ms).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first mujoco import
+
+import numpy as np
+
+from benchmarks._common import Results
+from panda_grasp_env.rendering import CameraRenderer
+from panda_grasp_env.workcell import Workcell
+from perception.camera import CameraModel
+from perception.heightmap import HeightmapGrid, heightmap_from_rgbd
+from perception.noise import DepthNoise, RGBNoise
+from perception.pose import View, detect_towers, estimate_block_poses, wrap_quarter
+from perception.segmentation import colour_masks
+
+CAMERAS = ("overhead", "front")
+SIZE = (640, 480)
+
+
+def capture(cell: Workcell, renderer: CameraRenderer, noise_rng: np.random.Generator | None) -> list[View]:
+    views = []
+    for camera in CAMERAS:
+        rgb, depth = renderer.render_rgbd(cell.data, camera)
+        if noise_rng is not None:
+            rgb, depth = RGBNoise().apply(rgb, noise_rng), DepthNoise().apply(depth, noise_rng)
+        views.append(View(rgb, depth, CameraModel.from_mujoco(cell.model, cell.data, camera, *SIZE)))
+    return views
+
+
+def pose_errors(scenes: int, noise: bool) -> dict:
+    cell = Workcell()
+    colours = dict(zip(cell.block_names, cell.config.colours.values()))
+    position_mm: dict[str, list[float]] = {"scattered": [], "tower": []}
+    yaw_deg: dict[str, list[float]] = {"scattered": [], "tower": []}
+    missed, towers_right, seconds = 0, 0, []
+    with CameraRenderer(cell.model, *SIZE) as renderer:
+        for scene in range(scenes):
+            layout = "scattered" if scene % 2 == 0 else "tower"
+            cell.reset(np.random.default_rng(scene), layout)
+            views = capture(cell, renderer, np.random.default_rng(10_000 + scene) if noise else None)
+            start = time.perf_counter()
+            poses = estimate_block_poses(views, colours, cell.config.block_size)
+            seconds.append(time.perf_counter() - start)
+            positions, yaws = cell.block_positions(), cell.block_yaws()
+            for index, name in enumerate(cell.block_names):
+                if name not in poses:
+                    missed += 1
+                    continue
+                position_mm[layout].append(1000 * float(np.linalg.norm(poses[name].position - positions[index])))
+                yaw_deg[layout].append(abs(np.degrees(wrap_quarter(poses[name].yaw - yaws[index]))))
+            if layout == "tower":
+                truth = [cell.block_names[i] for i in np.argsort(positions[:, 2])]
+                towers_right += detect_towers(poses, cell.config.block_size) == [truth]
+
+    def summary(values: list[float]) -> dict:
+        return {"n": len(values), "median": float(np.median(values)), "p95": float(np.percentile(values, 95))}
+
+    every_position = position_mm["scattered"] + position_mm["tower"]
+    every_yaw = yaw_deg["scattered"] + yaw_deg["tower"]
+    return {
+        "position_mm": summary(every_position),
+        "yaw_deg": summary(every_yaw),
+        "by_layout": {k: {"position_mm": summary(position_mm[k]), "yaw_deg": summary(yaw_deg[k])} for k in position_mm},
+        "blocks_missed": missed,
+        "blocks_total": scenes * len(cell.block_names),
+        "towers_detected_right": towers_right,
+        "tower_scenes": scenes // 2,
+        "ms_per_estimate_median": 1000 * statistics.median(seconds),
+    }
+
+
+def segmentation_iou(scenes: int) -> dict:
+    cell = Workcell()
+    colours = dict(zip(cell.block_names, cell.config.colours.values()))
+    geom_of = {name: cell.model.body_geomadr[cell.model.body(name).id] for name in cell.block_names}
+    ious: dict[str, list[float]] = {name: [] for name in cell.block_names}
+    with CameraRenderer(cell.model, *SIZE) as renderer:
+        for scene in range(scenes):
+            cell.reset(np.random.default_rng(scene), "scattered" if scene % 2 == 0 else "tower")
+            for camera in CAMERAS:
+                rgb, _ = renderer.render_rgbd(cell.data, camera)
+                rgb = RGBNoise().apply(rgb, np.random.default_rng(20_000 + scene))
+                truth = renderer.render(cell.data, camera, "segmentation")
+                for name, mask in colour_masks(rgb, colours).items():
+                    true_mask = truth == geom_of[name]
+                    union = np.count_nonzero(mask | true_mask)
+                    if union:
+                        ious[name].append(np.count_nonzero(mask & true_mask) / union)
+    per_colour = {name: float(np.mean(values)) for name, values in ious.items()}
+    return {"per_colour": per_colour, "mean": float(np.mean(list(per_colour.values()))), "views": 2 * scenes}
+
+
+def heightmap_time(repeats: int = 50) -> dict:
+    cell = Workcell()
+    cell.reset(np.random.default_rng(0), "tower")
+    grid = HeightmapGrid()
+    with CameraRenderer(cell.model, *SIZE) as renderer:
+        rgb, depth = renderer.render_rgbd(cell.data, "overhead")
+    camera = CameraModel.from_mujoco(cell.model, cell.data, "overhead", *SIZE)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        heights, _ = heightmap_from_rgbd(grid, camera, rgb, depth)
+        times.append(time.perf_counter() - start)
+    top_error = abs(float(heights.max()) - (cell.block_positions()[:, 2].max() + cell.config.block_size / 2))
+    return {"ms_median": 1000 * statistics.median(times), "shape": list(grid.shape), "top_error_mm": 1000 * top_error}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scenes", type=int, default=500)
+    parser.add_argument("--iou-scenes", type=int, default=100)
+    parser.add_argument("--out", type=Path, default=Path("results/benchmarks/perception.json"))
+    parser.add_argument("--resume", action="store_true")
+    args = parser.parse_args()
+    results = Results(args.out, args.resume)
+    for noise in (True, False):
+        r = results.section(f"pose_noise_{noise}", lambda noise=noise: pose_errors(args.scenes, noise))
+        p, y = r["position_mm"], r["yaw_deg"]
+        print(
+            f"block pose, noise {'on ' if noise else 'off'}: position median {p['median']:.2f} mm, p95 {p['p95']:.2f} mm;"
+            f" yaw median {y['median']:.2f} deg, p95 {y['p95']:.2f} deg  (n={p['n']}, missed {r['blocks_missed']}"
+            f"/{r['blocks_total']}; {r['ms_per_estimate_median']:.0f} ms per scene)"
+        )
+        for layout, figures in r["by_layout"].items():
+            print(
+                f"    {layout:9s} position median {figures['position_mm']['median']:.2f} mm, "
+                f"p95 {figures['position_mm']['p95']:.2f} mm; yaw median {figures['yaw_deg']['median']:.2f} deg"
+            )
+        print(f"    towers detected in the right order: {r['towers_detected_right']}/{r['tower_scenes']}")
+    print("    (goal with noise: median <= 2 mm, p95 <= 5 mm, yaw median <= 2 deg)")
+    iou = results.section("segmentation", lambda: segmentation_iou(args.iou_scenes))
+    colours = ", ".join(f"{k.removeprefix('block_')} {v:.3f}" for k, v in iou["per_colour"].items())
+    print(f"colour segmentation IoU: mean {iou['mean']:.3f} ({colours}; {iou['views']} views)  (goal >= 0.95)")
+    hm = results.section("heightmap", heightmap_time)
+    print(
+        f"heightmap {hm['shape']}: {hm['ms_median']:.1f} ms, tallest cell off by {hm['top_error_mm']:.2f} mm  (goal <= 10 ms)"
+    )
+    print(f"saved {args.out}")
+
+
+if __name__ == "__main__":
+    main()

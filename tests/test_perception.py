@@ -1,0 +1,135 @@
+"""Perception against the simulator's ground truth (loose bounds; the benchmark measures the figures)."""
+
+import numpy as np
+import pytest
+
+from panda_grasp_env.rendering import CameraRenderer
+from panda_grasp_env.workcell import Workcell
+from perception.camera import CameraModel
+from perception.heightmap import HeightmapGrid, heightmap_from_rgbd
+from perception.noise import DepthNoise, RGBNoise
+from perception.pose import View, detect_towers, estimate_block_poses, wrap_quarter
+from perception.segmentation import colour_masks, fit_plane_ransac, foreground_mask
+
+SIZE = (320, 240)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    cell = Workcell()
+    renderer = CameraRenderer(cell.model, *SIZE)
+    yield cell, renderer
+    renderer.close()
+
+
+def views_of(cell, renderer, noise_seed=None, cameras=("overhead", "front")):
+    views = []
+    for camera in cameras:
+        rgb, depth = renderer.render_rgbd(cell.data, camera)
+        if noise_seed is not None:
+            rng = np.random.default_rng(noise_seed)
+            rgb, depth = RGBNoise().apply(rgb, rng), DepthNoise().apply(depth, rng)
+        views.append(View(rgb, depth, CameraModel.from_mujoco(cell.model, cell.data, camera, *SIZE)))
+    return views
+
+
+def colours_of(cell):
+    return dict(zip(cell.block_names, cell.config.colours.values()))
+
+
+def test_camera_model_round_trip_and_block_centres_project_onto_their_blocks(scene):
+    cell, renderer = scene
+    cell.reset(np.random.default_rng(0), "scattered")
+    view = views_of(cell, renderer, cameras=("overhead",))[0]
+    points = view.camera.depth_to_world_points(view.depth)
+    uv, _ = view.camera.world_to_pixel(points[100:103, 200:203])
+    assert np.allclose(uv[..., 0], np.arange(200, 203)[None, :], atol=1e-6)
+    assert np.allclose(uv[..., 1], np.arange(100, 103)[:, None], atol=1e-6)
+    segmentation = renderer.render(cell.data, "overhead", "segmentation")
+    (u, v), _ = view.camera.world_to_pixel(cell.block_positions()[0] + [0, 0, 0.025])  # top face centre
+    assert segmentation[int(round(v)), int(round(u))] == cell.model.body_geomadr[cell.block_ids[0]]
+
+
+def test_depth_noise_is_seeded_grows_with_distance_and_drops_edges():
+    depth = np.full((60, 80), 0.5, dtype=np.float32)
+    depth[:, 40:] = 1.5
+    first = DepthNoise().apply(depth, np.random.default_rng(3))
+    assert np.array_equal(first, DepthNoise().apply(depth, np.random.default_rng(3)), equal_nan=True)
+    near, far = first[:, 5:35], first[:, 45:75]
+    assert np.nanstd(far) > 2.5 * np.nanstd(near)  # sigma 3.5 mm at 1.5 m, 1.2 mm at 0.5 m
+    assert np.isnan(first[:, 39:41]).mean() > 0.2  # the depth edge loses pixels
+
+
+def test_colour_segmentation_matches_the_simulator(scene):
+    cell, renderer = scene
+    cell.reset(np.random.default_rng(1), "tower")
+    for camera in ("overhead", "front"):
+        rgb, _ = renderer.render_rgbd(cell.data, camera)
+        truth = renderer.render(cell.data, camera, "segmentation")
+        for name, mask in colour_masks(RGBNoise().apply(rgb, np.random.default_rng(0)), colours_of(cell)).items():
+            true_mask = truth == cell.model.body_geomadr[cell.model.body(name).id]
+            if true_mask.sum() > 200:  # skip slivers
+                assert np.count_nonzero(mask & true_mask) / np.count_nonzero(mask | true_mask) > 0.9
+
+
+def test_ransac_finds_the_table_and_the_objects_above_it(scene):
+    cell, renderer = scene
+    cell.reset(np.random.default_rng(2), "scattered")
+    view = views_of(cell, renderer, noise_seed=1, cameras=("overhead",))[0]
+    points = view.camera.depth_to_world_points(view.depth)
+    plane, inliers = fit_plane_ransac(points.reshape(-1, 3), np.random.default_rng(0))
+    assert plane.normal[2] > 0.999 and abs(plane.offset) < 0.002 and inliers.mean() > 0.5
+    foreground = foreground_mask(points, plane)
+    truth = renderer.render(cell.data, "overhead", "segmentation")
+    blocks = np.isin(truth, [cell.model.body_geomadr[b] for b in cell.block_ids])
+    assert np.count_nonzero(foreground & blocks) / np.count_nonzero(blocks) > 0.8  # edges drop out
+
+
+@pytest.mark.parametrize("layout", ["scattered", "tower"])
+def test_block_poses_within_a_few_millimetres_with_noise(scene, layout):
+    cell, renderer = scene
+    cell.reset(np.random.default_rng(5), layout)
+    poses = estimate_block_poses(views_of(cell, renderer, noise_seed=5), colours_of(cell), cell.config.block_size)
+    assert set(poses) == set(cell.block_names)
+    for index, name in enumerate(cell.block_names):
+        assert np.linalg.norm(poses[name].position - cell.block_positions()[index]) < 0.004
+        assert abs(np.degrees(wrap_quarter(poses[name].yaw - cell.block_yaws()[index]))) < 3.0
+    towers = detect_towers(poses, cell.config.block_size)
+    if layout == "tower":
+        assert towers == [[cell.block_names[i] for i in np.argsort(cell.block_positions()[:, 2])]]
+    else:
+        assert sorted(len(t) for t in towers) == [1, 1, 1, 1]
+
+
+def test_heightmap_sees_the_tower_top(scene):
+    cell, renderer = scene
+    cell.reset(np.random.default_rng(3), "tower")
+    view = views_of(cell, renderer, cameras=("overhead",))[0]
+    heights, colours = heightmap_from_rgbd(HeightmapGrid(resolution=0.004), view.camera, view.rgb, view.depth)
+    assert heights.shape == (112, 112) and colours.shape == (112, 112, 3)
+    assert abs(heights.max() - (cell.block_positions()[:, 2].max() + 0.025)) < 0.003
+
+
+def test_no_visible_block_gives_an_empty_result(scene):
+    cell, renderer = scene
+    cell.reset(np.random.default_rng(0), "scattered")
+    for body in cell.block_ids:
+        cell.park(body)
+    assert estimate_block_poses(views_of(cell, renderer), colours_of(cell), 0.05) == {}
+
+
+@pytest.mark.parametrize(
+    "rgb, depth, message",
+    [
+        (np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0), np.float32), "shape"),
+        (np.zeros((4, 4, 3), np.uint8), np.full((4, 4), np.nan, np.float32), "no finite pixel"),
+        (np.zeros((4, 4), np.uint8), np.ones((4, 4), np.float32), "shape"),
+        (np.zeros((4, 4, 3), np.float32), np.ones((4, 4), np.float32), "uint8"),
+        (np.zeros((4, 4, 3), np.uint8), np.ones((4, 4), np.int32), "float"),
+        (np.zeros((4, 4, 3), np.uint8), np.ones((5, 4), np.float32), "differ in size"),
+    ],
+)
+def test_bad_images_raise(rgb, depth, message):
+    camera = CameraModel(4, 4, np.eye(3), np.eye(3), np.zeros(3))
+    with pytest.raises(ValueError, match=message):
+        estimate_block_poses([View(rgb, depth, camera)], {"red": (1.0, 0.0, 0.0)}, 0.05)
