@@ -28,25 +28,11 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede th
 import numpy as np  # noqa: E402
 
 from agents.oracle_tower import PUSH_DIRECTIONS, build_tower, push_tower  # noqa: E402
-from benchmarks._common import Results  # noqa: E402
+from benchmarks._common import Results, rate  # noqa: E402
 from panda_grasp_env.primitives import grasp  # noqa: E402
 from panda_grasp_env.scene import SceneConfig  # noqa: E402
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
 from panda_grasp_env.workcell import Workcell  # noqa: E402
-
-
-def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    if n == 0:
-        return (float("nan"), float("nan"))
-    p = successes / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return (centre - half, centre + half)
-
-
-def rate(successes: int, n: int) -> dict:
-    low, high = wilson(successes, n)
-    return {"successes": successes, "n": n, "rate": successes / n, "ci95": [low, high]}
 
 
 def grasp_isolated(trials: int) -> dict:

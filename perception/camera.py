@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import mujoco
 import numpy as np
+
+if TYPE_CHECKING:  # importing mujoco here would fix its GL backend before MUJOCO_GL is chosen
+    import mujoco
 
 #: MuJoCo camera axes -> OpenCV camera axes (flip y and z).
 _MJ_TO_CV = np.diag([1.0, -1.0, -1.0])

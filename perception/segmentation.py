@@ -110,9 +110,11 @@ def fit_plane_ransac(
     if best is None:
         raise ValueError("plane fit: all sampled point triples were collinear")
     normal, anchor = best
-    inliers = np.abs((candidates - anchor) @ normal) < threshold
-    centroid = candidates[inliers].mean(axis=0)
-    normal = np.linalg.svd(candidates[inliers] - centroid, full_matrices=False)[2][2]
+    inliers = candidates[np.abs((candidates - anchor) @ normal) < threshold]
+    if len(inliers) > 20_000:  # a least-squares refit needs no more
+        inliers = inliers[rng.choice(len(inliers), 20_000, replace=False)]
+    centroid = inliers.mean(axis=0)
+    normal = np.linalg.svd(inliers - centroid, full_matrices=False)[2][2]
     if normal[2] < 0:
         normal = -normal
     plane = Plane(normal, float(-normal @ centroid))

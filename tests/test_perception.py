@@ -133,3 +133,40 @@ def test_bad_images_raise(rgb, depth, message):
     camera = CameraModel(4, 4, np.eye(3), np.eye(3), np.zeros(3))
     with pytest.raises(ValueError, match=message):
         estimate_block_poses([View(rgb, depth, camera)], {"red": (1.0, 0.0, 0.0)}, 0.05)
+
+
+@pytest.mark.parametrize("shape", ["cube", "cylinder", "capsule"])
+def test_top_grasp_candidate_picks_the_object_up(shape):
+    import gymnasium as gym
+
+    from perception.grasps import detect_grasps_rgbd
+
+    env = gym.make("panda_grasp_env:PandaGrasp-v0", shapes=(shape,), primitive_z=True)
+    unwrapped = env.unwrapped
+    env.reset(seed=4)
+    _, depth = unwrapped.sensors.rgbd("overhead", 640, 480)
+    candidates = detect_grasps_rgbd(depth, unwrapped.camera_model("overhead", 640, 480), np.random.default_rng(0))
+    best = candidates[0]
+    assert best.width <= 0.066 and np.allclose(best.rotation[:, 2], [0, 0, -1])
+    assert all(a.score >= b.score for a, b in zip(candidates, candidates[1:]))
+    info = env.step(unwrapped.actions.encode("grasp", best.position[0], best.position[1], best.yaw, best.position[2]))[
+        4
+    ]
+    assert info["primitive_success"], info["primitive_reason"]
+    env.close()
+
+
+def test_grasp_detection_on_an_empty_table_returns_nothing(scene):
+    from perception.grasps import detect_grasps_rgbd
+
+    cell, renderer = scene
+    cell.reset(np.random.default_rng(0), "scattered")
+    for body in cell.block_ids:
+        cell.park(body)
+    _, depth = renderer.render_rgbd(cell.data, "overhead")
+    assert (
+        detect_grasps_rgbd(
+            depth, CameraModel.from_mujoco(cell.model, cell.data, "overhead", *SIZE), np.random.default_rng(0)
+        )
+        == []
+    )

@@ -1,0 +1,248 @@
+"""Model-free parallel-jaw grasp detection on a point cloud (the role GPD plays in the source study).
+
+1. Objects: points more than 5 mm above the table plane, voxel-downsampled
+   (3 mm), with surface normals from the covariance of their nearest
+   neighbours, grouped into clusters (objects) by proximity.
+2. Candidates: at sampled seed points, for closing-axis headings across and
+   along each object's principal axes plus evenly spaced ones, the fingers'
+   closing region is the object's slab under the pads; the hand is centred on
+   the slab's extent, and the candidate's width is that extent.
+3. Rejection: wider than the gripper opens; fingers (as they come down, open)
+   or palm intersecting any point of any object; fingertips below the table.
+4. Score: antipodality of the contact normals, how well the slab fills the
+   pads, a grasp through the object's centre, and the source study's
+   selection criteria -- approach facing the robot (here: from above) and
+   closing axis across the object's principal axis of least inertia (so the
+   fingers close on its short side), not too close to the table.
+
+Output: candidates ranked by score, each a 6-DOF grasp-site pose (position,
+rotation with x = closing axis, z = approach direction), the opening width
+it needs and its score.  World frame, metres, radians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from perception.camera import CameraModel
+from perception.images import check_depth
+from perception.segmentation import Plane, fit_plane_ransac
+
+#: Where grasps are looked for (world metres): the table in front of the robot, up to 30 cm high.
+#: It keeps the robot's own body (at home, above and behind it) out of the cloud.
+REGION_OF_INTEREST = np.array([[0.25, 0.75], [-0.35, 0.35], [-0.05, 0.3]])
+
+
+@dataclass(frozen=True)
+class GripperGeometry:
+    """The Panda hand as grasp detection sees it, metres (grasp site = centre between the finger pads)."""
+
+    #: Widest object the fingers can close on (the 73 mm opening less a margin).
+    max_width: float = 0.066
+    #: The fingers when open stand this far apart (inner faces).
+    open_width: float = 0.073
+    finger_thickness: float = 0.012
+    #: Finger width across the closing axis (the pad is 17 mm).
+    finger_width: float = 0.02
+    #: Fingertips reach this far below the grasp site; the palm starts this far above it.
+    fingertip_below: float = 0.015
+    palm_above: float = 0.045
+    #: Half length (along the closing axis) and half width of the palm and hand body.
+    palm_half_length: float = 0.1
+    palm_half_width: float = 0.03
+    #: The grasp site goes this far below an object's top (nearer the centre of mass of tall objects; the
+    #: palm still clears the top), but never below ``min_height`` above the table.
+    grasp_depth: float = 0.035
+    min_height: float = 0.02
+
+
+@dataclass(frozen=True)
+class GraspCandidate:
+    """A ranked grasp: grasp-site ``position`` (3,), ``rotation`` (3, 3) (x closing, z approach), opening ``width``."""
+
+    position: np.ndarray
+    rotation: np.ndarray
+    width: float
+    score: float
+    #: Heading of the closing axis about world z.
+    yaw: float
+    #: Index of the object (point cluster) it grasps.
+    object_index: int
+
+
+def top_down_rotation(yaw: float) -> np.ndarray:
+    """Rotation of a hand pointing straight down whose closing axis has heading ``yaw``."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])
+
+
+def prepare_cloud(
+    points: np.ndarray,
+    table: Plane,
+    region: np.ndarray = REGION_OF_INTEREST,
+    voxel: float = 0.003,
+    neighbours: int = 10,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Object points above the table inside ``region`` ((x0, x1), (y0, y1), (z0, z1)), voxel-downsampled:
+    points (M, 3), upward-ish unit normals (M, 3), cluster label per point (M,)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    points = points[np.isfinite(points).all(axis=1)]
+    inside = np.all((points >= region[:, 0]) & (points <= region[:, 1]), axis=1)
+    points = points[inside & (table.height(points) > 0.005)]
+    if len(points) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=int)
+    cells = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
+    span = cells.max(axis=0) + 1
+    _, first = np.unique((cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2], return_index=True)
+    points = points[np.sort(first)]
+    tree = cKDTree(points)
+    k = min(neighbours, len(points))
+    _, index = tree.query(points, k=k)
+    index = index.reshape(len(points), k)
+    local = points[index] - points[index].mean(axis=1, keepdims=True)
+    covariance = np.einsum("nki,nkj->nij", local, local)
+    normals = np.linalg.eigh(covariance)[1][:, :, 0]  # smallest eigenvalue's vector
+    normals *= np.where(normals[:, 2:3] < 0, -1.0, 1.0)  # seen from above: normals point up or sideways
+    pairs = tree.query_pairs(2.5 * voxel, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points), len(points)))
+    labels = connected_components(graph, directed=False)[1]
+    return points, normals, labels
+
+
+def detect_grasps(
+    points: np.ndarray,
+    table: Plane,
+    rng: np.random.Generator,
+    gripper: GripperGeometry | None = None,
+    seeds: int = 40,
+    headings: int = 6,
+    min_cluster: int = 15,
+    region: np.ndarray = REGION_OF_INTEREST,
+) -> list[GraspCandidate]:
+    """Ranked grasp candidates (best first) on a world-frame point cloud (N, 3) inside ``region``;
+    empty if nothing stands on the table there."""
+    gripper = gripper or GripperGeometry()
+    cloud, normals, labels = prepare_cloud(points, table, region)
+    if len(cloud) == 0:
+        return []
+    counts = np.bincount(labels)
+    usable = np.flatnonzero(counts[labels] >= min_cluster)
+    if len(usable) == 0:
+        return []
+    table_z = -table.offset / table.normal[2]
+    tree = cKDTree(cloud[:, :2])
+    reach = np.hypot(gripper.palm_half_length, gripper.palm_half_width) + 0.01
+    axes = {}
+    for label in np.unique(labels[usable]):
+        # Centre and principal axes from the object's upper surface: the side wall a camera sees
+        # off-axis would pull the centroid towards it.
+        members = cloud[labels == label]
+        members = members[members[:, 2] > members[:, 2].max() - 0.01, :2]
+        centred = members - members.mean(axis=0)
+        eigenvalues, eigenvectors = np.linalg.eigh(centred.T @ centred)
+        long_axis = eigenvectors[:, 1]
+        elongation = 1.0 - eigenvalues[0] / max(eigenvalues[1], 1e-12)  # 0 round/square, 1 a line
+        axes[label] = (members.mean(axis=0), long_axis, elongation)
+    # Seeds: the point nearest each object's centroid (grasps through the centre of mass), then random ones.
+    central = [
+        int(np.flatnonzero(labels == label)[np.argmin(np.linalg.norm(cloud[labels == label, :2] - centre, axis=1))])
+        for label, (centre, _, _) in axes.items()
+    ]
+    random_seeds = rng.choice(usable, size=min(seeds, len(usable)), replace=False)
+    candidates = []
+    for seed in dict.fromkeys([*central, *random_seeds.tolist()]):
+        label = labels[seed]
+        centroid, long_axis, elongation = axes[label]
+        long_heading = np.arctan2(long_axis[1], long_axis[0])
+        yaws = np.concatenate(
+            [[long_heading + np.pi / 2, long_heading], long_heading + np.pi * np.arange(headings) / headings]
+        )
+        nearby = np.asarray(tree.query_ball_point(cloud[seed, :2], reach))
+        for yaw in np.unique(np.round(yaws % np.pi, 3)):
+            candidate = _evaluate(
+                cloud, normals, labels, nearby, seed, yaw, gripper, table_z, centroid, long_axis, elongation
+            )
+            if candidate is not None:
+                candidates.append(candidate)
+    candidates.sort(key=lambda c: -c.score)
+    return candidates
+
+
+def _evaluate(
+    cloud: np.ndarray,
+    normals: np.ndarray,
+    labels: np.ndarray,
+    nearby: np.ndarray,
+    seed: int,
+    yaw: float,
+    gripper: GripperGeometry,
+    table_z: float,
+    centroid: np.ndarray,
+    long_axis: np.ndarray,
+    elongation: float,
+) -> GraspCandidate | None:
+    closing = np.array([np.cos(yaw), np.sin(yaw)])
+    lateral = np.array([-closing[1], closing[0]])
+    offsets = cloud[nearby, :2] - cloud[seed, :2]
+    u, v, z = offsets @ closing, offsets @ lateral, cloud[nearby, 2]
+    own = labels[nearby] == labels[seed]
+    in_slab = own & (np.abs(v) < gripper.finger_width / 2)
+    if np.count_nonzero(in_slab) < 3:
+        return None
+    top = z[in_slab].max()
+    grasp_z = max(top - gripper.grasp_depth, table_z + gripper.min_height)
+    gripped = in_slab & (z >= grasp_z - gripper.fingertip_below)
+    if np.count_nonzero(gripped) < 3:
+        return None
+    low, high = u[gripped].min(), u[gripped].max()
+    width = high - low
+    if width > gripper.max_width or width < 0.004:
+        return None
+    centre_u = (low + high) / 2
+    # Fingers come down open: nothing may stand in their boxes (any object), down to the fingertips.
+    outer = gripper.open_width / 2 + gripper.finger_thickness
+    du = np.abs(u - centre_u)
+    fingers = (du > gripper.open_width / 2) & (du < outer) & (np.abs(v) < gripper.finger_width / 2 + 0.003)
+    if np.any(fingers & (z > grasp_z - gripper.fingertip_below)):
+        return None
+    palm = (du < gripper.palm_half_length) & (np.abs(v) < gripper.palm_half_width) & (z > grasp_z + gripper.palm_above)
+    if np.any(palm):
+        return None
+    # Score: antipodal contacts, filled pads, through the centre, across the long axis.
+    ends = gripped & ((u < low + 0.004) | (u > high - 0.004))
+    sides = np.sign(u[ends] - centre_u)
+    contact_normals = normals[nearby[ends], :2] @ closing
+    antipodal = float(np.mean(np.clip(contact_normals * sides, 0.0, 1.0))) if np.any(ends) else 0.0
+    band = gripped & (np.abs(z - grasp_z) < 0.012)
+    fill = min(1.0, np.count_nonzero(band) / 12.0)
+    position_xy = cloud[seed, :2] + centre_u * closing
+    off_centre = abs((position_xy - centroid) @ lateral)
+    through_centre = max(0.0, 1.0 - off_centre / 0.02)
+    across_long = 1.0 - elongation * abs(closing @ long_axis)
+    score = 0.3 * antipodal + 0.2 * fill + 0.25 * through_centre + 0.25 * across_long
+    position = np.array([*position_xy, grasp_z])
+    return GraspCandidate(position, top_down_rotation(yaw), float(width), float(score), float(yaw), int(labels[seed]))
+
+
+def detect_grasps_rgbd(
+    depth: np.ndarray,
+    camera: CameraModel,
+    rng: np.random.Generator,
+    gripper: GripperGeometry | None = None,
+    region: np.ndarray = REGION_OF_INTEREST,
+) -> list[GraspCandidate]:
+    """The whole pipeline on one depth image (H, W) metres: back-project the part of the image that
+    sees ``region``, fit the table plane (RANSAC), detect grasps.  Empty when nothing stands there."""
+    depth = check_depth(depth)
+    corners = np.array([[x, y, z] for x in region[0] for y in region[1] for z in region[2]])
+    points = camera.depth_to_world_points(depth, camera.window_around(corners)).reshape(-1, 3)
+    points = points[np.all((points >= region[:, 0]) & (points <= region[:, 1]), axis=1)]
+    if len(points) < 3:
+        return []
+    table, _ = fit_plane_ransac(points, rng)
+    return detect_grasps(points, table, rng, gripper, region=region)
