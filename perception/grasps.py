@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -36,6 +37,10 @@ from perception.segmentation import Plane, fit_plane_ransac
 #: Where grasps are looked for (world metres): the table in front of the robot, up to 30 cm high.
 #: It keeps the robot's own body (at home, above and behind it) out of the cloud.
 REGION_OF_INTEREST = np.array([[0.25, 0.75], [-0.35, 0.35], [-0.05, 0.3]])
+
+
+#: Candidates whose fingers pass further than this (metres) beside the object's centre are rejected.
+MAX_OFF_CENTRE = 0.02
 
 
 @dataclass(frozen=True)
@@ -119,8 +124,8 @@ def detect_grasps(
     table: Plane,
     rng: np.random.Generator,
     gripper: GripperGeometry | None = None,
-    seeds: int = 40,
-    headings: int = 6,
+    seeds: int = 30,
+    headings: int = 4,
     min_cluster: int = 15,
     region: np.ndarray = REGION_OF_INTEREST,
 ) -> list[GraspCandidate]:
@@ -147,23 +152,30 @@ def detect_grasps(
         eigenvalues, eigenvectors = np.linalg.eigh(centred.T @ centred)
         long_axis = eigenvectors[:, 1]
         elongation = 1.0 - eigenvalues[0] / max(eigenvalues[1], 1e-12)  # 0 round/square, 1 a line
-        axes[label] = (members.mean(axis=0), long_axis, elongation)
+        # The minimum-area rectangle's sides: face-aligned headings for boxes (a square has no long axis).
+        rectangle_heading = np.deg2rad(cv2.minAreaRect(members.astype(np.float32))[2])
+        headings_of_object = [rectangle_heading, rectangle_heading + np.pi / 2]
+        long_heading = np.arctan2(long_axis[1], long_axis[0])
+        headings_of_object += [long_heading, long_heading + np.pi / 2]
+        headings_of_object += list(long_heading + np.pi * np.arange(headings) / headings)
+        axes[label] = (
+            members.mean(axis=0),
+            long_axis,
+            elongation,
+            np.unique(np.round(np.mod(headings_of_object, np.pi), 3)),
+        )
     # Seeds: the point nearest each object's centroid (grasps through the centre of mass), then random ones.
     central = [
         int(np.flatnonzero(labels == label)[np.argmin(np.linalg.norm(cloud[labels == label, :2] - centre, axis=1))])
-        for label, (centre, _, _) in axes.items()
+        for label, (centre, *_) in axes.items()
     ]
     random_seeds = rng.choice(usable, size=min(seeds, len(usable)), replace=False)
     candidates = []
     for seed in dict.fromkeys([*central, *random_seeds.tolist()]):
         label = labels[seed]
-        centroid, long_axis, elongation = axes[label]
-        long_heading = np.arctan2(long_axis[1], long_axis[0])
-        yaws = np.concatenate(
-            [[long_heading + np.pi / 2, long_heading], long_heading + np.pi * np.arange(headings) / headings]
-        )
+        centroid, long_axis, elongation, yaws = axes[label]
         nearby = np.asarray(tree.query_ball_point(cloud[seed, :2], reach))
-        for yaw in np.unique(np.round(yaws % np.pi, 3)):
+        for yaw in yaws:
             candidate = _evaluate(
                 cloud, normals, labels, nearby, seed, yaw, gripper, table_z, centroid, long_axis, elongation
             )
@@ -222,7 +234,9 @@ def _evaluate(
     fill = min(1.0, np.count_nonzero(band) / 12.0)
     position_xy = cloud[seed, :2] + centre_u * closing
     off_centre = abs((position_xy - centroid) @ lateral)
-    through_centre = max(0.0, 1.0 - off_centre / 0.02)
+    if off_centre > MAX_OFF_CENTRE:  # e.g. across a cube's corner: the pads would only pinch an edge
+        return None
+    through_centre = 1.0 - off_centre / MAX_OFF_CENTRE
     across_long = 1.0 - elongation * abs(closing @ long_axis)
     score = 0.3 * antipodal + 0.2 * fill + 0.25 * through_centre + 0.25 * across_long
     position = np.array([*position_xy, grasp_z])
