@@ -101,8 +101,9 @@ def pose_errors(scenes: int, noise: bool) -> dict:
     }
 
 
-def segmentation_iou(scenes: int) -> dict:
+def segmentation_iou(scenes: int, light_scale: float = 1.0) -> dict:
     cell = Workcell()
+    cell.model.light_diffuse[:] *= light_scale  # dimmer or brighter scene: thresholds must still hold
     colours = dict(zip(cell.block_names, cell.config.colours.values()))
     geom_of = {name: cell.model.body_geomadr[cell.model.body(name).id] for name in cell.block_names}
     ious: dict[str, list[float]] = {name: [] for name in cell.block_names}
@@ -188,6 +189,9 @@ def main() -> None:
     iou = results.section("segmentation", lambda: segmentation_iou(args.iou_scenes))
     colours = ", ".join(f"{k.removeprefix('block_')} {v:.3f}" for k, v in iou["per_colour"].items())
     print(f"colour segmentation IoU: mean {iou['mean']:.3f} ({colours}; {iou['views']} views)  (goal >= 0.95)")
+    for scale in (0.5, 1.5):
+        lit = results.section(f"segmentation_light_{scale}", lambda s=scale: segmentation_iou(args.iou_scenes // 2, s))
+        print(f"    with the lights at {scale:.1f}x: mean IoU {lit['mean']:.3f} ({lit['views']} views)")
     hm = results.section("heightmap", heightmap_time)
     print(
         f"heightmap {hm['shape']}: {hm['ms_median']:.1f} ms, tallest cell off by {hm['top_error_mm']:.2f} mm  (goal <= 10 ms)"
