@@ -82,7 +82,9 @@ def pose_errors(scenes: int, noise: bool) -> dict:
                 yaw_deg[layout].append(abs(np.degrees(wrap_quarter(poses[name].yaw - yaws[index]))))
             if layout == "tower":
                 truth = [cell.block_names[i] for i in np.argsort(positions[:, 2])]
-                towers_right += detect_towers(poses, cell.config.block_size) == [truth]
+                towers_right += detect_towers({n: p.position for n, p in poses.items()}, cell.config.block_size) == [
+                    truth
+                ]
 
     def summary(values: list[float]) -> dict:
         return {"n": len(values), "median": float(np.median(values)), "p95": float(np.percentile(values, 95))}

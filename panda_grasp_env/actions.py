@@ -115,6 +115,39 @@ def validate_box_action(action: Any, space: gym.spaces.Box) -> tuple[np.ndarray,
     return clipped, int(np.count_nonzero(clipped != array))
 
 
+#: Heights (metres) the z component of a ``primitive`` action spans, with ``primitive_z=True``.
+PRIMITIVE_Z_RANGE = (0.0, 0.3)
+
+
+def encode_primitive(
+    primitives: tuple[str, ...] | list[str],
+    with_z: bool,
+    name: str,
+    x: float,
+    y: float,
+    yaw: float,
+    z: float | None = None,
+) -> np.ndarray:
+    """A ``primitive``-mode action running ``name`` at world (x, y[, z]) metres with heading ``yaw`` radians.
+
+    ``primitives`` and ``with_z`` describe the env's layout; ``reset`` publishes them in
+    ``info["action_layout"]``, so agents can build actions without touching the env.
+    """
+    if name not in primitives:
+        raise ValueError(f"primitive {name!r} not available here; valid: {list(primitives)}")
+    scores = [1.0 if p == name else -1.0 for p in primitives] if len(primitives) > 1 else []
+    position = [
+        2 * (x - WORKSPACE[0, 0]) / np.ptp(WORKSPACE[0]) - 1,
+        2 * (y - WORKSPACE[1, 0]) / np.ptp(WORKSPACE[1]) - 1,
+    ]
+    if with_z:
+        if z is None:
+            raise ValueError("this env's primitive actions include z: pass z")
+        position.append(2 * (z - PRIMITIVE_Z_RANGE[0]) / (PRIMITIVE_Z_RANGE[1] - PRIMITIVE_Z_RANGE[0]) - 1)
+    wrapped_yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
+    return np.array([*scores, *position, wrapped_yaw / np.pi], dtype=np.float32)
+
+
 class ActionMode:
     """One way of acting.  ``low_level`` modes run one 25 Hz control step per env step."""
 
@@ -143,7 +176,6 @@ class PrimitiveActions(ActionMode):
 
     name = "primitive"
     low_level = False
-    Z_RANGE = (0.0, 0.3)
 
     def __init__(self, settings: PrimitiveSettings) -> None:
         self.settings = settings
@@ -152,7 +184,7 @@ class PrimitiveActions(ActionMode):
         self.space = gym.spaces.Box(-1.0, 1.0, (size,), dtype=np.float32)
 
     @staticmethod
-    def _scale(value: float, low: float, high: float) -> float:
+    def _scale(value: float, low: float, high: float) -> float:  # [-1, 1] -> [low, high]
         return low + (value + 1.0) / 2.0 * (high - low)
 
     def decode(self, action: np.ndarray) -> tuple[str, float, float, float | None, float]:
@@ -162,25 +194,13 @@ class PrimitiveActions(ActionMode):
         rest = action[self.n_scores :]
         x = self._scale(rest[0], *WORKSPACE[0])
         y = self._scale(rest[1], *WORKSPACE[1])
-        z = self._scale(rest[2], *self.Z_RANGE) if self.settings.with_z else None
+        z = self._scale(rest[2], *PRIMITIVE_Z_RANGE) if self.settings.with_z else None
         yaw = float(rest[-1]) * np.pi
         return name, x, y, z, yaw
 
     def encode(self, name: str, x: float, y: float, yaw: float, z: float | None = None) -> np.ndarray:
         """The action that runs primitive ``name`` at world (x, y[, z]) metres with heading ``yaw`` radians."""
-        if name not in self.settings.primitives:
-            raise ValueError(f"primitive {name!r} not available here; valid: {list(self.settings.primitives)}")
-        scores = [1.0 if p == name else -1.0 for p in self.settings.primitives][: self.n_scores]
-        position = [
-            2 * (x - WORKSPACE[0, 0]) / np.ptp(WORKSPACE[0]) - 1,
-            2 * (y - WORKSPACE[1, 0]) / np.ptp(WORKSPACE[1]) - 1,
-        ]
-        if self.settings.with_z:
-            if z is None:
-                raise ValueError("this env's primitive actions include z: pass z")
-            position.append(2 * (z - self.Z_RANGE[0]) / (self.Z_RANGE[1] - self.Z_RANGE[0]) - 1)
-        wrapped_yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
-        return np.array([*scores, *position, wrapped_yaw / np.pi], dtype=np.float32)
+        return encode_primitive(self.settings.primitives, self.settings.with_z, name, x, y, yaw, z)
 
     def execute(self, cell: Workcell, action: np.ndarray) -> PrimitiveResult:
         name, x, y, z, yaw = self.decode(action)

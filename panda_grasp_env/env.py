@@ -164,7 +164,14 @@ class PandaEnv(gym.Env):
         self.sensors.invalidate()
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0
-        info = {"is_success": False, **task_info, **self._counters, "physics_error": False, "sim_time": 0.0}
+        info = {
+            "is_success": False,
+            **task_info,
+            **self._counters,
+            "physics_error": False,
+            "sim_time": 0.0,
+            **self._published_facts(),
+        }
         if self.render_mode == "human":
             self.render()
         return self._observe(), info
@@ -197,6 +204,20 @@ class PandaEnv(gym.Env):
         return self._observe(physics_error), verdict.reward, verdict.terminated, physics_error, info
 
     # --- helpers ------------------------------------------------------------------
+    def _published_facts(self) -> dict[str, Any]:
+        """What an agent may know besides the observation: the action layout, the cameras, the blocks."""
+        facts: dict[str, Any] = {
+            "camera_models": {camera: self.camera_model(camera) for camera in self.observations.cameras},
+            "block_size": self.cell.config.block_size,
+            "block_colours": dict(zip(self.cell.block_names, self.cell.config.colours.values())),
+        }
+        if isinstance(self.actions, PrimitiveActions):
+            facts["action_layout"] = {
+                "primitives": list(self.actions.settings.primitives),
+                "primitive_z": self.actions.settings.with_z,
+            }
+        return facts
+
     def _object_tops(self) -> list[float]:
         cell = self.cell
         return [cell.data.xpos[b][2] + cell.model.geom_rbound[cell.model.body_geomadr[b]] for b in cell.object_ids]

@@ -116,7 +116,25 @@ def prepare_cloud(
     pairs = tree.query_pairs(2.5 * voxel, output_type="ndarray")
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points), len(points)))
     labels = connected_components(graph, directed=False)[1]
-    return points, normals, labels
+    return points, normals, _merge_slivers(points, labels)
+
+
+def _merge_slivers(points: np.ndarray, labels: np.ndarray, small: int = 60, reach: float = 0.015) -> np.ndarray:
+    """Attach small clusters to the big cluster nearest in the table plane (within ``reach`` metres).
+
+    A camera sees an object's side walls at a grazing angle, as sparse rows that fall apart from its
+    top surface; left alone they look like thin objects beside it, and grasps aimed at them pinch
+    a corner.
+    """
+    sizes = np.bincount(labels)
+    big = sizes[labels] >= small
+    if big.all() or not big.any():
+        return labels
+    distance, nearest = cKDTree(points[big, :2]).query(points[~big, :2], distance_upper_bound=reach)
+    attach = np.isfinite(distance)
+    merged = labels.copy()
+    merged[np.flatnonzero(~big)[attach]] = labels[big][nearest[attach]]
+    return merged
 
 
 def detect_grasps(
@@ -142,47 +160,66 @@ def detect_grasps(
     table_z = -table.offset / table.normal[2]
     tree = cKDTree(cloud[:, :2])
     reach = np.hypot(gripper.palm_half_length, gripper.palm_half_width) + 0.01
-    axes = {}
-    for label in np.unique(labels[usable]):
-        # Centre and principal axes from the object's upper surface: the side wall a camera sees
-        # off-axis would pull the centroid towards it.
-        members = cloud[labels == label]
-        members = members[members[:, 2] > members[:, 2].max() - 0.01, :2]
-        centred = members - members.mean(axis=0)
-        eigenvalues, eigenvectors = np.linalg.eigh(centred.T @ centred)
-        long_axis = eigenvectors[:, 1]
-        elongation = 1.0 - eigenvalues[0] / max(eigenvalues[1], 1e-12)  # 0 round/square, 1 a line
-        # The minimum-area rectangle's sides: face-aligned headings for boxes (a square has no long axis).
-        rectangle_heading = np.deg2rad(cv2.minAreaRect(members.astype(np.float32))[2])
-        headings_of_object = [rectangle_heading, rectangle_heading + np.pi / 2]
-        long_heading = np.arctan2(long_axis[1], long_axis[0])
-        headings_of_object += [long_heading, long_heading + np.pi / 2]
-        headings_of_object += list(long_heading + np.pi * np.arange(headings) / headings)
-        axes[label] = (
-            members.mean(axis=0),
-            long_axis,
-            elongation,
-            np.unique(np.round(np.mod(headings_of_object, np.pi), 3)),
-        )
-    # Seeds: the point nearest each object's centroid (grasps through the centre of mass), then random ones.
+    objects = {label: ObjectOutline.of(cloud[labels == label], headings) for label in np.unique(labels[usable])}
+    # Seeds: the point nearest each object's centre (grasps through the centre of mass), then random ones.
     central = [
-        int(np.flatnonzero(labels == label)[np.argmin(np.linalg.norm(cloud[labels == label, :2] - centre, axis=1))])
-        for label, (centre, *_) in axes.items()
+        int(
+            np.flatnonzero(labels == label)[
+                np.argmin(np.linalg.norm(cloud[labels == label, :2] - shape.centre, axis=1))
+            ]
+        )
+        for label, shape in objects.items()
     ]
     random_seeds = rng.choice(usable, size=min(seeds, len(usable)), replace=False)
     candidates = []
     for seed in dict.fromkeys([*central, *random_seeds.tolist()]):
-        label = labels[seed]
-        centroid, long_axis, elongation, yaws = axes[label]
+        outline = objects[labels[seed]]
         nearby = np.asarray(tree.query_ball_point(cloud[seed, :2], reach))
-        for yaw in yaws:
-            candidate = _evaluate(
-                cloud, normals, labels, nearby, seed, yaw, gripper, table_z, centroid, long_axis, elongation
-            )
+        for yaw in outline.headings:
+            candidate = _evaluate(cloud, normals, labels, nearby, seed, yaw, gripper, table_z, outline)
             if candidate is not None:
                 candidates.append(candidate)
     candidates.sort(key=lambda c: -c.score)
     return candidates
+
+
+@dataclass(frozen=True)
+class ObjectOutline:
+    """What the top view says about one object's footprint (from its upper surface: the side wall a
+    camera sees off-axis would pull the centre towards it)."""
+
+    centre: np.ndarray
+    #: Principal axis of least inertia (the long axis) in the table plane, and how elongated (0 round/square, 1 a line).
+    long_axis: np.ndarray
+    elongation: float
+    #: Heading of the minimum-area rectangle's first side, and how box-like (0 a disc, 1 a rectangle).
+    rectangle_heading: float
+    rectangularity: float
+    #: Closing-axis headings worth trying (radians, in [0, pi)).
+    headings: np.ndarray
+
+    @classmethod
+    def of(cls, points: np.ndarray, even_headings: int) -> ObjectOutline:
+        upper = points[points[:, 2] > points[:, 2].max() - 0.01, :2]
+        centre = upper.mean(axis=0)
+        eigenvalues, eigenvectors = np.linalg.eigh((upper - centre).T @ (upper - centre))
+        long_axis = eigenvectors[:, 1]
+        (_, (w, h), angle) = cv2.minAreaRect(upper.astype(np.float32))
+        hull_area = cv2.contourArea(cv2.convexHull(upper.astype(np.float32)))
+        rectangularity = float(np.clip((hull_area / max(w * h, 1e-9) - np.pi / 4) / (1 - np.pi / 4), 0.0, 1.0))
+        rectangle = np.deg2rad(angle)
+        long_heading = np.arctan2(long_axis[1], long_axis[0])
+        headings = [rectangle, rectangle + np.pi / 2, long_heading, long_heading + np.pi / 2]
+        headings += list(long_heading + np.pi * np.arange(even_headings) / even_headings)
+        elongation = 1.0 - eigenvalues[0] / max(eigenvalues[1], 1e-12)
+        return cls(
+            centre,
+            long_axis,
+            float(elongation),
+            float(rectangle),
+            rectangularity,
+            np.unique(np.round(np.mod(headings, np.pi), 3)),
+        )
 
 
 def _evaluate(
@@ -194,9 +231,7 @@ def _evaluate(
     yaw: float,
     gripper: GripperGeometry,
     table_z: float,
-    centroid: np.ndarray,
-    long_axis: np.ndarray,
-    elongation: float,
+    outline: ObjectOutline,
 ) -> GraspCandidate | None:
     closing = np.array([np.cos(yaw), np.sin(yaw)])
     lateral = np.array([-closing[1], closing[0]])
@@ -233,12 +268,14 @@ def _evaluate(
     band = gripped & (np.abs(z - grasp_z) < 0.012)
     fill = min(1.0, np.count_nonzero(band) / 12.0)
     position_xy = cloud[seed, :2] + centre_u * closing
-    off_centre = abs((position_xy - centroid) @ lateral)
+    off_centre = abs((position_xy - outline.centre) @ lateral)
     if off_centre > MAX_OFF_CENTRE:  # e.g. across a cube's corner: the pads would only pinch an edge
         return None
     through_centre = 1.0 - off_centre / MAX_OFF_CENTRE
-    across_long = 1.0 - elongation * abs(closing @ long_axis)
-    score = 0.3 * antipodal + 0.2 * fill + 0.25 * through_centre + 0.25 * across_long
+    across_long = 1.0 - outline.elongation * abs(closing @ outline.long_axis)
+    # Box-like objects: close on a pair of faces, not across corners.
+    face_aligned = 1.0 - outline.rectangularity * (1.0 - np.cos(4 * (yaw - outline.rectangle_heading))) / 2
+    score = 0.2 * antipodal + 0.15 * fill + 0.25 * through_centre + 0.2 * across_long + 0.2 * face_aligned
     position = np.array([*position_xy, grasp_z])
     return GraspCandidate(position, top_down_rotation(yaw), float(width), float(score), float(yaw), int(labels[seed]))
 

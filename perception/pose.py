@@ -141,23 +141,23 @@ def estimate_block_poses(
     return poses
 
 
-def detect_towers(poses: dict[str, BlockPose], block_size: float) -> list[list[str]]:
-    """Stacks of blocks, each bottom-up: a block is on another when one block size (+-25 %) above it and
-    within half a block horizontally.  Single blocks standing on the table are towers of one."""
-    ordered = sorted(poses.values(), key=lambda p: p.position[2])
+def detect_towers(positions: dict[str, np.ndarray], block_size: float) -> list[list[str]]:
+    """Stacks of blocks (name -> centre), each bottom-up: a block is on another when one block size
+    (+-25 %) above it and within half a block horizontally.  Single blocks are towers of one."""
+    ordered = sorted(positions, key=lambda name: positions[name][2])
     below: dict[str, str] = {}
     for upper in ordered:
         for lower in ordered:
-            dz = upper.position[2] - lower.position[2]
-            near = np.linalg.norm(upper.position[:2] - lower.position[:2]) < block_size / 2
+            dz = positions[upper][2] - positions[lower][2]
+            near = np.linalg.norm(positions[upper][:2] - positions[lower][:2]) < block_size / 2
             if near and abs(dz - block_size) < block_size / 4:
-                below[upper.name] = lower.name
+                below[upper] = lower
                 break
     towers = []
-    for pose in ordered:
-        if pose.name in below:
+    for name in ordered:
+        if name in below:
             continue
-        tower, current = [pose.name], pose.name
+        tower, current = [name], name
         while True:
             above = [name for name, under in below.items() if under == current]
             if not above:

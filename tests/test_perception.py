@@ -94,7 +94,7 @@ def test_block_poses_within_a_few_millimetres_with_noise(scene, layout):
     for index, name in enumerate(cell.block_names):
         assert np.linalg.norm(poses[name].position - cell.block_positions()[index]) < 0.004
         assert abs(np.degrees(wrap_quarter(poses[name].yaw - cell.block_yaws()[index]))) < 3.0
-    towers = detect_towers(poses, cell.config.block_size)
+    towers = detect_towers({n: p.position for n, p in poses.items()}, cell.config.block_size)
     if layout == "tower":
         assert towers == [[cell.block_names[i] for i in np.argsort(cell.block_positions()[:, 2])]]
     else:

@@ -109,7 +109,7 @@ class TowerBuild(Task):
 
     def evaluate(self, cell: Workcell, result: PrimitiveResult | None) -> TaskStep:
         levels = self.levels(cell)
-        info = {"stack_height": levels}
+        info = {"stack_height": levels, "tower_fell": levels < self._levels}
         if result is None:
             reached = bool(goals_reached(self.achieved_goal(cell), self._goal))
             return TaskStep(0.0 if reached else -1.0, reached, False, info)  # as compute_reward

@@ -1,0 +1,179 @@
+"""Planned tower agents: build a tower from perceived block poses, and break it with a push.
+
+Both perceive blocks from the env's RGB-D images (``perception.pose``) -- or,
+in the ``Oracle*`` variants, read the simulator's true block poses -- and act
+through the env's ``primitive`` action mode.  World frame, metres, radians.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
+from perception.pose import detect_towers, estimate_block_poses, wrap_quarter
+
+#: The four push directions of the source study, as headings about world z.
+PUSH_HEADINGS = (0.0, np.pi / 2, np.pi, -np.pi / 2)
+#: Where a push starts: this far from the tower's axis (half a block plus a finger's clearance).
+PUSH_START = 0.065
+
+
+@dataclass(frozen=True)
+class SeenBlock:
+    position: np.ndarray
+    yaw: float
+
+
+def clearest_grasp_heading(positions: np.ndarray, index: int, yaw: float) -> float:
+    """Of a cube's two grasp headings (``yaw``, ``yaw`` + 90 deg), the one pointing least at the other blocks.
+
+    The open hand is ~20 cm wide along its closing axis; aiming it at a nearby
+    tower knocks the tower over.
+    """
+    offsets = np.delete(positions[:, :2] - positions[index, :2], index, axis=0)
+    if len(offsets) == 0:
+        return yaw
+    distances = np.maximum(np.linalg.norm(offsets, axis=1), 1e-6)
+    directions = offsets / distances[:, None]
+
+    def crowding(heading: float) -> float:
+        return float(np.sum(np.abs(directions @ [np.cos(heading), np.sin(heading)]) / distances))
+
+    return min((yaw, yaw + np.pi / 2), key=crowding)
+
+
+class CameraBlocks:
+    """Block poses from the overhead and front cameras' RGB-D (with the Kinect-like noise if seeded)."""
+
+    name = "camera"
+
+    def __init__(self, noise_seed: int | None = 0) -> None:
+        self.noise_seed = noise_seed
+
+    def reset(self, observation: Any, info: dict[str, Any], agent: str) -> None:
+        require(info, ("block_colours", "block_size"), agent, "use a tower task of panda_grasp_env")
+        self.colours, self.block_size = info["block_colours"], info["block_size"]
+        self.views = CameraViews(observation, info, agent, ("overhead", "front"), self.noise_seed)
+
+    def __call__(self, observation: Any) -> dict[str, SeenBlock]:
+        poses = estimate_block_poses(self.views(observation), self.colours, self.block_size)
+        return {name: SeenBlock(p.position, p.yaw) for name, p in poses.items()}
+
+
+class OracleBlocks:
+    """*Oracle*: the simulator's true block poses (reads the env, not the observation)."""
+
+    name = "oracle"
+
+    def __init__(self, env: gym.Env) -> None:
+        self.cell = env.unwrapped.cell
+
+    def reset(self, observation: Any, info: dict[str, Any], agent: str) -> None:
+        require(info, ("block_size",), agent, "use a tower task of panda_grasp_env")
+        self.block_size = info["block_size"]
+
+    def __call__(self, observation: Any) -> dict[str, SeenBlock]:
+        positions, yaws = self.cell.block_positions(), self.cell.block_yaws()
+        return {
+            name: SeenBlock(positions[i], float(wrap_quarter(yaws[i])))
+            for i, name in enumerate(self.cell.block_names)
+            if positions[i, 2] > -0.1
+        }
+
+
+class TowerBuilderAgent:
+    """Stack every block on the base block, yaw-aligned to it: grasp the clearest loose block, place it on top.
+
+    Needs ``action_mode='primitive'`` and, with camera perception, ``obs_mode='rgbd'``
+    with ``cameras=('overhead', 'front')`` at 640 x 480.
+    """
+
+    def __init__(self, perceiver: CameraBlocks | OracleBlocks | None = None) -> None:
+        self.perceiver = perceiver or CameraBlocks()
+        self.name = f"tower_builder_{self.perceiver.name}"
+        self.failures: Counter[str] = Counter()
+
+    def reset(self, observation: Any, info: dict[str, Any]) -> None:
+        require(info, ("base",), self.name, "use PandaTowerBuild-v0 or PandaBuildAndBreak-v0")
+        self.write = PrimitiveActionWriter(info, self.name, ("grasp", "place"))
+        self.perceiver.reset(observation, info, self.name)
+        self.base = info["base"]
+        self.held: tuple[str, float] | None = None  # name, block yaw relative to the closing axis
+        self.pending: tuple[str, float, float] | None = None
+        self.failures = Counter()
+
+    def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
+        record_failure(self.failures, info)
+        if info.get("tower_fell"):
+            self.failures["tower_fell"] += 1
+        if self.pending is not None and info.get("primitive") == "grasp":
+            self.held = (self.pending[0], self.pending[1]) if info["primitive_success"] else None
+        elif info.get("primitive") == "place":
+            self.held = None
+        self.pending = None
+        blocks = self.perceiver(observation)
+        if self.base not in blocks:
+            self.failures["no_candidate"] += 1
+            return self.write("grasp", 0.5, 0.0, 0.0, 0.02)  # nothing sensible: a harmless miss
+        base = blocks[self.base]
+        if self.held is not None:
+            _, relative_yaw = self.held
+            return self.write("place", base.position[0], base.position[1], base.yaw - relative_yaw, None)
+        tower = next(
+            (
+                t
+                for t in detect_towers({n: b.position for n, b in blocks.items()}, self.perceiver.block_size)
+                if self.base in t
+            ),
+            [],
+        )
+        loose = [name for name in blocks if name not in tower]
+        if not loose:  # everything stacked: nothing to do but wait for the env's verdict
+            self.failures["no_candidate"] += 1
+            return self.write("grasp", 0.3, 0.3, 0.0, 0.02)
+        names = list(blocks)
+        positions = np.array([blocks[n].position for n in names])
+        target = min(loose, key=lambda n: np.linalg.norm(blocks[n].position[:2] - base.position[:2]))
+        heading = clearest_grasp_heading(positions, names.index(target), blocks[target].yaw)
+        self.pending = (target, float(wrap_quarter(blocks[target].yaw - heading)), heading)
+        block = blocks[target]
+        return self.write("grasp", block.position[0], block.position[1], heading, block.position[2])
+
+
+class TowerBreakerAgent:
+    """Push the tallest tower over: from its footprint centre, the first of the four directions whose
+    start is clear of other blocks and whose push stays in the workspace."""
+
+    def __init__(self, perceiver: CameraBlocks | OracleBlocks | None = None) -> None:
+        self.perceiver = perceiver or CameraBlocks()
+        self.name = f"tower_breaker_{self.perceiver.name}"
+        self.failures: Counter[str] = Counter()
+
+    def reset(self, observation: Any, info: dict[str, Any]) -> None:
+        self.write = PrimitiveActionWriter(info, self.name, ("push",))
+        self.perceiver.reset(observation, info, self.name)
+        self.failures = Counter()
+
+    def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
+        record_failure(self.failures, info)
+        blocks = self.perceiver(observation)
+        towers = detect_towers({n: b.position for n, b in blocks.items()}, self.perceiver.block_size)
+        if not towers:
+            self.failures["no_candidate"] += 1
+            return self.write("push", 0.3, 0.3, 0.0)
+        tower = max(towers, key=len)
+        centre = blocks[tower[0]].position[:2]
+        others = np.array([blocks[n].position[:2] for n in blocks if n not in tower]).reshape(-1, 2)
+        for heading in PUSH_HEADINGS:
+            direction = np.array([np.cos(heading), np.sin(heading)])
+            start = centre - PUSH_START * direction
+            clear = len(others) == 0 or np.min(np.linalg.norm(others - start, axis=1)) > 0.06
+            if clear and 0.27 < start[0] < 0.73 and abs(start[1]) < 0.33:
+                return self.write("push", start[0], start[1], heading)
+        start = centre - PUSH_START * np.array([1.0, 0.0])
+        return self.write("push", start[0], start[1], 0.0)
