@@ -10,7 +10,7 @@ from panda_grasp_env.objects import SHAPES, ObjectShape, sample_shape, validate_
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, register_task, with_scene
-from panda_grasp_env.workcell import SPAWN_REGION, Workcell, yaw_quaternion
+from panda_grasp_env.workcell import SPAWN_REGION, WORKSPACE, Workcell, yaw_quaternion
 
 #: VPG drops its clutter into the middle of the workspace; a 0.2 m square here.
 CLUTTER_REGION = np.array([[0.4, 0.6], [-0.1, 0.1]])
@@ -48,10 +48,11 @@ class Grasp(Task):
     ``objects.DEFAULT_SIZE_RANGES``; ``clutter``: drop the objects into a
     0.2 m square heap as VPG does (default: spread apart); ``max_failures``:
     consecutive failed attempts that end the episode (VPG's rule, default 10).
-    A successful grasp sets the object aside (off the table).  Terminates when
-    the table is clear (success if every object still on it after the reset
-    drop was grasped) or after ``max_failures`` consecutive failed attempts
-    (failed grasps and pushes that moved nothing).  Reward: 1 per successful grasp,
+    A successful grasp sets the object aside (off the table).  Objects in play
+    are those on the table inside the workspace (one pushed or rolled out of
+    reach is lost).  Terminates when none is left (success if every object in
+    play after the reset drop was grasped) or after ``max_failures``
+    consecutive failed attempts (failed grasps and pushes that moved nothing).  Reward: 1 per successful grasp,
     0.5 for a push that moved something (VPG).
     Goal-conditioned (low-level modes, lift): lift object 0 to a point 5-15 cm
     above where it rests; success = within 5 cm.
@@ -127,8 +128,11 @@ class Grasp(Task):
         return {"shapes": [s.kind for s in shapes], **self._info(cell)}
 
     def on_table(self, cell: Workcell) -> list[int]:
-        """Body ids of the objects still on the table (not set aside, not fallen off)."""
-        return [int(b) for b in cell.object_ids if not cell.is_parked(b)]
+        """Body ids of the objects still in play: on the table inside the workspace (not set aside, not
+        fallen off, not pushed or rolled out of the robot's reach)."""
+        xy = cell.data.xpos[cell.object_ids, :2]
+        inside = np.all((xy >= WORKSPACE[:2, 0]) & (xy <= WORKSPACE[:2, 1]), axis=1)
+        return [int(b) for b, ok in zip(cell.object_ids, inside) if ok and not cell.is_parked(b)]
 
     def _info(self, cell: Workcell) -> dict[str, Any]:
         return {

@@ -1,0 +1,135 @@
+"""The planned grasp loop as an agent: perceive, detect and select a grasp, act; on failure re-perceive and
+retry with the next candidate.
+
+Stages of the source study's loop and where they happen here: the robot waits
+at home (the env's primitives end there); the camera captures RGB-D (the
+observation); grasps are proposed from the depth image without object models
+(``perception.grasps``); the best untried one is selected; the env's grasp
+primitive moves, closes, lifts and verifies (finger gap, then lift without
+dropping); on failure the arm has retreated home and the loop repeats with the
+next candidate.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from agents.base import CameraViews, PrimitiveActionWriter, record_failure
+from perception.grasps import GraspCandidate, detect_grasps_rgbd, top_down_rotation
+
+#: A candidate this close (metres, radians) to a failed attempt is not tried again.
+RETRY_DISTANCE = 0.01
+RETRY_HEADING = np.deg2rad(15)
+
+
+class PlannedGraspAgent:
+    """Grasps with the top-ranked detected candidate that has not failed yet; pushes the heap when none is left.
+
+    Needs ``action_mode='primitive'`` with ``primitive_z=True`` (it chooses grasp heights) and
+    ``obs_mode='rgbd'`` with the overhead camera at 640 x 480.  ``noise_seed`` runs the images
+    through the Kinect-like noise model (None: the clean renders).
+    """
+
+    name = "planned_grasp"
+
+    def __init__(self, noise_seed: int | None = 0, seed: int = 0) -> None:
+        self.noise_seed, self.seed = noise_seed, seed
+        self.failures: Counter[str] = Counter()
+        self.compute_seconds: list[float] = []
+
+    def reset(self, observation: Any, info: dict[str, Any]) -> None:
+        self.write = PrimitiveActionWriter(info, self.name, ("grasp",), needs_z=True)
+        self.views = CameraViews(observation, info, self.name, ("overhead",), self.noise_seed)
+        self.rng = np.random.default_rng(self.seed)
+        self.failed: list[tuple[np.ndarray, float]] = []
+        self.last: GraspCandidate | None = None
+        self.failures = Counter()
+        self.compute_seconds = []
+
+    def _tried(self, candidate: GraspCandidate) -> bool:
+        for position, yaw in self.failed:
+            turn = abs((candidate.yaw - yaw + np.pi / 2) % np.pi - np.pi / 2)
+            if np.linalg.norm(candidate.position[:2] - position[:2]) < RETRY_DISTANCE and turn < RETRY_HEADING:
+                return True
+        return False
+
+    def candidates(self, observation: Any) -> list[GraspCandidate]:
+        """Ranked grasp candidates from the overhead depth image."""
+        view = self.views(observation)[0]
+        return detect_grasps_rgbd(view.depth, view.camera, self.rng)
+
+    def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
+        record_failure(self.failures, info)
+        if self.last is not None and info.get("primitive") == "grasp" and not info["primitive_success"]:
+            self.failed.append((self.last.position, self.last.yaw))
+        start = time.perf_counter()
+        ranked = self.candidates(observation)
+        untried = [c for c in ranked if not self._tried(c)]
+        self.compute_seconds.append(time.perf_counter() - start)
+        if not untried:
+            self.failures["no_candidate"] += 1
+            self.last = None
+            return self._push_or_wait(ranked)
+        self.last = untried[0]
+        x, y, z = self.last.position
+        return self.write("grasp", x, y, self.last.yaw, z)
+
+    def _push_or_wait(self, ranked: list[GraspCandidate]) -> np.ndarray:
+        """No untried grasp: push through the best-ranked object's centre to change the scene (VPG's other
+        primitive), or retry the best candidate if pushing is not offered."""
+        best = ranked[0] if ranked else None
+        if "push" not in self.write.primitives:
+            if best is None:
+                return self.write("grasp", 0.3, 0.3, 0.0, 0.02)
+            return self.write("grasp", *best.position[:2], best.yaw, best.position[2])
+        centre = best.position[:2] if best is not None else np.array([0.5, 0.0])
+        heading = float(self.rng.uniform(-np.pi, np.pi))
+        start = centre - 0.06 * np.array([np.cos(heading), np.sin(heading)])
+        return self.write("push", start[0], start[1], heading, 0.03)
+
+
+class OracleGraspAgent(PlannedGraspAgent):
+    """*Oracle*: the same loop, with candidates made from the simulator's true object poses and shapes
+    (a top-down grasp through each object's centre, across its narrowest horizontal side)."""
+
+    name = "oracle_grasp"
+
+    def __init__(self, env: gym.Env, seed: int = 0) -> None:
+        super().__init__(noise_seed=None, seed=seed)
+        self.cell = env.unwrapped.cell
+
+    def reset(self, observation: Any, info: dict[str, Any]) -> None:
+        self.write = PrimitiveActionWriter(info, self.name, ("grasp",), needs_z=True)
+        self.rng = np.random.default_rng(self.seed)
+        self.failed, self.last = [], None
+        self.failures, self.compute_seconds = Counter(), []
+
+    def candidates(self, observation: Any) -> list[GraspCandidate]:
+        cell, model = self.cell, self.cell.model
+        ranked = []
+        for index, body in enumerate(cell.object_ids):
+            position = cell.data.xpos[body]
+            if position[2] < -0.05:
+                continue
+            geom = model.body_geomadr[body]
+            rotation = cell.data.xmat[body].reshape(3, 3)
+            # Closing axis: the body axis with the smallest horizontal extent (capsules lie along local z).
+            extents = model.geom_size[geom].copy()
+            if int(model.geom_type[geom]) in (3, 5):  # capsule, cylinder: (radius, half length)
+                extents = np.array(
+                    [extents[0], extents[0], extents[1] + (extents[0] if int(model.geom_type[geom]) == 3 else 0)]
+                )
+            horizontal = [i for i in range(3) if abs(rotation[2, i]) < 0.7]
+            axis = min(horizontal, key=lambda i: extents[i]) if horizontal else 0
+            yaw = float(np.arctan2(rotation[1, axis], rotation[0, axis]))
+            top = position[2] + float(np.abs(rotation[2]) @ extents)
+            grasp = np.array([position[0], position[1], max(top - 0.035, 0.02)])
+            ranked.append(
+                GraspCandidate(grasp, top_down_rotation(yaw), 2 * extents[axis], 1.0 - 0.01 * index, yaw, index)
+            )
+        return ranked
