@@ -1,0 +1,85 @@
+"""Planned agents through env.step (loose checks; benchmarks/agents.py measures the rates)."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from agents.grasping import OracleGraspAgent, PlannedGraspAgent
+from agents.towers import OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
+
+RGBD = {"obs_mode": "rgbd", "image_size": (640, 480)}
+
+
+def run(env, agent, seed):
+    observation, info = env.reset(seed=seed)
+    agent.reset(observation, info)
+    actions = 0
+    while True:
+        observation, _, terminated, truncated, info = env.step(agent.act(observation, info))
+        actions += 1
+        if terminated or truncated:
+            return info, actions
+
+
+@pytest.mark.parametrize("oracle", [False, True])
+def test_tower_builder_stacks_four_blocks_in_six_actions(oracle):
+    env = gym.make("panda_grasp_env:PandaTowerBuild-v0", cameras=("overhead", "front"), **RGBD)
+    agent = TowerBuilderAgent(OracleBlocks(env) if oracle else None)
+    info, actions = run(env, agent, seed=11)
+    assert info["is_success"] and actions == 6
+    assert agent.name == ("tower_builder_oracle" if oracle else "tower_builder_camera")
+    env.close()
+
+
+def test_tower_breaker_breaks_the_tower_with_one_push():
+    env = gym.make("panda_grasp_env:PandaTowerBreak-v0", cameras=("overhead", "front"), **RGBD)
+    info, actions = run(env, TowerBreakerAgent(), seed=4)
+    assert info["is_success"] and actions == 1
+    env.close()
+
+
+@pytest.mark.parametrize("oracle", [False, True])
+def test_grasp_agent_clears_two_objects(oracle):
+    env = gym.make("panda_grasp_env:PandaGrasp-v0", n_objects=2, shapes=("cube", "capsule"), primitive_z=True, **RGBD)
+    agent = OracleGraspAgent(env) if oracle else PlannedGraspAgent()
+    info, actions = run(env, agent, seed=2)
+    assert info["is_success"] and info["objects_grasped"] == 2 and actions <= 3
+    assert agent.compute_seconds and max(agent.compute_seconds) < 5.0
+    env.close()
+
+
+def test_a_failed_grasp_is_not_retried_at_the_same_place():
+    env = gym.make("panda_grasp_env:PandaGrasp-v0", shapes=("cube",), primitive_z=True, **RGBD)
+    agent = PlannedGraspAgent()
+    observation, info = env.reset(seed=0)
+    agent.reset(observation, info)
+    first = agent.act(observation, info)
+    agent.last = agent.candidates(observation)[0]
+    failed = {"primitive": "grasp", "primitive_success": False, "primitive_reason": "missed"}
+    second = agent.act(observation, failed)
+    assert not np.allclose(first, second) and agent.failures["missed"] == 1
+    env.close()
+
+
+@pytest.mark.parametrize(
+    "make_kwargs, agent_factory, message",
+    [
+        ({"obs_mode": "state", "primitive_z": True}, PlannedGraspAgent, "obs_mode='rgbd'"),
+        ({**RGBD}, PlannedGraspAgent, "primitive_z=True"),
+        ({**RGBD, "primitive_z": True, "action_mode": "ee_delta"}, PlannedGraspAgent, "action_mode='primitive'"),
+    ],
+)
+def test_agents_say_what_the_env_lacks_at_reset(make_kwargs, agent_factory, message):
+    env = gym.make("panda_grasp_env:PandaGrasp-v0", **make_kwargs)
+    observation, info = env.reset(seed=0)
+    with pytest.raises(ValueError, match=message.replace("(", "\\(").replace(")", "\\)")):
+        agent_factory().reset(observation, info)
+    env.close()
+
+
+def test_tower_builder_needs_both_cameras():
+    env = gym.make("panda_grasp_env:PandaTowerBuild-v0", **RGBD)  # overhead only
+    observation, info = env.reset(seed=0)
+    with pytest.raises(ValueError, match="cameras"):
+        TowerBuilderAgent().reset(observation, info)
+    env.close()
