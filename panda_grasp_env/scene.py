@@ -167,11 +167,13 @@ def _set_damping(joint: mujoco.MjsJoint, value: float) -> None:
         joint.damping = [value, 0.0, 0.0]
 
 
-def build_spec(config: SceneConfig, with_environment: bool = True) -> mujoco.MjSpec:
+def build_spec(config: SceneConfig, with_environment: bool = True, self_collision: bool = False) -> mujoco.MjSpec:
     """Assemble the workcell as an ``MjSpec`` (not yet compiled).
 
     ``with_environment=False`` gives the robot alone (same kinematics, no table,
     blocks or fixed cameras): the model the inverse kinematics solves on.
+    ``self_collision=True`` lets the links collide with each other (the motion
+    planner's model; the simulation leaves it off).
     """
     spec = _panda_spec()
     spec.modelname = "panda_workcell"
@@ -264,7 +266,7 @@ def build_spec(config: SceneConfig, with_environment: bool = True) -> mujoco.MjS
             # Contacts with the world (contype 1 meets the world's conaffinity 1) but not between
             # links: the controller never folds the arm into itself, and the link-link checks
             # were ~30 % of a physics step.  Motion planning checks self-collision on its own.
-            geom.conaffinity = 0
+            geom.conaffinity = 1 if self_collision and not geom.name.endswith("_pad") else 0
         else:
             geom.group = 1
 

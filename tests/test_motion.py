@@ -48,3 +48,26 @@ def test_tolerance_sampler_rescues_a_pose_the_exact_orientation_cannot_reach(ik)
     result, tried = ToleranceSampler().solve(ik, position, rotation, HOME_QPOS, np.random.default_rng(0))
     assert result is not None and tried > 1
     assert np.degrees(np.arccos(np.clip((np.trace(rotation.T @ result.rotation) - 1) / 2, -1, 1))) < 35
+
+
+def test_planner_finds_a_collision_free_path_around_a_wall():
+    from panda_grasp_env.planning import Box, MotionPlanner
+
+    planner = MotionPlanner(obstacles=(Box((0.45, 0.0, 0.15), (0.01, 0.3, 0.15)),), seed=0)
+    goal = PoseIK().solve(np.array([0.6, 0.1, 0.08]), top_down_rotation(0.0), HOME_QPOS, np.random.default_rng(0))
+    result = planner.plan(HOME_QPOS, goal.qpos, time_limit=5.0)
+    assert result.success and np.allclose(result.path[0], HOME_QPOS) and np.allclose(result.path[-1], goal.qpos)
+    for a, b in zip(result.path, result.path[1:]):  # every segment, densely
+        assert all(planner.is_valid(a + t * (b - a)) for t in np.linspace(0, 1, 50))
+    assert result.length >= np.linalg.norm(goal.qpos - HOME_QPOS) - 1e-9
+
+
+def test_planner_refuses_a_goal_in_collision_and_unknown_planners():
+    from panda_grasp_env.planning import Box, MotionPlanner
+
+    planner = MotionPlanner(obstacles=(Box((0.5, 0.0, 0.1), (0.3, 0.3, 0.1)),))
+    goal = PoseIK().solve(np.array([0.5, 0.0, 0.1]), top_down_rotation(0.0), HOME_QPOS, np.random.default_rng(0))
+    result = planner.plan(HOME_QPOS, goal.qpos, time_limit=0.5)
+    assert not result.success and "goal in collision" in result.planner
+    with pytest.raises(ValueError, match="RRTConnect"):
+        MotionPlanner(planner="SBL-ish")

@@ -1,0 +1,144 @@
+"""Collision-free joint-space motion planning with OMPL, checked by MuJoCo's own collision detection.
+
+The planning model is the simulation's workcell with the robot's links allowed
+to collide with each other (the simulation leaves link-link contacts off), plus
+any extra box obstacles.  A configuration is valid when no robot geom touches
+anything -- the world, an object, an obstacle or another link (MuJoCo already
+skips a link and its parent).  Objects are copied from the live simulation
+with ``sync_objects``.  Paths are simplified with OMPL's shortcutting.
+
+Joint angles in radians; obstacle sizes are half-extents in metres, world frame.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from ompl import base as ob
+from ompl import geometric as og
+from ompl import util as ou
+
+from panda_grasp_env.robot import FINGER_OPEN, PandaRobot
+from panda_grasp_env.scene import ARM_JOINTS, SceneConfig, build_spec
+
+#: The OMPL planners this module can run, by name.
+PLANNERS = {
+    "RRTConnect": og.RRTConnect,
+    "RRT": og.RRT,
+    "PRM": og.PRM,
+    "KPIECE1": og.KPIECE1,
+    "BKPIECE1": og.BKPIECE1,
+    "LBKPIECE1": og.LBKPIECE1,
+    "FMT": og.FMT,
+    "RRTstar": og.RRTstar,
+    "BITstar": og.BITstar,
+    "AORRTC": og.AORRTC,
+}
+ou.setLogLevel(ou.LogLevel.LOG_NONE)
+
+
+@dataclass(frozen=True)
+class Box:
+    """A static box obstacle: centre and half-extents, metres."""
+
+    centre: tuple[float, float, float]
+    half_size: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    success: bool
+    #: Waypoints (N, 7) in joint space, start to goal (empty without a solution).
+    path: np.ndarray
+    #: Joint-space length of the simplified path, radians.
+    length: float
+    seconds: float
+    planner: str
+
+
+class MotionPlanner:
+    """Plans arm motions between joint configurations around the workcell's contents."""
+
+    def __init__(
+        self,
+        scene_config: SceneConfig | None = None,
+        obstacles: tuple[Box, ...] = (),
+        planner: str = "RRTConnect",
+        resolution: float = 0.005,
+        seed: int = 0,
+    ) -> None:
+        if planner not in PLANNERS:
+            raise ValueError(f"unknown planner {planner!r}; valid: {sorted(PLANNERS)}")
+        spec = build_spec(scene_config or SceneConfig(), self_collision=True)
+        for index, box in enumerate(obstacles):
+            geom = spec.worldbody.add_geom()
+            geom.name = f"obstacle_{index}"
+            geom.type = mujoco.mjtGeom.mjGEOM_BOX
+            geom.pos, geom.size = list(box.centre), list(box.half_size)
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self.robot = PandaRobot(self.model, self.data)
+        self.data.qpos[self.robot.finger_qpos_idx] = FINGER_OPEN
+        self._robot_geom = np.isin(self.model.geom_bodyid, sorted(self.robot.body_ids))
+        self.planner_name = planner
+        # OMPL seeds every planner's generator from one global seed, once per process.
+        ou.RNG.setSeed(seed)
+        lower = self.model.jnt_range[[self.model.joint(n).id for n in ARM_JOINTS], 0]
+        upper = self.model.jnt_range[[self.model.joint(n).id for n in ARM_JOINTS], 1]
+        self.space = ob.RealVectorStateSpace(len(ARM_JOINTS))
+        bounds = ob.RealVectorBounds(len(ARM_JOINTS))
+        for i, (low, high) in enumerate(zip(lower, upper)):
+            bounds.setLow(i, float(low))
+            bounds.setHigh(i, float(high))
+        self.space.setBounds(bounds)
+        self.setup = og.SimpleSetup(self.space)
+        self.setup.setStateValidityChecker(lambda state: self.is_valid([state[i] for i in range(len(ARM_JOINTS))]))
+        self.setup.getSpaceInformation().setStateValidityCheckingResolution(resolution)
+        self.checks = 0
+
+    def sync_objects(self, model: mujoco.MjModel, data: mujoco.MjData, names: list[str]) -> None:
+        """Copy the poses of free bodies ``names`` from a live simulation into the planning model."""
+        for name in names:
+            source = model.jnt_qposadr[model.body_jntadr[model.body(name).id]]
+            target = self.model.jnt_qposadr[self.model.body_jntadr[self.model.body(name).id]]
+            self.data.qpos[target : target + 7] = data.qpos[source : source + 7]
+
+    def is_valid(self, arm_qpos: np.ndarray) -> bool:
+        """No robot geom in contact with anything at ``arm_qpos`` (radians, (7,))."""
+        self.checks += 1
+        self.data.qpos[self.robot.arm_qpos_idx] = arm_qpos
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_collision(self.model, self.data)
+        if self.data.ncon == 0:
+            return True
+        geoms = self.data.contact.geom[: self.data.ncon]
+        return not self._robot_geom[geoms].any()
+
+    def plan(
+        self, start: np.ndarray, goal: np.ndarray, time_limit: float = 2.0, planner: str | None = None
+    ) -> PlanResult:
+        """A simplified collision-free path from ``start`` to ``goal`` (arm joints, radians)."""
+        name = planner or self.planner_name
+        if name not in PLANNERS:
+            raise ValueError(f"unknown planner {name!r}; valid: {sorted(PLANNERS)}")
+        for label, q in (("start", start), ("goal", goal)):
+            if not self.is_valid(np.asarray(q, dtype=float)):
+                return PlanResult(False, np.zeros((0, 7)), 0.0, 0.0, f"{name} ({label} in collision)")
+        self.setup.clear()
+        self.setup.setPlanner(PLANNERS[name](self.setup.getSpaceInformation()))
+        start_state, goal_state = self.space.allocState(), self.space.allocState()
+        for i in range(len(ARM_JOINTS)):
+            start_state[i], goal_state[i] = float(start[i]), float(goal[i])
+        self.setup.setStartAndGoalStates(start_state, goal_state)
+        began = time.perf_counter()
+        solved = self.setup.solve(time_limit) and self.setup.haveExactSolutionPath()
+        if not solved:
+            return PlanResult(False, np.zeros((0, 7)), 0.0, time.perf_counter() - began, name)
+        self.setup.simplifySolution()
+        seconds = time.perf_counter() - began
+        geometric = self.setup.getSolutionPath()
+        path = np.array([[geometric.getState(k)[i] for i in range(7)] for k in range(geometric.getStateCount())])
+        return PlanResult(True, path, float(geometric.length()), seconds, name)
