@@ -338,8 +338,9 @@ def _add_environment(spec: mujoco.MjSpec, config: SceneConfig) -> None:
         geom.type = mujoco.mjtGeom.mjGEOM_BOX
         geom.size = [half, half, half]
         geom.mass = config.block_mass
-        geom.friction = list(config.block_friction)
-        geom.condim = 6  # rolling friction stops spheres and capsules rolling away forever
+        # Rolling friction (condim 6, 2 mm): without it a dropped sphere or capsule rolled off the table.
+        geom.friction = [config.block_friction[0], config.block_friction[1], 0.002]
+        geom.condim = 6
 
     # Goal region marker for goal-conditioned tasks: a flat translucent disc,
     # hidden under the table until a task moves it (it has no collision).

@@ -10,7 +10,7 @@ from panda_grasp_env.objects import SHAPES, ObjectShape, sample_shape, validate_
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, register_task, with_scene
-from panda_grasp_env.workcell import SPAWN_REGION, WORKSPACE, Workcell, yaw_quaternion
+from panda_grasp_env.workcell import SPAWN_REGION, WORKSPACE, Workcell, body_bottom_height, yaw_quaternion
 
 #: VPG drops its clutter into the middle of the workspace; a 0.2 m square here.
 CLUTTER_REGION = np.array([[0.4, 0.6], [-0.1, 0.1]])
@@ -113,9 +113,10 @@ class Grasp(Task):
                 position = [*xy, shape.resting_half_height + 0.001]
                 cell.set_body_pose(body, position, spawn_quaternion(shape, rng.uniform(-np.pi / 4, np.pi / 4)))
             cell.settle(0.3)
-        # Objects that rolled or fell off the table in the drop are out of the episode.
+        # Objects that rolled or fell off the table in the drop are out of the episode, and so are the
+        # rare ones a heap pressed into the table top (soft contacts; they could never be lifted).
         for body in cell.object_ids:
-            if cell.data.xpos[body][2] < -0.05:
+            if cell.data.xpos[body][2] < -0.05 or body_bottom_height(cell.model, cell.data, body) < -0.005:
                 cell.park(body)
         self.grasped = 0
         self.consecutive_failures = 0
