@@ -20,6 +20,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents.base import CameraViews, PrimitiveActionWriter, record_failure
+from panda_grasp_env.actions import encode_grasp_pose
 from perception.grasps import GraspCandidate, detect_grasps_rgbd, top_down_rotation
 
 #: A candidate this close (metres, radians) to a failed attempt is not tried again.
@@ -30,7 +31,8 @@ RETRY_HEADING = np.deg2rad(15)
 class PlannedGraspAgent:
     """Grasps with the top-ranked detected candidate that has not failed yet; pushes the heap when none is left.
 
-    Needs ``action_mode='primitive'`` with ``primitive_z=True`` (it chooses grasp heights) and
+    Needs ``action_mode='grasp_pose'`` (6-DOF grasps through the env's motion stack) or
+    ``action_mode='primitive'`` with ``primitive_z=True`` (top-down grasp primitive), and
     ``obs_mode='rgbd'`` with the overhead camera at 640 x 480.  ``noise_seed`` runs the images
     through the Kinect-like noise model (None: the clean renders).
     """
@@ -43,13 +45,25 @@ class PlannedGraspAgent:
         self.compute_seconds: list[float] = []
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
-        self.write = PrimitiveActionWriter(info, self.name, ("grasp",), needs_z=True)
+        self._choose_writer(info)
         self.views = CameraViews(observation, info, self.name, ("overhead",), self.noise_seed)
         self.rng = np.random.default_rng(self.seed)
         self.failed: list[tuple[np.ndarray, float]] = []
         self.last: GraspCandidate | None = None
         self.failures = Counter()
         self.compute_seconds = []
+
+    def _choose_writer(self, info: dict[str, Any]) -> None:
+        # With action_mode='grasp_pose' the full 6-DOF candidate goes through the env's motion stack;
+        # with 'primitive' (primitive_z=True) through the top-down grasp primitive.
+        self.pose_mode = info.get("action_layout", {}).get("mode") == "grasp_pose"
+        self.write = None if self.pose_mode else PrimitiveActionWriter(info, self.name, ("grasp",), needs_z=True)
+
+    def _grasp_action(self, candidate: GraspCandidate) -> np.ndarray:
+        if self.pose_mode:
+            return encode_grasp_pose(candidate.position, candidate.rotation)
+        x, y, z = candidate.position
+        return self.write("grasp", x, y, candidate.yaw, z)
 
     def _tried(self, candidate: GraspCandidate) -> bool:
         for position, yaw in self.failed:
@@ -76,17 +90,16 @@ class PlannedGraspAgent:
             self.last = None
             return self._push_or_wait(ranked)
         self.last = untried[0]
-        x, y, z = self.last.position
-        return self.write("grasp", x, y, self.last.yaw, z)
+        return self._grasp_action(self.last)
 
     def _push_or_wait(self, ranked: list[GraspCandidate]) -> np.ndarray:
         """No untried grasp: push through the best-ranked object's centre to change the scene (VPG's other
         primitive), or retry the best candidate if pushing is not offered."""
         best = ranked[0] if ranked else None
-        if "push" not in self.write.primitives:
-            if best is None:
-                return self.write("grasp", 0.3, 0.3, 0.0, 0.02)
-            return self.write("grasp", *best.position[:2], best.yaw, best.position[2])
+        if self.pose_mode or "push" not in self.write.primitives:
+            if best is None:  # nothing seen: a harmless grasp at an empty corner of the table
+                best = GraspCandidate(np.array([0.3, 0.3, 0.02]), top_down_rotation(0.0), 0.0, 0.0, 0.0, -1)
+            return self._grasp_action(best)
         centre = best.position[:2] if best is not None else np.array([0.5, 0.0])
         heading = float(self.rng.uniform(-np.pi, np.pi))
         start = centre - 0.06 * np.array([np.cos(heading), np.sin(heading)])
@@ -104,7 +117,7 @@ class OracleGraspAgent(PlannedGraspAgent):
         self.cell = env.unwrapped.cell
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
-        self.write = PrimitiveActionWriter(info, self.name, ("grasp",), needs_z=True)
+        self._choose_writer(info)
         self.rng = np.random.default_rng(self.seed)
         self.failed, self.last = [], None
         self.failures, self.compute_seconds = Counter(), []

@@ -20,6 +20,7 @@ import argparse
 import os
 import statistics
 import sys
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -43,13 +44,15 @@ def run_episode(env: gym.Env, agent, seed: int) -> tuple[dict, list[dict]]:
     return run_episode_from(env, agent, observation, info)
 
 
-def isolated_grasps(shape: str, episodes: int) -> dict:
-    env = gym.make("panda_grasp_env:PandaGrasp-v0", shapes=(shape,), primitive_z=True, **RGBD)
+def isolated_grasps(shape: str, episodes: int, action_mode: str = "primitive") -> dict:
+    env = gym.make("panda_grasp_env:PandaGrasp-v0", shapes=(shape,), primitive_z=True, action_mode=action_mode, **RGBD)
     agent = PlannedGraspAgent()
     first = within_three = 0
-    failures, seconds = Counter(), []
+    failures, seconds, step_seconds = Counter(), [], []
     for seed in range(episodes):
+        start = time.perf_counter()
         _, steps = run_episode(env, agent, seed)
+        step_seconds.append((time.perf_counter() - start) / len(steps))
         outcomes = [s["primitive_success"] for s in steps if s.get("primitive") == "grasp"]
         first += bool(outcomes) and outcomes[0]
         within_three += any(outcomes[:3])
@@ -61,6 +64,7 @@ def isolated_grasps(shape: str, episodes: int) -> dict:
         "within_3": rate(within_three, episodes),
         "failures": dict(failures),
         "ms_per_attempt_median": 1000 * statistics.median(seconds),
+        "ms_per_env_step_median": 1000 * statistics.median(step_seconds),
     }
 
 
@@ -142,6 +146,7 @@ def main() -> None:
     parser.add_argument("--isolated", type=int, default=200, help="isolated-cube episodes")
     parser.add_argument("--shapes", type=int, default=100, help="episodes per other shape")
     parser.add_argument("--clutter", type=int, default=30)
+    parser.add_argument("--pose", type=int, default=100, help="isolated-cube episodes through the motion stack")
     parser.add_argument("--towers", type=int, default=100)
     parser.add_argument("--out", type=Path, default=Path("results/benchmarks/agents.json"))
     parser.add_argument("--resume", action="store_true")
@@ -155,6 +160,13 @@ def main() -> None:
             f"{fmt(r['within_3'])}; {r['ms_per_attempt_median']:.0f} ms per attempt; {r['failures']}"
         )
     print("    (goal: cubes >= 98 % first, >= 99.5 % within 3; other shapes >= 90 %; <= 100 ms per attempt)")
+    r = results.section("grasp_cube_motion_stack", lambda: isolated_grasps("cube", args.pose, "grasp_pose"))
+    print(
+        f"planned grasp through the motion stack (action_mode='grasp_pose': tolerance IK, RRTConnect, ruckig), "
+        f"isolated cubes: first attempt {fmt(r['first_attempt'])}, within 3 {fmt(r['within_3'])}; "
+        f"{r['ms_per_attempt_median']:.0f} ms perception + {r['ms_per_env_step_median']:.0f} ms per env step "
+        f"(IK, plan, simulation); {r['failures']}"
+    )
     c = results.section("clutter", lambda: clutter(args.clutter))
     print(
         f"planned grasp, clutter of 10: completion {fmt(c['completion'])}, grasp success {fmt(c['grasp_success'])}, "

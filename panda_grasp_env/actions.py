@@ -319,4 +319,51 @@ class JointActions(ActionMode):
         return None
 
 
-ACTION_MODES = ("primitive", "pixel", "ee_delta", "joint")
+class GraspPoseActions(ActionMode):
+    """``Box(-1, 1, (7,))``: a 6-DOF grasp -- grasp-site x, y over the workspace, z over 0-0.3 m, then an
+    orientation quaternion (w, x, y, z; normalised here, must not be zero) with x = closing axis and
+    z = approach direction -- executed by the motion stack (IK with tolerance, OMPL plan, approach,
+    close, retreat, lift, verify)."""
+
+    name = "grasp_pose"
+    low_level = False
+
+    def __init__(self, stack: Any) -> None:
+        self.stack = stack
+        self.space = gym.spaces.Box(-1.0, 1.0, (7,), dtype=np.float32)
+
+    def validate(self, action: Any) -> tuple[np.ndarray, int]:
+        array, clipped = validate_box_action(action, self.space)
+        if np.linalg.norm(array[3:]) < 1e-6:
+            raise ValueError(
+                f"grasp_pose action: the quaternion (entries 3-6) must not be zero, got {array[3:].tolist()}"
+            )
+        return array, clipped
+
+    def execute(self, cell: Workcell, action: np.ndarray) -> PrimitiveResult:
+        position = np.array(
+            [
+                PrimitiveActions._scale(action[0], *WORKSPACE[0]),
+                PrimitiveActions._scale(action[1], *WORKSPACE[1]),
+                PrimitiveActions._scale(action[2], *PRIMITIVE_Z_RANGE),
+            ]
+        )
+        quaternion = action[3:] / np.linalg.norm(action[3:])
+        rotation = np.zeros(9)
+        mujoco.mju_quat2Mat(rotation, quaternion)
+        return self.stack.grasp(cell, position, rotation.reshape(3, 3))
+
+
+def encode_grasp_pose(position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """A ``grasp_pose``-mode action for the grasp site at ``position`` (world, metres) with ``rotation`` (3, 3)."""
+    quaternion = np.zeros(4)
+    mujoco.mju_mat2Quat(quaternion, np.asarray(rotation, dtype=float).ravel())
+    scaled = [
+        2 * (position[0] - WORKSPACE[0, 0]) / np.ptp(WORKSPACE[0]) - 1,
+        2 * (position[1] - WORKSPACE[1, 0]) / np.ptp(WORKSPACE[1]) - 1,
+        2 * (position[2] - PRIMITIVE_Z_RANGE[0]) / (PRIMITIVE_Z_RANGE[1] - PRIMITIVE_Z_RANGE[0]) - 1,
+    ]
+    return np.array([*scaled, *quaternion], dtype=np.float32)
+
+
+ACTION_MODES = ("primitive", "pixel", "ee_delta", "joint", "grasp_pose")

@@ -19,6 +19,7 @@ from panda_grasp_env.actions import (
     EE_STEP,
     ActionMode,
     EEDeltaActions,
+    GraspPoseActions,
     JointActions,
     PixelActions,
     PrimitiveActions,
@@ -49,7 +50,7 @@ class PandaEnv(gym.Env):
     Args:
         task: task name (``TowerBuild``, ``TowerBreak``, ``BuildAndBreak``, ``Grasp``, ``Push``).
         obs_mode: ``state``, ``rgb``, ``depth``, ``segmentation``, ``heightmap`` or a ``+`` combination.
-        action_mode: ``primitive``, ``pixel``, ``ee_delta`` or ``joint`` (default: the task's).
+        action_mode: ``primitive``, ``pixel``, ``ee_delta``, ``joint`` or ``grasp_pose`` (default: the task's).
         render_mode: ``rgb_array`` / ``depth_array`` (front camera) or ``human`` (MuJoCo viewer).
         cameras: cameras for image observations (``overhead``, ``front``, ``wrist``).
         image_size: (width, height) of image observations, pixels.
@@ -59,6 +60,7 @@ class PandaEnv(gym.Env):
         primitive_z: add a z component to ``primitive`` actions (default: heights chosen from the scene).
         push_distance: push length, metres.
         render_size: (width, height) of ``render()`` frames.
+        planner: OMPL planner of the ``grasp_pose`` mode (``panda_grasp_env.planning.PLANNERS``).
         scene: base ``SceneConfig`` (block size, masses, friction, ...); the task sets the objects.
         **task_options: passed to the task (see each task's docstring).
     """
@@ -79,6 +81,7 @@ class PandaEnv(gym.Env):
         primitive_z: bool = False,
         push_distance: float = 0.1,
         render_size: tuple[int, int] = (640, 480),
+        planner: str = "RRTConnect",
         scene: SceneConfig | None = None,
         **task_options: Any,
     ) -> None:
@@ -124,6 +127,10 @@ class PandaEnv(gym.Env):
             self.actions = PrimitiveActions(settings)
         elif action_mode == "pixel":
             self.actions = PixelActions(settings, grid, rotations, lambda: self.sensors.heightmap()[0])
+        elif action_mode == "grasp_pose":
+            from panda_grasp_env.motion_stack import MotionStack  # OMPL loads only when this mode is used
+
+            self.actions = GraspPoseActions(MotionStack(self.cell, planner=planner))
         elif action_mode == "ee_delta":
             self.actions = EEDeltaActions(self.cell)
         else:
@@ -156,6 +163,8 @@ class PandaEnv(gym.Env):
         if options:
             raise ValueError(f"reset options are not supported, got {sorted(options)}")
         task_info = self.task.reset(self.cell, self.np_random)
+        if isinstance(self.actions, GraspPoseActions):
+            self.actions.stack.reseed(int(self.np_random.integers(2**31)))
         if self.actions.low_level:
             tallest = max((float(body_top) for body_top in self._object_tops()), default=0.0)
             ready = np.array([*READY_XY, max(READY_MIN_HEIGHT, tallest + READY_CLEARANCE)])
@@ -213,9 +222,12 @@ class PandaEnv(gym.Env):
         }
         if isinstance(self.actions, PrimitiveActions):
             facts["action_layout"] = {
+                "mode": "primitive",
                 "primitives": list(self.actions.settings.primitives),
                 "primitive_z": self.actions.settings.with_z,
             }
+        elif isinstance(self.actions, GraspPoseActions):
+            facts["action_layout"] = {"mode": "grasp_pose"}
         return facts
 
     def _object_tops(self) -> list[float]:

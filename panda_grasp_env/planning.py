@@ -142,3 +142,27 @@ class MotionPlanner:
         geometric = self.setup.getSolutionPath()
         path = np.array([[geometric.getState(k)[i] for i in range(7)] for k in range(geometric.getStateCount())])
         return PlanResult(True, path, float(geometric.length()), seconds, name)
+
+
+#: Joint acceleration and jerk caps for trajectory timing (half the Panda datasheet's accelerations).
+MAX_ACCELERATION = np.array([7.5, 3.75, 5.0, 6.25, 7.5, 10.0, 10.0])
+MAX_JERK = np.full(7, 500.0)
+
+
+def time_parametrise(path: np.ndarray, max_velocity: np.ndarray, dt: float) -> np.ndarray:
+    """Joint targets every ``dt`` seconds along waypoints (N, 7): time-optimal, jerk-limited and rest-to-rest
+    between waypoints (ruckig), within ``max_velocity`` (rad/s) and ``MAX_ACCELERATION``."""
+    from ruckig import InputParameter, Result, Ruckig, Trajectory
+
+    generator, samples = Ruckig(7), []
+    for start, end in zip(path, path[1:]):
+        request = InputParameter(7)
+        request.current_position, request.target_position = list(start), list(end)
+        request.max_velocity = list(max_velocity)
+        request.max_acceleration, request.max_jerk = list(MAX_ACCELERATION), list(MAX_JERK)
+        trajectory = Trajectory(7)
+        if generator.calculate(request, trajectory) not in (Result.Working, Result.Finished):
+            raise ValueError(f"ruckig could not time the segment {start} -> {end}")
+        times = np.append(np.arange(dt, trajectory.duration, dt), trajectory.duration)
+        samples.extend(trajectory.at_time(t)[0] for t in times)
+    return np.array(samples).reshape(-1, 7)

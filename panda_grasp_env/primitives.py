@@ -40,6 +40,8 @@ REASONS = (
     "not_holding",
     "placed_off",
     "physics_error",
+    "no_ik_solution",
+    "no_plan",
 )
 
 

@@ -48,6 +48,17 @@ def test_grasp_agent_clears_two_objects(oracle):
     env.close()
 
 
+def test_grasp_agent_through_the_motion_stack():
+    env = gym.make("panda_grasp_env:PandaGrasp-v0", shapes=("cube",), action_mode="grasp_pose", **RGBD)
+    agent = PlannedGraspAgent()
+    successes = 0
+    for seed in range(3):
+        info, _ = run(env, agent, seed=seed)
+        successes += info["is_success"]
+    assert successes >= 2
+    env.close()
+
+
 def test_a_failed_grasp_is_not_retried_at_the_same_place():
     env = gym.make("panda_grasp_env:PandaGrasp-v0", shapes=("cube",), primitive_z=True, **RGBD)
     agent = PlannedGraspAgent()

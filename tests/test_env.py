@@ -34,6 +34,20 @@ def test_checkers_pass(env_id, action_mode, obs_mode):
     env.close()
 
 
+@pytest.mark.parametrize("obs_mode", OBS_MODES)
+@pytest.mark.parametrize("env_id", ["PandaGrasp-v0", "PandaGraspClutter-v0"])
+def test_checkers_pass_for_6dof_grasp_poses(env_id, obs_mode):
+    env = make(env_id, action_mode="grasp_pose", obs_mode=obs_mode)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped, warn=False)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="quaternion"):
+        env.step(np.zeros(7))
+    env.close()
+
+
 @pytest.mark.parametrize("obs_mode", ("rgb", "depth", "segmentation", "heightmap"))
 @pytest.mark.parametrize("env_id, action_mode", [("PandaTowerBreak-v0", "primitive"), ("PandaPush-v0", "ee_delta")])
 def test_checkers_pass_for_single_image_modalities(env_id, action_mode, obs_mode):

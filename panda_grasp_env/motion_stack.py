@@ -1,0 +1,128 @@
+"""Executing a 6-DOF grasp pose: IK with tolerance, collision-free plan, approach, close, retreat, lift, verify.
+
+The motion stack joins ``motion`` (pose IK, tolerance sampler) and ``planning``
+(OMPL, trajectory timing) on a live :class:`~panda_grasp_env.workcell.Workcell`:
+
+1. IK for the grasp pose (tolerance sampler) and for the pre-grasp pose 10 cm
+   back along the approach axis;
+2. a collision-free path from the current joints to the pre-grasp
+   configuration around the scene as it is now, timed by ruckig;
+3. the approach: a straight joint-space line to the grasp configuration, slowly;
+4. close, retreat to the pre-grasp configuration, lift 10 cm straight up, hold;
+5. verify as the top-down grasp primitive does (held by both pads, risen >= 5 cm).
+
+Failures say where they happened: ``no_ik_solution``, ``no_plan``, ``missed``,
+``dropped`` (or ``physics_error``); after one the arm opens and goes home.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from panda_grasp_env.motion import PoseIK, ToleranceSampler
+from panda_grasp_env.planning import MotionPlanner, time_parametrise
+from panda_grasp_env.primitives import HOLD_TIME, MIN_LIFT, PrimitiveResult
+from panda_grasp_env.workcell import PhysicsError, Workcell
+
+PRE_GRASP = 0.10  # metres back along the approach axis
+LIFT = 0.10  # metres straight up after the retreat
+#: Share of the Panda's joint speed limits used for planned motions, and for the slow approach.
+TRANSIT_SPEED, APPROACH_SPEED = 0.5, 0.15
+
+
+class MotionStack:
+    """IK, planner and timing for one workcell; ``grasp`` executes a 6-DOF grasp pose on it."""
+
+    def __init__(self, cell: Workcell, planner: str = "RRTConnect", seed: int = 0, time_limit: float = 2.0) -> None:
+        self.ik = PoseIK(cell.config)
+        self.sampler = ToleranceSampler()
+        self.planner = MotionPlanner(cell.config, planner=planner, seed=seed)
+        self.time_limit = time_limit
+        self.rng = np.random.default_rng(seed)
+        self.max_velocity = np.asarray(cell.controller.limits.joint_speed)
+
+    def reseed(self, seed: int) -> None:
+        """IK restarts draw from a generator reseeded at every env reset (episodes repeat)."""
+        self.rng = np.random.default_rng(seed)
+
+    def _follow(self, cell: Workcell, targets: np.ndarray) -> None:
+        for target in targets:
+            cell.robot.command_joints(target)
+            cell.step_physics(cell.control_substeps)
+        for _ in range(int(0.5 / cell.control_dt)):  # settle
+            if np.abs(cell.robot.joint_velocities).max() < 0.05:
+                break
+            cell.step_physics(cell.control_substeps)
+
+    @staticmethod
+    def _hold(cell: Workcell, seconds: float, until_fingers_stop: bool = False) -> None:
+        """Keep the arm's joint targets for ``seconds`` (the Cartesian controller would turn the hand
+        top-down), optionally stopping once the fingers have stopped."""
+        still = 0
+        for _ in range(max(1, round(seconds / cell.control_dt))):
+            cell.step_physics(cell.control_substeps)
+            still = still + 1 if cell.robot.finger_speed < 2e-3 else 0
+            if until_fingers_stop and still >= 3:
+                break
+
+    def _gripper(self, cell: Workcell, close: bool) -> None:
+        cell.robot.close_gripper() if close else cell.robot.open_gripper()
+        self._hold(cell, 0.8, until_fingers_stop=True)
+
+    def _fail(self, cell: Workcell, reason: str, retreat: tuple[np.ndarray, np.ndarray] | None, obj: str | None = None):
+        """Open, back out along the approach, go home; report ``reason``."""
+        self._gripper(cell, close=False)
+        if retreat is not None:
+            self._follow(cell, self._line(cell, *retreat, APPROACH_SPEED))
+        cell.move_home()
+        return PrimitiveResult("grasp", False, reason, object=obj)
+
+    def _line(self, cell: Workcell, start: np.ndarray, end: np.ndarray, speed: float) -> np.ndarray:
+        return time_parametrise(np.array([start, end]), self.max_velocity * speed, cell.control_dt)
+
+    def grasp(self, cell: Workcell, position: np.ndarray, rotation: np.ndarray) -> PrimitiveResult:
+        """Grasp with the grasp site at ``position`` (world, metres) and orientation ``rotation`` (3, 3)."""
+        start_time, start_steps = cell.sim_time, cell.physics_steps
+        try:
+            result = self._grasp(cell, np.asarray(position, float), np.asarray(rotation, float))
+        except PhysicsError:
+            result = PrimitiveResult("grasp", False, "physics_error")
+        result.sim_time, result.physics_steps = cell.sim_time - start_time, cell.physics_steps - start_steps
+        return result
+
+    def _grasp(self, cell: Workcell, position: np.ndarray, rotation: np.ndarray) -> PrimitiveResult:
+        current = cell.robot.joint_positions
+        at_grasp = None
+        # A parallel gripper is symmetric under a half turn about its approach axis: try both hands.
+        for hand in (rotation, rotation @ np.diag([-1.0, -1.0, 1.0])):
+            at_grasp, _ = self.sampler.solve(self.ik, position, hand, current, self.rng)
+            if at_grasp is not None:
+                break
+        if at_grasp is None:
+            return PrimitiveResult("grasp", False, "no_ik_solution")
+        approach = at_grasp.rotation[:, 2]
+        at_pre = self.ik.solve(position - PRE_GRASP * approach, at_grasp.rotation, at_grasp.qpos, self.rng)
+        lifted = position - PRE_GRASP * approach + [0.0, 0.0, LIFT]
+        at_lift = None if at_pre is None else self.ik.solve(lifted, at_grasp.rotation, at_pre.qpos, self.rng)
+        if at_pre is None or at_lift is None:
+            return PrimitiveResult("grasp", False, "no_ik_solution")
+        self.planner.sync_objects(cell.model, cell.data, cell.object_names)
+        plan = self.planner.plan(current, at_pre.qpos, self.time_limit)
+        if not plan.success:
+            return PrimitiveResult("grasp", False, "no_plan")
+        self._gripper(cell, close=False)
+        self._follow(cell, time_parametrise(plan.path, self.max_velocity * TRANSIT_SPEED, cell.control_dt))
+        self._follow(cell, self._line(cell, at_pre.qpos, at_grasp.qpos, APPROACH_SPEED))
+        self._gripper(cell, close=True)
+        body = cell.robot.body_between_pads()
+        if body is None or cell.robot.finger_gap < 0.002:
+            return self._fail(cell, "missed", (cell.robot.joint_positions, at_pre.qpos))
+        start_height = cell.data.xpos[body][2]
+        self._follow(cell, self._line(cell, at_grasp.qpos, at_pre.qpos, APPROACH_SPEED))
+        self._follow(cell, self._line(cell, at_pre.qpos, at_lift.qpos, TRANSIT_SPEED))
+        self._hold(cell, HOLD_TIME)
+        cell.controller.sync(cell.robot.joint_positions)  # later primitives start from here
+        held = cell.robot.body_between_pads() == body
+        if not held or cell.data.xpos[body][2] - start_height < MIN_LIFT:
+            return self._fail(cell, "dropped", None, cell.name_of(body))
+        return PrimitiveResult("grasp", True, "ok", object=cell.name_of(body))
