@@ -175,7 +175,7 @@ def test_bad_pixel_actions_raise():
     "kwargs, message",
     [
         ({"obs_mode": "lidar"}, "valid: \\['state', 'rgb'"),
-        ({"action_mode": "torque"}, "valid: \\['primitive', 'pixel', 'ee_delta', 'joint'\\]"),
+        ({"action_mode": "torque"}, "valid: \\['primitive', 'pixel', 'ee_delta', 'joint', 'grasp_pose'\\]"),
         ({"n_blocks": 7}, "n_blocks"),
         ({"colour": "red"}, "unknown option\\(s\\) \\['colour'\\] for task 'TowerBuild'; valid: \\['n_blocks'"),
         ({"cameras": ("ceiling",)}, "valid: \\['overhead', 'front', 'wrist'\\]"),
