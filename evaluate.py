@@ -1,43 +1,43 @@
-"""Main job.  For now: the simulation-core demo -- an oracle builds a 4-block tower
-from scattered blocks with grasp and place primitives, then pushes it over --
-recorded as an MP4 from the front camera.
+"""Main job: benchmark agents against each other on every task, through the same env.step loop.
 
-    MUJOCO_GL=egl python evaluate.py [--seed 0] [--out results/demo]
+    python evaluate.py                      # quick benchmark (<= 10 minutes on 2 cores)
+    python evaluate.py --full               # the publication protocol (30 clutter runs, 100 tower trials, ...)
+    python evaluate.py --agents planned,random --tasks TowerBuild --seeds 20 --workers 2
+    python evaluate.py --resume             # finish an interrupted run without redoing episodes
+    python evaluate.py --demo [--seed 0]    # the simulation-core demo: an oracle builds and breaks a tower
 
-(The agent-vs-agent benchmark replaces this once the environments, planned and
-learned agents exist.)
+Agents: random, planned (perception-based planned baselines), oracle (the same, on
+true poses).  Tasks: Grasp, GraspClutter, TowerBuild, TowerBreak, BuildAndBreak.
+Outputs (``--out``, default results/quick or results/full): results.json and
+results.csv (deterministic: same seeds give identical files), timing.json,
+report.md, success.png, failures.png and one MP4 per (agent, task).
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import json
+import multiprocessing
 import os
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
+from agents.evaluation import AGENTS, TASKS, EpisodeSpec, aggregate, run_episode  # noqa: E402
 from agents.oracle_tower import build_tower, push_tower  # noqa: E402
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
 from panda_grasp_env.video import VideoRecorder  # noqa: E402
 from panda_grasp_env.workcell import Workcell  # noqa: E402
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seed", type=int, default=0, help="seed of the block layout")
-    parser.add_argument("--out", type=Path, default=Path("results/demo"), help="output folder")
-    parser.add_argument("--push", default="+y", choices=["+x", "+y", "-x", "-y"], help="push direction")
-    parser.add_argument("--no-video", action="store_true", help="skip the MP4 (much faster)")
-    return parser.parse_args(argv)
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
+def demo(args: argparse.Namespace) -> int:
+    """An oracle builds a 4-block tower with grasp and place primitives and pushes it over (MP4 + summary)."""
     args.out.mkdir(parents=True, exist_ok=True)
     cell = Workcell()
     cell.reset(np.random.default_rng(args.seed), "scattered")
@@ -75,6 +75,312 @@ def main(argv: list[str] | None = None) -> int:
     tmp.replace(args.out / "summary.json")
     print(f"simulated {cell.sim_time:.1f} s in {summary['wall_s']:.1f} s wall; summary: {args.out / 'summary.json'}")
     return 0 if build.success and displaced >= 2 else 1
+
+
+QUICK_SEEDS = {"Grasp": 10, "GraspClutter": 2, "TowerBuild": 5, "TowerBreak": 5, "BuildAndBreak": 1}
+FULL_SEEDS = {"Grasp": 100, "GraspClutter": 30, "TowerBuild": 100, "TowerBreak": 100, "BuildAndBreak": 10}
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--full", action="store_true", help="the publication protocol instead of the quick one")
+    parser.add_argument("--agents", default=",".join(AGENTS), help=f"comma-separated, from {list(AGENTS)}")
+    parser.add_argument("--tasks", default=",".join(TASKS), help=f"comma-separated, from {list(TASKS)}")
+    parser.add_argument("--seeds", type=int, default=None, help="episodes per (agent, task), seeds 0..N-1")
+    parser.add_argument("--workers", type=int, default=1, help="parallel worker processes")
+    parser.add_argument("--ray", default=None, help="Ray cluster address (or 'auto') to run episodes on")
+    parser.add_argument("--out", type=Path, default=None, help="results folder")
+    parser.add_argument("--resume", action="store_true", help="keep finished episodes in --out, run the rest")
+    parser.add_argument("--no-video", action="store_true", help="skip the MP4s")
+    parser.add_argument("--demo", action="store_true", help="run the simulation-core demo instead")
+    parser.add_argument("--seed", type=int, default=0, help="(demo) seed of the block layout")
+    parser.add_argument("--push", default="+y", choices=["+x", "+y", "-x", "-y"], help="(demo) push direction")
+    args = parser.parse_args(argv)
+    for name, valid in (("agents", AGENTS), ("tasks", TASKS)):
+        chosen = [v for v in getattr(args, name).split(",") if v]
+        unknown = [v for v in chosen if v not in valid]
+        if unknown or not chosen:
+            parser.error(f"unknown {name} {unknown or chosen}; valid: {list(valid)}")
+        setattr(args, name, chosen)
+    if args.workers < 1 or (args.seeds is not None and args.seeds < 1):
+        parser.error("--workers and --seeds must be positive")
+    if args.ray is not None:
+        parser.error("--ray: running on a Ray cluster is not available yet; use --workers N on one machine")
+    if args.out is None:
+        args.out = Path("results/demo" if args.demo else "results/full" if args.full else "results/quick")
+    return args
+
+
+def episode_specs(args: argparse.Namespace) -> list[EpisodeSpec]:
+    seeds = FULL_SEEDS if args.full else QUICK_SEEDS
+    return [
+        EpisodeSpec(agent, task, seed)
+        for task in args.tasks
+        for agent in args.agents
+        for seed in range(args.seeds or seeds[task])
+    ]
+
+
+def _append(path: Path, record: dict) -> None:
+    """One finished episode per line, flushed to disk at once (an interrupted run keeps it)."""
+    with path.open("a") as handle:
+        handle.write(json.dumps(record, sort_keys=True) + "\n")
+        handle.flush()
+        os.fsync(handle.fileno())
+
+
+def _load(path: Path) -> dict[str, dict]:
+    done = {}
+    if path.exists():
+        for line in path.read_text().splitlines():
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:  # a line cut short by an interruption: run that episode again
+                continue
+            done[record["key"]] = record
+    return done
+
+
+def _run_job(spec: EpisodeSpec) -> dict:
+    return {"key": spec.key, **run_episode(spec)}
+
+
+def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) -> dict[str, dict]:
+    from tqdm import tqdm
+
+    done = _load(log) if args.resume else {}
+    if log.exists():  # keep only whole records (an interruption can cut the last line short)
+        _atomic(log, "".join(json.dumps(r, sort_keys=True) + "\n" for r in done.values()))
+    todo = [s for s in specs if s.key not in done]
+    wins: Counter[str] = Counter()
+    bar = tqdm(total=len(specs), initial=len(specs) - len(todo), desc="episodes", unit="ep")
+    try:
+        if args.workers == 1:
+            records = (_run_job(spec) for spec in todo)
+            pool = None
+        else:
+            pool = multiprocessing.get_context("spawn").Pool(args.workers)
+            records = pool.imap_unordered(_run_job, todo)
+        for record in records:
+            _append(log, record)
+            done[record["key"]] = record
+            agent = record["result"]["spec"]["agent"]
+            wins[agent] += record["result"]["success"]
+            bar.update(1)
+            bar.set_postfix_str(" ".join(f"{a} {wins[a]}" for a in args.agents) + " successes")
+        if pool is not None:
+            pool.close()
+            pool.join()
+    except KeyboardInterrupt:
+        bar.close()
+        print(f"\ninterrupted: {len(done)}/{len(specs)} episodes saved in {log}; finish with --resume")
+        raise
+    bar.close()
+    return {s.key: done[s.key] for s in specs}
+
+
+def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
+    import csv
+
+    results = [r["result"] for r in records.values()]
+    table = aggregate(results)
+    protocol = {
+        "agents": args.agents,
+        "tasks": args.tasks,
+        "full": args.full,
+        "env_ids": {t: TASKS[t][0] for t in args.tasks},
+    }
+    payload = {"protocol": protocol, "metrics": table, "episodes": sorted(results, key=lambda r: json.dumps(r["spec"]))}
+    _atomic(args.out / "results.json", json.dumps(payload, indent=2, sort_keys=True))
+    rows = [
+        [
+            "agent",
+            "task",
+            "episodes",
+            "trial_success",
+            "ci_low",
+            "ci_high",
+            "completion",
+            "grasp_success",
+            "action_efficiency",
+            "cycles_per_sim_hour",
+            "failures",
+        ]
+    ]
+    for key, m in table.items():
+        agent, task = key.split("/")
+        s = m["trial_success"]
+        rows.append(
+            [
+                agent,
+                task,
+                m["episodes"],
+                s["rate"],
+                *s["ci95"],
+                m["completion"]["rate"],
+                m["grasp_success"]["rate"],
+                m["action_efficiency"],
+                m["cycles_per_sim_hour"],
+                json.dumps(m["failures"]),
+            ]
+        )
+    buffer = io.StringIO()
+    csv.writer(buffer).writerows(rows)
+    _atomic(args.out / "results.csv", buffer.getvalue())
+    timing: dict[str, dict] = {}
+    for record in records.values():
+        key = f"{record['result']['spec']['agent']}/{record['result']['spec']['task']}"
+        timing.setdefault(key, {"wall_seconds": [], "decision_seconds_median": []})
+        timing[key]["wall_seconds"].append(record["timing"]["wall_seconds"])
+        timing[key]["decision_seconds_median"].append(record["timing"]["decision_seconds_median"])
+    timing = {
+        k: {
+            "wall_seconds_per_episode": float(np.median(v["wall_seconds"])),
+            "ms_per_decision": 1000 * float(np.median(v["decision_seconds_median"])),
+        }
+        for k, v in timing.items()
+    }
+    _atomic(args.out / "timing.json", json.dumps(timing, indent=2, sort_keys=True))
+    return {"table": table, "timing": timing, "protocol": protocol}
+
+
+def _atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def print_table(summary: dict) -> str:
+    lines = [
+        "| agent | task | N | trial success (95 % CI) | completion | grasp success | action efficiency | cycles / sim h | ms / decision | failures |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for key, m in summary["table"].items():
+        agent, task = key.split("/")
+        s, t = m["trial_success"], summary["timing"][key]
+        lines.append(
+            f"| {agent} | {task} | {m['episodes']} | {100 * s['rate']:.0f} % ({100 * s['ci95'][0]:.0f}-{100 * s['ci95'][1]:.0f}) "
+            f"| {100 * m['completion']['rate']:.0f} % | {100 * m['grasp_success']['rate']:.0f} % ({m['grasp_success']['n']}) "
+            f"| {100 * m['action_efficiency']:.0f} % | {m['cycles_per_sim_hour']:.0f} | {t['ms_per_decision']:.0f} "
+            f"| {', '.join(f'{k} {v}' for k, v in m['failures'].items()) or '-'} |"
+        )
+    table = "\n".join(lines)
+    print(table)
+    return table
+
+
+def plots(summary: dict, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    table = summary["table"]
+    tasks = list(dict.fromkeys(k.split("/")[1] for k in table))
+    agents = list(dict.fromkeys(k.split("/")[0] for k in table))
+    figure, axis = plt.subplots(figsize=(1.8 * len(tasks) + 2, 4))
+    width = 0.8 / len(agents)
+    for i, agent in enumerate(agents):
+        rates, low, high, xs = [], [], [], []
+        for j, task in enumerate(tasks):
+            if f"{agent}/{task}" in table:
+                s = table[f"{agent}/{task}"]["trial_success"]
+                xs.append(j + i * width)
+                rates.append(s["rate"])
+                low.append(s["rate"] - s["ci95"][0])
+                high.append(s["ci95"][1] - s["rate"])
+        axis.bar(xs, rates, width, yerr=[low, high], capsize=3, label=agent)
+    axis.set_xticks(np.arange(len(tasks)) + 0.4 - width / 2, tasks)
+    axis.set_ylabel("trial success (95 % Wilson CI)")
+    axis.set_ylim(0, 1.05)
+    axis.legend()
+    figure.tight_layout()
+    figure.savefig(out / "success.png", dpi=120)
+    plt.close(figure)
+    figure, axis = plt.subplots(figsize=(max(6, 0.9 * len(table)), 4))
+    reasons = sorted({r for m in table.values() for r in m["failures"]})
+    bottom = np.zeros(len(table))
+    for reason in reasons:
+        counts = np.array([m["failures"].get(reason, 0) for m in table.values()], dtype=float)
+        axis.bar(range(len(table)), counts, bottom=bottom, label=reason)
+        bottom += counts
+    axis.set_xticks(range(len(table)), list(table), rotation=45, ha="right", fontsize=7)
+    axis.set_ylabel("failed actions")
+    if reasons:
+        axis.legend(fontsize=7)
+    figure.tight_layout()
+    figure.savefig(out / "failures.png", dpi=120)
+    plt.close(figure)
+
+
+def videos(specs: list[EpisodeSpec], out: Path) -> list[Path]:
+    """One MP4 per (agent, task): its first seed, replayed (episodes are deterministic) with the recorder on."""
+    written = []
+    for spec in {(s.agent, s.task): s for s in reversed(specs)}.values():
+        path = out / "videos" / f"{spec.agent}_{spec.task}.mp4"
+        if not path.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            run_episode(spec, video=path)
+        written.append(path)
+    return written
+
+
+def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: list[Path]) -> None:
+    import platform
+    import subprocess
+
+    import gymnasium
+    import mujoco
+
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = "unknown"
+    seeds = FULL_SEEDS if args.full else QUICK_SEEDS
+    lines = [
+        f"# {'Full' if args.full else 'Quick'} benchmark",
+        "",
+        "Planned (perception), oracle (true poses) and random agents through the same `env.step` loop.",
+        "Rates carry 95 % Wilson intervals; action efficiency = ideal actions of completed episodes / actions used.",
+        "",
+        table_md,
+        "",
+        "![success](success.png)",
+        "",
+        "![failures](failures.png)",
+        "",
+        "Videos: " + ", ".join(f"[{p.stem}](videos/{p.name})" for p in video_paths)
+        if video_paths
+        else "Videos: skipped.",
+        "",
+        "## Protocol",
+        "",
+        f"- seeds per (agent, task): { ({t: args.seeds or seeds[t] for t in args.tasks}) } (seeds 0..N-1)",
+        f"- env ids and options: {json.dumps({t: TASKS[t] for t in args.tasks})}",
+        f"- commit {commit}; Python {platform.python_version()}, MuJoCo {mujoco.__version__}, Gymnasium {gymnasium.__version__}",
+        f"- workers: {args.workers}",
+    ]
+    _atomic(args.out / "report.md", "\n".join(lines) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    if args.demo:
+        return demo(args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    specs = episode_specs(args)
+    started = time.perf_counter()
+    try:
+        records = run_episodes(specs, args, args.out / "episodes.jsonl")
+    except KeyboardInterrupt:
+        return 130
+    summary = write_outputs(records, args)
+    table_md = print_table(summary)
+    plots(summary, args.out)
+    video_paths = [] if args.no_video else videos(specs, args.out)
+    report(summary, table_md, args, video_paths)
+    print(f"{len(specs)} episodes in {time.perf_counter() - started:.0f} s; report: {args.out / 'report.md'}")
+    return 0
 
 
 if __name__ == "__main__":

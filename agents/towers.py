@@ -177,3 +177,26 @@ class TowerBreakerAgent:
                 return self.write("push", start[0], start[1], heading)
         start = centre - PUSH_START * np.array([1.0, 0.0])
         return self.write("push", start[0], start[1], 0.0)
+
+
+class BuildAndBreakAgent:
+    """Builds while the task's phase is ``build`` and pushes the tower over while it is ``break``."""
+
+    def __init__(self, perceiver: CameraBlocks | OracleBlocks | None = None) -> None:
+        perceiver = perceiver or CameraBlocks()
+        self.builder, self.breaker = TowerBuilderAgent(perceiver), TowerBreakerAgent(perceiver)
+        self.name = f"build_and_break_{perceiver.name}"
+
+    @property
+    def failures(self) -> Counter[str]:
+        return self.builder.failures + self.breaker.failures
+
+    def reset(self, observation: Any, info: dict[str, Any]) -> None:
+        require(info, ("phase",), self.name, "use PandaBuildAndBreak-v0")
+        self.builder.reset(observation, info)
+        self.breaker.reset(observation, info)
+
+    def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
+        if info["phase"] == "break":
+            return self.breaker.act(observation, info)
+        return self.builder.act(observation, info)

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from agents.evaluation import rate, wilson  # noqa: F401  (one implementation of the interval)
 
 sys.stdout.reconfigure(line_buffering=True)  # figures appear as they are measured, even when piped
 
@@ -54,19 +54,3 @@ class Results:
             tmp.write_text(json.dumps(self.data, indent=2))
             os.replace(tmp, self.path)
         return self.data[name]
-
-
-def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95 % Wilson score interval of a success rate."""
-    if n == 0:
-        return (float("nan"), float("nan"))
-    p = successes / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return (max(0.0, centre - half), min(1.0, centre + half))
-
-
-def rate(successes: int, n: int) -> dict:
-    """A success rate with its count, N and 95 % Wilson interval."""
-    low, high = wilson(successes, n)
-    return {"successes": successes, "n": n, "rate": successes / n, "ci95": [low, high]}

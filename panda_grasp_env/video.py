@@ -14,19 +14,25 @@ from panda_grasp_env.workcell import Workcell
 
 
 class VideoRecorder:
-    """Grabs a ``pretty`` frame every ``every`` control steps while attached to a workcell.
+    """Grabs a frame (``pretty`` profile by default) every ``every`` control steps while attached to a workcell.
 
     The video plays in real time: its frame rate is the control rate / ``every``.
     """
 
     def __init__(
-        self, cell: Workcell, camera: str = "front", width: int = 640, height: int = 480, every: int = 2
+        self,
+        cell: Workcell,
+        camera: str = "front",
+        width: int = 640,
+        height: int = 480,
+        every: int = 2,
+        profile: str = "pretty",
     ) -> None:
         self.cell = cell
         self.camera = camera
         self.every = every
         self.fps = 1.0 / (cell.control_dt * every)
-        self.renderer = CameraRenderer(cell.model, width, height, profile="pretty")
+        self.renderer = CameraRenderer(cell.model, width, height, profile=profile)
         self.frames: list[np.ndarray] = []
         self.caption = ""
         self.frames_written = 0

@@ -9,7 +9,7 @@ from panda_grasp_env.workcell import Workcell
 
 
 def test_demo_builds_and_breaks_a_tower(tmp_path):
-    assert evaluate.main(["--seed", "1", "--out", str(tmp_path), "--no-video"]) == 0
+    assert evaluate.main(["--demo", "--seed", "1", "--out", str(tmp_path), "--no-video"]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["tower_built"] and summary["push"]["blocks_displaced"] >= 2
     assert [p["primitive"] for p in summary["primitives"]] == ["grasp", "place"] * 3

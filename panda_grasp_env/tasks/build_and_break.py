@@ -47,9 +47,9 @@ class BuildAndBreak(Task):
         return self.build.ideal_actions + self.breaker.ideal_actions
 
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
-        self.build.reset(cell, rng)
+        build_info = self.build.reset(cell, rng)
         self.phase, self.builds, self.breaks = "build", 0, 0
-        return self._info(cell)
+        return {"base": build_info["base"], **self._info(cell)}
 
     def _info(self, cell: Workcell) -> dict[str, Any]:
         return {"phase": self.phase, "builds": self.builds, "breaks": self.breaks, "cycles": self.breaks}

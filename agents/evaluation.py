@@ -1,0 +1,167 @@
+"""Benchmark episodes of any agent on any task through ``env.step``: specs, runner, aggregation.
+
+``evaluate.py`` is the command line; this module is what its worker processes import.
+An episode is fully determined by (agent, task, seed): the env is reset with the
+seed and every agent draws from generators seeded from it, so results repeat
+bit for bit, in any process, in any order.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+#: Task name -> (env id, extra env options).  Perception agents get RGB-D from both cameras at 640 x 480.
+TASKS: dict[str, tuple[str, dict[str, Any]]] = {
+    "Grasp": ("PandaGrasp-v0", {"primitive_z": True}),
+    "GraspClutter": ("PandaGraspClutter-v0", {"primitive_z": True}),
+    "TowerBuild": ("PandaTowerBuild-v0", {}),
+    "TowerBreak": ("PandaTowerBreak-v0", {}),
+    "BuildAndBreak": ("PandaBuildAndBreak-v0", {"max_episode_steps": 30}),
+}
+AGENTS = ("random", "planned", "oracle")
+PERCEPTION = {"obs_mode": "rgbd", "cameras": ("overhead", "front"), "image_size": (640, 480)}
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    agent: str
+    task: str
+    seed: int
+
+    @property
+    def key(self) -> str:
+        return f"{self.agent}/{self.task}/{self.seed}"
+
+
+def make_env(spec: EpisodeSpec) -> gym.Env:
+    env_id, options = TASKS[spec.task]
+    options = dict(options)
+    if spec.agent != "random":
+        options |= PERCEPTION
+    return gym.make(f"panda_grasp_env:{env_id}", **options)
+
+
+def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
+    from agents.grasping import OracleGraspAgent, PlannedGraspAgent
+    from agents.random_agent import RandomAgent
+    from agents.towers import BuildAndBreakAgent, CameraBlocks, OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
+
+    if spec.agent == "random":
+        return RandomAgent(env.action_space, seed=0)
+    oracle = spec.agent == "oracle"
+    if spec.task.startswith("Grasp"):
+        return (
+            OracleGraspAgent(env, seed=spec.seed) if oracle else PlannedGraspAgent(noise_seed=spec.seed, seed=spec.seed)
+        )
+    blocks = OracleBlocks(env) if oracle else CameraBlocks(noise_seed=spec.seed)
+    if spec.task == "TowerBuild":
+        return TowerBuilderAgent(blocks)
+    if spec.task == "TowerBreak":
+        return TowerBreakerAgent(blocks)
+    return BuildAndBreakAgent(blocks)
+
+
+def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
+    """Run one episode; returns its deterministic outcome under ``result`` and wall-clock figures under ``timing``."""
+    from panda_grasp_env.video import VideoRecorder
+
+    env = make_env(spec)
+    agent = make_agent(spec, env)
+    began = time.perf_counter()
+    observation, info = env.reset(seed=spec.seed)
+    if hasattr(agent, "space"):
+        agent.reset(observation, info, episode_seed=spec.seed)
+    else:
+        agent.reset(observation, info)
+    in_play = info.get("objects_remaining")
+    ideal = env.unwrapped.task.ideal_actions if in_play is None else in_play
+    recorder = None
+    if video is not None:
+        recorder = VideoRecorder(env.unwrapped.cell, "front", 480, 360, every=4, profile="fast")
+        recorder.caption = f"{spec.agent} on {spec.task}, seed {spec.seed}"
+    decisions, actions = [], 0
+    failures: Counter[str] = Counter()
+    while True:
+        start = time.perf_counter()
+        action = agent.act(observation, info)
+        decisions.append(time.perf_counter() - start)
+        observation, _, terminated, truncated, info = env.step(action)
+        actions += 1
+        if "primitive_reason" in info and not info["primitive_success"]:
+            failures[info["primitive_reason"]] += 1
+        if recorder is not None and "primitive" in info:
+            recorder.caption = f"{spec.agent} / {spec.task}: {info['primitive']} -> {info['primitive_reason']}"
+        if terminated or truncated:
+            break
+    failures.update({k: v for k, v in getattr(agent, "failures", {}).items() if k == "no_candidate"})
+    if recorder is not None:
+        recorder.save(video)
+    success = bool(info["is_success"])
+    result = {
+        "spec": asdict(spec),
+        "success": success,
+        "completion": bool(info.get("objects_remaining", 1) == 0) if spec.task.startswith("Grasp") else success,
+        "actions": actions,
+        "ideal_actions": int(ideal),
+        "grasps_attempted": int(info["grasps_attempted"]),
+        "grasps_succeeded": int(info["grasps_succeeded"]),
+        "cycles": int(info.get("cycles", 0)),
+        "sim_seconds": round(float(info["sim_time"]), 6),
+        "failures": dict(sorted(failures.items())),
+        "physics_error": bool(info["physics_error"]),
+    }
+    timing = {"wall_seconds": time.perf_counter() - began, "decision_seconds_median": float(np.median(decisions))}
+    env.close()
+    return {"result": result, "timing": timing}
+
+
+def wilson(successes: int, n: int, z: float = 1.96) -> list[float]:
+    """95 % Wilson score interval."""
+    if n == 0:
+        return [0.0, 1.0]
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return [round(max(0.0, centre - half), 4), round(min(1.0, centre + half), 4)]
+
+
+def rate(successes: int, n: int) -> dict[str, Any]:
+    return {"rate": round(successes / n, 4) if n else 0.0, "successes": successes, "n": n, "ci95": wilson(successes, n)}
+
+
+def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Metrics per ``agent/task`` from episode results (deterministic: no wall-clock figures)."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in results:
+        groups.setdefault(f"{r['spec']['agent']}/{r['spec']['task']}", []).append(r)
+    table = {}
+    for key in sorted(groups):
+        episodes = sorted(groups[key], key=lambda r: r["spec"]["seed"])
+        n = len(episodes)
+        attempted = sum(r["grasps_attempted"] for r in episodes)
+        actions = sum(r["actions"] for r in episodes)
+        ideal_done = sum(r["ideal_actions"] for r in episodes if r["completion"])
+        sim_hours = sum(r["sim_seconds"] for r in episodes) / 3600
+        failures: Counter[str] = Counter()
+        for r in episodes:
+            failures.update(r["failures"])
+        table[key] = {
+            "episodes": n,
+            "seeds": [r["spec"]["seed"] for r in episodes],
+            "trial_success": rate(sum(r["success"] for r in episodes), n),
+            "completion": rate(sum(r["completion"] for r in episodes), n),
+            "grasp_success": rate(sum(r["grasps_succeeded"] for r in episodes), attempted),
+            "action_efficiency": round(ideal_done / actions, 4) if actions else 0.0,
+            "cycles_per_sim_hour": round(sum(r["cycles"] for r in episodes) / sim_hours, 2) if sim_hours else 0.0,
+            "failures": dict(sorted(failures.items())),
+            "sim_seconds_per_episode": round(sim_hours * 3600 / n, 3),
+            "physics_errors": sum(r["physics_error"] for r in episodes),
+        }
+    return table
