@@ -88,7 +88,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--tasks", default=",".join(TASKS), help=f"comma-separated, from {list(TASKS)}")
     parser.add_argument("--seeds", type=int, default=None, help="episodes per (agent, task), seeds 0..N-1")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes")
-    parser.add_argument("--ray", default=None, help="Ray cluster address (or 'auto') to run episodes on")
+    parser.add_argument(
+        "--ray", default=None, help="run episodes as Ray tasks: a cluster address, 'auto', or 'local' to start one here"
+    )
     parser.add_argument("--out", type=Path, default=None, help="results folder")
     parser.add_argument("--resume", action="store_true", help="keep finished episodes in --out, run the rest")
     parser.add_argument("--no-video", action="store_true", help="skip the MP4s")
@@ -105,7 +107,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if args.workers < 1 or (args.seeds is not None and args.seeds < 1):
         parser.error("--workers and --seeds must be positive")
     if args.ray is not None:
-        parser.error("--ray: running on a Ray cluster is not available yet; use --workers N on one machine")
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            parser.error("--ray needs Ray: pip install -e '.[ray]'")
     if args.out is None:
         args.out = Path("results/demo" if args.demo else "results/full" if args.full else "results/quick")
     return args
@@ -145,6 +150,24 @@ def _run_job(spec: EpisodeSpec) -> dict:
     return {"key": spec.key, **run_episode(spec)}
 
 
+def _ray_records(specs: list[EpisodeSpec], address: str):
+    """Episodes as Ray tasks, yielded as they finish (results are the same as local ones: episodes are
+    determined by their spec alone)."""
+    import ray
+
+    from agents.evaluation import run_episode as run
+
+    ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False)
+    remote = ray.remote(lambda spec: {"key": spec.key, **run(spec)})
+    pending = [remote.remote(spec) for spec in specs]
+    try:
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            yield ray.get(ready[0])
+    finally:
+        ray.shutdown()
+
+
 def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) -> dict[str, dict]:
     from tqdm import tqdm
 
@@ -155,9 +178,11 @@ def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) 
     wins: Counter[str] = Counter()
     bar = tqdm(total=len(specs), initial=len(specs) - len(todo), desc="episodes", unit="ep")
     try:
-        if args.workers == 1:
+        pool = None
+        if args.ray is not None:
+            records = _ray_records(todo, args.ray)
+        elif args.workers == 1:
             records = (_run_job(spec) for spec in todo)
-            pool = None
         else:
             pool = multiprocessing.get_context("spawn").Pool(args.workers)
             records = pool.imap_unordered(_run_job, todo)

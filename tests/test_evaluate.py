@@ -39,7 +39,14 @@ def test_resume_finishes_without_redoing_episodes(tmp_path):
     assert (partial / "results.json").read_text() == (full / "results.json").read_text()
 
 
-@pytest.mark.parametrize("bad", [["--agents", "genius"], ["--tasks", "Juggle"], ["--workers", "0"], ["--ray", "auto"]])
+def test_a_local_ray_instance_gives_the_same_results(tmp_path):
+    pytest.importorskip("ray")  # installed by the test extra; optional for users
+    local = run(tmp_path, "local")
+    on_ray = run(tmp_path, "ray", "--ray", "local")
+    assert (local / "results.json").read_text() == (on_ray / "results.json").read_text()
+
+
+@pytest.mark.parametrize("bad", [["--agents", "genius"], ["--tasks", "Juggle"], ["--workers", "0"]])
 def test_bad_arguments_exit_with_a_message(bad, capsys):
     with pytest.raises(SystemExit):
         evaluate.main(bad)
