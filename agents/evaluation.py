@@ -103,6 +103,8 @@ def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
     failures.update({k: v for k, v in getattr(agent, "failures", {}).items() if k == "no_candidate"})
     if recorder is not None:
         recorder.save(video)
+    if spec.task == "BuildAndBreak":  # the ideal is per build-and-break cycle
+        ideal = ideal * int(info.get("cycles", 0))
     success = bool(info["is_success"])
     result = {
         "spec": asdict(spec),

@@ -107,15 +107,19 @@ class TowerBuilderAgent:
         self.pending: tuple[str, float, float] | None = None
         self.failures = Counter()
 
-    def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
+    def observe(self, info: dict[str, Any]) -> None:
+        """Take in the last step's outcome (what is in the hand), even if another agent chose that step."""
         record_failure(self.failures, info)
         if info.get("tower_fell"):
             self.failures["tower_fell"] += 1
         if self.pending is not None and info.get("primitive") == "grasp":
             self.held = (self.pending[0], self.pending[1]) if info["primitive_success"] else None
-        elif info.get("primitive") == "place":
-            self.held = None
+        elif info.get("primitive") in ("place", "push"):
+            self.held = None  # a place releases; a push starts with the hand closed on nothing
         self.pending = None
+
+    def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
+        self.observe(info)
         blocks = self.perceiver(observation)
         if self.base not in blocks:
             self.failures["no_candidate"] += 1
@@ -146,8 +150,8 @@ class TowerBuilderAgent:
 
 
 class TowerBreakerAgent:
-    """Push the tallest tower over: from its footprint centre, the first of the four directions whose
-    start is clear of other blocks and whose push stays in the workspace."""
+    """Push the tallest tower over: of the four directions, the one heading most towards the middle of
+    the workspace (so the blocks stay within reach) whose start is clear of other blocks."""
 
     def __init__(self, perceiver: CameraBlocks | OracleBlocks | None = None) -> None:
         self.perceiver = perceiver or CameraBlocks()
@@ -169,7 +173,8 @@ class TowerBreakerAgent:
         tower = max(towers, key=len)
         centre = blocks[tower[0]].position[:2]
         others = np.array([blocks[n].position[:2] for n in blocks if n not in tower]).reshape(-1, 2)
-        for heading in PUSH_HEADINGS:
+        inward = np.array([0.5, 0.0]) - centre
+        for heading in sorted(PUSH_HEADINGS, key=lambda h: -(np.cos(h) * inward[0] + np.sin(h) * inward[1])):
             direction = np.array([np.cos(heading), np.sin(heading)])
             start = centre - PUSH_START * direction
             clear = len(others) == 0 or np.min(np.linalg.norm(others - start, axis=1)) > 0.06
@@ -198,5 +203,6 @@ class BuildAndBreakAgent:
 
     def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
         if info["phase"] == "break":
+            self.builder.observe(info)  # the builder must know its last place or grasp landed
             return self.breaker.act(observation, info)
         return self.builder.act(observation, info)
