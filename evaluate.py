@@ -29,7 +29,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-from agents.evaluation import AGENTS, TASKS, EpisodeSpec, aggregate, run_episode  # noqa: E402
+from agents.evaluation import AGENTS, TASKS, EpisodeSpec, aggregate, run_episode, write_atomically  # noqa: E402
 from agents.oracle_tower import build_tower, push_tower  # noqa: E402
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
 from panda_grasp_env.video import VideoRecorder  # noqa: E402
@@ -173,7 +173,7 @@ def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) 
 
     done = _load(log) if args.resume else {}
     if log.exists():  # keep only whole records (an interruption can cut the last line short)
-        _atomic(log, "".join(json.dumps(r, sort_keys=True) + "\n" for r in done.values()))
+        write_atomically(log, "".join(json.dumps(r, sort_keys=True) + "\n" for r in done.values()))
     todo = [s for s in specs if s.key not in done]
     wins: Counter[str] = Counter()
     bar = tqdm(total=len(specs), initial=len(specs) - len(todo), desc="episodes", unit="ep")
@@ -216,7 +216,7 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
         "env_ids": {t: TASKS[t][0] for t in args.tasks},
     }
     payload = {"protocol": protocol, "metrics": table, "episodes": sorted(results, key=lambda r: json.dumps(r["spec"]))}
-    _atomic(args.out / "results.json", json.dumps(payload, indent=2, sort_keys=True))
+    write_atomically(args.out / "results.json", json.dumps(payload, indent=2, sort_keys=True))
     rows = [
         [
             "agent",
@@ -251,7 +251,7 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
         )
     buffer = io.StringIO()
     csv.writer(buffer).writerows(rows)
-    _atomic(args.out / "results.csv", buffer.getvalue())
+    write_atomically(args.out / "results.csv", buffer.getvalue())
     timing: dict[str, dict] = {}
     for record in records.values():
         key = f"{record['result']['spec']['agent']}/{record['result']['spec']['task']}"
@@ -265,14 +265,8 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
         }
         for k, v in timing.items()
     }
-    _atomic(args.out / "timing.json", json.dumps(timing, indent=2, sort_keys=True))
+    write_atomically(args.out / "timing.json", json.dumps(timing, indent=2, sort_keys=True))
     return {"table": table, "timing": timing, "protocol": protocol}
-
-
-def _atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def print_table(summary: dict) -> str:
@@ -385,7 +379,7 @@ def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: 
         f"- commit {commit}; Python {platform.python_version()}, MuJoCo {mujoco.__version__}, Gymnasium {gymnasium.__version__}",
         f"- workers: {args.workers}",
     ]
-    _atomic(args.out / "report.md", "\n".join(lines) + "\n")
+    write_atomically(args.out / "report.md", "\n".join(lines) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -8,6 +8,7 @@ bit for bit, in any process, in any order.
 
 from __future__ import annotations
 
+import os
 import time
 from collections import Counter
 from dataclasses import asdict, dataclass
@@ -54,7 +55,7 @@ def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
     from agents.towers import BuildAndBreakAgent, CameraBlocks, OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
 
     if spec.agent == "random":
-        return RandomAgent(env.action_space, seed=0)
+        return RandomAgent(env.action_space, seed=spec.seed)
     oracle = spec.agent == "oracle"
     if spec.task.startswith("Grasp"):
         return (
@@ -76,10 +77,7 @@ def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
     agent = make_agent(spec, env)
     began = time.perf_counter()
     observation, info = env.reset(seed=spec.seed)
-    if hasattr(agent, "space"):
-        agent.reset(observation, info, episode_seed=spec.seed)
-    else:
-        agent.reset(observation, info)
+    agent.reset(observation, info)
     in_play = info.get("objects_remaining")
     ideal = env.unwrapped.task.ideal_actions if in_play is None else in_play
     recorder = None
@@ -122,6 +120,13 @@ def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
     timing = {"wall_seconds": time.perf_counter() - began, "decision_seconds_median": float(np.median(decisions))}
     env.close()
     return {"result": result, "timing": timing}
+
+
+def write_atomically(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename: readers never see half a file."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> list[float]:

@@ -9,7 +9,7 @@ import gymnasium as gym
 
 
 class RandomAgent:
-    """Samples the action space; ``seed`` fixes the sequence (reseeded at every ``reset`` with the episode's seed)."""
+    """Samples the action space; the sequence restarts from ``seed`` at every ``reset``."""
 
     name = "random"
 
@@ -17,8 +17,8 @@ class RandomAgent:
         self.space, self.seed = action_space, seed
         self.failures: Counter[str] = Counter()
 
-    def reset(self, observation: Any, info: dict[str, Any], episode_seed: int = 0) -> None:
-        self.space.seed(self.seed * 1_000_003 + episode_seed)
+    def reset(self, observation: Any, info: dict[str, Any]) -> None:
+        self.space.seed(self.seed)
         self.failures = Counter()
 
     def act(self, observation: Any, info: dict[str, Any]) -> Any:

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from agents.evaluation import rate, wilson  # noqa: F401  (one implementation of the interval)
+from agents.evaluation import rate, wilson, write_atomically  # noqa: F401  (one implementation each)
 
 sys.stdout.reconfigure(line_buffering=True)  # figures appear as they are measured, even when piped
 
@@ -50,7 +50,5 @@ class Results:
         if name not in self.data:
             self.data[name] = compute()
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = self.path.with_suffix(".json.tmp")
-            tmp.write_text(json.dumps(self.data, indent=2))
-            os.replace(tmp, self.path)
+            write_atomically(self.path, json.dumps(self.data, indent=2))
         return self.data[name]

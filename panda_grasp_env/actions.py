@@ -16,6 +16,7 @@ clipped and counted.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -148,7 +149,7 @@ def encode_primitive(
     return np.array([*scores, *position, wrapped_yaw / np.pi], dtype=np.float32)
 
 
-class ActionMode:
+class ActionMode(ABC):
     """One way of acting.  ``low_level`` modes run one 25 Hz control step per env step."""
 
     name: ClassVar[str]
@@ -159,11 +160,12 @@ class ActionMode:
         """Checked action and the number of clipped components."""
         return validate_box_action(action, self.space)
 
-    def reset(self, cell: Workcell) -> None:
+    def reset(self, cell: Workcell) -> None:  # noqa: B027 (an optional hook)
         """Called at every env reset, after the task laid out the scene."""
 
+    @abstractmethod
     def execute(self, cell: Workcell, action: Any) -> PrimitiveResult | None:
-        raise NotImplementedError
+        """Carry out a validated action: one primitive (its result) or one control step (None)."""
 
 
 class PrimitiveActions(ActionMode):
@@ -285,7 +287,7 @@ class EEDeltaActions(ActionMode):
         self.servo = JacobianServo(cell.model, cell.data)
         self.target = np.zeros(3)
 
-    def reset(self, cell: Workcell) -> None:
+    def reset(self, cell: Workcell) -> None:  # noqa: B027 (an optional hook)
         self.target = cell.robot.ee_position
 
     def execute(self, cell: Workcell, action: np.ndarray) -> None:

@@ -310,37 +310,13 @@ def _add_environment(spec: mujoco.MjSpec, config: SceneConfig) -> None:
     floor.pos = [0.0, 0.0, -0.75]
     floor.material = "floor_mat"
 
-    half = config.block_size / 2
     for name, colour in zip(config.block_names, config.colours.values()):
-        body = world.add_body()
-        body.name = name
-        body.pos = [0.5, 0.0, half]
-        joint = body.add_freejoint()
-        joint.name = f"{name}_joint"
-        geom = body.add_geom()
-        geom.name = f"{name}_geom"
-        geom.type = mujoco.mjtGeom.mjGEOM_BOX
-        geom.size = [half, half, half]
-        geom.mass = config.block_mass
-        geom.friction = list(config.block_friction)
+        geom = _add_free_cube(world, name, config, list(config.block_friction), condim=3)
         geom.rgba = [*colour, 1.0]
-        geom.condim = 3
-
     for name in config.object_names:
-        # Placeholder shape: tasks set type, size, mass and colour at reset (Workcell.set_object_shape).
-        body = world.add_body()
-        body.name = name
-        body.pos = [0.5, 0.0, half]
-        joint = body.add_freejoint()
-        joint.name = f"{name}_joint"
-        geom = body.add_geom()
-        geom.name = f"{name}_geom"
-        geom.type = mujoco.mjtGeom.mjGEOM_BOX
-        geom.size = [half, half, half]
-        geom.mass = config.block_mass
+        # Object slots start as cubes; tasks set type, size, mass and colour at reset (Workcell.set_object_shapes).
         # Rolling friction (condim 6, 2 mm): without it a dropped sphere or capsule rolled off the table.
-        geom.friction = [config.block_friction[0], config.block_friction[1], 0.002]
-        geom.condim = 6
+        _add_free_cube(world, name, config, [*config.block_friction[:2], 0.002], condim=6)
 
     # Goal region marker for goal-conditioned tasks: a flat translucent disc,
     # hidden under the table until a task moves it (it has no collision).
@@ -365,6 +341,25 @@ def _add_environment(spec: mujoco.MjSpec, config: SceneConfig) -> None:
     front.pos = eye
     front.quat = _look_at(eye, np.array([0.45, 0.0, 0.12]))
     front.fovy = config.cameras.get("front", CameraConfig()).fovy
+
+
+def _add_free_cube(
+    world: mujoco.MjsBody, name: str, config: SceneConfig, friction: list[float], condim: int
+) -> mujoco.MjsGeom:
+    """A free body ``name`` (joint ``<name>_joint``) with one cube geom ``<name>_geom`` of the block size."""
+    half = config.block_size / 2
+    body = world.add_body()
+    body.name = name
+    body.pos = [0.5, 0.0, half]
+    body.add_freejoint().name = f"{name}_joint"
+    geom = body.add_geom()
+    geom.name = f"{name}_geom"
+    geom.type = mujoco.mjtGeom.mjGEOM_BOX
+    geom.size = [half, half, half]
+    geom.mass = config.block_mass
+    geom.friction = friction
+    geom.condim = condim
+    return geom
 
 
 def build_model(config: SceneConfig | None = None) -> mujoco.MjModel:

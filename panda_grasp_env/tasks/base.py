@@ -19,6 +19,7 @@ Two kinds of step reach a task:
 from __future__ import annotations
 
 import inspect
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
@@ -42,8 +43,9 @@ class TaskStep:
     info: dict[str, Any] = field(default_factory=dict)
 
 
-class Task:
-    """Base class of all tasks.  Subclasses take their options as keyword arguments."""
+class Task(ABC):
+    """Base class of all tasks.  Subclasses take their options as keyword arguments and implement
+    ``reset`` and ``evaluate``; goal-conditioned ones also ``achieved_goal`` and ``desired_goal``."""
 
     #: Registry name (``task=`` of the env).
     name: ClassVar[str] = ""
@@ -58,15 +60,15 @@ class Task:
         """The scene this task needs, derived from the env's ``base`` scene (blocks, object slots)."""
         return base
 
+    @abstractmethod
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
         """Lay out the scene for a new episode (all randomness from ``rng``); return task info."""
-        raise NotImplementedError
 
+    @abstractmethod
     def evaluate(self, cell: Workcell, result: PrimitiveResult | None) -> TaskStep:
         """Reward, success and termination after a step (``result`` is None for low-level steps)."""
-        raise NotImplementedError
 
-    def on_control_step(self, cell: Workcell) -> None:
+    def on_control_step(self, cell: Workcell) -> None:  # noqa: B027 (an optional hook)
         """Called after every 25 Hz control step (inside primitives too): track time-based conditions."""
 
     @property
@@ -81,10 +83,12 @@ class Task:
         return 3
 
     def achieved_goal(self, cell: Workcell) -> np.ndarray:
-        raise NotImplementedError(f"task {self.name!r} is not goal-conditioned")
+        """Where the goal's points are now (goal-conditioned tasks override this)."""
+        raise TypeError(f"task {self.name!r} is not goal-conditioned: it has no achieved goal")
 
     def desired_goal(self) -> np.ndarray:
-        raise NotImplementedError(f"task {self.name!r} is not goal-conditioned")
+        """Where the goal's points should be (goal-conditioned tasks override this)."""
+        raise TypeError(f"task {self.name!r} is not goal-conditioned: it has no desired goal")
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
         """Sparse reward: 0 where every goal component is within ``GOAL_THRESHOLD``, else -1.

@@ -135,10 +135,10 @@ class Grasp(Task):
         inside = np.all((xy >= WORKSPACE[:2, 0]) & (xy <= WORKSPACE[:2, 1]), axis=1)
         return [int(b) for b, ok in zip(cell.object_ids, inside) if ok and not cell.is_parked(b)]
 
-    def _info(self, cell: Workcell) -> dict[str, Any]:
+    def _info(self, cell: Workcell, remaining: int | None = None) -> dict[str, Any]:
         return {
             "objects_grasped": self.grasped,
-            "objects_remaining": len(self.on_table(cell)),
+            "objects_remaining": len(self.on_table(cell)) if remaining is None else remaining,
             "consecutive_failures": self.consecutive_failures,
         }
 
@@ -165,7 +165,7 @@ class Grasp(Task):
         remaining = len(self.on_table(cell))
         success = remaining == 0 and self.grasped == self.in_play
         terminated = remaining == 0 or self.consecutive_failures >= self.max_failures
-        return TaskStep(reward, success, terminated, self._info(cell))
+        return TaskStep(reward, success, terminated, self._info(cell, remaining))
 
     def achieved_goal(self, cell: Workcell) -> np.ndarray:
         return cell.data.xpos[self._goal_body].copy()
