@@ -7,7 +7,10 @@
     python evaluate.py --demo [--seed 0]    # the simulation-core demo: an oracle builds and breaks a tower
 
 Agents: random, planned (perception-based planned baselines), oracle (the same, on
-true poses).  Tasks: Grasp, GraspClutter, TowerBuild, TowerBreak, BuildAndBreak.
+true poses), and every shipped learned checkpoint by name (agents/checkpoints/).
+Tasks: Grasp, GraspClutter, TowerBuild, TowerBreak, BuildAndBreak (primitive
+actions), Push, Lift (low-level ee_delta).  An agent that does not apply to a
+task is skipped with the reason printed.
 Outputs (``--out``, default results/quick or results/full): results.json and
 results.csv (deterministic: same seeds give identical files), timing.json,
 report.md, success.png, failures.png and one MP4 per (agent, task).
@@ -29,7 +32,16 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-from agents.evaluation import AGENTS, TASKS, EpisodeSpec, aggregate, run_episode, write_atomically  # noqa: E402
+from agents.evaluation import (  # noqa: E402
+    AGENTS,
+    TASKS,
+    EpisodeSpec,
+    aggregate,
+    all_agents,
+    run_episode,
+    skip_reason,
+    write_atomically,
+)
 from agents.oracle_tower import build_tower, push_tower  # noqa: E402
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
 from panda_grasp_env.video import VideoRecorder  # noqa: E402
@@ -77,14 +89,31 @@ def demo(args: argparse.Namespace) -> int:
     return 0 if build.success and displaced >= 2 else 1
 
 
-QUICK_SEEDS = {"Grasp": 10, "GraspClutter": 2, "TowerBuild": 5, "TowerBreak": 5, "BuildAndBreak": 1}
-FULL_SEEDS = {"Grasp": 100, "GraspClutter": 30, "TowerBuild": 100, "TowerBreak": 100, "BuildAndBreak": 10}
+QUICK_SEEDS = {
+    "Grasp": 10,
+    "GraspClutter": 2,
+    "TowerBuild": 5,
+    "TowerBreak": 5,
+    "BuildAndBreak": 1,
+    "Push": 20,
+    "Lift": 20,
+}
+FULL_SEEDS = {
+    "Grasp": 100,
+    "GraspClutter": 30,
+    "TowerBuild": 100,
+    "TowerBreak": 100,
+    "BuildAndBreak": 10,
+    "Push": 100,
+    "Lift": 100,
+}
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--full", action="store_true", help="the publication protocol instead of the quick one")
-    parser.add_argument("--agents", default=",".join(AGENTS), help=f"comma-separated, from {list(AGENTS)}")
+    agents = all_agents()
+    parser.add_argument("--agents", default=",".join(agents), help=f"comma-separated, from {list(agents)}")
     parser.add_argument("--tasks", default=",".join(TASKS), help=f"comma-separated, from {list(TASKS)}")
     parser.add_argument("--seeds", type=int, default=None, help="episodes per (agent, task), seeds 0..N-1")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes")
@@ -98,7 +127,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0, help="(demo) seed of the block layout")
     parser.add_argument("--push", default="+y", choices=["+x", "+y", "-x", "-y"], help="(demo) push direction")
     args = parser.parse_args(argv)
-    for name, valid in (("agents", AGENTS), ("tasks", TASKS)):
+    for name, valid in (("agents", agents), ("tasks", TASKS)):
         chosen = [v for v in getattr(args, name).split(",") if v]
         unknown = [v for v in chosen if v not in valid]
         if unknown or not chosen:
@@ -111,19 +140,24 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             import ray  # noqa: F401
         except ImportError:
             parser.error("--ray needs Ray: pip install -e '.[ray]'")
+    args.skipped = {}
     if args.out is None:
         args.out = Path("results/demo" if args.demo else "results/full" if args.full else "results/quick")
     return args
 
 
 def episode_specs(args: argparse.Namespace) -> list[EpisodeSpec]:
+    """The episodes to run; (agent, task) pairs that do not apply are reported and left out."""
     seeds = FULL_SEEDS if args.full else QUICK_SEEDS
-    return [
-        EpisodeSpec(agent, task, seed)
-        for task in args.tasks
-        for agent in args.agents
-        for seed in range(args.seeds or seeds[task])
-    ]
+    specs = []
+    for task in args.tasks:
+        for agent in args.agents:
+            reason = skip_reason(agent, task)
+            if reason is not None:
+                args.skipped[f"{agent}/{task}"] = reason
+                continue
+            specs.extend(EpisodeSpec(agent, task, seed) for seed in range(args.seeds or seeds[task]))
+    return specs
 
 
 def _append(path: Path, record: dict) -> None:
@@ -344,6 +378,28 @@ def videos(specs: list[EpisodeSpec], out: Path) -> list[Path]:
     return written
 
 
+def learning_curves(args: argparse.Namespace) -> list[str]:
+    """Copy each evaluated checkpoint's learning curve next to the report; Markdown lines that show them."""
+    import shutil
+
+    from agents.learned import Checkpoint
+
+    lines = []
+    for agent in args.agents:
+        if agent in AGENTS or all(skip_reason(agent, task) is not None for task in args.tasks):
+            continue
+        checkpoint = Checkpoint(agent)
+        target = args.out / f"curve_{agent}.png"
+        shutil.copyfile(checkpoint.path / "curve.png", target)
+        lines += [
+            f"Learning curve of `{agent}` (model card: agents/checkpoints/{agent}/card.md):",
+            "",
+            f"![{agent}]({target.name})",
+            "",
+        ]
+    return lines
+
+
 def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: list[Path]) -> None:
     import platform
     import subprocess
@@ -359,7 +415,8 @@ def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: 
     lines = [
         f"# {'Full' if args.full else 'Quick'} benchmark",
         "",
-        "Planned (perception), oracle (true poses) and random agents through the same `env.step` loop.",
+        "Planned (perception), oracle (true poses), learned (shipped checkpoints) and random agents through the same",
+        "`env.step` loop.",
         "Rates carry 95 % Wilson intervals; action efficiency = ideal actions of completed episodes / actions used.",
         "",
         table_md,
@@ -368,6 +425,7 @@ def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: 
         "",
         "![failures](failures.png)",
         "",
+        *learning_curves(args),
         "Videos: " + ", ".join(f"[{p.stem}](videos/{p.name})" for p in video_paths)
         if video_paths
         else "Videos: skipped.",
@@ -378,6 +436,7 @@ def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: 
         f"- env ids and options: {json.dumps({t: TASKS[t] for t in args.tasks})}",
         f"- commit {commit}; Python {platform.python_version()}, MuJoCo {mujoco.__version__}, Gymnasium {gymnasium.__version__}",
         f"- workers: {args.workers}",
+        *(f"- skipped {pair}: {reason}" for pair, reason in args.skipped.items()),
     ]
     write_atomically(args.out / "report.md", "\n".join(lines) + "\n")
 
@@ -388,6 +447,11 @@ def main(argv: list[str] | None = None) -> int:
         return demo(args)
     args.out.mkdir(parents=True, exist_ok=True)
     specs = episode_specs(args)
+    for pair, reason in args.skipped.items():
+        print(f"skipped {pair}: {reason}")
+    if not specs:
+        print("nothing to run: no chosen agent applies to a chosen task", file=sys.stderr)
+        return 2
     started = time.perf_counter()
     try:
         records = run_episodes(specs, args, args.out / "episodes.jsonl")

@@ -25,8 +25,38 @@ TASKS: dict[str, tuple[str, dict[str, Any]]] = {
     "TowerBuild": ("PandaTowerBuild-v0", {}),
     "TowerBreak": ("PandaTowerBreak-v0", {}),
     "BuildAndBreak": ("PandaBuildAndBreak-v0", {"max_episode_steps": 30}),
+    # Low-level goal tasks (ee_delta, 50 steps of 40 ms): for learned HER policies and the random baseline.
+    "Push": ("PandaPush-v0", {}),
+    "Lift": ("PandaGrasp-v0", {"action_mode": "ee_delta"}),
 }
+#: The built-in agents; every shipped checkpoint (``agents.learned.available_checkpoints``) is an agent too.
 AGENTS = ("random", "planned", "oracle")
+LOW_LEVEL_TASKS = ("Push", "Lift")
+
+
+def all_agents() -> tuple[str, ...]:
+    """Built-in agents, then the shipped learned checkpoints by name."""
+    from agents.learned import available_checkpoints
+
+    return (*AGENTS, *available_checkpoints())
+
+
+def skip_reason(agent: str, task: str) -> str | None:
+    """Why ``agent`` does not apply to ``task`` (None if it does)."""
+    if agent == "random":
+        return None
+    if agent in AGENTS:
+        if task in LOW_LEVEL_TASKS:
+            return f"the {agent} baselines act through motion primitives; {task} is a low-level ee_delta task"
+        return None
+    from agents.learned import Checkpoint
+
+    checkpoint = Checkpoint(agent)
+    if checkpoint.task != task:
+        return f"checkpoint {agent} was trained for {checkpoint.task} ({checkpoint.config.env_id})"
+    return None
+
+
 PERCEPTION = {"obs_mode": "rgbd", "cameras": ("overhead", "front"), "image_size": (640, 480)}
 
 
@@ -42,6 +72,10 @@ class EpisodeSpec:
 
 
 def make_env(spec: EpisodeSpec) -> gym.Env:
+    if spec.agent not in AGENTS:  # a learned checkpoint: the env it was trained on
+        from agents.learned import Checkpoint
+
+        return Checkpoint(spec.agent).make_env()
     env_id, options = TASKS[spec.task]
     options = dict(options)
     if spec.agent != "random":
@@ -56,6 +90,10 @@ def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
 
     if spec.agent == "random":
         return RandomAgent(env.action_space, seed=spec.seed)
+    if spec.agent not in AGENTS:
+        from agents.learned import LearnedAgent
+
+        return LearnedAgent(spec.agent, env)
     oracle = spec.agent == "oracle"
     if spec.task.startswith("Grasp"):
         return (
@@ -75,15 +113,24 @@ def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
 
     env = make_env(spec)
     agent = make_agent(spec, env)
+    recorder = None
+    if video is not None:
+        recorder = VideoRecorder(env.unwrapped.cell, "front", 480, 360, every=4, profile="fast")
+        recorder.caption = f"{spec.agent} on {spec.task}, seed {spec.seed}"
+    outcome = play_episode(env, agent, spec, recorder)
+    if recorder is not None:
+        recorder.save(video)
+    env.close()
+    return outcome
+
+
+def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = None) -> dict[str, Any]:
+    """The benchmark's step loop: reset ``env`` with ``spec.seed`` and let ``agent`` act until the episode ends."""
     began = time.perf_counter()
     observation, info = env.reset(seed=spec.seed)
     agent.reset(observation, info)
     in_play = info.get("objects_remaining")
     ideal = env.unwrapped.task.ideal_actions if in_play is None else in_play
-    recorder = None
-    if video is not None:
-        recorder = VideoRecorder(env.unwrapped.cell, "front", 480, 360, every=4, profile="fast")
-        recorder.caption = f"{spec.agent} on {spec.task}, seed {spec.seed}"
     decisions, actions = [], 0
     failures: Counter[str] = Counter()
     while True:
@@ -99,15 +146,14 @@ def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
         if terminated or truncated:
             break
     failures.update({k: v for k, v in getattr(agent, "failures", {}).items() if k == "no_candidate"})
-    if recorder is not None:
-        recorder.save(video)
     if spec.task == "BuildAndBreak":  # the ideal is per build-and-break cycle
         ideal = ideal * int(info.get("cycles", 0))
     success = bool(info["is_success"])
+    grasping = spec.task.startswith("Grasp") and "primitive_reason" in info
     result = {
         "spec": asdict(spec),
         "success": success,
-        "completion": bool(info.get("objects_remaining", 1) == 0) if spec.task.startswith("Grasp") else success,
+        "completion": bool(info.get("objects_remaining", 1) == 0) if grasping else success,
         "actions": actions,
         "ideal_actions": int(ideal),
         "grasps_attempted": int(info["grasps_attempted"]),
@@ -118,7 +164,6 @@ def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
         "physics_error": bool(info["physics_error"]),
     }
     timing = {"wall_seconds": time.perf_counter() - began, "decision_seconds_median": float(np.median(decisions))}
-    env.close()
     return {"result": result, "timing": timing}
 
 
@@ -136,7 +181,7 @@ def wilson(successes: int, n: int, z: float = 1.96) -> list[float]:
     p = successes / n
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return [round(max(0.0, centre - half), 4), round(min(1.0, centre + half), 4)]
+    return [round(max(0.0, float(centre - half)), 4), round(min(1.0, float(centre + half)), 4)]
 
 
 def rate(successes: int, n: int) -> dict[str, Any]:

@@ -1,0 +1,267 @@
+"""A VPG-style heightmap Q-network for the ``pixel`` action mode, as an SB3 DQN policy.
+
+The ``pixel`` action index is ((primitive * R + rotation) * H + row) * W + column.
+For every rotation r (heading 2 pi r / R) the heightmap is rotated so the
+heading points along the image's +column axis, one small fully convolutional
+network scores every cell for every primitive at quarter resolution, and the
+scores are upsampled and rotated back (Zeng et al. 2018).  So one set of
+weights serves all headings and the Q-map moves with the objects.
+
+Actions are masked from the observation itself: grasps only on occupied cells
+(height above ``PixelActions.OCCUPIED``), pushes only near them (a square of
+``PixelActions.NEAR``), primitives not
+in ``primitives_used`` never -- for acting, exploring and the TD target.  The
+policy assumes an empty hand between steps (true for ``Grasp``, which sets the
+grasped object aside), so ``place`` is not supported.
+
+``HeightmapDQN`` trains only the rotation that was taken (one network pass per
+sample instead of R), as VPG does.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+import torch.nn.functional as F
+from stable_baselines3 import DQN
+from stable_baselines3.dqn.policies import DQNPolicy
+from torch import nn
+
+from panda_grasp_env.actions import PixelActions
+
+#: Heights (metres) the uint8 height channel spans: one level per millimetre.
+HEIGHT_RANGE = 0.255
+
+
+def encode_heightmap(heightmap: np.ndarray) -> np.ndarray:
+    """Env heightmap (H, W, 4) float32 -- colour 0-1, height metres -- as (4, H, W) uint8 (height in mm)."""
+    heightmap = np.asarray(heightmap)
+    if heightmap.ndim != 3 or heightmap.shape[-1] != 4:
+        raise ValueError(f"expected a (rows, cols, 4) heightmap observation, got shape {heightmap.shape}")
+    scaled = heightmap.astype(np.float32)
+    scaled[..., 3] = scaled[..., 3] / HEIGHT_RANGE
+    return np.ascontiguousarray(np.round(np.clip(scaled, 0.0, 1.0) * 255).astype(np.uint8).transpose(2, 0, 1))
+
+
+class EncodedHeightmap(gym.ObservationWrapper):
+    """Gives the policy ``encode_heightmap`` of the env's ``heightmap`` observation (4x smaller in replay)."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        space = env.observation_space
+        if not isinstance(space, gym.spaces.Box) or space.shape[-1:] != (4,) or len(space.shape) != 3:
+            raise ValueError(f"EncodedHeightmap needs obs_mode='heightmap' (rows, cols, 4); got {space}")
+        rows, cols, _ = space.shape
+        self.observation_space = gym.spaces.Box(0, 255, (4, rows, cols), dtype=np.uint8)
+
+    def observation(self, observation: np.ndarray) -> np.ndarray:
+        return encode_heightmap(observation)
+
+
+def rotation_matrices(angles: th.Tensor) -> th.Tensor:
+    """(N, 2, 3) ``affine_grid`` matrices sampling the input at ``angles`` (radians, image x/y) from each output point."""
+    cos, sin = th.cos(angles), th.sin(angles)
+    zero = th.zeros_like(angles)
+    return th.stack([th.stack([cos, -sin, zero], -1), th.stack([sin, cos, zero], -1)], -2)
+
+
+def heading_in_image(yaw: th.Tensor) -> th.Tensor:
+    """Angle (image x = column, y = row) of the world heading ``yaw``: rows run along -x, columns along -y."""
+    return th.atan2(-th.cos(yaw), -th.sin(yaw))
+
+
+def rotate(images: th.Tensor, angles: th.Tensor) -> th.Tensor:
+    """Rotate square images (N, C, S, S) so that image direction ``angles`` (N,) ends up along +x."""
+    grid = F.affine_grid(rotation_matrices(angles), list(images.shape), align_corners=False)
+    return F.grid_sample(images, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+
+
+class HeightmapQNetwork(nn.Module):
+    """Q-values of every ``pixel`` action from an encoded heightmap (B, 4, H, W) uint8."""
+
+    def __init__(
+        self, shape: tuple[int, int, int, int], primitives: tuple[str, ...], used: tuple[str, ...], width: int
+    ):
+        super().__init__()
+        self.n_primitives, self.rotations, self.rows, self.cols = shape
+        self.primitives, self.used = primitives, used
+        side = math.ceil(math.hypot(self.rows, self.cols) / 4) * 4  # rotations never cut the workspace off
+        self.side = side
+        self.pad = ((side - self.cols) // 2, side - self.cols - (side - self.cols) // 2,
+                    (side - self.rows) // 2, side - self.rows - (side - self.rows) // 2)  # fmt: skip
+        self.net = nn.Sequential(
+            nn.Conv2d(4, 16, 5, stride=2, padding=2),
+            nn.ReLU(),
+            nn.Conv2d(16, 32, 3, stride=2, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(32, width, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(width, width, 3, padding=2, dilation=2),
+            nn.ReLU(),
+            nn.Conv2d(width, width, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(width, self.n_primitives, 1),
+        )
+        headings = 2 * math.pi * th.arange(self.rotations) / self.rotations
+        self.register_buffer("angles", heading_in_image(headings), persistent=False)
+        self.near_cells = 7  # push-mask radius, cells (set by the policy from the cell size)
+
+    def _scores(self, heightmaps: th.Tensor, angles: th.Tensor) -> th.Tensor:
+        """(N, P, H, W) scores of heightmaps (N, 4, H, W) float 0-1, each at heading angle ``angles[n]``."""
+        padded = F.pad(heightmaps, self.pad)
+        coarse = self.net(rotate(padded, angles))
+        fine = F.interpolate(coarse, size=(self.side, self.side), mode="bilinear", align_corners=False)
+        back = rotate(fine, -angles)
+        left, _, top, _ = self.pad
+        return back[:, :, top : top + self.rows, left : left + self.cols]
+
+    def forward(self, observations: th.Tensor) -> th.Tensor:
+        """(B, P * R * H * W) Q-values, in the env's action order."""
+        batch = observations.shape[0]
+        images = observations.float().div(255.0)
+        repeated = images.repeat_interleave(self.rotations, 0)
+        scores = self._scores(repeated, self.angles.repeat(batch))  # (B * R, P, H, W)
+        scores = scores.view(batch, self.rotations, self.n_primitives, self.rows, self.cols).transpose(1, 2)
+        return scores.reshape(batch, -1)
+
+    def set_training_mode(self, mode: bool) -> None:
+        self.train(mode)
+
+    def q_at(self, observations: th.Tensor, actions: th.Tensor) -> th.Tensor:
+        """Q-values (B,) of one action per observation, running only that action's rotation."""
+        p, r, row, col = np.unravel_index(
+            actions.cpu().numpy().reshape(-1), (self.n_primitives, self.rotations, self.rows, self.cols)
+        )
+        scores = self._scores(observations.float().div(255.0), self.angles[th.as_tensor(r)])
+        index = th.arange(len(p))
+        return scores[index, th.as_tensor(p), th.as_tensor(row), th.as_tensor(col)]
+
+    def allowed(self, observations: th.Tensor) -> th.Tensor:
+        """(B, P * R * H * W) bool: the actions worth considering on these heightmaps (see the module doc)."""
+        height = observations[:, 3:4].float() * (HEIGHT_RANGE / 255.0)
+        occupied = height > PixelActions.OCCUPIED
+        radius = self.near_cells
+        near = F.max_pool2d(occupied.float(), 2 * radius + 1, stride=1, padding=radius) > 0
+        per_primitive = th.cat([occupied if name == "grasp" else near for name in self.primitives], 1)
+        used = th.tensor([name in self.used for name in self.primitives], device=observations.device)
+        mask = per_primitive.unsqueeze(2) & used.view(1, -1, 1, 1, 1)
+        mask = mask.expand(-1, -1, self.rotations, -1, -1).reshape(observations.shape[0], -1)
+        empty = ~mask.any(1)  # nothing on the table: any used action rather than none
+        if empty.any():
+            everything = used.view(-1, 1).expand(-1, self.rotations * self.rows * self.cols).reshape(1, -1)
+            mask = th.where(empty.view(-1, 1), everything, mask)
+        return mask
+
+
+class HeightmapQPolicy(DQNPolicy):
+    """SB3 DQN policy around ``HeightmapQNetwork``; actions outside ``allowed`` are never chosen.
+
+    Args (``policy_kwargs``):
+        primitives: the env's primitives, in its order (``info``/task ``primitives``).
+        rotations: headings in the env's ``pixel`` mode.
+        cell_size: heightmap resolution, metres per cell.
+        primitives_used: the primitives this policy may choose (default: all but ``place``).
+        width: channels of the network's inner layers.
+    """
+
+    def __init__(
+        self,
+        observation_space: gym.spaces.Box,
+        action_space: gym.spaces.Discrete,
+        lr_schedule: Any,
+        primitives: tuple[str, ...] = ("grasp", "push"),
+        rotations: int = 16,
+        cell_size: float = 0.004,
+        primitives_used: tuple[str, ...] | None = None,
+        width: int = 48,
+        optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
+        optimizer_kwargs: dict[str, Any] | None = None,
+    ) -> None:
+        primitives = tuple(primitives)
+        used = tuple(p for p in primitives if p != "place") if primitives_used is None else tuple(primitives_used)
+        unknown = [p for p in used if p not in primitives or p == "place"]
+        if unknown or not used:
+            valid = [p for p in primitives if p != "place"]
+            raise ValueError(f"primitives_used {list(used)}: each must be one of {valid}")
+        if len(observation_space.shape) != 3 or observation_space.shape[0] != 4:
+            raise ValueError(f"HeightmapQPolicy needs encoded heightmaps (4, rows, cols), got {observation_space}")
+        shape = (len(primitives), int(rotations), *observation_space.shape[1:])
+        if int(np.prod(shape)) != action_space.n:
+            raise ValueError(f"action space {action_space} does not match {shape} (primitives x rotations x cells)")
+        if not cell_size > 0:
+            raise ValueError(f"cell_size must be a positive number of metres, got {cell_size!r}")
+        self.network_args = {"primitives": primitives, "rotations": int(rotations), "cell_size": float(cell_size),
+                             "primitives_used": used, "width": int(width)}  # fmt: skip
+        self.shape = shape
+        super().__init__(
+            observation_space, action_space, lr_schedule, normalize_images=False,
+            optimizer_class=optimizer_class, optimizer_kwargs=optimizer_kwargs,
+        )  # fmt: skip
+
+    def make_q_net(self) -> HeightmapQNetwork:  # type: ignore[override]
+        args = self.network_args
+        network = HeightmapQNetwork(self.shape, args["primitives"], args["primitives_used"], args["width"])
+        network.near_cells = max(1, round(PixelActions.NEAR / args["cell_size"]))
+        return network.to(self.device)
+
+    def _predict(self, observation: th.Tensor, deterministic: bool = True) -> th.Tensor:
+        q = self.q_net(observation).masked_fill(~self.q_net.allowed(observation), -th.inf)
+        return q.argmax(dim=1)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {
+            "observation_space": self.observation_space,
+            "action_space": self.action_space,
+            "lr_schedule": self._dummy_schedule,
+            "optimizer_class": self.optimizer_class,
+            "optimizer_kwargs": self.optimizer_kwargs,
+            **self.network_args,
+        }
+
+
+class HeightmapDQN(DQN):
+    """DQN for ``HeightmapQPolicy``: masked exploration and TD targets, and a loss on the taken rotation only."""
+
+    policy: HeightmapQPolicy
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        if deterministic or np.random.rand() >= self.exploration_rate:
+            return self.policy.predict(observation, state, episode_start, deterministic)
+        batch = observation if observation.ndim == 4 else observation[None]
+        with th.no_grad():
+            allowed = self.q_net.allowed(th.as_tensor(batch, device=self.device)).cpu().numpy()
+        actions = np.array([np.random.choice(np.flatnonzero(row)) for row in allowed])
+        return (actions if observation.ndim == 4 else actions[0]), state
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        losses = []
+        for _ in range(gradient_steps):
+            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            target = data.rewards.flatten()
+            if self.gamma > 0:
+                with th.no_grad():
+                    following = data.next_observations
+                    next_q = self.q_net_target(following).masked_fill(~self.q_net.allowed(following), -th.inf)
+                    discounts = data.discounts.flatten() if data.discounts is not None else self.gamma
+                    target = target + (1 - data.dones.flatten()) * discounts * next_q.max(1).values
+            loss = F.smooth_l1_loss(self.q_net.q_at(data.observations, data.actions), target)
+            losses.append(loss.item())
+            self.policy.optimizer.zero_grad()
+            loss.backward()
+            th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+            self.policy.optimizer.step()
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/loss", float(np.mean(losses)))

@@ -1,0 +1,180 @@
+"""Shipped learned policies: load a checkpoint by name and act through the same protocol as every agent.
+
+A checkpoint is a folder ``agents/checkpoints/<name>/`` written by
+``python train.py --ship <run folder> --name <name>``::
+
+    policy.zip      the SB3 policy only (no optimiser, no replay buffer)
+    checkpoint.json policy class, env id, evaluation task
+    config.yaml     the training config
+    card.md         the model card: config, seed, steps, wall time, machine, metrics with 95 % CIs
+    curve.png       the learning curve; evaluations.jsonl, final.json, meta.json: its data
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from agents.training import TrainConfig, config_from_dict, load_class, observation_transform, write_json
+
+CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
+SHIPPED_FILES = ("config.yaml", "card.md", "curve.png", "evaluations.jsonl", "final.json", "meta.json")
+
+
+def available_checkpoints() -> list[str]:
+    """Names of the shipped checkpoints."""
+    if not CHECKPOINTS.is_dir():
+        return []
+    return sorted(p.name for p in CHECKPOINTS.iterdir() if (p / "checkpoint.json").is_file())
+
+
+def task_label(env_id: str, env_kwargs: dict[str, Any]) -> str:
+    """The ``evaluate.py`` task a policy trained on ``env_id`` with ``env_kwargs`` plays."""
+    from agents.evaluation import TASKS
+
+    mode = env_kwargs.get("action_mode")
+    for task, (task_env_id, options) in TASKS.items():
+        if task_env_id == env_id and options.get("action_mode") in (None, mode):
+            if mode in ("ee_delta", "joint") and options.get("action_mode") is None and env_id == "PandaGrasp-v0":
+                continue  # the primitive Grasp task; the low-level one is Lift
+            return task
+    return env_id
+
+
+class Checkpoint:
+    """A shipped checkpoint folder (or any folder laid out the same way)."""
+
+    def __init__(self, name_or_path: str | Path) -> None:
+        path = Path(name_or_path)
+        if not (path / "checkpoint.json").is_file():
+            path = CHECKPOINTS / str(name_or_path)
+        if not (path / "checkpoint.json").is_file():
+            raise ValueError(f"unknown checkpoint {str(name_or_path)!r}; available: {available_checkpoints()}")
+        self.path = path
+        self.name = path.name
+        self.meta = json.loads((path / "checkpoint.json").read_text())
+        import yaml
+
+        self.config: TrainConfig = config_from_dict(yaml.safe_load((path / "config.yaml").read_text()), str(path))
+        missing = [f for f in ("policy.zip",) if not (path / f).is_file()]
+        if missing:
+            raise ValueError(f"checkpoint {self.name} is incomplete: {missing} missing in {path}")
+
+    @property
+    def task(self) -> str:
+        return self.meta["task"]
+
+    def load_policy(self) -> Any:
+        policy_class = load_class(self.meta["policy_class"])
+        try:
+            return policy_class.load(str(self.path / "policy.zip"), device="cpu")
+        except Exception as error:  # a truncated zip, a class that changed shape: say which file
+            raise ValueError(f"checkpoint {self.name}: cannot load {self.path / 'policy.zip'}: {error}") from error
+
+    def make_env(self) -> gym.Env:
+        """The env the policy was trained on (raw observations; the agent transforms them)."""
+        from agents.training import make_env
+
+        return make_env(self.config)
+
+
+def check_compatible(policy: Any, config: TrainConfig, env: gym.Env, name: str) -> None:
+    """``ValueError`` unless ``env`` is the env id the policy was trained on, with the spaces it expects."""
+    env_id = env.spec.id.split(":")[-1] if env.spec is not None else None
+    if env_id != config.env_id:
+        raise ValueError(f"checkpoint {name} was trained on {config.env_id}, not {env_id}")
+    expected = policy.observation_space
+    sample = observation_transform(config)(env.observation_space.sample())
+    if isinstance(expected, gym.spaces.Dict):
+        shapes = {k: np.shape(v) for k, v in sample.items()} if isinstance(sample, dict) else None
+        wanted = {k: s.shape for k, s in expected.spaces.items()}
+        ok = shapes == wanted
+    else:
+        shapes, wanted = np.shape(sample), expected.shape
+        ok = shapes == wanted
+    if not ok:
+        raise ValueError(f"checkpoint {name} expects observations {wanted}, this env gives {shapes}")
+    if policy.action_space != env.action_space:
+        raise ValueError(f"checkpoint {name} acts in {policy.action_space}, this env expects {env.action_space}")
+
+
+class LearnedAgent:
+    """A shipped policy as an ``Agent``: deterministic actions, from the observation alone."""
+
+    def __init__(self, checkpoint: str | Path, env: gym.Env | None = None) -> None:
+        self.checkpoint = Checkpoint(checkpoint)
+        self.name = self.checkpoint.name
+        self.policy = self.checkpoint.load_policy()
+        self.transform = observation_transform(self.checkpoint.config)
+        if env is not None:
+            check_compatible(self.policy, self.checkpoint.config, env, self.name)
+
+    def reset(self, observation: Any, info: dict[str, Any]) -> None:
+        self._check(observation)
+
+    def _check(self, observation: Any) -> None:
+        seen = self.transform(observation)
+        space = self.policy.observation_space
+        if not space.contains(seen) and not (
+            isinstance(space, gym.spaces.Dict)
+            and isinstance(seen, dict)
+            and all(np.shape(seen.get(k)) == s.shape for k, s in space.spaces.items())
+        ):
+            shape = {k: np.shape(v) for k, v in seen.items()} if isinstance(seen, dict) else np.shape(seen)
+            raise ValueError(f"checkpoint {self.name} cannot read this observation ({shape}); it expects {space}")
+
+    def act(self, observation: Any, info: dict[str, Any]) -> Any:
+        action, _ = self.policy.predict(self.transform(observation), deterministic=True)
+        return action
+
+
+def ship(run_dir: Path, name: str) -> Path:
+    """Copy a finished run (policy, card, curve, config) to ``agents/checkpoints/<name>`` (atomically)."""
+    run_dir = Path(run_dir)
+    missing = [f for f in SHIPPED_FILES if not (run_dir / f).is_file()]
+    if missing:
+        raise ValueError(f"{run_dir} is not a finished run: {missing} missing (train it to total_steps first)")
+    if not name.replace("-", "").replace("_", "").isalnum():
+        raise ValueError(f"checkpoint name {name!r}: letters, digits, - and _ only")
+    from agents.training import ALGORITHMS, load_run, make_vec_env
+
+    config = load_run(run_dir)
+    staging = CHECKPOINTS / f".{name}.tmp"
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    for f in SHIPPED_FILES:
+        shutil.copy2(run_dir / f, staging / f)
+    env = make_vec_env(config)  # HER models load only with their env
+    model = load_class(ALGORITHMS[config.algo][0]).load(run_dir / "latest.zip", env=env, device="cpu")
+    model.policy.save(staging / "policy.zip")
+    env.close()
+    size = (staging / "policy.zip").stat().st_size
+    if size > 20e6:
+        shutil.rmtree(staging)
+        raise ValueError(f"the policy of {run_dir} is {size / 1e6:.1f} MB; shipped checkpoints stay under 20 MB")
+    policy_class = type(model.policy)
+    write_json(
+        staging / "checkpoint.json",
+        {
+            "policy_class": f"{policy_class.__module__}:{policy_class.__qualname__}",
+            "env_id": config.env_id,
+            "task": task_label(config.env_id, config.env_kwargs),
+            "algo": config.algo,
+        },
+    )
+    target = CHECKPOINTS / name
+    if target.exists():
+        old = CHECKPOINTS / f".{name}.old"
+        shutil.rmtree(old, ignore_errors=True)
+        os.replace(target, old)
+        os.replace(staging, target)
+        shutil.rmtree(old)
+    else:
+        os.replace(staging, target)
+    return target

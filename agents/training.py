@@ -1,0 +1,572 @@
+"""Training runs: a checked config, the envs and SB3 model it describes, periodic task-metric evaluation,
+atomic checkpoints and resumable run folders.  ``train.py`` is the command line.
+
+A run folder holds::
+
+    config.yaml         the resolved config (defaults filled in, overrides applied)
+    meta.json           seed, package versions, commit, machine
+    tb/                 TensorBoard logs (SB3's, plus eval/* task metrics)
+    evaluations.jsonl   one line per periodic evaluation: steps, wall seconds, task metrics with 95 % CIs
+    curve.png           task success vs environment steps and vs wall time
+    latest.zip          the latest checkpoint (model, optimiser) -- written via a temporary file + rename
+    replay.pkl          the replay buffer at that checkpoint (off-policy algorithms), same way
+    progress.json       steps done and wall seconds spent (summed over resumed sessions)
+    final.json, card.md the final evaluation and the model card, when the run completes
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import json
+import os
+import platform
+import subprocess
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import yaml
+
+from agents.evaluation import EpisodeSpec, aggregate, play_episode, write_atomically
+
+#: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
+ALGORITHMS: dict[str, tuple[str, str]] = {
+    "heightmap_dqn": ("agents.heightmap_policy:HeightmapDQN", "agents.heightmap_policy:HeightmapQPolicy"),
+    "sac": ("stable_baselines3:SAC", "MultiInputPolicy"),
+    "tqc": ("sb3_contrib:TQC", "MultiInputPolicy"),
+    "ppo": ("stable_baselines3:PPO", "MultiInputPolicy"),
+}
+OFF_POLICY = ("heightmap_dqn", "sac", "tqc")
+#: Env ids -> task label used in evaluation records (``agents.evaluation`` metric rules key on it).
+TASK_LABELS = {
+    "PandaGraspClutter-v0": "GraspClutter",
+    "PandaGrasp-v0": "Grasp",
+    "PandaTowerBuild-v0": "TowerBuild",
+    "PandaTowerBreak-v0": "TowerBreak",
+    "PandaBuildAndBreak-v0": "BuildAndBreak",
+    "PandaPush-v0": "Push",
+    "PandaStack-v0": "Stack",
+}
+
+
+@dataclass
+class TrainConfig:
+    """One training run.  Steps are environment steps (summed over ``n_envs``)."""
+
+    name: str
+    env_id: str
+    algo: str
+    total_steps: int
+    env_kwargs: dict[str, Any] = field(default_factory=dict)  # options for gymnasium.make
+    max_episode_steps: int | None = None  # None: the id's own limit
+    algo_kwargs: dict[str, Any] = field(default_factory=dict)  # SB3 constructor arguments
+    policy_kwargs: dict[str, Any] = field(default_factory=dict)
+    her: dict[str, Any] | None = None  # HerReplayBuffer arguments; None = no HER
+    n_envs: int = 1
+    vec_env: str = "dummy"  # dummy | subproc (spawn)
+    seed: int = 0
+    eval_every: int = 5000  # steps between evaluations
+    eval_episodes: int = 20
+    eval_seed: int = 1_000_000  # evaluation episodes use seeds eval_seed, eval_seed + 1, ... (never trained on)
+    final_eval_episodes: int = 100
+    checkpoint_every: int = 5000
+    max_minutes: float | None = None  # stop (and checkpoint) after this much wall time in total
+    torch_threads: int = 1
+
+    @classmethod
+    def keys(cls) -> list[str]:
+        return [f.name for f in dataclasses.fields(cls)]
+
+    def validate(self) -> None:
+        from panda_grasp_env.registration import ENV_IDS
+
+        def check(ok: bool, key: str, expected: str) -> None:
+            if not ok:
+                raise ValueError(f"config {key}={getattr(self, key)!r}: expected {expected}")
+
+        check(isinstance(self.name, str) and self.name.replace("-", "").replace("_", "").isalnum(), "name",
+              "letters, digits, - and _")  # fmt: skip
+        check(self.env_id in ENV_IDS, "env_id", f"one of {sorted(ENV_IDS)}")
+        check(self.algo in ALGORITHMS, "algo", f"one of {sorted(ALGORITHMS)}")
+        for key in ("total_steps", "n_envs", "eval_every", "eval_episodes", "final_eval_episodes", "checkpoint_every",
+                    "torch_threads"):  # fmt: skip
+            value = getattr(self, key)
+            check(isinstance(value, int) and not isinstance(value, bool) and value >= 1, key, "an int >= 1")
+        check(isinstance(self.seed, int) and self.seed >= 0, "seed", "an int >= 0")
+        check(isinstance(self.eval_seed, int) and self.eval_seed >= 0, "eval_seed", "an int >= 0")
+        check(self.vec_env in ("dummy", "subproc"), "vec_env", "'dummy' or 'subproc'")
+        check(self.max_minutes is None or (isinstance(self.max_minutes, (int, float)) and self.max_minutes > 0),
+              "max_minutes", "a positive number or null")  # fmt: skip
+        check(self.max_episode_steps is None or (isinstance(self.max_episode_steps, int) and self.max_episode_steps > 0),
+              "max_episode_steps", "a positive int or null")  # fmt: skip
+        for key in ("env_kwargs", "algo_kwargs", "policy_kwargs"):
+            check(isinstance(getattr(self, key), dict), key, "a mapping")
+        check(self.her is None or isinstance(self.her, dict), "her", "a mapping or null")
+        check(self.her is None or self.algo in ("sac", "tqc"), "her", "null unless algo is sac or tqc")
+        algo_class = load_class(ALGORITHMS[self.algo][0])
+        valid = [p for p in inspect.signature(algo_class.__init__).parameters if p not in ("self", "policy", "env")]
+        unknown = [k for k in self.algo_kwargs if k not in valid or k in ("seed", "policy_kwargs", "tensorboard_log")]
+        if unknown:
+            raise ValueError(f"unknown algo_kwargs {unknown} for {self.algo}; valid: {sorted(valid)}")
+
+
+def load_class(path: str) -> Any:
+    import importlib
+
+    module, name = path.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def _parse_override(text: str) -> tuple[list[str], Any]:
+    if "=" not in text:
+        raise ValueError(f"override {text!r} must look like key=value (dotted keys reach into mappings)")
+    key, value = text.split("=", 1)
+    parsed = yaml.safe_load(value)
+    if isinstance(parsed, str):  # YAML 1.1 reads 3e-4 as a string
+        try:
+            parsed = float(parsed)
+        except ValueError:
+            pass
+    return key.strip().split("."), parsed
+
+
+def load_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> TrainConfig:
+    """Read a YAML config and apply ``key=value`` overrides (``algo_kwargs.learning_rate=3e-4``); checked."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"config file {path} not found")
+    raw = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(raw, dict):
+        raise ValueError(f"config {path} must be a mapping of keys to values")
+    for text in overrides:
+        keys, value = _parse_override(text)
+        target = raw
+        for key in keys[:-1]:
+            target = target.setdefault(key, {})
+            if not isinstance(target, dict):
+                raise ValueError(f"override {text!r}: {key!r} is not a mapping")
+        target[keys[-1]] = value
+    return config_from_dict(raw, source=str(path))
+
+
+def config_from_dict(raw: dict[str, Any], source: str = "config") -> TrainConfig:
+    valid = TrainConfig.keys()
+    unknown = [k for k in raw if k not in valid]
+    if unknown:
+        raise ValueError(f"unknown key(s) {unknown} in {source}; valid keys: {valid}")
+    required = [f.name for f in dataclasses.fields(TrainConfig) if f.default is dataclasses.MISSING
+                and f.default_factory is dataclasses.MISSING]  # fmt: skip
+    missing = [k for k in required if k not in raw]
+    if missing:
+        raise ValueError(f"{source} lacks required key(s) {missing}; valid keys: {valid}")
+    config = TrainConfig(**raw)
+    config.validate()
+    return config
+
+
+# --- envs -------------------------------------------------------------------------------
+
+
+def observation_transform(config: TrainConfig) -> Callable[[Any], Any]:
+    """What the policy sees of an env observation (the same in training, evaluation and ``LearnedAgent``)."""
+    if config.algo == "heightmap_dqn":
+        from agents.heightmap_policy import encode_heightmap
+
+        return encode_heightmap
+    return lambda observation: observation
+
+
+def make_env(config: TrainConfig, render_mode: str | None = None) -> gym.Env:
+    """One env as the policy is trained on it (raw observations; see ``observation_transform``)."""
+    import panda_grasp_env  # noqa: F401  (registers the ids)
+
+    options = dict(config.env_kwargs)
+    if config.max_episode_steps is not None:
+        options["max_episode_steps"] = config.max_episode_steps
+    return gym.make(config.env_id, render_mode=render_mode, **options)
+
+
+def _wrapped_env(config: TrainConfig) -> gym.Env:
+    import torch
+
+    torch.set_num_threads(config.torch_threads)  # worker processes: never oversubscribe the cores
+    env = make_env(config)
+    if config.algo == "heightmap_dqn":
+        from agents.heightmap_policy import EncodedHeightmap
+
+        env = EncodedHeightmap(env)
+    return env
+
+
+def make_vec_env(config: TrainConfig) -> Any:
+    from functools import partial
+
+    from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    factories = [partial(lambda c: Monitor(_wrapped_env(c), info_keywords=("is_success",)), config)] * config.n_envs
+    if config.vec_env == "subproc" and config.n_envs > 1:
+        return SubprocVecEnv(factories, start_method="spawn")
+    return DummyVecEnv(factories)
+
+
+# --- model --------------------------------------------------------------------------------
+
+
+def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
+    algo_path, policy = ALGORITHMS[config.algo]
+    algo_class = load_class(algo_path)
+    policy_kwargs = dict(config.policy_kwargs)
+    kwargs = dict(config.algo_kwargs)
+    if config.algo == "heightmap_dqn":
+        policy = load_class(policy)
+        probe = make_env(config)
+        policy_kwargs = {
+            "primitives": probe.unwrapped.task.primitives,
+            "rotations": probe.unwrapped.actions.rotations,
+            "cell_size": probe.unwrapped.actions.grid.resolution,
+            **policy_kwargs,
+        }
+        probe.close()
+    elif not isinstance(env.observation_space, gym.spaces.Dict):
+        policy = "MlpPolicy"
+    if config.her is not None:
+        from stable_baselines3 import HerReplayBuffer
+
+        kwargs["replay_buffer_class"] = HerReplayBuffer
+        kwargs["replay_buffer_kwargs"] = dict(config.her)
+    if "net_arch" in policy_kwargs and isinstance(policy_kwargs["net_arch"], dict):
+        policy_kwargs["net_arch"] = dict(policy_kwargs["net_arch"])
+    try:
+        return algo_class(
+            policy,
+            env,
+            seed=config.seed,
+            policy_kwargs=policy_kwargs,
+            tensorboard_log=str(log_dir) if log_dir is not None else None,
+            verbose=0,
+            **kwargs,
+        )
+    except TypeError as error:
+        raise ValueError(f"{config.algo}: bad algo_kwargs/policy_kwargs/her: {error}") from None
+
+
+# --- evaluation ---------------------------------------------------------------------------
+
+
+class PolicyAgent:
+    """An SB3 model as an ``Agent``: deterministic actions from transformed observations."""
+
+    def __init__(self, model: Any, transform: Callable[[Any], Any], name: str) -> None:
+        self.model, self.transform, self.name = model, transform, name
+
+    def reset(self, observation: Any, info: dict[str, Any]) -> None:
+        pass
+
+    def act(self, observation: Any, info: dict[str, Any]) -> Any:
+        action, _ = self.model.predict(self.transform(observation), deterministic=True)
+        return action
+
+
+def evaluate_policy(model: Any, config: TrainConfig, episodes: int, env: gym.Env | None = None) -> dict[str, Any]:
+    """Task metrics (``agents.evaluation.aggregate``) of ``model`` over ``episodes`` seeded episodes."""
+    own_env = env is None
+    env = make_env(config) if env is None else env
+    agent = PolicyAgent(model, observation_transform(config), config.name)
+    task = TASK_LABELS[config.env_id]
+    results = [
+        play_episode(env, agent, EpisodeSpec(config.name, task, config.eval_seed + i))["result"]
+        for i in range(episodes)
+    ]
+    if own_env:
+        env.close()
+    return next(iter(aggregate(results).values()))
+
+
+def headline(metrics: dict[str, Any]) -> dict[str, float]:
+    """The few numbers a learning curve follows."""
+    return {
+        "success": metrics["trial_success"]["rate"],
+        "completion": metrics["completion"]["rate"],
+        "grasp_success": metrics["grasp_success"]["rate"],
+        "action_efficiency": metrics["action_efficiency"],
+    }
+
+
+# --- run folders ----------------------------------------------------------------------------
+
+
+def versions() -> dict[str, str]:
+    import importlib.metadata as md
+
+    names = ("numpy", "torch", "mujoco", "gymnasium", "stable-baselines3", "sb3-contrib", "panda-grasp-env")
+    found = {}
+    for name in names:
+        try:
+            found[name] = md.version(name)
+        except md.PackageNotFoundError:
+            found[name] = "absent"
+    found["python"] = platform.python_version()
+    return found
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} logical cores, no GPU used"
+
+
+def commit() -> str:
+    try:
+        root = Path(__file__).resolve().parent.parent
+        out = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+        return out.stdout.strip() or "unknown"
+    except OSError:
+        return "unknown"
+
+
+def write_json(path: Path, payload: Any) -> None:
+    write_atomically(path, json.dumps(payload, indent=2, sort_keys=True))
+
+
+def read_evaluations(run_dir: Path) -> list[dict[str, Any]]:
+    path = run_dir / "evaluations.jsonl"
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def plot_curve(run_dir: Path, title: str) -> None:
+    """curve.png: evaluation success (95 % CI band) against environment steps and against wall time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = read_evaluations(run_dir)
+    if not rows:
+        return
+    steps = [r["steps"] for r in rows]
+    minutes = [r["wall_seconds"] / 60 for r in rows]
+    figure, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
+    for axis, x, label in ((axes[0], steps, "environment steps"), (axes[1], minutes, "wall time, minutes")):
+        success = [r["metrics"]["trial_success"]["rate"] for r in rows]
+        low = [r["metrics"]["trial_success"]["ci95"][0] for r in rows]
+        high = [r["metrics"]["trial_success"]["ci95"][1] for r in rows]
+        axis.plot(x, success, marker="o", label="trial success")
+        axis.fill_between(x, low, high, alpha=0.2)
+        if any(r["metrics"]["grasp_success"]["n"] for r in rows):
+            axis.plot(x, [r["metrics"]["grasp_success"]["rate"] for r in rows], marker="s", label="grasp success")
+            axis.plot(x, [r["metrics"]["action_efficiency"] for r in rows], marker="^", label="action efficiency")
+        axis.set_xlabel(label)
+        axis.set_ylim(-0.02, 1.02)
+        axis.grid(alpha=0.3)
+    axes[0].set_ylabel("rate")
+    axes[0].legend(loc="lower right")
+    figure.suptitle(title)
+    figure.tight_layout()
+    tmp = run_dir / "curve.tmp.png"
+    figure.savefig(tmp, dpi=100)
+    plt.close(figure)
+    os.replace(tmp, run_dir / "curve.png")
+
+
+# --- the run -----------------------------------------------------------------------------------
+
+
+def save_checkpoint(model: Any, run_dir: Path, wall_seconds: float) -> None:
+    """latest.zip (+ replay.pkl) and progress.json, each through a temporary file and a rename."""
+    tmp = run_dir / "latest.zip.tmp"
+    model.save(tmp)
+    os.replace(tmp, run_dir / "latest.zip")
+    if getattr(model, "replay_buffer", None) is not None:
+        tmp = run_dir / "replay.pkl.tmp"
+        model.save_replay_buffer(tmp)
+        os.replace(tmp, run_dir / "replay.pkl")
+    write_json(run_dir / "progress.json", {"steps": int(model.num_timesteps), "wall_seconds": round(wall_seconds, 1)})
+
+
+def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_bar: bool) -> Any:
+    from stable_baselines3.common.callbacks import BaseCallback
+    from tqdm import tqdm
+
+    class RunCallback(BaseCallback):
+        """Evaluation with the task's metrics, checkpoints, the progress bar and the wall-time limit."""
+
+        def _on_training_start(self) -> None:
+            self.started = time.perf_counter()
+            self.start_steps = self.num_timesteps
+            self.next_eval = (self.num_timesteps // config.eval_every + 1) * config.eval_every
+            self.next_checkpoint = (self.num_timesteps // config.checkpoint_every + 1) * config.checkpoint_every
+            self.eval_env = make_env(config)
+            self.latest = ""
+            evaluations = read_evaluations(run_dir)
+            if evaluations:
+                last = headline(evaluations[-1]["metrics"])
+                self.latest = f"{last['success']:.2f}"
+            self.bar = tqdm(total=config.total_steps, initial=self.num_timesteps, unit="step", disable=not progress_bar,
+                            dynamic_ncols=True, desc=config.name, mininterval=5.0)  # fmt: skip
+
+        def wall(self) -> float:
+            return wall_before + time.perf_counter() - self.started
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.training_env.num_envs)
+            if self.num_timesteps >= self.next_eval:
+                self.next_eval += config.eval_every
+                self.evaluate()
+            if self.num_timesteps >= self.next_checkpoint:
+                self.next_checkpoint += config.checkpoint_every
+                save_checkpoint(self.model, run_dir, self.wall())
+            rate = (self.num_timesteps - self.start_steps) / max(time.perf_counter() - self.started, 1e-9)
+            self.bar.set_postfix_str(f"{rate:.1f} steps/s, eval success {self.latest or '-'}", refresh=False)
+            return config.max_minutes is None or self.wall() < 60 * config.max_minutes
+
+        def evaluate(self) -> None:
+            began = time.perf_counter()
+            metrics = evaluate_policy(self.model, config, config.eval_episodes, self.eval_env)
+            row = {"steps": int(self.num_timesteps), "wall_seconds": round(self.wall(), 1),
+                   "eval_seconds": round(time.perf_counter() - began, 1), "metrics": metrics}  # fmt: skip
+            with open(run_dir / "evaluations.jsonl", "a") as log:
+                log.write(json.dumps(row, sort_keys=True) + "\n")
+                log.flush()
+                os.fsync(log.fileno())
+            for key, value in headline(metrics).items():
+                self.logger.record(f"eval/{key}", value)
+            self.logger.dump(self.num_timesteps)
+            self.latest = f"{metrics['trial_success']['rate']:.2f}"
+            plot_curve(run_dir, f"{config.name}: {config.algo} on {config.env_id}")
+
+        def _on_training_end(self) -> None:
+            self.bar.close()
+            self.eval_env.close()
+
+    return RunCallback()
+
+
+def start_run(config: TrainConfig, runs_dir: Path) -> Path:
+    """A fresh run folder ``runs_dir/<name>-seed<seed>[-N]`` with config.yaml and meta.json."""
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    run_dir = runs_dir / f"{config.name}-seed{config.seed}"
+    suffix = 1
+    while run_dir.exists():
+        suffix += 1
+        run_dir = runs_dir / f"{config.name}-seed{config.seed}-{suffix}"
+    run_dir.mkdir()
+    write_atomically(run_dir / "config.yaml", yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
+    meta = {"seed": config.seed, "versions": versions(), "commit": commit(), "machine": machine(),
+            "started": time.strftime("%Y-%m-%d %H:%M:%S %Z")}  # fmt: skip
+    write_json(run_dir / "meta.json", meta)
+    return run_dir
+
+
+def load_run(run_dir: Path) -> TrainConfig:
+    if not (run_dir / "config.yaml").is_file():
+        raise ValueError(f"{run_dir} is not a run folder (no config.yaml)")
+    return config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()), source=str(run_dir / "config.yaml"))
+
+
+def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar: bool = True) -> dict[str, Any]:
+    """Train (or continue) the run in ``run_dir`` to ``config.total_steps``; Ctrl-C checkpoints and re-raises."""
+    import torch
+
+    torch.set_num_threads(config.torch_threads)
+    progress = json.loads((run_dir / "progress.json").read_text()) if resume else {"steps": 0, "wall_seconds": 0.0}
+    env = make_vec_env(config)
+    if resume:
+        algo_class = load_class(ALGORITHMS[config.algo][0])
+        model = algo_class.load(run_dir / "latest.zip", env=env, tensorboard_log=str(run_dir / "tb"))
+        if (run_dir / "replay.pkl").exists():
+            model.load_replay_buffer(run_dir / "replay.pkl")
+    else:
+        model = build_model(config, env, run_dir / "tb")
+    callback = _callback(config, run_dir, float(progress["wall_seconds"]), progress_bar)
+    remaining = config.total_steps - int(model.num_timesteps)
+    try:
+        if remaining > 0:
+            model.learn(remaining, callback=callback, reset_num_timesteps=not resume, tb_log_name="run")
+    except KeyboardInterrupt:
+        save_checkpoint(model, run_dir, callback.wall())
+        raise
+    finally:
+        env.close()
+    wall = callback.wall() if hasattr(callback, "started") else float(progress["wall_seconds"])
+    save_checkpoint(model, run_dir, wall)
+    if model.num_timesteps < config.total_steps:  # stopped by max_minutes
+        return {"steps": int(model.num_timesteps), "complete": False}
+    return finish(model, config, run_dir, wall)
+
+
+def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) -> dict[str, Any]:
+    """Final evaluation (``final_eval_episodes``), final.json and card.md."""
+    began = time.perf_counter()
+    metrics = evaluate_policy(model, config, config.final_eval_episodes)
+    evaluations = read_evaluations(run_dir)
+    first_90 = next((r for r in evaluations if r["metrics"]["trial_success"]["rate"] >= 0.9), None)
+    final = {
+        "steps": int(model.num_timesteps),
+        "wall_seconds": round(wall_seconds, 1),
+        "steps_per_second": round(model.num_timesteps / max(wall_seconds, 1e-9), 2),
+        "final_eval_seconds": round(time.perf_counter() - began, 1),
+        "steps_to_90_percent": first_90["steps"] if first_90 else None,
+        "minutes_to_90_percent": round(first_90["wall_seconds"] / 60, 1) if first_90 else None,
+        "metrics": metrics,
+    }
+    write_json(run_dir / "final.json", final)
+    plot_curve(run_dir, f"{config.name}: {config.algo} on {config.env_id}")
+    write_atomically(run_dir / "card.md", model_card(config, run_dir, final))
+    return {**final, "complete": True}
+
+
+def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str:
+    meta = json.loads((run_dir / "meta.json").read_text())
+    m = final["metrics"]
+
+    def pct(r: dict[str, Any]) -> str:
+        return f"{100 * r['rate']:.1f} % ({r['successes']}/{r['n']}, 95 % CI {100 * r['ci95'][0]:.1f}-{100 * r['ci95'][1]:.1f})"
+
+    lines = [
+        f"# {config.name}",
+        "",
+        f"`{config.algo}` on `{config.env_id}` ({json.dumps(config.env_kwargs)}), trained by this repository's "
+        f"`train.py` from `configs/{config.name}.yaml`.",
+        "",
+        "| | |",
+        "|---|---|",
+        f"| seed | {config.seed} |",
+        f"| environment steps | {final['steps']} |",
+        f"| wall time | {final['wall_seconds'] / 60:.1f} min ({final['steps_per_second']} steps/s, evaluations included) |",
+        f"| machine | {meta['machine']} |",
+        f"| commit | {meta['commit']} |",
+        f"| versions | {', '.join(f'{k} {v}' for k, v in meta['versions'].items())} |",
+        f"| steps to 90 % success | {final['steps_to_90_percent'] or 'not reached'} "
+        f"({final['minutes_to_90_percent'] or '-'} min) |",
+        "",
+        f"## Final evaluation: {m['episodes']} episodes, seeds {config.eval_seed}-{config.eval_seed + m['episodes'] - 1}",
+        "",
+        f"- trial success: {pct(m['trial_success'])}",
+        f"- completion: {pct(m['completion'])}",
+        f"- grasp success: {pct(m['grasp_success'])}",
+        f"- action efficiency: {100 * m['action_efficiency']:.1f} %",
+        f"- failures: {json.dumps(m['failures'])}",
+        "",
+        "![learning curve](curve.png)",
+        "",
+        "## Config",
+        "",
+        "```yaml",
+        yaml.safe_dump(dataclasses.asdict(config), sort_keys=False).rstrip(),
+        "```",
+        "",
+    ]
+    return "\n".join(lines)

@@ -1,0 +1,243 @@
+"""train.py, its configs, the heightmap Q-policy and loading shipped checkpoints."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch as th
+import yaml
+
+import train
+from agents import learned
+from agents.heightmap_policy import (
+    HEIGHT_RANGE,
+    HeightmapDQN,
+    HeightmapQPolicy,
+    encode_heightmap,
+    heading_in_image,
+    rotate,
+)
+from agents.training import TrainConfig, load_config
+from perception.heightmap import HeightmapGrid
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+#: A pixel-mode DQN small enough to train for a few steps in seconds.
+TINY_DQN = [
+    "env_id=PandaGrasp-v0",
+    "env_kwargs={obs_mode: heightmap, action_mode: pixel, heightmap_resolution: 0.016, rotations: 4}",
+    "max_episode_steps=3",
+    "total_steps=12",
+    "algo_kwargs.learning_starts=4",
+    "algo_kwargs.buffer_size=100",
+    "algo_kwargs.batch_size=4",
+    "eval_every=6",
+    "eval_episodes=1",
+    "final_eval_episodes=2",
+    "checkpoint_every=6",
+]
+
+
+def write_config(tmp_path, **entries):
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(entries))
+    return path
+
+
+def test_every_shipped_config_loads():
+    names = sorted(p.stem for p in CONFIGS.glob("*.yaml"))
+    assert {"grasp_clutter_dqn", "push_sac_her", "lift_sac_her"} <= set(names)
+    for name in names:
+        assert load_config(CONFIGS / f"{name}.yaml").name == name
+
+
+def test_unknown_key_fails_listing_the_valid_ones(tmp_path):
+    path = write_config(tmp_path, name="x", env_id="PandaPush-v0", algo="sac", total_steps=10, learning_rate=1)
+    with pytest.raises(ValueError, match=r"unknown key\(s\) \['learning_rate'\].*valid keys: .*total_steps"):
+        load_config(path)
+    with pytest.raises(ValueError, match=r"unknown key\(s\) \['totl_steps'\]"):
+        load_config(CONFIGS / "push_sac_her.yaml", ["totl_steps=5"])
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("total_steps=-5", "total_steps=-5: expected an int >= 1"),
+        ("algo=dqnn", "expected one of"),
+        ("env_id=PandaFly-v0", "expected one of"),
+        ("algo_kwargs.learnin_rate=0.1", r"unknown algo_kwargs \['learnin_rate'\].*valid: .*learning_rate"),
+        ("vec_env=threads", "'dummy' or 'subproc'"),
+        ("her={n_sampled_goal: 4}", None),  # fine for sac
+        ("seed", "key=value"),
+    ],
+)
+def test_bad_values_fail_before_training(override, message):
+    if message is None:
+        load_config(CONFIGS / "push_sac_her.yaml", [override])
+        return
+    with pytest.raises(ValueError, match=message):
+        load_config(CONFIGS / "push_sac_her.yaml", [override])
+
+
+def test_overrides_reach_into_mappings_and_read_numbers():
+    config = load_config(CONFIGS / "push_sac_her.yaml", ["algo_kwargs.learning_rate=3e-4", "seed=7", "n_envs=2"])
+    assert config.algo_kwargs["learning_rate"] == pytest.approx(3e-4)
+    assert (config.seed, config.n_envs) == (7, 2)
+    assert config.algo_kwargs["batch_size"] == 256  # untouched entries stay
+
+
+def test_train_cli_reports_config_errors_without_starting(tmp_path, capsys):
+    code = train.main(["--config", str(CONFIGS / "push_sac_her.yaml"), "--runs", str(tmp_path), "bogus=1"])
+    assert code == 2
+    assert "valid keys" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())  # no run folder was made
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.7, 2.0, -2.5])
+def test_rotation_brings_a_world_heading_onto_the_image_x_axis(yaw):
+    grid = HeightmapGrid(((0.3, 0.7), (-0.2, 0.2), (0.0, 0.3)), 0.01)
+    image = th.zeros(1, 1, *grid.shape)
+    point = np.array([0.5, 0.0]) + 0.12 * np.array([np.cos(yaw), np.sin(yaw)])
+    row, col = grid.world_to_cell(point)
+    image[0, 0, row, col] = 1.0
+    rotated = rotate(image, heading_in_image(th.tensor([yaw], dtype=th.float32)))
+    peak_row, peak_col = np.unravel_index(int(rotated[0, 0].argmax()), grid.shape)
+    assert abs(peak_row - 19.5) <= 1 and abs(peak_col - (19.5 + 12)) <= 1
+
+
+def blob_observation(rows=40, cols=40, centre=(12, 25), radius=3, height=0.04):
+    heightmap = np.zeros((rows, cols, 4), dtype=np.float32)
+    r, c = np.ogrid[:rows, :cols]
+    inside = (r - centre[0]) ** 2 + (c - centre[1]) ** 2 <= radius**2
+    heightmap[inside] = [0.8, 0.2, 0.2, height]
+    return encode_heightmap(heightmap), inside
+
+
+def tiny_policy(primitives=("grasp", "push"), used=("grasp",), rotations=4, rows=40, cols=40):
+    import gymnasium as gym
+
+    space = gym.spaces.Box(0, 255, (4, rows, cols), dtype=np.uint8)
+    actions = gym.spaces.Discrete(len(primitives) * rotations * rows * cols)
+    return HeightmapQPolicy(
+        space, actions, lambda _: 1e-3, primitives=primitives, rotations=rotations, cell_size=0.01, primitives_used=used
+    )
+
+
+def test_encoded_heightmap_keeps_millimetres():
+    observation, inside = blob_observation(height=0.123)
+    assert observation.shape == (4, 40, 40) and observation.dtype == np.uint8
+    assert observation[3][inside][0] * HEIGHT_RANGE / 255 == pytest.approx(0.123, abs=5e-4)
+    with pytest.raises(ValueError, match="heightmap"):
+        encode_heightmap(np.zeros((40, 40, 3)))
+
+
+def test_policy_only_grasps_on_objects_and_scores_one_rotation_like_all():
+    th.manual_seed(0)
+    policy = tiny_policy()
+    observation, inside = blob_observation()
+    action, _ = policy.predict(observation, deterministic=True)
+    p, r, row, col = np.unravel_index(int(action), (2, 4, 40, 40))
+    assert p == 0 and inside[row, col]  # a grasp, on the blob
+    batch = th.as_tensor(np.stack([observation, blob_observation(centre=(30, 8))[0]]))
+    all_q = policy.q_net(batch)
+    actions = th.tensor([[int(action)], [3 * 1600 + 30 * 40 + 8]])
+    assert th.allclose(policy.q_net.q_at(batch, actions), all_q.gather(1, actions).flatten(), atol=1e-5)
+    allowed = policy.q_net.allowed(batch[:1]).reshape(2, 4, 40, 40)
+    assert not allowed[1].any()  # push is not used
+    assert np.array_equal(allowed[0, 2].numpy(), inside)
+    with pytest.raises(ValueError, match="primitives_used"):
+        tiny_policy(used=("place",))
+
+
+def test_exploration_samples_only_allowed_actions():
+    import gymnasium as gym
+
+    class Blob(gym.Env):
+        observation_space = gym.spaces.Box(0, 255, (4, 40, 40), dtype=np.uint8)
+        action_space = gym.spaces.Discrete(2 * 4 * 40 * 40)
+
+        def reset(self, seed=None, options=None):
+            return blob_observation()[0], {}
+
+        def step(self, action):
+            return blob_observation()[0], 0.0, True, False, {}
+
+    model = HeightmapDQN(
+        HeightmapQPolicy, Blob(), policy_kwargs={"primitives": ("grasp", "push"), "rotations": 4, "cell_size": 0.01}
+    )
+    model.exploration_rate = 1.0
+    observation, inside = blob_observation()
+    near = np.zeros_like(inside)
+    for _ in range(50):
+        p, _, row, col = np.unravel_index(int(model.predict(observation)[0]), (2, 4, 40, 40))
+        if p == 0:
+            assert inside[row, col]
+        else:
+            near[row, col] = True
+    distances = [math.dist((r, c), (12, 25)) for r, c in zip(*np.nonzero(near))]
+    assert distances and max(distances) <= 3 + 3 * math.sqrt(2) + 0.5  # pushes start within a 3 cm square of it
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    """A tiny pixel-mode DQN run, trained in two sessions (the second resumes the first)."""
+    runs = tmp_path_factory.mktemp("runs")
+    config = str(CONFIGS / "grasp_clutter_dqn.yaml")
+    assert train.main(["--config", config, "--runs", str(runs), "--no-progress", *TINY_DQN, "total_steps=6"]) == 0
+    run = runs / "grasp_clutter_dqn-seed0"
+    assert json.loads((run / "progress.json").read_text())["steps"] == 6
+    assert train.main(["--resume", str(run), "total_steps=12", "--no-progress"]) == 0
+    return run
+
+
+def test_a_run_folder_holds_everything_and_resumes(finished_run):
+    run = finished_run
+    for name in ("config.yaml", "meta.json", "latest.zip", "replay.pkl", "curve.png", "final.json", "card.md"):
+        assert (run / name).is_file(), name
+    assert any((run / "tb").rglob("events.out.tfevents.*"))
+    assert json.loads((run / "progress.json").read_text())["steps"] == 12
+    evaluations = [json.loads(line) for line in (run / "evaluations.jsonl").read_text().splitlines()]
+    assert [e["steps"] for e in evaluations] == [6, 12]  # one per session, none repeated
+    meta = json.loads((run / "meta.json").read_text())
+    assert meta["seed"] == 0 and "torch" in meta["versions"]
+    card = (run / "card.md").read_text()
+    assert "95 % CI" in card and "environment steps | 12" in card
+    assert not list(run.glob("*.tmp"))
+
+
+def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, tmp_path, monkeypatch):
+    import gymnasium as gym
+
+    monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path)
+    path = learned.ship(finished_run, "tiny")
+    assert learned.available_checkpoints() == ["tiny"]
+    assert (path / "policy.zip").stat().st_size < 20e6
+    agent_env = learned.Checkpoint("tiny").make_env()
+    agent = learned.LearnedAgent("tiny", agent_env)
+    observation, info = agent_env.reset(seed=3)
+    agent.reset(observation, info)
+    assert agent_env.action_space.contains(agent.act(observation, info))
+    with pytest.raises(ValueError, match=r"unknown checkpoint 'nope'; available: \['tiny'\]"):
+        learned.LearnedAgent("nope")
+    with pytest.raises(ValueError, match="trained on PandaGrasp-v0, not PandaPush-v0"):
+        learned.LearnedAgent("tiny", gym.make("PandaPush-v0"))
+    coarse = gym.make("PandaGrasp-v0", obs_mode="heightmap", action_mode="pixel", heightmap_resolution=0.008)
+    with pytest.raises(ValueError, match="expects observations"):
+        learned.LearnedAgent("tiny", coarse)
+    (path / "policy.zip").write_bytes(b"truncated")
+    with pytest.raises(ValueError, match="cannot load .*policy.zip"):
+        learned.LearnedAgent("tiny")
+
+
+def test_her_pipeline_runs_with_vectorised_envs(tmp_path):
+    overrides = ["total_steps=200", "n_envs=2", "algo_kwargs.learning_starts=100", "algo_kwargs.buffer_size=1000",
+                 "eval_every=200", "eval_episodes=1", "final_eval_episodes=1", "checkpoint_every=200"]  # fmt: skip
+    config = str(CONFIGS / "push_sac_her.yaml")
+    assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *overrides]) == 0
+    final = json.loads((tmp_path / "push_sac_her-seed0" / "final.json").read_text())
+    assert final["steps"] == 200 and final["metrics"]["episodes"] == 1
+
+
+def test_config_dataclass_lists_its_keys():
+    assert TrainConfig.keys()[:4] == ["name", "env_id", "algo", "total_steps"]

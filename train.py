@@ -1,0 +1,84 @@
+"""Train a policy from a config:  python train.py --config configs/<name>.yaml [key=value ...]
+
+Overrides use dotted keys into mappings (``algo_kwargs.learning_rate=3e-4``,
+``env_kwargs.rotations=8``); values are read as YAML.  Every run writes one
+folder under ``--runs`` (see ``agents/training.py``); Ctrl-C checkpoints it, and
+``--resume <run folder>`` continues it.  ``--ship <run folder> --name N`` copies
+a finished run's model, card and curve to ``agents/checkpoints/N`` where
+``agents.learned.LearnedAgent`` and ``evaluate.py`` find it.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from agents.training import load_config, load_run, start_run, train  # noqa: E402
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", type=Path, help="YAML training config (configs/)")
+    parser.add_argument("overrides", nargs="*", help="key=value overrides of the config")
+    parser.add_argument("--runs", type=Path, default=Path("runs"), help="folder that holds run folders")
+    parser.add_argument("--resume", type=Path, default=None, help="continue this run folder")
+    parser.add_argument("--ship", type=Path, default=None, help="copy this finished run to agents/checkpoints/--name")
+    parser.add_argument("--name", default=None, help="checkpoint name for --ship")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+    chosen = sum(x is not None for x in (args.config, args.resume, args.ship))
+    if chosen != 1:
+        parser.error("give exactly one of --config, --resume or --ship")
+    if args.ship is not None and not args.name:
+        parser.error("--ship needs --name")
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    try:
+        if args.ship is not None:
+            from agents.learned import ship
+
+            print(f"shipped to {ship(args.ship, args.name)}")
+            return 0
+        if args.resume is not None:
+            config = load_run(args.resume)
+            if args.overrides:
+                config = load_config(args.resume / "config.yaml", args.overrides)
+            run_dir = args.resume
+            if not (run_dir / "latest.zip").exists():
+                raise ValueError(f"{run_dir} has no checkpoint (latest.zip) to resume from")
+        else:
+            config = load_config(args.config, args.overrides)
+            run_dir = start_run(config, args.runs)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(f"run folder: {run_dir}")
+    try:
+        outcome = train(config, run_dir, resume=args.resume is not None, progress_bar=not args.no_progress)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: checkpoint saved; continue with  python train.py --resume {run_dir}", file=sys.stderr)
+        return 130
+    if not outcome["complete"]:
+        print(f"stopped at {outcome['steps']} steps (max_minutes); continue with  python train.py --resume {run_dir}")
+        return 0
+    print(json.dumps({k: v for k, v in outcome.items() if k != "metrics"}, indent=2))
+    metrics = outcome["metrics"]
+    print(
+        f"final: success {metrics['trial_success']['rate']:.3f} {metrics['trial_success']['ci95']}, "
+        f"grasp success {metrics['grasp_success']['rate']:.3f}, efficiency {metrics['action_efficiency']:.3f} "
+        f"(N={metrics['episodes']}); card: {run_dir / 'card.md'}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
