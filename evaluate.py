@@ -40,9 +40,9 @@ from agents.evaluation import (  # noqa: E402
     all_agents,
     run_episode,
     skip_reason,
-    write_atomically,
 )
 from agents.oracle_tower import build_tower, push_tower  # noqa: E402
+from panda_grasp_env.runs import commit, versions, write_atomically  # noqa: E402
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
 from panda_grasp_env.video import VideoRecorder  # noqa: E402
 from panda_grasp_env.workcell import Workcell  # noqa: E402
@@ -401,16 +401,6 @@ def learning_curves(args: argparse.Namespace) -> list[str]:
 
 
 def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: list[Path]) -> None:
-    import platform
-    import subprocess
-
-    import gymnasium
-    import mujoco
-
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        commit = "unknown"
     seeds = FULL_SEEDS if args.full else QUICK_SEEDS
     lines = [
         f"# {'Full' if args.full else 'Quick'} benchmark",
@@ -434,7 +424,7 @@ def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: 
         "",
         f"- seeds per (agent, task): { ({t: args.seeds or seeds[t] for t in args.tasks}) } (seeds 0..N-1)",
         f"- env ids and options: {json.dumps({t: TASKS[t] for t in args.tasks})}",
-        f"- commit {commit}; Python {platform.python_version()}, MuJoCo {mujoco.__version__}, Gymnasium {gymnasium.__version__}",
+        f"- commit {commit()}; versions: {', '.join(f'{k} {v}' for k, v in versions().items())}",
         f"- workers: {args.workers}",
         *(f"- skipped {pair}: {reason}" for pair, reason in args.skipped.items()),
     ]

@@ -1,4 +1,7 @@
-"""Train a policy from a config:  python train.py --config configs/<name>.yaml [key=value ...]
+"""Train from a config:  python train.py --config configs/<name>.yaml [key=value ...]
+
+Policies (SB3: ``heightmap_dqn``, ``sac``, ``tqc``, ``ppo``; ``agents/training.py``) or, with
+``kind: fall_dynamics``, the falling-tower ConvLSTM (``perception/dynamics_training.py``).
 
 Overrides use dotted keys into mappings (``algo_kwargs.learning_rate=3e-4``,
 ``env_kwargs.rotations=8``); values are read as YAML.  Every run writes one
@@ -19,7 +22,16 @@ import json  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from agents.training import load_config, load_run, start_run, train  # noqa: E402
+from agents.training import config_from_dict, read_config, start_run, train  # noqa: E402
+from perception.dynamics_training import fall_config, start_fall_run, train_fall_model  # noqa: E402
+
+
+def load_any(path: Path, overrides: list[str], source: str):
+    """(config, kind) from a YAML file with overrides: a policy run or a fall-dynamics run."""
+    raw = read_config(path, overrides)
+    if raw.get("kind") == "fall_dynamics":
+        return fall_config(raw, source), "fall_dynamics"
+    return config_from_dict(raw, source), "policy"
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -49,21 +61,25 @@ def main(argv: list[str] | None = None) -> int:
             print(f"shipped to {ship(args.ship, args.name)}")
             return 0
         if args.resume is not None:
-            config = load_run(args.resume)
-            if args.overrides:
-                config = load_config(args.resume / "config.yaml", args.overrides)
             run_dir = args.resume
-            if not (run_dir / "latest.zip").exists():
-                raise ValueError(f"{run_dir} has no checkpoint (latest.zip) to resume from")
+            if not (run_dir / "config.yaml").is_file():
+                raise ValueError(f"{run_dir} is not a run folder (no config.yaml)")
+            config, kind = load_any(run_dir / "config.yaml", args.overrides, str(run_dir / "config.yaml"))
+            latest = "latest.pt" if kind == "fall_dynamics" else "latest.zip"
+            if not (run_dir / latest).exists():
+                raise ValueError(f"{run_dir} has no checkpoint ({latest}) to resume from")
         else:
-            config = load_config(args.config, args.overrides)
-            run_dir = start_run(config, args.runs)
+            config, kind = load_any(args.config, args.overrides, str(args.config))
+            run_dir = start_fall_run(config, args.runs) if kind == "fall_dynamics" else start_run(config, args.runs)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     print(f"run folder: {run_dir}")
+    resume, progress = args.resume is not None, not args.no_progress
     try:
-        outcome = train(config, run_dir, resume=args.resume is not None, progress_bar=not args.no_progress)
+        if kind == "fall_dynamics":
+            return report_fall(train_fall_model(config, run_dir, resume, progress), run_dir)
+        outcome = train(config, run_dir, resume=resume, progress_bar=progress)
     except KeyboardInterrupt:
         print(f"\ninterrupted: checkpoint saved; continue with  python train.py --resume {run_dir}", file=sys.stderr)
         return 130
@@ -77,6 +93,18 @@ def main(argv: list[str] | None = None) -> int:
         f"grasp success {metrics['grasp_success']['rate']:.3f}, efficiency {metrics['action_efficiency']:.3f} "
         f"(N={metrics['episodes']}); card: {run_dir / 'card.md'}"
     )
+    return 0
+
+
+def report_fall(outcome: dict, run_dir: Path) -> int:
+    if not outcome["complete"]:
+        print(f"stopped at epoch {outcome['epoch']} (max_minutes); continue with  python train.py --resume {run_dir}")
+        return 0
+    for name, by_horizon in outcome["metrics"].items():
+        for horizon, m in by_horizon.items():
+            print(f"{name:18s} {horizon}: mean block IoU {m['mean_block_iou']:.4f}, foreground accuracy "
+                  f"{m['foreground_accuracy']:.4f}, pixel accuracy {m['pixel_accuracy']:.4f} ({m['frames']} frames)")  # fmt: skip
+    print(f"card: {run_dir / 'card.md'}")
     return 0
 
 

@@ -8,7 +8,6 @@ bit for bit, in any process, in any order.
 
 from __future__ import annotations
 
-import os
 import time
 from collections import Counter
 from dataclasses import asdict, dataclass
@@ -165,13 +164,6 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
     }
     timing = {"wall_seconds": time.perf_counter() - began, "decision_seconds_median": float(np.median(decisions))}
     return {"result": result, "timing": timing}
-
-
-def write_atomically(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename: readers never see half a file."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> list[float]:

@@ -21,7 +21,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from agents.training import TrainConfig, config_from_dict, load_class, observation_transform, write_json
+from agents.training import TrainConfig, config_from_dict, load_class, observation_transform
+from panda_grasp_env.runs import write_json
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
 SHIPPED_FILES = ("config.yaml", "card.md", "curve.png", "evaluations.jsonl", "final.json", "meta.json")

@@ -20,8 +20,6 @@ import dataclasses
 import inspect
 import json
 import os
-import platform
-import subprocess
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -31,7 +29,8 @@ from typing import Any
 import gymnasium as gym
 import yaml
 
-from agents.evaluation import EpisodeSpec, aggregate, play_episode, write_atomically
+from agents.evaluation import EpisodeSpec, aggregate, play_episode
+from panda_grasp_env.runs import commit, machine, versions, write_atomically, write_json
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
 ALGORITHMS: dict[str, tuple[str, str]] = {
@@ -134,8 +133,8 @@ def _parse_override(text: str) -> tuple[list[str], Any]:
     return key.strip().split("."), parsed
 
 
-def load_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> TrainConfig:
-    """Read a YAML config and apply ``key=value`` overrides (``algo_kwargs.learning_rate=3e-4``); checked."""
+def read_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> dict[str, Any]:
+    """A YAML config as a mapping, with ``key=value`` overrides applied (dotted keys reach into mappings)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"config file {path} not found")
@@ -150,7 +149,12 @@ def load_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -
             if not isinstance(target, dict):
                 raise ValueError(f"override {text!r}: {key!r} is not a mapping")
         target[keys[-1]] = value
-    return config_from_dict(raw, source=str(path))
+    return raw
+
+
+def load_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> TrainConfig:
+    """Read a YAML training config and apply overrides (``algo_kwargs.learning_rate=3e-4``); checked."""
+    return config_from_dict(read_config(path, overrides), source=str(path))
 
 
 def config_from_dict(raw: dict[str, Any], source: str = "config") -> TrainConfig:
@@ -300,45 +304,6 @@ def headline(metrics: dict[str, Any]) -> dict[str, float]:
 # --- run folders ----------------------------------------------------------------------------
 
 
-def versions() -> dict[str, str]:
-    import importlib.metadata as md
-
-    names = ("numpy", "torch", "mujoco", "gymnasium", "stable-baselines3", "sb3-contrib", "panda-grasp-env")
-    found = {}
-    for name in names:
-        try:
-            found[name] = md.version(name)
-        except md.PackageNotFoundError:
-            found[name] = "absent"
-    found["python"] = platform.python_version()
-    return found
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} logical cores, no GPU used"
-
-
-def commit() -> str:
-    try:
-        root = Path(__file__).resolve().parent.parent
-        out = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-        return out.stdout.strip() or "unknown"
-    except OSError:
-        return "unknown"
-
-
-def write_json(path: Path, payload: Any) -> None:
-    write_atomically(path, json.dumps(payload, indent=2, sort_keys=True))
-
-
 def read_evaluations(run_dir: Path) -> list[dict[str, Any]]:
     path = run_dir / "evaluations.jsonl"
     if not path.exists():
@@ -414,6 +379,8 @@ def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_b
             if evaluations:
                 last = headline(evaluations[-1]["metrics"])
                 self.latest = f"{last['success']:.2f}"
+            if not evaluations:  # the curve starts from the untrained policy
+                self.evaluate()
             self.bar = tqdm(total=config.total_steps, initial=self.num_timesteps, unit="step", disable=not progress_bar,
                             dynamic_ncols=True, desc=config.name, mininterval=5.0)  # fmt: skip
 
@@ -464,7 +431,7 @@ def start_run(config: TrainConfig, runs_dir: Path) -> Path:
         run_dir = runs_dir / f"{config.name}-seed{config.seed}-{suffix}"
     run_dir.mkdir()
     write_atomically(run_dir / "config.yaml", yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
-    meta = {"seed": config.seed, "versions": versions(), "commit": commit(), "machine": machine(),
+    meta = {"seed": config.seed, "versions": versions(), "commit": commit(), "machine": f"{machine()}, no GPU used",
             "started": time.strftime("%Y-%m-%d %H:%M:%S %Z")}  # fmt: skip
     write_json(run_dir / "meta.json", meta)
     return run_dir

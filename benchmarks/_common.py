@@ -12,7 +12,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from agents.evaluation import rate, wilson, write_atomically  # noqa: F401  (one implementation each)
+from agents.evaluation import rate, wilson  # noqa: F401  (one implementation each)
+from panda_grasp_env.runs import machine as machine_name
+from panda_grasp_env.runs import write_atomically
 
 sys.stdout.reconfigure(line_buffering=True)  # figures appear as they are measured, even when piped
 
@@ -34,7 +36,7 @@ def machine() -> dict[str, Any]:
         "python": platform.python_version(),
         "mujoco": mujoco.__version__,
         "cpus": os.cpu_count(),
-        "machine": platform.machine(),
+        "machine": machine_name(),
     }
 
 

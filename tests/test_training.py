@@ -198,7 +198,7 @@ def test_a_run_folder_holds_everything_and_resumes(finished_run):
     assert any((run / "tb").rglob("events.out.tfevents.*"))
     assert json.loads((run / "progress.json").read_text())["steps"] == 12
     evaluations = [json.loads(line) for line in (run / "evaluations.jsonl").read_text().splitlines()]
-    assert [e["steps"] for e in evaluations] == [6, 12]  # one per session, none repeated
+    assert [e["steps"] for e in evaluations] == [0, 6, 12]  # untrained, then one per session, none repeated
     meta = json.loads((run / "meta.json").read_text())
     assert meta["seed"] == 0 and "torch" in meta["versions"]
     card = (run / "card.md").read_text()

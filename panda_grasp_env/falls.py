@@ -1,0 +1,360 @@
+"""Record falling-tower sequences from the env:  python -m panda_grasp_env.falls --out data/falls --sequences 2000
+
+Each sequence: ``PandaTowerBreak-v0`` resets with its seed (a 4-block tower in
+random colour order, position and yaw), one ``env.step`` breaks it -- a random
+horizontal impulse on a random block (the source study's protocol) or a push
+-- and, from the moment a block starts to move, the overhead camera is
+sampled every ``frame_interval`` seconds of simulated time: RGB, depth, the
+simulator's segmentation and ``perception``'s colour segmentation, cropped to
+a square around the tower, plus every block's pose.  The format and the loader
+are in ``perception/falls.py``.
+
+Shards are written atomically by parallel workers; a rerun with the same
+arguments keeps the finished shards (checked by size and SHA-256) and records
+only the rest.  The recorder prints the sequences per second it achieved.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import platform
+import sys
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from perception.falls import SHARD_ARRAYS, sha256, split_of
+
+#: Block speed (m/s) above which the fall has begun.
+MOTION_SPEED = 0.01
+#: Rendered image (width, height) the square crop is cut from: a block is ~10 px wide and a 64 px crop spans 0.33 m.
+RENDER_SIZE = (224, 168)
+BREAKERS = ("impulse", "push", "mixed")
+
+
+@dataclass(frozen=True)
+class RecorderSettings:
+    """How sequences are recorded.  Times in seconds, impulses in N s, distances in metres."""
+
+    frames: int = 15
+    frame_interval: float = 0.04  # one 25 Hz control step: 25 frames per second
+    crop: int = 64  # pixels, square, centred on the tower's base
+    breaker: str = "impulse"  # impulse | push | mixed (half each)
+    impulse: tuple[float, float] = (0.08, 0.2)
+    shard_size: int = 50
+    seed: int = 0  # sequence i uses env seed seed + i
+
+    def validate(self) -> None:
+        checks = [
+            (isinstance(self.frames, int) and 2 <= self.frames <= 100, "frames", "an int in [2, 100]"),
+            (
+                0.04 <= self.frame_interval <= 1.0
+                and abs(self.frame_interval / 0.04 - round(self.frame_interval / 0.04)) < 1e-6,
+                "frame_interval",
+                "a multiple of the 0.04 s control step, up to 1 s",
+            ),  # fmt: skip
+            (
+                isinstance(self.crop, int) and 16 <= self.crop <= min(RENDER_SIZE),
+                "crop",
+                f"an int in [16, {min(RENDER_SIZE)}]",
+            ),
+            (self.breaker in BREAKERS, "breaker", f"one of {list(BREAKERS)}"),
+            (0 < self.impulse[0] <= self.impulse[1] <= 1.0, "impulse", "(low, high) with 0 < low <= high <= 1 N s"),
+            (isinstance(self.shard_size, int) and self.shard_size >= 1, "shard_size", "an int >= 1"),
+            (isinstance(self.seed, int) and self.seed >= 0, "seed", "an int >= 0"),
+        ]
+        for ok, name, expected in checks:
+            if not ok:
+                raise ValueError(f"{name}={getattr(self, name)!r}: expected {expected}")
+
+
+class FrameGrabber:
+    """A workcell step hook: once the blocks move, grab a cropped frame every ``frame_interval`` seconds."""
+
+    def __init__(self, env: Any, settings: RecorderSettings, origin: tuple[int, int], colours: dict) -> None:
+        self.env, self.settings, self.origin, self.colours = env, settings, origin, colours
+        self.start: float | None = None
+        self.frames: list[dict[str, np.ndarray]] = []
+
+    @property
+    def done(self) -> bool:
+        return len(self.frames) >= self.settings.frames
+
+    def __call__(self, cell: Any) -> None:
+        from panda_grasp_env.tasks.tower_build import blocks_still
+
+        if self.done:
+            return
+        if self.start is None:
+            if blocks_still(cell):
+                return
+            self.start = cell.sim_time
+        if cell.sim_time + 1e-6 >= self.start + len(self.frames) * self.settings.frame_interval:
+            self.grab(cell)
+
+    def grab(self, cell: Any) -> None:
+        from perception.segmentation import colour_masks
+
+        sensors = self.env.unwrapped.sensors
+        sensors.invalidate()
+        rgb, depth = sensors.rgbd("overhead")
+        segmentation = sensors.segmentation("overhead")
+        u0, v0 = self.origin
+        window = (slice(v0, v0 + self.settings.crop), slice(u0, u0 + self.settings.crop))
+        n_blocks = len(cell.block_ids)
+        labels = np.where((segmentation >= 2) & (segmentation < 2 + n_blocks), segmentation - 1, 0).astype(np.uint8)
+        rgb_crop = np.ascontiguousarray(rgb[window])
+        colour = np.zeros(rgb_crop.shape[:2], dtype=np.uint8)
+        for index, mask in enumerate(colour_masks(rgb_crop, self.colours).values()):
+            colour[mask] = index + 1
+        poses = np.concatenate([cell.data.xpos[cell.block_ids], cell.data.xquat[cell.block_ids]], axis=1)
+        self.frames.append(
+            {
+                "rgb": rgb_crop,
+                "depth": depth[window].astype(np.float16),
+                "labels": labels[window],
+                "colour_labels": colour,
+                "poses": poses.astype(np.float32),
+            }
+        )
+        sensors.invalidate()
+
+
+def make_recorder_env() -> Any:
+    import gymnasium as gym
+
+    import panda_grasp_env  # noqa: F401
+
+    return gym.make(
+        "PandaTowerBreak-v0",
+        action_mode="primitive",
+        primitive_z=True,
+        allow_impulse=True,
+        obs_mode="state",
+        cameras=("overhead",),
+        image_size=RENDER_SIZE,
+    )
+
+
+def record_sequence(env: Any, seed: int, settings: RecorderSettings) -> dict[str, np.ndarray]:
+    """One fall: reset with ``seed``, break the tower, grab ``settings.frames`` frames."""
+    from panda_grasp_env.actions import encode_primitive
+
+    _, info = env.reset(seed=seed)
+    cell = env.unwrapped.cell
+    rng = np.random.default_rng([settings.seed, seed, 0xFA11])
+    camera = env.unwrapped.camera_model("overhead")
+    tower = cell.block_positions()
+    base = tower[np.argmin(tower[:, 2])]
+    (u, v), _ = camera.world_to_pixel(np.array([base[0], base[1], 0.0]))
+    half = settings.crop // 2
+    origin = (
+        int(np.clip(round(u) - half, 0, RENDER_SIZE[0] - settings.crop)),
+        int(np.clip(round(v) - half, 0, RENDER_SIZE[1] - settings.crop)),
+    )
+    breaker = settings.breaker if settings.breaker != "mixed" else ("impulse", "push")[int(rng.integers(2))]
+    level = int(rng.integers(len(tower)))
+    heading = float(rng.uniform(-np.pi, np.pi))
+    order = np.argsort(tower[:, 2])
+    target = tower[order[level]]
+    primitives = info["action_layout"]["primitives"]
+    if breaker == "impulse":
+        magnitude = float(rng.uniform(*settings.impulse))
+        action = encode_primitive(primitives, True, "impulse", target[0], target[1], heading, target[2])
+        actions = env.unwrapped.actions  # this sequence's impulse strength
+        actions.settings = replace(actions.settings, impulse_magnitude=magnitude)
+    else:
+        magnitude = 0.0
+        start = target[:2] - 0.08 * np.array([np.cos(heading), np.sin(heading)])
+        action = encode_primitive(primitives, True, "push", start[0], start[1], heading, target[2])
+    grabber = FrameGrabber(env, settings, origin, info["block_colours"])
+    cell.step_hooks.append(grabber)
+    try:
+        env.step(action)
+        deadline = cell.sim_time + settings.frames * settings.frame_interval + 2.0
+        while not grabber.done and cell.sim_time < deadline:
+            cell.wait(cell.control_dt)
+        if grabber.start is None:  # nothing moved (a glancing push): record the standing tower
+            grabber.start = cell.sim_time
+        while not grabber.done:
+            cell.wait(cell.control_dt)
+    finally:
+        cell.step_hooks.remove(grabber)
+    stacked = {key: np.stack([frame[key] for frame in grabber.frames]) for key in grabber.frames[0]}
+    return {
+        **stacked,
+        "seeds": np.int64(seed),
+        "breaker": np.uint8(BREAKERS.index(breaker)),
+        "strike": np.array([level, heading, magnitude, target[0], target[1]], dtype=np.float32),
+        "crop_origin": np.array(origin, dtype=np.int32),
+    }
+
+
+_ENV: Any = None
+
+
+def _worker_init() -> None:
+    global _ENV
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    _ENV = make_recorder_env()
+
+
+def record_shard(job: tuple[Path, int, int, RecorderSettings]) -> dict[str, Any]:
+    """Record sequences [first, first + count) into ``out/shard_<index>.npz`` and its sidecar JSON (both atomic)."""
+    out, index, count, settings = job
+    if _ENV is None:
+        _worker_init()
+    began = time.perf_counter()
+    first = settings.seed + index * settings.shard_size
+    sequences = [record_sequence(_ENV, first + i, settings) for i in range(count)]
+    arrays = {key: np.stack([s[key] for s in sequences]) for key in SHARD_ARRAYS}
+    name = f"shard_{index:05d}.npz"
+    tmp = out / f"{name}.tmp.npz"
+    np.savez_compressed(tmp, **arrays)
+    os.replace(tmp, out / name)
+    entry = {"file": name, "sequences": count, "first_seed": first, "bytes": (out / name).stat().st_size,
+             "sha256": sha256(out / name), "seconds": round(time.perf_counter() - began, 2)}  # fmt: skip
+    sidecar = out / f"{name}.json"
+    (out / f"{name}.json.tmp").write_text(json.dumps(entry))
+    os.replace(out / f"{name}.json.tmp", sidecar)
+    return entry
+
+
+def finished_shard(out: Path, index: int, count: int) -> dict[str, Any] | None:
+    """The sidecar of a shard already on disk and intact, else None."""
+    name = f"shard_{index:05d}.npz"
+    sidecar = out / f"{name}.json"
+    if not sidecar.is_file() or not (out / name).is_file():
+        return None
+    entry = json.loads(sidecar.read_text())
+    if (
+        entry["sequences"] != count
+        or (out / name).stat().st_size != entry["bytes"]
+        or sha256(out / name) != entry["sha256"]
+    ):
+        return None
+    return entry
+
+
+def record_dataset(
+    out: Path, sequences: int, settings: RecorderSettings, workers: int = 1, progress: bool = True
+) -> dict[str, Any]:
+    """Record ``sequences`` sequences into ``out``; returns the metadata (also written to ``out/metadata.json``)."""
+    from tqdm import tqdm
+
+    settings.validate()
+    if sequences < 1 or workers < 1:
+        raise ValueError(f"sequences and workers must be >= 1, got {sequences} and {workers}")
+    out.mkdir(parents=True, exist_ok=True)
+    settings_file = out / "settings.json"
+    wanted = {"sequences": sequences, **asdict(settings)}
+    if settings_file.exists() and json.loads(settings_file.read_text()) != json.loads(json.dumps(wanted)):
+        raise ValueError(f"{out} holds a recording with other settings ({settings_file}); use another --out")
+    settings_file.write_text(json.dumps(wanted, indent=2))
+    n_shards = -(-sequences // settings.shard_size)
+    counts = [min(settings.shard_size, sequences - i * settings.shard_size) for i in range(n_shards)]
+    entries: dict[int, dict[str, Any]] = {}
+    jobs = []
+    for index, count in enumerate(counts):
+        entry = finished_shard(out, index, count)
+        if entry is not None:
+            entries[index] = entry
+        else:
+            jobs.append((out, index, count, settings))
+    began = time.perf_counter()
+    bar = tqdm(total=sequences, initial=sum(e["sequences"] for e in entries.values()), unit="seq", disable=not progress)
+    try:
+        if workers == 1 or len(jobs) <= 1:
+            results = map(record_shard, jobs)
+            for entry in results:
+                entries[int(entry["file"][6:11])] = entry
+                bar.update(entry["sequences"])
+        else:
+            with multiprocessing.get_context("spawn").Pool(workers, initializer=_worker_init) as pool:
+                for entry in pool.imap_unordered(record_shard, jobs):
+                    entries[int(entry["file"][6:11])] = entry
+                    bar.update(entry["sequences"])
+    finally:
+        bar.close()
+    seconds = time.perf_counter() - began
+    recorded = sum(job[2] for job in jobs)
+    metadata = describe(out, settings, sequences, [entries[i] for i in range(n_shards)])
+    metadata["recording"] = {"sequences_recorded_now": recorded, "seconds": round(seconds, 1), "workers": workers,
+                             "sequences_per_second": round(recorded / seconds, 2) if recorded else None}  # fmt: skip
+    tmp = out / "metadata.json.tmp"
+    tmp.write_text(json.dumps(metadata, indent=2))
+    os.replace(tmp, out / "metadata.json")
+    return metadata
+
+
+def describe(out: Path, settings: RecorderSettings, sequences: int, shards: list[dict[str, Any]]) -> dict[str, Any]:
+    import importlib.metadata as md
+
+    env = make_recorder_env()
+    _, info = env.reset(seed=settings.seed)
+    camera = env.unwrapped.camera_model("overhead")
+    classes = ["background", *info["block_colours"]]
+    env.close()
+    counts = {split: 0 for split in ("train", "val", "test")}
+    for entry in shards:
+        for seed in range(entry["first_seed"], entry["first_seed"] + entry["sequences"]):
+            counts[split_of(seed)] += 1
+    return {
+        "sequences": sequences,
+        "frames": settings.frames,
+        "frame_interval": settings.frame_interval,
+        "crop": settings.crop,
+        "classes": classes,
+        "settings": asdict(settings),
+        "splits": {"rule": "seed % 10: 0-7 train, 8 val, 9 test", **counts},
+        "camera": {
+            "name": "overhead",
+            "render_size": list(RENDER_SIZE),
+            "K": camera.K.tolist(),
+            "rotation": camera.rotation.tolist(),
+            "position": camera.position.tolist(),
+            "crop": "each sequence's crop_origin (column, row) shifts the principal point by minus that",
+        },
+        "versions": {p: md.version(p) for p in ("mujoco", "numpy", "gymnasium")}
+        | {"python": platform.python_version()},
+        "shards": shards,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, default=Path("data/falls"))
+    parser.add_argument("--sequences", type=int, default=2000)
+    parser.add_argument("--workers", type=int, default=2)
+    defaults = RecorderSettings()
+    for field, value in asdict(defaults).items():
+        if field == "impulse":
+            parser.add_argument("--impulse", type=float, nargs=2, default=value, metavar=("LOW", "HIGH"))
+        else:
+            parser.add_argument(f"--{field.replace('_', '-')}", type=type(value), default=value)
+    parser.add_argument("--no-progress", action="store_true")
+    args = parser.parse_args(argv)
+    settings = RecorderSettings(**{f: getattr(args, f) for f in asdict(defaults)} | {"impulse": tuple(args.impulse)})
+    try:
+        metadata = record_dataset(args.out, args.sequences, settings, args.workers, not args.no_progress)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: finished shards are kept in {args.out}; rerun the same command to record the rest")
+        return 130
+    rec = metadata["recording"]
+    print(f"{metadata['sequences']} sequences in {args.out} ({metadata['splits']}); recorded {rec['sequences_recorded_now']} "
+          f"now in {rec['seconds']} s with {rec['workers']} workers: {rec['sequences_per_second']} sequences/s")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    sys.exit(main())

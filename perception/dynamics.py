@@ -1,0 +1,228 @@
+"""Fall dynamics: a ConvLSTM encoder-decoder that predicts the next segmentation frame of a falling tower.
+
+Input: the past ``context`` frames as one-hot class maps (background + one class
+per block colour, ``perception/falls.py``).  Five convolutions encode each
+frame to a quarter-resolution feature map, a ConvLSTM carries the motion,
+five convolutions decode the next frame's class logits, with skip connections
+from the newest frame's encoder features (most pixels do not change).
+Multi-step rollouts feed the predicted class probabilities back in.
+
+Metrics (``evaluate``), over every evaluated (sequence, t) of a split, for the
+prediction of frame t + h from frames t - context + 1 ... t:
+
+* pixel accuracy: predicted class == true class, over all pixels;
+* foreground accuracy: the same over pixels whose *true* class is a block;
+* IoU of class c: sum of |pred = c and true = c| / sum of |pred = c or true = c|
+  over all evaluated frames (dataset-level); mean block IoU: mean over the block classes.
+
+Baselines: ``copy_last`` (frame t is the prediction) and ``constant_velocity``
+(each block's mask at t shifted by h times its centroid displacement from t - 1 to t).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+def conv(in_channels: int, out_channels: int, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(in_channels, out_channels, 3, stride, 1), nn.GroupNorm(4, out_channels), nn.ReLU())
+
+
+class ConvLSTMCell(nn.Module):
+    """LSTM gates computed by one 3x3 convolution over [input, hidden] (Shi et al. 2015)."""
+
+    def __init__(self, channels: int, hidden: int) -> None:
+        super().__init__()
+        self.hidden = hidden
+        self.gates = nn.Conv2d(channels + hidden, 4 * hidden, 3, padding=1)
+
+    def forward(
+        self, x: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor] | None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        if state is None:
+            zeros = x.new_zeros(x.shape[0], self.hidden, *x.shape[2:])
+            state = (zeros, zeros)
+        h, c = state
+        i, f, o, g = self.gates(torch.cat([x, h], 1)).chunk(4, 1)
+        c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
+        h = torch.sigmoid(o) * torch.tanh(c)
+        return h, c
+
+
+class FallPredictor(nn.Module):
+    """Next-frame class logits from a sequence of class-probability frames (B, T, C, S, S)."""
+
+    def __init__(self, n_classes: int, image_size: int, context: int, hidden: int = 32) -> None:
+        super().__init__()
+        if image_size % 4:
+            raise ValueError(f"image_size must be a multiple of 4, got {image_size}")
+        self.n_classes, self.image_size, self.context, self.hidden = n_classes, image_size, context, hidden
+        self.e1, self.e2, self.e3 = conv(n_classes, 16), conv(16, 32, 2), conv(32, 32)
+        self.e4, self.e5 = conv(32, 64, 2), conv(64, 64)
+        self.lstm = ConvLSTMCell(64, hidden)
+        self.d1 = conv(hidden + 64, 64)
+        self.d2 = conv(64 + 32, 32)
+        self.d3 = conv(32, 32)
+        self.d4 = conv(32 + 16, 16)
+        self.d5 = nn.Conv2d(16, n_classes, 3, padding=1)
+
+    def step(self, frame: torch.Tensor, state: Any) -> tuple[torch.Tensor, Any]:
+        """Consume one frame (B, C, S, S) of class probabilities; logits of the next frame and the new state."""
+        f1 = self.e1(frame)
+        f3 = self.e3(self.e2(f1))
+        f5 = self.e5(self.e4(f3))
+        h, c = self.lstm(f5, state)
+        x = self.d1(torch.cat([h, f5], 1))
+        x = self.d3(self.d2(torch.cat([F.interpolate(x, scale_factor=2.0), f3], 1)))
+        logits = self.d5(self.d4(torch.cat([F.interpolate(x, scale_factor=2.0), f1], 1)))
+        return logits, (h, c)
+
+    def rollout(self, frames: torch.Tensor, horizon: int) -> torch.Tensor:
+        """Logits (B, horizon, C, S, S) of the ``horizon`` frames after ``frames`` (B, T, C, S, S)."""
+        state, logits = None, None
+        for t in range(frames.shape[1]):
+            logits, state = self.step(frames[:, t], state)
+        outputs = [logits]
+        for _ in range(horizon - 1):
+            logits, state = self.step(torch.softmax(logits, 1), state)
+            outputs.append(logits)
+        return torch.stack(outputs, 1)
+
+    def describe(self) -> dict[str, int]:
+        return {
+            "n_classes": self.n_classes,
+            "image_size": self.image_size,
+            "context": self.context,
+            "hidden": self.hidden,
+        }
+
+
+def one_hot(labels: torch.Tensor, n_classes: int) -> torch.Tensor:
+    """(..., S, S) integer labels -> (..., C, S, S) float one-hot."""
+    return F.one_hot(labels.long(), n_classes).movedim(-1, -3).float()
+
+
+def check_compatible(model: FallPredictor, labels: np.ndarray, classes: list[str]) -> None:
+    """``ValueError`` if a dataset's images or classes do not match what the model was trained on."""
+    if labels.shape[-1] != model.image_size or labels.shape[-2] != model.image_size:
+        raise ValueError(f"model expects {model.image_size}x{model.image_size} frames, dataset has {labels.shape[-2:]}")
+    if len(classes) != model.n_classes:
+        raise ValueError(f"model predicts {model.n_classes} classes, dataset has {len(classes)}: {classes}")
+    if labels.size and int(labels.max()) >= model.n_classes:
+        raise ValueError(f"dataset labels reach {int(labels.max())}, the model knows classes 0-{model.n_classes - 1}")
+
+
+# --- baselines ----------------------------------------------------------------------------------
+
+
+def copy_last(labels: np.ndarray, t: int, horizon: int) -> np.ndarray:
+    return labels[t]
+
+
+def constant_velocity(labels: np.ndarray, t: int, horizon: int) -> np.ndarray:
+    """Each block's mask at ``t`` moved by ``horizon`` times its centroid step from t - 1 to t."""
+    current, previous = labels[t], labels[t - 1]
+    size = current.shape[0]
+    predicted = np.zeros_like(current)
+    for c in np.unique(current[current > 0]):
+        rows, cols = np.nonzero(current == c)
+        before = np.nonzero(previous == c)
+        if len(before[0]):
+            dr = horizon * (rows.mean() - before[0].mean())
+            dc = horizon * (cols.mean() - before[1].mean())
+        else:
+            dr = dc = 0.0
+        r = np.round(rows + dr).astype(int)
+        k = np.round(cols + dc).astype(int)
+        keep = (r >= 0) & (r < size) & (k >= 0) & (k < size)
+        predicted[r[keep], k[keep]] = c
+    return predicted
+
+
+BASELINES = {"copy_last": copy_last, "constant_velocity": constant_velocity}
+
+
+# --- metrics -------------------------------------------------------------------------------------
+
+
+@dataclass
+class Confusion:
+    """Accumulated (true, predicted) class counts."""
+
+    n_classes: int
+
+    def __post_init__(self) -> None:
+        self.matrix = np.zeros((self.n_classes, self.n_classes), dtype=np.int64)
+        self.frames = 0
+
+    def add(self, truth: np.ndarray, predicted: np.ndarray) -> None:
+        index = truth.astype(np.int64).ravel() * self.n_classes + predicted.astype(np.int64).ravel()
+        self.matrix += np.bincount(index, minlength=self.n_classes**2).reshape(self.n_classes, self.n_classes)
+        self.frames += truth.shape[0] if truth.ndim == 3 else 1
+
+    def summary(self, classes: list[str]) -> dict[str, Any]:
+        m = self.matrix
+        correct = np.diag(m)
+        union = m.sum(0) + m.sum(1) - correct
+        iou = np.where(union > 0, correct / np.maximum(union, 1), np.nan)
+        foreground = m[1:].sum()
+        return {
+            "frames": int(self.frames),
+            "pixel_accuracy": round(float(correct.sum() / m.sum()), 4),
+            "foreground_accuracy": round(float(correct[1:].sum() / foreground), 4) if foreground else None,
+            "iou": {name: round(float(v), 4) for name, v in zip(classes, iou)},
+            "mean_block_iou": round(float(np.nanmean(iou[1:])), 4),
+        }
+
+
+def predict_batch(model: FallPredictor, windows: np.ndarray, horizon: int) -> np.ndarray:
+    """Predicted labels (B, horizon, S, S) after context windows (B, K, S, S) of labels."""
+    with torch.no_grad():
+        frames = one_hot(torch.as_tensor(windows), model.n_classes)
+        return model.rollout(frames, horizon).argmax(2).numpy().astype(np.uint8)
+
+
+def evaluate(
+    model: FallPredictor | None,
+    labels: np.ndarray,
+    classes: list[str],
+    context: int,
+    horizons: tuple[int, ...] = (1, 5),
+    batch_size: int = 64,
+) -> dict[str, dict[str, Any]]:
+    """Metrics of the model (if given) and the baselines at each horizon over sequences ``labels`` (N, T, S, S).
+
+    Evaluated at every t with ``context`` frames up to t and t + max(horizons) inside the sequence.
+    """
+    n, length = labels.shape[:2]
+    last = length - 1 - max(horizons)
+    if last < context - 1:
+        raise ValueError(
+            f"sequences of {length} frames are too short for context {context} and horizon {max(horizons)}"
+        )
+    starts = [(i, t) for i in range(n) for t in range(max(context - 1, 1), last + 1)]
+    n_classes = len(classes)
+    scores = {
+        name: {h: Confusion(n_classes) for h in horizons} for name in (["model"] if model else []) + list(BASELINES)
+    }
+    for name, baseline in BASELINES.items():
+        for i, t in starts:
+            for h in horizons:
+                scores[name][h].add(labels[i, t + h], baseline(labels[i], t, h))
+    if model is not None:
+        check_compatible(model, labels, classes)
+        model.eval()
+        for b in range(0, len(starts), batch_size):
+            chunk = starts[b : b + batch_size]
+            windows = np.stack([labels[i, t - context + 1 : t + 1] for i, t in chunk])
+            predicted = predict_batch(model, windows, max(horizons))
+            truth_frames = {h: np.stack([labels[i, t + h] for i, t in chunk]) for h in horizons}
+            for h in horizons:
+                scores["model"][h].add(truth_frames[h], predicted[:, h - 1])
+    return {name: {f"t+{h}": c.summary(classes) for h, c in by_h.items()} for name, by_h in scores.items()}

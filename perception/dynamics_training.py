@@ -1,0 +1,338 @@
+"""Training runs of the fall-dynamics model (``train.py`` with a ``kind: fall_dynamics`` config).
+
+Each step samples sequences and a window: ``context`` true frames in, then a
+``rollout``-step free-running prediction (probabilities fed back), scored by
+class-weighted cross-entropy -- trained the way it is evaluated.  The run
+folder holds config.yaml, meta.json, tb/, evaluations.jsonl (validation
+metrics per epoch), curve.png, latest.pt / best.pt (atomic), and at the end
+final.json (test metrics against the baselines), card.md and strips/ (one PNG
+per test sequence: input frames, truth, prediction).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+import yaml
+
+from panda_grasp_env.runs import commit, machine, versions, write_atomically, write_json
+from perception.dynamics import FallPredictor, check_compatible, evaluate, one_hot, predict_batch
+from perception.falls import load_split, read_metadata
+
+#: Colours of the class maps in strips: background, then the blocks in the scene's order.
+PALETTE = np.array([[235, 235, 230], [220, 40, 40], [40, 170, 60], [50, 90, 220], [230, 200, 30]], dtype=np.uint8)
+
+
+@dataclass
+class FallConfig:
+    """A fall-dynamics training run.  ``dataset``: a folder written by ``python -m panda_grasp_env.falls``."""
+
+    kind: str
+    name: str
+    dataset: str
+    label_source: str = "labels"  # labels (simulator) | colour_labels (perception's colour segmentation)
+    context: int = 4
+    rollout: int = 5
+    hidden: int = 32
+    epochs: int = 30
+    batch_size: int = 16
+    learning_rate: float = 0.002
+    seed: int = 0
+    max_minutes: float | None = None
+    torch_threads: int = 2
+
+    @classmethod
+    def keys(cls) -> list[str]:
+        return [f.name for f in dataclasses.fields(cls)]
+
+    def validate(self) -> None:
+        for key in ("context", "rollout", "hidden", "epochs", "batch_size", "torch_threads"):
+            value = getattr(self, key)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"config {key}={value!r}: expected an int >= 1")
+        if self.kind != "fall_dynamics":
+            raise ValueError(f"config kind={self.kind!r}: expected 'fall_dynamics'")
+        if self.label_source not in ("labels", "colour_labels"):
+            raise ValueError(f"config label_source={self.label_source!r}: expected 'labels' or 'colour_labels'")
+        if not (isinstance(self.learning_rate, (int, float)) and 0 < self.learning_rate < 1):
+            raise ValueError(f"config learning_rate={self.learning_rate!r}: expected a number in (0, 1)")
+        if self.max_minutes is not None and not self.max_minutes > 0:
+            raise ValueError(f"config max_minutes={self.max_minutes!r}: expected a positive number or null")
+        read_metadata(self.dataset)  # a clear error now, not after the model is built
+
+
+def fall_config(raw: dict[str, Any], source: str) -> FallConfig:
+    valid = FallConfig.keys()
+    unknown = [k for k in raw if k not in valid]
+    if unknown:
+        raise ValueError(f"unknown key(s) {unknown} in {source}; valid keys: {valid}")
+    missing = [k for k in ("kind", "name", "dataset") if k not in raw]
+    if missing:
+        raise ValueError(f"{source} lacks required key(s) {missing}; valid keys: {valid}")
+    config = FallConfig(**raw)
+    config.validate()
+    return config
+
+
+def class_weights(labels: np.ndarray, n_classes: int) -> torch.Tensor:
+    """Inverse square-root class frequencies, mean 1 (blocks are ~7 % of the pixels)."""
+    counts = np.bincount(labels.ravel(), minlength=n_classes).astype(float) + 1.0
+    weights = counts**-0.5
+    return torch.as_tensor(weights / weights.mean(), dtype=torch.float32)
+
+
+def save_torch(payload: dict[str, Any], path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(payload, tmp)
+    os.replace(tmp, path)
+
+
+def load_fall_model(path: Path | str) -> tuple[FallPredictor, dict[str, Any]]:
+    """A trained model and its saved facts (classes, image size, context) from a ``.pt`` checkpoint."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"fall-dynamics checkpoint {path} not found")
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=False)
+        model = FallPredictor(**saved["model_args"])
+        model.load_state_dict(saved["model"])
+    except Exception as error:
+        raise ValueError(f"cannot load fall-dynamics checkpoint {path}: {error}") from error
+    return model, saved
+
+
+def label_image(labels: np.ndarray, scale: int = 2) -> np.ndarray:
+    image = PALETTE[np.clip(labels, 0, len(PALETTE) - 1)]
+    return np.repeat(np.repeat(image, scale, 0), scale, 1)
+
+
+def write_strips(model: FallPredictor, labels: np.ndarray, seeds: np.ndarray, folder: Path, rollout: int) -> None:
+    """One PNG per sequence: the context frames, then truth (top) and prediction (bottom) for ``rollout`` steps."""
+    import imageio.v3 as iio
+
+    folder.mkdir(parents=True, exist_ok=True)
+    k = model.context
+    predicted = predict_batch(model, labels[:, :k], rollout)
+    gap = np.full((labels.shape[-1] * 2, 4, 3), 255, dtype=np.uint8)
+    for sequence, truth, guess, seed in zip(labels, labels[:, k : k + rollout], predicted, seeds):
+        inputs = np.concatenate([label_image(f) for f in sequence[:k]], 1)
+        blank = np.full_like(inputs, 255)
+        top = np.concatenate([inputs, gap, *[label_image(f) for f in truth]], 1)
+        bottom = np.concatenate([blank, gap, *[label_image(f) for f in guess]], 1)
+        tmp = folder / f"seed{int(seed)}.tmp.png"
+        iio.imwrite(tmp, np.concatenate([top, bottom], 0))
+        os.replace(tmp, folder / f"seed{int(seed)}.png")
+
+
+def start_fall_run(config: FallConfig, runs_dir: Path) -> Path:
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    run_dir = runs_dir / f"{config.name}-seed{config.seed}"
+    suffix = 1
+    while run_dir.exists():
+        suffix += 1
+        run_dir = runs_dir / f"{config.name}-seed{config.seed}-{suffix}"
+    run_dir.mkdir()
+    write_atomically(run_dir / "config.yaml", yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
+    dataset = read_metadata(config.dataset)
+    write_json(run_dir / "meta.json", {"seed": config.seed, "versions": versions(), "commit": commit(),
+               "machine": f"{machine()}, no GPU used", "dataset": {"path": config.dataset, "sequences": dataset["sequences"],
+               "splits": dataset["splits"]}})  # fmt: skip
+    return run_dir
+
+
+def train_fall_model(
+    config: FallConfig, run_dir: Path, resume: bool = False, progress_bar: bool = True
+) -> dict[str, Any]:
+    """Train (or continue) to ``config.epochs``; Ctrl-C saves latest.pt and re-raises."""
+    from torch.utils.tensorboard import SummaryWriter
+    from tqdm import tqdm
+
+    torch.set_num_threads(config.torch_threads)
+    train = load_split(config.dataset, "train", config.label_source)
+    val = load_split(config.dataset, "val", config.label_source, verify=False)
+    n_classes, size = len(train.classes), train.image_size
+    if train.labels.shape[1] < config.context + config.rollout:
+        raise ValueError(
+            f"sequences have {train.labels.shape[1]} frames; context + rollout needs {config.context + config.rollout}"
+        )
+    torch.manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+    model = FallPredictor(n_classes, size, config.context, config.hidden)
+    optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+    epoch, wall_before, best = 0, 0.0, -1.0
+    if resume:
+        saved = torch.load(run_dir / "latest.pt", map_location="cpu", weights_only=False)
+        model.load_state_dict(saved["model"])
+        optimiser.load_state_dict(saved["optimiser"])
+        torch.set_rng_state(saved["torch_rng"])
+        rng.bit_generator.state = saved["numpy_rng"]
+        epoch, wall_before, best = saved["epoch"], saved["wall_seconds"], saved["best"]
+    check_compatible(model, train.labels, train.classes)
+    weights = class_weights(train.labels, n_classes)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.epochs, last_epoch=epoch - 1) if epoch else \
+        torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.epochs)  # fmt: skip
+    writer = SummaryWriter(str(run_dir / "tb"))
+    batches = max(1, len(train.labels) // config.batch_size)
+    window = config.context + config.rollout
+    began = time.perf_counter()
+
+    def wall() -> float:
+        return wall_before + time.perf_counter() - began
+
+    def checkpoint(path: Path) -> None:
+        save_torch({"model": model.state_dict(), "model_args": model.describe(), "classes": train.classes,
+                    "optimiser": optimiser.state_dict(), "torch_rng": torch.get_rng_state(),
+                    "numpy_rng": rng.bit_generator.state, "epoch": epoch, "wall_seconds": wall(), "best": best,
+                    "frame_interval": train.frame_interval, "label_source": config.label_source}, path)  # fmt: skip
+
+    bar = tqdm(total=config.epochs * batches, initial=epoch * batches, unit="batch", disable=not progress_bar,
+               desc=config.name, mininterval=5.0)  # fmt: skip
+    try:
+        while epoch < config.epochs:
+            if config.max_minutes is not None and wall() >= 60 * config.max_minutes:
+                break
+            model.train()
+            losses = []
+            for _ in range(batches):
+                chosen = rng.integers(len(train.labels), size=config.batch_size)
+                starts = rng.integers(train.labels.shape[1] - window + 1, size=config.batch_size)
+                clips = np.stack([train.labels[i, s : s + window] for i, s in zip(chosen, starts)])
+                clips = torch.as_tensor(clips)
+                logits = model.rollout(one_hot(clips[:, : config.context], n_classes), config.rollout)
+                loss = F.cross_entropy(
+                    logits.flatten(0, 1), clips[:, config.context :].long().flatten(0, 1), weight=weights
+                )
+                optimiser.zero_grad()
+                loss.backward()
+                optimiser.step()
+                losses.append(loss.item())
+                bar.update(1)
+            schedule.step()
+            epoch += 1
+            metrics = evaluate(model, val.labels, val.classes, config.context)["model"]
+            score = metrics["t+1"]["mean_block_iou"]
+            row = {
+                "epoch": epoch,
+                "wall_seconds": round(wall(), 1),
+                "loss": round(float(np.mean(losses)), 4),
+                "val": metrics,
+            }
+            with open(run_dir / "evaluations.jsonl", "a") as log:
+                log.write(json.dumps(row) + "\n")
+            writer.add_scalar("train/loss", row["loss"], epoch)
+            for horizon in ("t+1", "t+5"):
+                writer.add_scalar(f"val/mean_block_iou_{horizon}", metrics[horizon]["mean_block_iou"], epoch)
+                writer.add_scalar(f"val/foreground_accuracy_{horizon}", metrics[horizon]["foreground_accuracy"], epoch)
+            bar.set_postfix_str(f"loss {row['loss']:.3f}, val block IoU t+1 {score:.3f}", refresh=False)
+            if score > best:
+                best = score
+                checkpoint(run_dir / "best.pt")
+            checkpoint(run_dir / "latest.pt")
+            plot_fall_curve(run_dir)
+    except KeyboardInterrupt:
+        checkpoint(run_dir / "latest.pt")
+        raise
+    finally:
+        bar.close()
+        writer.close()
+    if epoch < config.epochs:
+        return {"complete": False, "epoch": epoch}
+    return finish_fall_run(config, run_dir, wall())
+
+
+def finish_fall_run(config: FallConfig, run_dir: Path, wall_seconds: float) -> dict[str, Any]:
+    model, saved = load_fall_model(run_dir / "best.pt")
+    test = load_split(config.dataset, "test", config.label_source, verify=False)
+    began = time.perf_counter()
+    metrics = evaluate(model, test.labels, test.classes, config.context)
+    write_strips(model, test.labels, test.seeds, run_dir / "strips", config.rollout)
+    final = {
+        "epochs": config.epochs,
+        "best_epoch": int(saved["epoch"]),
+        "wall_seconds": round(wall_seconds, 1),
+        "test_sequences": int(len(test.labels)),
+        "evaluation_seconds": round(time.perf_counter() - began, 1),
+        "metrics": metrics,
+    }
+    write_json(run_dir / "final.json", final)
+    write_atomically(run_dir / "card.md", fall_card(config, run_dir, final))
+    return {**final, "complete": True}
+
+
+def plot_fall_curve(run_dir: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [json.loads(line) for line in (run_dir / "evaluations.jsonl").read_text().splitlines() if line.strip()]
+    figure, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
+    for axis, x, label in ((axes[0], [r["epoch"] for r in rows], "epoch"),
+                           (axes[1], [r["wall_seconds"] / 60 for r in rows], "wall time, minutes")):  # fmt: skip
+        for horizon in ("t+1", "t+5"):
+            axis.plot(
+                x, [r["val"][horizon]["mean_block_iou"] for r in rows], marker="o", label=f"mean block IoU {horizon}"
+            )
+            axis.plot(
+                x,
+                [r["val"][horizon]["foreground_accuracy"] for r in rows],
+                marker="s",
+                label=f"foreground acc. {horizon}",
+            )
+        axis.set_xlabel(label)
+        axis.grid(alpha=0.3)
+    axes[0].set_ylabel("validation")
+    axes[0].legend(loc="lower right", fontsize=8)
+    figure.tight_layout()
+    tmp = run_dir / "curve.tmp.png"
+    figure.savefig(tmp, dpi=100)
+    plt.close(figure)
+    os.replace(tmp, run_dir / "curve.png")
+
+
+def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
+    meta = json.loads((run_dir / "meta.json").read_text())
+    m = final["metrics"]
+    rows = []
+    for name in m:
+        for horizon in ("t+1", "t+5"):
+            r = m[name][horizon]
+            iou = ", ".join(f"{k} {v:.3f}" for k, v in r["iou"].items())
+            rows.append(f"| {name} | {horizon} | {r['pixel_accuracy']:.4f} | {r['foreground_accuracy']:.4f} | "
+                        f"**{r['mean_block_iou']:.4f}** | {iou} |")  # fmt: skip
+    return "\n".join(
+        [
+            f"# {config.name}",
+            "",
+            "ConvLSTM encoder-decoder predicting the next segmentation frames of a falling 4-block tower "
+            "(`perception/dynamics.py`), trained by this repository's `train.py` from "
+            f"`configs/{config.name}.yaml` on `{config.dataset}` ({meta['dataset']['sequences']} sequences, "
+            f"splits {meta['dataset']['splits']}).",
+            "",
+            f"- seed {config.seed}; {config.epochs} epochs (best on validation: {final['best_epoch']}); "
+            f"wall time {final['wall_seconds'] / 60:.1f} min on {meta['machine']}",
+            f"- commit {meta['commit']}; {', '.join(f'{k} {v}' for k, v in meta['versions'].items())}",
+            f"- test: {final['test_sequences']} held-out sequences, every t with {config.context} context frames; "
+            f"{m['copy_last']['t+1']['frames']} predictions per horizon",
+            "",
+            "| predictor | horizon | pixel accuracy | foreground accuracy | mean block IoU | IoU per class |",
+            "|---|---|---|---|---|---|",
+            *rows,
+            "",
+            "![learning curve](curve.png)",
+            "",
+            "```yaml",
+            yaml.safe_dump(dataclasses.asdict(config), sort_keys=False).rstrip(),
+            "```",
+            "",
+        ]
+    )

@@ -1,0 +1,137 @@
+"""The falling-tower recorder, its shard format and loader, the ConvLSTM and its metrics and baselines."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+import train
+from panda_grasp_env.falls import RecorderSettings, main, record_dataset
+from perception.dynamics import Confusion, FallPredictor, constant_velocity, copy_last, evaluate
+from perception.dynamics_training import load_fall_model
+from perception.falls import load_split, split_of
+
+SETTINGS = RecorderSettings(frames=10, shard_size=2, seed=7)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("falls")
+    record_dataset(out, 10, SETTINGS, workers=1, progress=False)
+    return out
+
+
+def test_recording_holds_frames_poses_and_metadata(dataset):
+    meta = json.loads((dataset / "metadata.json").read_text())
+    assert meta["sequences"] == 10 and len(meta["shards"]) == 5
+    assert meta["classes"][0] == "background" and len(meta["classes"]) == 5
+    assert meta["recording"]["sequences_per_second"] > 0
+    with np.load(dataset / "shard_00000.npz") as shard:
+        assert shard["rgb"].shape == (2, 10, 64, 64, 3)
+        assert shard["labels"].shape == shard["colour_labels"].shape == (2, 10, 64, 64)
+        assert shard["poses"].shape == (2, 10, 4, 7)
+        labels, colour = shard["labels"], shard["colour_labels"]
+        poses = shard["poses"]
+    assert set(np.unique(labels)) <= {0, 1, 2, 3, 4} and (labels > 0).any()
+    foreground = labels > 0
+    assert (labels == colour)[foreground].mean() > 0.8  # perception's colour segmentation mostly agrees
+    assert np.abs(poses[:, -1, :, :3] - poses[:, 0, :, :3]).max() > 0.02  # the towers fell
+
+
+def test_recording_is_deterministic_and_resumes(dataset, tmp_path):
+    out = tmp_path / "again"
+    record_dataset(out, 4, SETTINGS, workers=1, progress=False)
+    first = json.loads((dataset / "metadata.json").read_text())["shards"][:2]
+    again = json.loads((out / "metadata.json").read_text())["shards"]
+    assert [s["sha256"] for s in first] == [s["sha256"] for s in again]
+    stamp = (out / "shard_00000.npz").stat().st_mtime_ns
+    (out / "shard_00001.npz").write_bytes(b"broken")  # a shard cut short by a crash
+    meta = record_dataset(out, 4, SETTINGS, workers=1, progress=False)
+    assert meta["recording"]["sequences_recorded_now"] == 2  # only the broken shard again
+    assert (out / "shard_00000.npz").stat().st_mtime_ns == stamp
+    assert [s["sha256"] for s in meta["shards"]] == [s["sha256"] for s in first]
+    with pytest.raises(ValueError, match="other settings"):
+        record_dataset(out, 4, RecorderSettings(frames=12, shard_size=2, seed=7), workers=1, progress=False)
+
+
+def test_bad_recorder_settings_fail_with_the_name():
+    with pytest.raises(ValueError, match="frame_interval"):
+        RecorderSettings(frame_interval=0.05).validate()
+    with pytest.raises(ValueError, match="breaker"):
+        RecorderSettings(breaker="kick").validate()
+    assert main(["--out", "/nonexistent/x", "--sequences", "0", "--no-progress"]) == 2
+
+
+def test_loader_splits_by_sequence_and_names_a_corrupt_shard(dataset, tmp_path):
+    train_split = load_split(dataset, "train")
+    test_split = load_split(dataset, "test")
+    assert all(split_of(int(s)) == "train" for s in train_split.seeds)
+    assert set(train_split.seeds).isdisjoint(test_split.seeds)
+    assert len(train_split.labels) + len(test_split.labels) + len(load_split(dataset, "val").labels) == 10
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    for f in dataset.iterdir():
+        (copy / f.name).write_bytes(f.read_bytes())
+    data = bytearray((copy / "shard_00003.npz").read_bytes())
+    data[100] ^= 0xFF
+    (copy / "shard_00003.npz").write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="shard shard_00003.npz is corrupt"):
+        load_split(copy, "train")
+    (copy / "shard_00002.npz").write_bytes(bytes(data[:50]))
+    with pytest.raises(ValueError, match="shard shard_00002.npz is truncated"):
+        load_split(copy, "train")
+    with pytest.raises(ValueError, match="unknown split"):
+        load_split(dataset, "training")
+
+
+def moving_square(length=8, size=16, step=2):
+    """A block (class 1) moving right by ``step`` pixels per frame."""
+    frames = np.zeros((length, size, size), dtype=np.uint8)
+    for t in range(length):
+        frames[t, 6:10, t * step : t * step + 4] = 1
+    return frames
+
+
+def test_baselines_and_metrics_on_a_moving_square():
+    frames = moving_square()
+    assert np.array_equal(constant_velocity(frames, 3, 2), frames[5])
+    assert np.array_equal(copy_last(frames, 3, 1), frames[3])
+    confusion = Confusion(2)
+    confusion.add(frames[4], copy_last(frames, 3, 1))
+    summary = confusion.summary(["background", "red"])
+    assert summary["iou"]["red"] == pytest.approx(2 / 6, abs=1e-4)  # 4x4 squares overlapping by 2 columns
+    assert summary["foreground_accuracy"] == pytest.approx(0.5, abs=1e-4)
+    results = evaluate(None, frames[None], ["background", "red"], context=2)
+    assert results["constant_velocity"]["t+5"]["mean_block_iou"] == pytest.approx(1.0)
+
+
+def test_model_rollout_shapes_and_mismatch_errors():
+    model = FallPredictor(n_classes=5, image_size=16, context=2, hidden=8)
+    frames = torch.zeros(3, 2, 5, 16, 16)
+    assert model.rollout(frames, 4).shape == (3, 4, 5, 16, 16)
+    with pytest.raises(ValueError, match="expects 16x16 frames"):
+        evaluate(model, np.zeros((1, 10, 32, 32), dtype=np.uint8), ["b", "1", "2", "3", "4"], context=2)
+    with pytest.raises(ValueError, match="predicts 5 classes"):
+        evaluate(model, np.zeros((1, 10, 16, 16), dtype=np.uint8), ["b", "1"], context=2)
+
+
+def test_fall_training_runs_resumes_and_reports(dataset, tmp_path, capsys):
+    config = "configs/fall_convlstm.yaml"
+    common = [f"dataset={dataset}", "hidden=8", "batch_size=4", "torch_threads=1", "context=3", "rollout=3"]
+    assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *common, "epochs=1"]) == 0
+    run = tmp_path / "fall_convlstm-seed0"
+    assert train.main(["--resume", str(run), "epochs=2", "--no-progress"]) == 0
+    rows = [json.loads(line) for line in (run / "evaluations.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == [1, 2]
+    final = json.loads((run / "final.json").read_text())
+    assert set(final["metrics"]) == {"model", "copy_last", "constant_velocity"}
+    assert list((run / "strips").glob("seed*.png"))
+    assert "mean block IoU" in (run / "card.md").read_text()
+    model, saved = load_fall_model(run / "best.pt")
+    assert model.context == 3 and saved["classes"][0] == "background"
+    assert "constant_velocity" in capsys.readouterr().out
+    assert train.main(["--config", config, "--runs", str(tmp_path), "dataset=/nowhere"]) == 2
+    (run / "broken.pt").write_bytes(b"x")
+    with pytest.raises(ValueError, match="cannot load fall-dynamics checkpoint"):
+        load_fall_model(run / "broken.pt")
