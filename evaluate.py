@@ -42,7 +42,7 @@ from agents.evaluation import (  # noqa: E402
     skip_reason,
 )
 from agents.oracle_tower import build_tower, push_tower  # noqa: E402
-from panda_grasp_env.runs import commit, versions, write_atomically  # noqa: E402
+from panda_grasp_env.runs import commit, interrupt_on_signals, versions, write_atomically  # noqa: E402
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
 from panda_grasp_env.video import VideoRecorder  # noqa: E402
 from panda_grasp_env.workcell import Workcell  # noqa: E402
@@ -433,6 +433,7 @@ def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    interrupt_on_signals()
     if args.demo:
         return demo(args)
     args.out.mkdir(parents=True, exist_ok=True)

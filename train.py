@@ -23,6 +23,7 @@ import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from agents.training import config_from_dict, read_config, start_run, train  # noqa: E402
+from panda_grasp_env.runs import interrupt_on_signals  # noqa: E402
 from perception.dynamics_training import fall_config, start_fall_run, train_fall_model  # noqa: E402
 
 
@@ -54,6 +55,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    interrupt_on_signals()
     try:
         if args.ship is not None:
             from agents.learned import ship

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.runs import interrupt_on_signals
 from perception.falls import SHARD_ARRAYS, sha256, split_of
 
 #: Block speed (m/s) above which the fall has begun.
@@ -340,6 +341,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.add_argument(f"--{field.replace('_', '-')}", type=type(value), default=value)
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
+    interrupt_on_signals()
     settings = RecorderSettings(**{f: getattr(args, f) for f in asdict(defaults)} | {"impulse": tuple(args.impulse)})
     try:
         metadata = record_dataset(args.out, args.sequences, settings, args.workers, not args.no_progress)

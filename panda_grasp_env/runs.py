@@ -58,3 +58,16 @@ def commit() -> str:
     except OSError:
         return "unknown"
     return out.stdout.strip() or "unknown"
+
+
+def interrupt_on_signals() -> None:
+    """Let SIGTERM (cluster schedulers, ``kill``) and SIGINT end a long job the way Ctrl-C does: as a
+    ``KeyboardInterrupt`` that saves what is finished.  (A shell starts background jobs with SIGINT
+    ignored; this restores it.)"""
+    import signal
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    signal.signal(signal.SIGTERM, interrupt)
+    signal.signal(signal.SIGINT, interrupt)

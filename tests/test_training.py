@@ -241,3 +241,15 @@ def test_her_pipeline_runs_with_vectorised_envs(tmp_path):
 
 def test_config_dataclass_lists_its_keys():
     assert TrainConfig.keys()[:4] == ["name", "env_id", "algo", "total_steps"]
+
+
+def test_smoke_training_learns_to_grasp(tmp_path):
+    """CI's smoke training (~1-2 min): 300 grasps in the pixel mode lift grasp success on held-out seeds."""
+    config = str(CONFIGS / "smoke_grasp_dqn.yaml")
+    assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress"]) == 0
+    run = tmp_path / "smoke_grasp_dqn-seed0"
+    evaluations = [json.loads(line) for line in (run / "evaluations.jsonl").read_text().splitlines()]
+    untrained = evaluations[0]["metrics"]["grasp_success"]["rate"]
+    trained = json.loads((run / "final.json").read_text())["metrics"]["grasp_success"]["rate"]
+    assert evaluations[0]["steps"] == 0
+    assert trained >= untrained + 0.15 and trained >= 0.55, (untrained, trained)
