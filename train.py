@@ -18,12 +18,15 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+import yaml  # noqa: E402
+
 from agents.training import config_from_dict, read_config, start_run, train  # noqa: E402
-from panda_grasp_env.runs import interrupt_on_signals  # noqa: E402
+from panda_grasp_env.runs import interrupt_on_signals, write_atomically  # noqa: E402
 from perception.dynamics_training import fall_config, start_fall_run, train_fall_model  # noqa: E402
 
 
@@ -67,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
             if not (run_dir / "config.yaml").is_file():
                 raise ValueError(f"{run_dir} is not a run folder (no config.yaml)")
             config, kind = load_any(run_dir / "config.yaml", args.overrides, str(run_dir / "config.yaml"))
+            if args.overrides:  # the run folder keeps the config it actually ran with
+                write_atomically(run_dir / "config.yaml", yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
             latest = "latest.pt" if kind == "fall_dynamics" else "latest.zip"
             if not (run_dir / latest).exists():
                 raise ValueError(f"{run_dir} has no checkpoint ({latest}) to resume from")
