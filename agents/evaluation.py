@@ -33,6 +33,30 @@ AGENTS = ("random", "planned", "oracle")
 LOW_LEVEL_TASKS = ("Push", "Lift")
 
 
+def action_mode_of(env_id: str, options: dict[str, Any]) -> str:
+    """The action mode ``gymnasium.make(env_id, **options)`` gets (an explicit option, else the id's task default)."""
+    from panda_grasp_env.registration import ENV_IDS
+    from panda_grasp_env.tasks.base import TASKS as TASK_CLASSES
+
+    registered = ENV_IDS[env_id][0]
+    return (
+        options.get("action_mode")
+        or registered.get("action_mode")
+        or TASK_CLASSES[registered["task"]].default_action_mode
+    )
+
+
+def task_label(env_id: str, env_kwargs: dict[str, Any]) -> str:
+    """The ``evaluate.py`` task whose env (id and action mode) a policy trained on ``env_id`` plays, else ``env_id``."""
+    mode = action_mode_of(env_id, env_kwargs)
+    for task, (task_env_id, options) in TASKS.items():
+        if task_env_id == env_id and (action_mode_of(task_env_id, options) in ("ee_delta", "joint")) == (
+            mode in ("ee_delta", "joint")
+        ):
+            return task
+    return env_id
+
+
 def all_agents() -> tuple[str, ...]:
     """Built-in agents, then the shipped learned checkpoints by name."""
     from agents.learned import available_checkpoints

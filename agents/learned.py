@@ -21,7 +21,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from agents.training import TrainConfig, config_from_dict, load_class, observation_transform
+from agents.evaluation import task_label
+from agents.training import PolicyAgent, TrainConfig, config_from_dict, load_class, observation_transform
 from panda_grasp_env.runs import write_json
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
@@ -33,19 +34,6 @@ def available_checkpoints() -> list[str]:
     if not CHECKPOINTS.is_dir():
         return []
     return sorted(p.name for p in CHECKPOINTS.iterdir() if (p / "checkpoint.json").is_file())
-
-
-def task_label(env_id: str, env_kwargs: dict[str, Any]) -> str:
-    """The ``evaluate.py`` task a policy trained on ``env_id`` with ``env_kwargs`` plays."""
-    from agents.evaluation import TASKS
-
-    mode = env_kwargs.get("action_mode")
-    for task, (task_env_id, options) in TASKS.items():
-        if task_env_id == env_id and options.get("action_mode") in (None, mode):
-            if mode in ("ee_delta", "joint") and options.get("action_mode") is None and env_id == "PandaGrasp-v0":
-                continue  # the primitive Grasp task; the low-level one is Lift
-            return task
-    return env_id
 
 
 class Checkpoint:
@@ -105,23 +93,19 @@ def check_compatible(policy: Any, config: TrainConfig, env: gym.Env, name: str) 
         raise ValueError(f"checkpoint {name} acts in {policy.action_space}, this env expects {env.action_space}")
 
 
-class LearnedAgent:
+class LearnedAgent(PolicyAgent):
     """A shipped policy as an ``Agent``: deterministic actions, from the observation alone."""
 
     def __init__(self, checkpoint: str | Path, env: gym.Env | None = None) -> None:
         self.checkpoint = Checkpoint(checkpoint)
-        self.name = self.checkpoint.name
-        self.policy = self.checkpoint.load_policy()
-        self.transform = observation_transform(self.checkpoint.config)
+        policy = self.checkpoint.load_policy()
+        super().__init__(policy, observation_transform(self.checkpoint.config), self.checkpoint.name)
         if env is not None:
-            check_compatible(self.policy, self.checkpoint.config, env, self.name)
+            check_compatible(policy, self.checkpoint.config, env, self.name)
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
-        self._check(observation)
-
-    def _check(self, observation: Any) -> None:
         seen = self.transform(observation)
-        space = self.policy.observation_space
+        space = self.model.observation_space
         if not space.contains(seen) and not (
             isinstance(space, gym.spaces.Dict)
             and isinstance(seen, dict)
@@ -129,10 +113,6 @@ class LearnedAgent:
         ):
             shape = {k: np.shape(v) for k, v in seen.items()} if isinstance(seen, dict) else np.shape(seen)
             raise ValueError(f"checkpoint {self.name} cannot read this observation ({shape}); it expects {space}")
-
-    def act(self, observation: Any, info: dict[str, Any]) -> Any:
-        action, _ = self.policy.predict(self.transform(observation), deterministic=True)
-        return action
 
 
 def ship(run_dir: Path, name: str) -> Path:

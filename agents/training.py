@@ -29,7 +29,7 @@ from typing import Any
 import gymnasium as gym
 import yaml
 
-from agents.evaluation import EpisodeSpec, aggregate, play_episode
+from agents.evaluation import EpisodeSpec, aggregate, play_episode, task_label
 from panda_grasp_env.runs import commit, machine, versions, write_atomically, write_json
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
@@ -40,16 +40,6 @@ ALGORITHMS: dict[str, tuple[str, str]] = {
     "ppo": ("stable_baselines3:PPO", "MultiInputPolicy"),
 }
 OFF_POLICY = ("heightmap_dqn", "sac", "tqc")
-#: Env ids -> task label used in evaluation records (``agents.evaluation`` metric rules key on it).
-TASK_LABELS = {
-    "PandaGraspClutter-v0": "GraspClutter",
-    "PandaGrasp-v0": "Grasp",
-    "PandaTowerBuild-v0": "TowerBuild",
-    "PandaTowerBreak-v0": "TowerBreak",
-    "PandaBuildAndBreak-v0": "BuildAndBreak",
-    "PandaPush-v0": "Push",
-    "PandaStack-v0": "Stack",
-}
 
 
 @dataclass
@@ -243,8 +233,6 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
 
         kwargs["replay_buffer_class"] = HerReplayBuffer
         kwargs["replay_buffer_kwargs"] = dict(config.her)
-    if "net_arch" in policy_kwargs and isinstance(policy_kwargs["net_arch"], dict):
-        policy_kwargs["net_arch"] = dict(policy_kwargs["net_arch"])
     try:
         return algo_class(
             policy,
@@ -263,7 +251,7 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
 
 
 class PolicyAgent:
-    """An SB3 model as an ``Agent``: deterministic actions from transformed observations."""
+    """An SB3 model or policy as an ``Agent``: deterministic actions from transformed observations."""
 
     def __init__(self, model: Any, transform: Callable[[Any], Any], name: str) -> None:
         self.model, self.transform, self.name = model, transform, name
@@ -281,7 +269,7 @@ def evaluate_policy(model: Any, config: TrainConfig, episodes: int, env: gym.Env
     own_env = env is None
     env = make_env(config) if env is None else env
     agent = PolicyAgent(model, observation_transform(config), config.name)
-    task = TASK_LABELS[config.env_id]
+    task = task_label(config.env_id, config.env_kwargs)
     results = [
         play_episode(env, agent, EpisodeSpec(config.name, task, config.eval_seed + i))["result"]
         for i in range(episodes)
