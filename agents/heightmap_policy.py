@@ -84,8 +84,14 @@ class HeightmapQNetwork(nn.Module):
     """Q-values of every ``pixel`` action from an encoded heightmap (B, 4, H, W) uint8."""
 
     def __init__(
-        self, shape: tuple[int, int, int, int], primitives: tuple[str, ...], used: tuple[str, ...], width: int
-    ):
+        self,
+        shape: tuple[int, int, int, int],
+        primitives: tuple[str, ...],
+        used: tuple[str, ...],
+        width: int,
+        near_cells: int,
+    ) -> None:
+        """``shape``: (primitives, rotations, rows, cols); ``near_cells``: push-mask radius in cells."""
         super().__init__()
         self.n_primitives, self.rotations, self.rows, self.cols = shape
         self.primitives, self.used = primitives, used
@@ -108,7 +114,7 @@ class HeightmapQNetwork(nn.Module):
         )
         headings = 2 * math.pi * th.arange(self.rotations) / self.rotations
         self.register_buffer("angles", heading_in_image(headings), persistent=False)
-        self.near_cells = 7  # push-mask radius, cells (set by the policy from the cell size)
+        self.near_cells = near_cells
 
     def _scores(self, heightmaps: th.Tensor, angles: th.Tensor) -> th.Tensor:
         """(N, P, H, W) scores of heightmaps (N, 4, H, W) float 0-1, each at heading angle ``angles[n]``."""
@@ -204,8 +210,8 @@ class HeightmapQPolicy(DQNPolicy):
 
     def make_q_net(self) -> HeightmapQNetwork:  # type: ignore[override]
         args = self.network_args
-        network = HeightmapQNetwork(self.shape, args["primitives"], args["primitives_used"], args["width"])
-        network.near_cells = max(1, round(PixelActions.NEAR / args["cell_size"]))
+        near_cells = max(1, round(PixelActions.NEAR / args["cell_size"]))
+        network = HeightmapQNetwork(self.shape, args["primitives"], args["primitives_used"], args["width"], near_cells)
         return network.to(self.device)
 
     def _predict(self, observation: th.Tensor, deterministic: bool = True) -> th.Tensor:
