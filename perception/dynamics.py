@@ -2,10 +2,12 @@
 
 Input: the past ``context`` frames as one-hot class maps (background + one class
 per block colour, ``perception/falls.py``).  Five convolutions encode each
-frame to a quarter-resolution feature map, a ConvLSTM carries the motion,
-five convolutions decode the next frame's class logits, with skip connections
-from the newest frame's encoder features (most pixels do not change).
-Multi-step rollouts feed the predicted class probabilities back in.
+frame to a quarter-resolution feature map, a ConvLSTM carries the motion, and
+five convolutions decode, with skip connections from the newest frame's
+encoder features, a flow field and correction logits: the next frame is the
+newest frame warped by the flow (blocks mostly translate between frames),
+plus the correction (rotation, occlusion, blocks appearing).  Multi-step
+rollouts feed the predicted class probabilities back in.
 
 Metrics (``evaluate``), over every evaluated (sequence, t) of a split, for the
 prediction of frame t + h from frames t - context + 1 ... t:
@@ -30,17 +32,21 @@ import torch.nn.functional as F
 from torch import nn
 
 
+#: Pixels of flow per unit of the decoder's flow output (falling blocks move up to ~20 px per frame).
+FLOW_SCALE = 8.0
+
+
 def conv(in_channels: int, out_channels: int, stride: int = 1) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(in_channels, out_channels, 3, stride, 1), nn.GroupNorm(4, out_channels), nn.ReLU())
 
 
 class ConvLSTMCell(nn.Module):
-    """LSTM gates computed by one 3x3 convolution over [input, hidden] (Shi et al. 2015)."""
+    """LSTM gates computed by one 5x5 convolution over [input, hidden] (Shi et al. 2015)."""
 
     def __init__(self, channels: int, hidden: int) -> None:
         super().__init__()
         self.hidden = hidden
-        self.gates = nn.Conv2d(channels + hidden, 4 * hidden, 3, padding=1)
+        self.gates = nn.Conv2d(channels + hidden, 4 * hidden, 5, padding=2)  # 5x5 at 1/4 scale: +-8 px of motion
 
     def forward(
         self, x: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor] | None
@@ -70,7 +76,13 @@ class FallPredictor(nn.Module):
         self.d2 = conv(64 + 32, 32)
         self.d3 = conv(32, 32)
         self.d4 = conv(32 + 16, 16)
-        self.d5 = nn.Conv2d(16, n_classes, 3, padding=1)
+        self.d5 = nn.Conv2d(16, 2 + n_classes, 3, padding=1)  # flow (x, y pixels) and correction logits
+        nn.init.zeros_(self.d5.weight)
+        nn.init.zeros_(self.d5.bias)  # starts as copy-last-frame
+        self.copy_gain = nn.Parameter(torch.tensor(1.0))
+        axis = (torch.arange(image_size, dtype=torch.float32) + 0.5) / image_size * 2 - 1
+        rows, cols = torch.meshgrid(axis, axis, indexing="ij")
+        self.register_buffer("grid", torch.stack([cols, rows], -1)[None], persistent=False)
 
     def step(self, frame: torch.Tensor, state: Any) -> tuple[torch.Tensor, Any]:
         """Consume one frame (B, C, S, S) of class probabilities; logits of the next frame and the new state."""
@@ -80,7 +92,10 @@ class FallPredictor(nn.Module):
         h, c = self.lstm(f5, state)
         x = self.d1(torch.cat([h, f5], 1))
         x = self.d3(self.d2(torch.cat([F.interpolate(x, scale_factor=2.0), f3], 1)))
-        logits = self.d5(self.d4(torch.cat([F.interpolate(x, scale_factor=2.0), f1], 1)))
+        out = self.d5(self.d4(torch.cat([F.interpolate(x, scale_factor=2.0), f1], 1)))
+        flow = out[:, :2].permute(0, 2, 3, 1) * (FLOW_SCALE * 2.0 / self.image_size)  # -> grid units
+        warped = F.grid_sample(frame, self.grid + flow, mode="bilinear", padding_mode="border", align_corners=False)
+        logits = self.copy_gain * torch.log(warped + 0.1) + out[:, 2:]
         return logits, (h, c)
 
     def rollout(self, frames: torch.Tensor, horizon: int) -> torch.Tensor:
