@@ -90,9 +90,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"\ninterrupted: checkpoint saved; continue with  python train.py --resume {run_dir}", file=sys.stderr)
         return 130
-    if not outcome["complete"]:
-        print(f"stopped at {outcome['steps']} steps (max_minutes); continue with  python train.py --resume {run_dir}")
-        return 0
+    if outcome["stopped_by"] == "max_minutes":
+        print(
+            f"time budget spent at {outcome['steps']} steps; more with  python train.py --resume {run_dir} max_minutes=M"
+        )
     print(json.dumps({k: v for k, v in outcome.items() if k != "metrics"}, indent=2))
     metrics = outcome["metrics"]
     print(
@@ -104,9 +105,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def report_fall(outcome: dict, run_dir: Path) -> int:
-    if not outcome["complete"]:
-        print(f"stopped at epoch {outcome['epoch']} (max_minutes); continue with  python train.py --resume {run_dir}")
-        return 0
+    if outcome["stopped_by"] == "max_minutes":
+        print(f"time budget spent; more with  python train.py --resume {run_dir} max_minutes=M")
     for name, by_horizon in outcome["metrics"].items():
         for horizon, m in by_horizon.items():
             print(f"{name:18s} {horizon}: mean block IoU {m['mean_block_iou']:.4f}, foreground accuracy "

@@ -432,7 +432,8 @@ def load_run(run_dir: Path) -> TrainConfig:
 
 
 def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar: bool = True) -> dict[str, Any]:
-    """Train (or continue) the run in ``run_dir`` to ``config.total_steps``; Ctrl-C checkpoints and re-raises."""
+    """Train (or continue) the run in ``run_dir`` to ``config.total_steps`` or until ``max_minutes`` of wall time
+    are spent, then evaluate it (``finish``); Ctrl-C checkpoints and re-raises."""
     import torch
 
     torch.set_num_threads(config.torch_threads)
@@ -447,8 +448,9 @@ def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar
         model = build_model(config, env, run_dir / "tb")
     callback = _callback(config, run_dir, float(progress["wall_seconds"]), progress_bar)
     remaining = config.total_steps - int(model.num_timesteps)
+    budget_left = config.max_minutes is None or progress["wall_seconds"] < 60 * config.max_minutes
     try:
-        if remaining > 0:
+        if remaining > 0 and budget_left:
             model.learn(remaining, callback=callback, reset_num_timesteps=not resume, tb_log_name="run")
     except KeyboardInterrupt:
         save_checkpoint(model, run_dir, callback.wall())
@@ -457,8 +459,7 @@ def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar
         env.close()
     wall = callback.wall() if hasattr(callback, "started") else float(progress["wall_seconds"])
     save_checkpoint(model, run_dir, wall)
-    if model.num_timesteps < config.total_steps:  # stopped by max_minutes
-        return {"steps": int(model.num_timesteps), "complete": False}
+    # A run ends at total_steps or when its time budget (max_minutes) is spent; both are final.
     return finish(model, config, run_dir, wall)
 
 
@@ -470,6 +471,7 @@ def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) 
     first_90 = next((r for r in evaluations if r["metrics"]["trial_success"]["rate"] >= 0.9), None)
     final = {
         "steps": int(model.num_timesteps),
+        "stopped_by": "total_steps" if model.num_timesteps >= config.total_steps else "max_minutes",
         "wall_seconds": round(wall_seconds, 1),
         "steps_per_second": round(model.num_timesteps / max(wall_seconds, 1e-9), 2),
         "final_eval_seconds": round(time.perf_counter() - began, 1),
@@ -480,7 +482,7 @@ def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) 
     write_json(run_dir / "final.json", final)
     plot_curve(run_dir, f"{config.name}: {config.algo} on {config.env_id}")
     write_atomically(run_dir / "card.md", model_card(config, run_dir, final))
-    return {**final, "complete": True}
+    return final
 
 
 def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str:

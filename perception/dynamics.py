@@ -31,7 +31,6 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-
 #: Pixels of flow per unit of the decoder's flow output (falling blocks move up to ~20 px per frame).
 FLOW_SCALE = 8.0
 

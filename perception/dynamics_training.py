@@ -245,19 +245,24 @@ def train_fall_model(
     finally:
         bar.close()
         writer.close()
-    if epoch < config.epochs:
-        return {"complete": False, "epoch": epoch}
-    return finish_fall_run(config, run_dir, wall())
+    if epoch == 0:
+        raise ValueError(f"max_minutes={config.max_minutes} ended {run_dir} before its first epoch")
+    # A run ends after its epochs or when its time budget (max_minutes) is spent; both are final.
+    return finish_fall_run(config, run_dir, wall(), epoch, "epochs" if epoch >= config.epochs else "max_minutes")
 
 
-def finish_fall_run(config: FallConfig, run_dir: Path, wall_seconds: float) -> dict[str, Any]:
+def finish_fall_run(
+    config: FallConfig, run_dir: Path, wall_seconds: float, epochs_done: int, stopped_by: str
+) -> dict[str, Any]:
+    """Test the best checkpoint against the baselines: final.json, card.md, strips/."""
     model, saved = load_fall_model(run_dir / "best.pt")
     test = load_split(config.dataset, "test", config.label_source, verify=False)
     began = time.perf_counter()
     metrics = evaluate(model, test.labels, test.classes, config.context)
     write_strips(model, test.labels, test.seeds, run_dir / "strips", config.rollout)
     final = {
-        "epochs": config.epochs,
+        "epochs": epochs_done,
+        "stopped_by": stopped_by,
         "best_epoch": int(saved["epoch"]),
         "wall_seconds": round(wall_seconds, 1),
         "test_sequences": int(len(test.labels)),
@@ -266,7 +271,7 @@ def finish_fall_run(config: FallConfig, run_dir: Path, wall_seconds: float) -> d
     }
     write_json(run_dir / "final.json", final)
     write_atomically(run_dir / "card.md", fall_card(config, run_dir, final))
-    return {**final, "complete": True}
+    return final
 
 
 def plot_fall_curve(run_dir: Path) -> None:
@@ -319,7 +324,8 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
             f"`configs/{config.name}.yaml` on `{config.dataset}` ({meta['dataset']['sequences']} sequences, "
             f"splits {meta['dataset']['splits']}).",
             "",
-            f"- seed {config.seed}; {config.epochs} epochs (best on validation: {final['best_epoch']}); "
+            f"- seed {config.seed}; {final['epochs']} of {config.epochs} epochs (stopped by {final['stopped_by']}; "
+            f"best on validation: epoch {final['best_epoch']}); "
             f"wall time {final['wall_seconds'] / 60:.1f} min on {meta['machine']}",
             f"- commit {meta['commit']}; {', '.join(f'{k} {v}' for k, v in meta['versions'].items())}",
             f"- test: {final['test_sequences']} held-out sequences, every t with {config.context} context frames; "
