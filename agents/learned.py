@@ -3,8 +3,8 @@
 A checkpoint is a folder ``agents/checkpoints/<name>/`` written by
 ``python train.py --ship <run folder> --name <name>``::
 
-    policy.zip      the SB3 policy only (no optimiser, no replay buffer)
-    checkpoint.json policy class, env id, evaluation task
+    policy.zip      the SB3 policy only (no optimiser, no replay buffer): the run's best on validation episodes
+    checkpoint.json policy class, env id, evaluation task, the step it was saved at
     config.yaml     the training config
     card.md         the model card: config, seed, steps, wall time, machine, metrics with 95 % CIs
     curve.png       the learning curve; evaluations.jsonl, final.json, meta.json: its data
@@ -26,7 +26,7 @@ from agents.training import PolicyAgent, TrainConfig, config_from_dict, load_cla
 from panda_grasp_env.runs import write_json
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
-SHIPPED_FILES = ("config.yaml", "card.md", "curve.png", "evaluations.jsonl", "final.json", "meta.json")
+SHIPPED_FILES = ("best_policy.zip", "best.json", "config.yaml", "card.md", "curve.png", "evaluations.jsonl", "final.json", "meta.json")
 
 
 def available_checkpoints() -> list[str]:
@@ -120,30 +120,27 @@ def ship(run_dir: Path, name: str) -> Path:
     run_dir = Path(run_dir)
     missing = [f for f in SHIPPED_FILES if not (run_dir / f).is_file()]
     if missing:
-        raise ValueError(f"{run_dir} is not a finished run: {missing} missing (train it to total_steps first)")
+        raise ValueError(f"{run_dir} is not a finished run: {missing} missing (train it until it stops first)")
     if not name.replace("-", "").replace("_", "").isalnum():
         raise ValueError(f"checkpoint name {name!r}: letters, digits, - and _ only")
-    from agents.training import ALGORITHMS, load_run, make_vec_env
+    from agents.training import load_run
 
     config = load_run(run_dir)
+    best = json.loads((run_dir / "best.json").read_text())
     staging = CHECKPOINTS / f".{name}.tmp"
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     for f in SHIPPED_FILES:
-        shutil.copy2(run_dir / f, staging / f)
-    env = make_vec_env(config)  # HER models load only with their env
-    model = load_class(ALGORITHMS[config.algo][0]).load(run_dir / "latest.zip", env=env, device="cpu")
-    model.policy.save(staging / "policy.zip")
-    env.close()
+        shutil.copy2(run_dir / f, staging / ("policy.zip" if f == "best_policy.zip" else f))
     size = (staging / "policy.zip").stat().st_size
     if size > 20e6:
         shutil.rmtree(staging)
         raise ValueError(f"the policy of {run_dir} is {size / 1e6:.1f} MB; shipped checkpoints stay under 20 MB")
-    policy_class = type(model.policy)
     write_json(
         staging / "checkpoint.json",
         {
-            "policy_class": f"{policy_class.__module__}:{policy_class.__qualname__}",
+            "policy_class": best["policy_class"],
+            "steps": best["steps"],
             "env_id": config.env_id,
             "task": task_label(config.env_id, config.env_kwargs),
             "algo": config.algo,

@@ -40,6 +40,9 @@ ALGORITHMS: dict[str, tuple[str, str]] = {
     "ppo": ("stable_baselines3:PPO", "MultiInputPolicy"),
 }
 OFF_POLICY = ("heightmap_dqn", "sac", "tqc")
+#: The final test's seeds start this far above the validation seeds: choosing the best checkpoint on the
+#: validation episodes does not flatter the reported figures.
+TEST_SEED_OFFSET = 100_000
 
 
 @dataclass
@@ -60,7 +63,8 @@ class TrainConfig:
     seed: int = 0
     eval_every: int = 5000  # steps between evaluations
     eval_episodes: int = 20
-    eval_seed: int = 1_000_000  # evaluation episodes use seeds eval_seed, eval_seed + 1, ... (never trained on)
+    eval_seed: int = 1_000_000  # validation episodes: seeds eval_seed, eval_seed + 1, ...; the final test:
+    # eval_seed + TEST_SEED_OFFSET, ... (training episodes draw other seeds; see TrainConfig docs)
     final_eval_episodes: int = 100
     checkpoint_every: int = 5000
     max_minutes: float | None = None  # stop (and checkpoint) after this much wall time in total
@@ -264,8 +268,12 @@ class PolicyAgent:
         return action
 
 
-def evaluate_policy(model: Any, config: TrainConfig, episodes: int, env: gym.Env | None = None) -> dict[str, Any]:
-    """Task metrics (``agents.evaluation.aggregate``) of ``model`` over ``episodes`` seeded episodes."""
+def evaluate_policy(
+    model: Any, config: TrainConfig, episodes: int, env: gym.Env | None = None, first_seed: int | None = None
+) -> dict[str, Any]:
+    """Task metrics (``agents.evaluation.aggregate``) of ``model`` (an SB3 model or policy) over ``episodes``
+    episodes seeded ``first_seed``, ``first_seed + 1``, ... (default: the validation seeds, ``eval_seed``...)."""
+    first_seed = config.eval_seed if first_seed is None else first_seed
     own_env = env is None
     env = make_env(config) if env is None else env
     agent = PolicyAgent(model, observation_transform(config), config.name)
@@ -337,6 +345,29 @@ def plot_curve(run_dir: Path, title: str) -> None:
 # --- the run -----------------------------------------------------------------------------------
 
 
+def validation_score(metrics: dict[str, Any]) -> tuple[float, ...]:
+    """How checkpoints are ranked on the validation episodes: success, then efficiency, then grasp success."""
+    return (metrics["trial_success"]["rate"], metrics["action_efficiency"], metrics["grasp_success"]["rate"])
+
+
+def save_best_policy(policy: Any, run_dir: Path, steps: int) -> None:
+    """best_policy.zip (the policy alone) and best.json, each through a temporary file and a rename."""
+    tmp = run_dir / "best_policy.zip.tmp"
+    policy.save(tmp)
+    os.replace(tmp, run_dir / "best_policy.zip")
+    policy_class = type(policy)
+    write_json(
+        run_dir / "best.json",
+        {"steps": steps, "policy_class": f"{policy_class.__module__}:{policy_class.__qualname__}"},
+    )
+
+
+def load_best_policy(run_dir: Path) -> tuple[Any, dict[str, Any]]:
+    """The best validated policy of a run and its facts (steps, class)."""
+    best = json.loads((run_dir / "best.json").read_text())
+    return load_class(best["policy_class"]).load(str(run_dir / "best_policy.zip"), device="cpu"), best
+
+
 def save_checkpoint(model: Any, run_dir: Path, wall_seconds: float) -> None:
     """latest.zip (+ replay.pkl) and progress.json, each through a temporary file and a rename."""
     tmp = run_dir / "latest.zip.tmp"
@@ -401,6 +432,9 @@ def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_b
             self.logger.dump(self.num_timesteps)
             self.latest = f"{metrics['trial_success']['rate']:.2f}"
             plot_curve(run_dir, f"{config.name}: {config.algo} on {config.env_id}")
+            if validation_score(metrics) > max((validation_score(r["metrics"]) for r in read_evaluations(run_dir)[:-1]),
+                                               default=(-1.0,)):  # fmt: skip
+                save_best_policy(self.model.policy, run_dir, int(self.num_timesteps))
 
         def _on_training_end(self) -> None:
             self.bar.close()
@@ -464,13 +498,25 @@ def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar
 
 
 def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) -> dict[str, Any]:
-    """Final evaluation (``final_eval_episodes``), final.json and card.md."""
+    """The final test of the best validated policy on held-out seeds (``final_eval_episodes`` episodes):
+    final.json and card.md."""
+    if not (run_dir / "best.json").exists():  # no periodic evaluation ran: the final policy is the best known
+        save_best_policy(model.policy, run_dir, int(model.num_timesteps))
+    policy, best = load_best_policy(run_dir)
     began = time.perf_counter()
-    metrics = evaluate_policy(model, config, config.final_eval_episodes)
+    metrics = evaluate_policy(
+        policy, config, config.final_eval_episodes, first_seed=config.eval_seed + TEST_SEED_OFFSET
+    )
     evaluations = read_evaluations(run_dir)
     first_90 = next((r for r in evaluations if r["metrics"]["trial_success"]["rate"] >= 0.9), None)
     final = {
         "steps": int(model.num_timesteps),
+        "best_steps": best["steps"],
+        "policy_class": best["policy_class"],
+        "test_seeds": [
+            config.eval_seed + TEST_SEED_OFFSET,
+            config.eval_seed + TEST_SEED_OFFSET + config.final_eval_episodes - 1,
+        ],
         "stopped_by": "total_steps" if model.num_timesteps >= config.total_steps else "max_minutes",
         "wall_seconds": round(wall_seconds, 1),
         "steps_per_second": round(model.num_timesteps / max(wall_seconds, 1e-9), 2),
@@ -509,7 +555,10 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
         f"| steps to 90 % success | {final['steps_to_90_percent'] or 'not reached'} "
         f"({final['minutes_to_90_percent'] or '-'} min) |",
         "",
-        f"## Final evaluation: {m['episodes']} episodes, seeds {config.eval_seed}-{config.eval_seed + m['episodes'] - 1}",
+        f"## Final test: {m['episodes']} episodes on held-out seeds {final['test_seeds'][0]}-{final['test_seeds'][1]}",
+        "",
+        f"The policy tested is the best of the periodic validation evaluations (seeds {config.eval_seed}-"
+        f"{config.eval_seed + config.eval_episodes - 1}), from step {final['best_steps']} of {final['steps']}.",
         "",
         f"- trial success: {pct(m['trial_success'])}",
         f"- completion: {pct(m['completion'])}",

@@ -201,6 +201,9 @@ def test_a_run_folder_holds_everything_and_resumes(finished_run):
     assert [e["steps"] for e in evaluations] == [0, 6, 12]  # untrained, then one per session, none repeated
     meta = json.loads((run / "meta.json").read_text())
     assert meta["seed"] == 0 and "torch" in meta["versions"]
+    final = json.loads((run / "final.json").read_text())
+    assert final["test_seeds"][0] == 1_000_000 + 100_000  # held out from the validation seeds
+    assert final["best_steps"] in (0, 6, 12) and (run / "best_policy.zip").is_file()
     card = (run / "card.md").read_text()
     assert "95 % CI" in card and "environment steps | 12" in card
     assert not list(run.glob("*.tmp"))
