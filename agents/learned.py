@@ -26,7 +26,16 @@ from agents.training import PolicyAgent, TrainConfig, config_from_dict, load_cla
 from panda_grasp_env.runs import write_json
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
-SHIPPED_FILES = ("best_policy.zip", "best.json", "config.yaml", "card.md", "curve.png", "evaluations.jsonl", "final.json", "meta.json")
+SHIPPED_FILES = (
+    "best_policy.zip",
+    "best.json",
+    "config.yaml",
+    "card.md",
+    "curve.png",
+    "evaluations.jsonl",
+    "final.json",
+    "meta.json",
+)
 
 
 def available_checkpoints() -> list[str]:

@@ -536,6 +536,8 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
     m = final["metrics"]
 
     def pct(r: dict[str, Any]) -> str:
+        if r["n"] == 0:
+            return "- (none attempted)"
         return f"{100 * r['rate']:.1f} % ({r['successes']}/{r['n']}, 95 % CI {100 * r['ci95'][0]:.1f}-{100 * r['ci95'][1]:.1f})"
 
     lines = [
@@ -552,8 +554,12 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
         f"| machine | {meta['machine']} |",
         f"| commit | {meta['commit']} |",
         f"| versions | {', '.join(f'{k} {v}' for k, v in meta['versions'].items())} |",
-        f"| steps to 90 % success | {final['steps_to_90_percent'] or 'not reached'} "
-        f"({final['minutes_to_90_percent'] or '-'} min) |",
+        "| steps to 90 % validation success | "
+        + (
+            "not reached |"
+            if final["steps_to_90_percent"] is None
+            else f"{final['steps_to_90_percent']} ({final['minutes_to_90_percent']} min) |"
+        ),
         "",
         f"## Final test: {m['episodes']} episodes on held-out seeds {final['test_seeds'][0]}-{final['test_seeds'][1]}",
         "",
