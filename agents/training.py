@@ -39,7 +39,6 @@ ALGORITHMS: dict[str, tuple[str, str]] = {
     "tqc": ("sb3_contrib:TQC", "MultiInputPolicy"),
     "ppo": ("stable_baselines3:PPO", "MultiInputPolicy"),
 }
-OFF_POLICY = ("heightmap_dqn", "sac", "tqc")
 #: The final test's seeds start this far above the validation seeds: choosing the best checkpoint on the
 #: validation episodes does not flatter the reported figures.
 TEST_SEED_OFFSET = 100_000
@@ -189,6 +188,7 @@ def make_env(config: TrainConfig, render_mode: str | None = None) -> gym.Env:
 
 
 def _wrapped_env(config: TrainConfig) -> gym.Env:
+    """The training env: ``make_env`` plus the policy's observation wrapper."""
     import torch
 
     torch.set_num_threads(config.torch_threads)  # worker processes: never oversubscribe the cores
@@ -201,6 +201,7 @@ def _wrapped_env(config: TrainConfig) -> gym.Env:
 
 
 def make_vec_env(config: TrainConfig) -> Any:
+    """``n_envs`` training envs with SB3's ``Monitor``: in this process, or spawned workers (``vec_env: subproc``)."""
     from functools import partial
 
     from stable_baselines3.common.monitor import Monitor
@@ -216,6 +217,10 @@ def make_vec_env(config: TrainConfig) -> Any:
 
 
 def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
+    """A fresh SB3 model for ``config`` on the vectorised ``env``, logging to TensorBoard under ``log_dir``.
+
+    The heightmap policy learns the env's primitives, rotations and cell size from the env itself.
+    """
     algo_path, policy = ALGORITHMS[config.algo]
     algo_class = load_class(algo_path)
     policy_kwargs = dict(config.policy_kwargs)
