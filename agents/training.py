@@ -29,7 +29,7 @@ from typing import Any
 import gymnasium as gym
 import yaml
 
-from agents.evaluation import EpisodeSpec, aggregate, play_episode, task_label
+from agents.evaluation import EpisodeSpec, action_mode_of, aggregate, play_episode, task_label
 from panda_grasp_env.runs import commit, machine, versions, write_atomically, write_json
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
@@ -355,16 +355,16 @@ def validation_score(metrics: dict[str, Any]) -> tuple[float, ...]:
     return (metrics["trial_success"]["rate"], metrics["action_efficiency"], metrics["grasp_success"]["rate"])
 
 
-def save_best_policy(policy: Any, run_dir: Path, steps: int) -> None:
-    """best_policy.zip (the policy alone) and best.json, each through a temporary file and a rename."""
+def save_best_policy(policy: Any, run_dir: Path, steps: int, chosen_by: str = "validation") -> None:
+    """best_policy.zip (the policy alone) and best.json, each through a temporary file and a rename.
+
+    ``chosen_by``: ``validation`` (the best periodic evaluation so far) or ``final`` (no tracked best)."""
     tmp = run_dir / "best_policy.zip.tmp"
     policy.save(tmp)
     os.replace(tmp, run_dir / "best_policy.zip")
     policy_class = type(policy)
-    write_json(
-        run_dir / "best.json",
-        {"steps": steps, "policy_class": f"{policy_class.__module__}:{policy_class.__qualname__}"},
-    )
+    write_json(run_dir / "best.json", {"steps": steps, "chosen_by": chosen_by,
+                                       "policy_class": f"{policy_class.__module__}:{policy_class.__qualname__}"})  # fmt: skip
 
 
 def load_best_policy(run_dir: Path) -> tuple[Any, dict[str, Any]]:
@@ -506,7 +506,7 @@ def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) 
     """The final test of the best validated policy on held-out seeds (``final_eval_episodes`` episodes):
     final.json and card.md."""
     if not (run_dir / "best.json").exists():  # no periodic evaluation ran: the final policy is the best known
-        save_best_policy(model.policy, run_dir, int(model.num_timesteps))
+        save_best_policy(model.policy, run_dir, int(model.num_timesteps), chosen_by="final")
     policy, best = load_best_policy(run_dir)
     began = time.perf_counter()
     metrics = evaluate_policy(
@@ -517,6 +517,7 @@ def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) 
     final = {
         "steps": int(model.num_timesteps),
         "best_steps": best["steps"],
+        "chosen_by": best.get("chosen_by", "validation"),
         "policy_class": best["policy_class"],
         "test_seeds": [
             config.eval_seed + TEST_SEED_OFFSET,
@@ -539,6 +540,7 @@ def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) 
 def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str:
     meta = json.loads((run_dir / "meta.json").read_text())
     m = final["metrics"]
+    low_level = action_mode_of(config.env_id, config.env_kwargs) in ("ee_delta", "joint")
 
     def pct(r: dict[str, Any]) -> str:
         if r["n"] == 0:
@@ -568,14 +570,24 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
         "",
         f"## Final test: {m['episodes']} episodes on held-out seeds {final['test_seeds'][0]}-{final['test_seeds'][1]}",
         "",
-        f"The policy tested is the best of the periodic validation evaluations (seeds {config.eval_seed}-"
-        f"{config.eval_seed + config.eval_episodes - 1}), from step {final['best_steps']} of {final['steps']}.",
+        (
+            f"The policy tested is the best of the periodic validation evaluations (seeds {config.eval_seed}-"
+            f"{config.eval_seed + config.eval_episodes - 1}), from step {final['best_steps']} of {final['steps']}."
+            if final["chosen_by"] == "validation"
+            else f"The policy tested is the final one (step {final['steps']}): this run kept no validated best."
+        ),  # fmt: skip
         "",
         f"- trial success: {pct(m['trial_success'])}",
-        f"- completion: {pct(m['completion'])}",
-        f"- grasp success: {pct(m['grasp_success'])}",
-        f"- action efficiency: {100 * m['action_efficiency']:.1f} %",
-        f"- failures: {json.dumps(m['failures'])}",
+        *(
+            []
+            if low_level  # one goal per episode: trial success says it all
+            else [
+                f"- completion: {pct(m['completion'])}",
+                f"- grasp success: {pct(m['grasp_success'])}",
+                f"- action efficiency: {100 * m['action_efficiency']:.1f} %",
+                f"- failures: {json.dumps(m['failures'])}",
+            ]
+        ),
         "",
         "![learning curve](curve.png)",
         "",
