@@ -68,7 +68,7 @@ class FallPredictor(nn.Module):
         if image_size % 4:
             raise ValueError(f"image_size must be a multiple of 4, got {image_size}")
         self.n_classes, self.image_size, self.context, self.hidden = n_classes, image_size, context, hidden
-        self.e1, self.e2, self.e3 = conv(n_classes, 16), conv(16, 32, 2), conv(32, 32)
+        self.e1, self.e2, self.e3 = conv(2 * n_classes, 16), conv(16, 32, 2), conv(32, 32)  # frame and its predecessor
         self.e4, self.e5 = conv(32, 64, 2), conv(64, 64)
         self.lstm = ConvLSTMCell(64, hidden)
         self.d1 = conv(hidden + 64, 64)
@@ -83,9 +83,10 @@ class FallPredictor(nn.Module):
         rows, cols = torch.meshgrid(axis, axis, indexing="ij")
         self.register_buffer("grid", torch.stack([cols, rows], -1)[None], persistent=False)
 
-    def step(self, frame: torch.Tensor, state: Any) -> tuple[torch.Tensor, Any]:
-        """Consume one frame (B, C, S, S) of class probabilities; logits of the next frame and the new state."""
-        f1 = self.e1(frame)
+    def step(self, frame: torch.Tensor, previous: torch.Tensor, state: Any) -> tuple[torch.Tensor, Any]:
+        """Consume one frame (B, C, S, S) of class probabilities (with the one before it, so that the first
+        convolutions see motion directly); logits of the next frame and the new state."""
+        f1 = self.e1(torch.cat([frame, previous], 1))
         f3 = self.e3(self.e2(f1))
         f5 = self.e5(self.e4(f3))
         h, c = self.lstm(f5, state)
@@ -101,11 +102,13 @@ class FallPredictor(nn.Module):
         """Logits (B, horizon, C, S, S) of the ``horizon`` frames after ``frames`` (B, T, C, S, S)."""
         state, logits = None, None
         for t in range(frames.shape[1]):
-            logits, state = self.step(frames[:, t], state)
-        outputs = [logits]
+            logits, state = self.step(frames[:, t], frames[:, max(t - 1, 0)], state)
+        outputs, previous = [logits], frames[:, -1]
         for _ in range(horizon - 1):
-            logits, state = self.step(torch.softmax(logits, 1), state)
+            frame = torch.softmax(logits, 1)
+            logits, state = self.step(frame, previous, state)
             outputs.append(logits)
+            previous = frame
         return torch.stack(outputs, 1)
 
     def describe(self) -> dict[str, int]:
