@@ -8,7 +8,8 @@ Overrides use dotted keys into mappings (``algo_kwargs.learning_rate=3e-4``,
 folder under ``--runs`` (see ``agents/training.py``); Ctrl-C checkpoints it, and
 ``--resume <run folder>`` continues it.  ``--ship <run folder> --name N`` copies
 a finished run's model, card and curve to ``agents/checkpoints/N`` where
-``agents.learned.LearnedAgent`` and ``evaluate.py`` find it.
+``agents.learned.LearnedAgent`` and ``evaluate.py`` find it (fall-dynamics runs:
+``perception/checkpoints/N``).
 """
 
 from __future__ import annotations
@@ -61,8 +62,10 @@ def main(argv: list[str] | None = None) -> int:
     interrupt_on_signals()
     try:
         if args.ship is not None:
-            from agents.learned import ship
-
+            if (args.ship / "best.pt").exists():
+                from perception.dynamics_training import ship_fall_run as ship
+            else:
+                from agents.learned import ship
             print(f"shipped to {ship(args.ship, args.name)}")
             return 0
         if args.resume is not None:

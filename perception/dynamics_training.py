@@ -343,3 +343,36 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
             "",
         ]
     )
+
+
+#: Where shipped fall-dynamics models live (``load_fall_model(FALL_CHECKPOINTS / name / "model.pt")``).
+FALL_CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
+
+
+def ship_fall_run(run_dir: Path, name: str, strips: int = 5) -> Path:
+    """Copy a finished fall run's best model (weights only), card, curve, results and a few strips to
+    ``perception/checkpoints/<name>`` (staged, then renamed into place)."""
+    import shutil
+
+    run_dir = Path(run_dir)
+    missing = [
+        f for f in ("best.pt", "final.json", "card.md", "curve.png", "config.yaml") if not (run_dir / f).is_file()
+    ]
+    if missing:
+        raise ValueError(f"{run_dir} is not a finished fall-dynamics run: {missing} missing")
+    model, saved = load_fall_model(run_dir / "best.pt")
+    staging = FALL_CHECKPOINTS / f".{name}.tmp"
+    shutil.rmtree(staging, ignore_errors=True)
+    (staging / "strips").mkdir(parents=True)
+    torch.save({"model": model.state_dict(), "model_args": model.describe(), "classes": saved["classes"],
+                "epoch": saved["epoch"], "frame_interval": saved["frame_interval"],
+                "label_source": saved["label_source"]}, staging / "model.pt")  # fmt: skip
+    for f in ("final.json", "card.md", "curve.png", "config.yaml", "meta.json", "evaluations.jsonl"):
+        shutil.copy2(run_dir / f, staging / f)
+    for strip in sorted((run_dir / "strips").glob("*.png"))[:strips]:
+        shutil.copy2(strip, staging / "strips" / strip.name)
+    target = FALL_CHECKPOINTS / name
+    if target.exists():
+        shutil.rmtree(target)
+    os.replace(staging, target)
+    return target

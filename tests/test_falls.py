@@ -8,6 +8,7 @@ import torch
 
 import train
 from panda_grasp_env.falls import RecorderSettings, main, record_dataset
+from perception import dynamics_training
 from perception.dynamics import Confusion, FallPredictor, constant_velocity, copy_last, evaluate
 from perception.dynamics_training import load_fall_model
 from perception.falls import load_split, split_of
@@ -116,7 +117,7 @@ def test_model_rollout_shapes_and_mismatch_errors():
         evaluate(model, np.zeros((1, 10, 16, 16), dtype=np.uint8), ["b", "1"], context=2)
 
 
-def test_fall_training_runs_resumes_and_reports(dataset, tmp_path, capsys):
+def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys, monkeypatch):
     config = "configs/fall_convlstm.yaml"
     common = [f"dataset={dataset}", "hidden=8", "batch_size=4", "torch_threads=1", "context=3", "rollout=3"]
     assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *common, "epochs=1"]) == 0
@@ -130,6 +131,10 @@ def test_fall_training_runs_resumes_and_reports(dataset, tmp_path, capsys):
     assert "mean block IoU" in (run / "card.md").read_text()
     model, saved = load_fall_model(run / "best.pt")
     assert model.context == 3 and saved["classes"][0] == "background"
+    monkeypatch.setattr(dynamics_training, "FALL_CHECKPOINTS", tmp_path / "shipped")
+    assert train.main(["--ship", str(run), "--name", "tiny"]) == 0
+    shipped, _ = load_fall_model(tmp_path / "shipped" / "tiny" / "model.pt")
+    assert shipped.describe() == model.describe() and (tmp_path / "shipped" / "tiny" / "card.md").exists()
     assert "constant_velocity" in capsys.readouterr().out
     assert train.main(["--config", config, "--runs", str(tmp_path), "dataset=/nowhere"]) == 2
     (run / "broken.pt").write_bytes(b"x")
