@@ -502,6 +502,15 @@ def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar
     return finish(model, config, run_dir, wall)
 
 
+def stopped_by(config: TrainConfig, steps: int, wall_seconds: float) -> str:
+    """Why training ended: ``total_steps``, ``max_minutes`` or ``interrupted`` (Ctrl-C / SIGTERM, then finished)."""
+    if steps >= config.total_steps:
+        return "total_steps"
+    if config.max_minutes is not None and wall_seconds >= 60 * config.max_minutes:
+        return "max_minutes"
+    return "interrupted"
+
+
 def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) -> dict[str, Any]:
     """The final test of the best validated policy on held-out seeds (``final_eval_episodes`` episodes):
     final.json and card.md."""
@@ -523,7 +532,7 @@ def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) 
             config.eval_seed + TEST_SEED_OFFSET,
             config.eval_seed + TEST_SEED_OFFSET + config.final_eval_episodes - 1,
         ],
-        "stopped_by": "total_steps" if model.num_timesteps >= config.total_steps else "max_minutes",
+        "stopped_by": stopped_by(config, int(model.num_timesteps), wall_seconds),
         "wall_seconds": round(wall_seconds, 1),
         "steps_per_second": round(model.num_timesteps / max(wall_seconds, 1e-9), 2),
         "final_eval_seconds": round(time.perf_counter() - began, 1),
