@@ -30,7 +30,6 @@ TASKS: dict[str, tuple[str, dict[str, Any]]] = {
 }
 #: The built-in agents; every shipped checkpoint (``agents.learned.available_checkpoints``) is an agent too.
 AGENTS = ("random", "planned", "oracle")
-LOW_LEVEL_TASKS = ("Push", "Lift")
 
 
 def action_mode_of(env_id: str, options: dict[str, Any]) -> str:
@@ -46,13 +45,19 @@ def action_mode_of(env_id: str, options: dict[str, Any]) -> str:
     )
 
 
+def is_low_level(env_id: str, options: dict[str, Any]) -> bool:
+    """Whether that env acts at 25 Hz (the action mode's ``low_level``) rather than through motion primitives."""
+    from panda_grasp_env.actions import ActionMode
+
+    mode = action_mode_of(env_id, options)
+    return any(kind.name == mode and kind.low_level for kind in ActionMode.__subclasses__())
+
+
 def task_label(env_id: str, env_kwargs: dict[str, Any]) -> str:
-    """The ``evaluate.py`` task whose env (id and action mode) a policy trained on ``env_id`` plays, else ``env_id``."""
-    mode = action_mode_of(env_id, env_kwargs)
+    """The ``evaluate.py`` task whose env (id, low-level or not) a policy trained on ``env_id`` plays, else ``env_id``."""
+    low_level = is_low_level(env_id, env_kwargs)
     for task, (task_env_id, options) in TASKS.items():
-        if task_env_id == env_id and (action_mode_of(task_env_id, options) in ("ee_delta", "joint")) == (
-            mode in ("ee_delta", "joint")
-        ):
+        if task_env_id == env_id and is_low_level(task_env_id, options) == low_level:
             return task
     return env_id
 
@@ -69,7 +74,7 @@ def skip_reason(agent: str, task: str) -> str | None:
     if agent == "random":
         return None
     if agent in AGENTS:
-        if task in LOW_LEVEL_TASKS:
+        if is_low_level(*TASKS[task]):
             return f"the {agent} baselines act through motion primitives; {task} is a low-level ee_delta task"
         return None
     from agents.learned import Checkpoint

@@ -82,22 +82,26 @@ class Checkpoint:
         return make_env(self.config)
 
 
+def observation_mismatch(space: gym.Space, observation: Any) -> str | None:
+    """How a (transformed) observation's shapes differ from what ``space`` expects, or None if they match."""
+    if isinstance(space, gym.spaces.Dict):
+        shapes = {k: np.shape(v) for k, v in observation.items()} if isinstance(observation, dict) else None
+        wanted: Any = {k: s.shape for k, s in space.spaces.items()}
+    else:
+        shapes, wanted = np.shape(observation), space.shape
+    return None if shapes == wanted else f"expects observations {wanted}, this env gives {shapes}"
+
+
 def check_compatible(policy: Any, config: TrainConfig, env: gym.Env, name: str) -> None:
     """``ValueError`` unless ``env`` is the env id the policy was trained on, with the spaces it expects."""
     env_id = env.spec.id.split(":")[-1] if env.spec is not None else None
     if env_id != config.env_id:
         raise ValueError(f"checkpoint {name} was trained on {config.env_id}, not {env_id}")
-    expected = policy.observation_space
-    sample = observation_transform(config)(env.observation_space.sample())
-    if isinstance(expected, gym.spaces.Dict):
-        shapes = {k: np.shape(v) for k, v in sample.items()} if isinstance(sample, dict) else None
-        wanted = {k: s.shape for k, s in expected.spaces.items()}
-        ok = shapes == wanted
-    else:
-        shapes, wanted = np.shape(sample), expected.shape
-        ok = shapes == wanted
-    if not ok:
-        raise ValueError(f"checkpoint {name} expects observations {wanted}, this env gives {shapes}")
+    mismatch = observation_mismatch(
+        policy.observation_space, observation_transform(config)(env.observation_space.sample())
+    )
+    if mismatch:
+        raise ValueError(f"checkpoint {name} {mismatch}")
     if policy.action_space != env.action_space:
         raise ValueError(f"checkpoint {name} acts in {policy.action_space}, this env expects {env.action_space}")
 
@@ -113,15 +117,9 @@ class LearnedAgent(PolicyAgent):
             check_compatible(policy, self.checkpoint.config, env, self.name)
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
-        seen = self.transform(observation)
-        space = self.model.observation_space
-        if not space.contains(seen) and not (
-            isinstance(space, gym.spaces.Dict)
-            and isinstance(seen, dict)
-            and all(np.shape(seen.get(k)) == s.shape for k, s in space.spaces.items())
-        ):
-            shape = {k: np.shape(v) for k, v in seen.items()} if isinstance(seen, dict) else np.shape(seen)
-            raise ValueError(f"checkpoint {self.name} cannot read this observation ({shape}); it expects {space}")
+        mismatch = observation_mismatch(self.model.observation_space, self.transform(observation))
+        if mismatch:
+            raise ValueError(f"checkpoint {self.name} cannot act here: it {mismatch}")
 
 
 def ship(run_dir: Path, name: str) -> Path:

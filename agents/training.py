@@ -29,8 +29,8 @@ from typing import Any
 import gymnasium as gym
 import yaml
 
-from agents.evaluation import EpisodeSpec, action_mode_of, aggregate, play_episode, task_label
-from panda_grasp_env.runs import commit, machine, versions, write_atomically, write_json
+from agents.evaluation import EpisodeSpec, aggregate, is_low_level, play_episode, task_label
+from panda_grasp_env.runs import atomic_path, config_from_mapping, new_run_folder, write_atomically, write_json
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
 ALGORITHMS: dict[str, tuple[str, str]] = {
@@ -151,18 +151,7 @@ def load_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -
 
 
 def config_from_dict(raw: dict[str, Any], source: str = "config") -> TrainConfig:
-    valid = TrainConfig.keys()
-    unknown = [k for k in raw if k not in valid]
-    if unknown:
-        raise ValueError(f"unknown key(s) {unknown} in {source}; valid keys: {valid}")
-    required = [f.name for f in dataclasses.fields(TrainConfig) if f.default is dataclasses.MISSING
-                and f.default_factory is dataclasses.MISSING]  # fmt: skip
-    missing = [k for k in required if k not in raw]
-    if missing:
-        raise ValueError(f"{source} lacks required key(s) {missing}; valid keys: {valid}")
-    config = TrainConfig(**raw)
-    config.validate()
-    return config
+    return config_from_mapping(TrainConfig, raw, source)
 
 
 # --- envs -------------------------------------------------------------------------------
@@ -341,10 +330,9 @@ def plot_curve(run_dir: Path, title: str) -> None:
     axes[0].legend(loc="lower right")
     figure.suptitle(title)
     figure.tight_layout()
-    tmp = run_dir / "curve.tmp.png"
-    figure.savefig(tmp, dpi=100)
+    with atomic_path(run_dir / "curve.png") as tmp:
+        figure.savefig(tmp, dpi=100, format="png")
     plt.close(figure)
-    os.replace(tmp, run_dir / "curve.png")
 
 
 # --- the run -----------------------------------------------------------------------------------
@@ -359,9 +347,8 @@ def save_best_policy(policy: Any, run_dir: Path, steps: int, chosen_by: str = "v
     """best_policy.zip (the policy alone) and best.json, each through a temporary file and a rename.
 
     ``chosen_by``: ``validation`` (the best periodic evaluation so far) or ``final`` (no tracked best)."""
-    tmp = run_dir / "best_policy.zip.tmp"
-    policy.save(tmp)
-    os.replace(tmp, run_dir / "best_policy.zip")
+    with atomic_path(run_dir / "best_policy.zip") as tmp:
+        policy.save(tmp)
     policy_class = type(policy)
     write_json(run_dir / "best.json", {"steps": steps, "chosen_by": chosen_by,
                                        "policy_class": f"{policy_class.__module__}:{policy_class.__qualname__}"})  # fmt: skip
@@ -375,13 +362,11 @@ def load_best_policy(run_dir: Path) -> tuple[Any, dict[str, Any]]:
 
 def save_checkpoint(model: Any, run_dir: Path, wall_seconds: float) -> None:
     """latest.zip (+ replay.pkl) and progress.json, each through a temporary file and a rename."""
-    tmp = run_dir / "latest.zip.tmp"
-    model.save(tmp)
-    os.replace(tmp, run_dir / "latest.zip")
+    with atomic_path(run_dir / "latest.zip") as tmp:
+        model.save(tmp)
     if getattr(model, "replay_buffer", None) is not None:
-        tmp = run_dir / "replay.pkl.tmp"
-        model.save_replay_buffer(tmp)
-        os.replace(tmp, run_dir / "replay.pkl")
+        with atomic_path(run_dir / "replay.pkl") as tmp:
+            model.save_replay_buffer(tmp)
     write_json(run_dir / "progress.json", {"steps": int(model.num_timesteps), "wall_seconds": round(wall_seconds, 1)})
 
 
@@ -450,18 +435,7 @@ def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_b
 
 def start_run(config: TrainConfig, runs_dir: Path) -> Path:
     """A fresh run folder ``runs_dir/<name>-seed<seed>[-N]`` with config.yaml and meta.json."""
-    runs_dir.mkdir(parents=True, exist_ok=True)
-    run_dir = runs_dir / f"{config.name}-seed{config.seed}"
-    suffix = 1
-    while run_dir.exists():
-        suffix += 1
-        run_dir = runs_dir / f"{config.name}-seed{config.seed}-{suffix}"
-    run_dir.mkdir()
-    write_atomically(run_dir / "config.yaml", yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
-    meta = {"seed": config.seed, "versions": versions(), "commit": commit(), "machine": f"{machine()}, no GPU used",
-            "started": time.strftime("%Y-%m-%d %H:%M:%S %Z")}  # fmt: skip
-    write_json(run_dir / "meta.json", meta)
-    return run_dir
+    return new_run_folder(runs_dir, config)
 
 
 def load_run(run_dir: Path) -> TrainConfig:
@@ -549,7 +523,7 @@ def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) 
 def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str:
     meta = json.loads((run_dir / "meta.json").read_text())
     m = final["metrics"]
-    low_level = action_mode_of(config.env_id, config.env_kwargs) in ("ee_delta", "joint")
+    low_level = is_low_level(config.env_id, config.env_kwargs)
 
     def pct(r: dict[str, Any]) -> str:
         if r["n"] == 0:

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.runs import interrupt_on_signals
+from panda_grasp_env.runs import atomic_path, interrupt_on_signals, write_atomically
 from perception.falls import SHARD_ARRAYS, sha256, split_of
 
 #: Block speed (m/s) above which the fall has begun.
@@ -216,14 +216,11 @@ def record_shard(job: tuple[Path, int, int, RecorderSettings]) -> dict[str, Any]
     sequences = [record_sequence(_ENV, first + i, settings) for i in range(count)]
     arrays = {key: np.stack([s[key] for s in sequences]) for key in SHARD_ARRAYS}
     name = f"shard_{index:05d}.npz"
-    tmp = out / f"{name}.tmp.npz"
-    np.savez_compressed(tmp, **arrays)
-    os.replace(tmp, out / name)
+    with atomic_path(out / name) as tmp, open(tmp, "wb") as handle:
+        np.savez_compressed(handle, **arrays)
     entry = {"file": name, "sequences": count, "first_seed": first, "bytes": (out / name).stat().st_size,
              "sha256": sha256(out / name), "seconds": round(time.perf_counter() - began, 2)}  # fmt: skip
-    sidecar = out / f"{name}.json"
-    (out / f"{name}.json.tmp").write_text(json.dumps(entry))
-    os.replace(out / f"{name}.json.tmp", sidecar)
+    write_atomically(out / f"{name}.json", json.dumps(entry))
     return entry
 
 
@@ -288,9 +285,7 @@ def record_dataset(
     metadata = describe(out, settings, sequences, [entries[i] for i in range(n_shards)])
     metadata["recording"] = {"sequences_recorded_now": recorded, "seconds": round(seconds, 1), "workers": workers,
                              "sequences_per_second": round(recorded / seconds, 2) if recorded else None}  # fmt: skip
-    tmp = out / "metadata.json.tmp"
-    tmp.write_text(json.dumps(metadata, indent=2))
-    os.replace(tmp, out / "metadata.json")
+    write_atomically(out / "metadata.json", json.dumps(metadata, indent=2))
     return metadata
 
 

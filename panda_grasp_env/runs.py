@@ -2,21 +2,37 @@
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import json
 import os
 import platform
 import subprocess
+import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+import yaml
+
+Config = TypeVar("Config")
 
 PACKAGES = ("numpy", "torch", "mujoco", "gymnasium", "stable-baselines3", "sb3-contrib", "panda-grasp-env")
 
 
-def write_atomically(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename: readers never see half a file."""
+@contextlib.contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """A temporary path (``<name>.tmp``) next to ``path`` to write to; renamed onto ``path`` when the block ends
+    without error, so readers never see half a file.  Savers that pick a format by suffix must be told it."""
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
+    yield tmp
     os.replace(tmp, path)
+
+
+def write_atomically(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
 
 
 def write_json(path: Path, payload: Any) -> None:
@@ -71,3 +87,37 @@ def interrupt_on_signals() -> None:
 
     signal.signal(signal.SIGTERM, interrupt)
     signal.signal(signal.SIGINT, interrupt)
+
+
+def config_from_mapping(cls: type[Config], raw: dict[str, Any], source: str) -> Config:
+    """The config dataclass ``cls`` from a mapping, then its ``validate()``; unknown or missing keys raise
+    ``ValueError`` listing the valid keys."""
+    fields = dataclasses.fields(cls)  # type: ignore[arg-type]
+    valid = [f.name for f in fields]
+    unknown = [k for k in raw if k not in valid]
+    if unknown:
+        raise ValueError(f"unknown key(s) {unknown} in {source}; valid keys: {valid}")
+    required = [f.name for f in fields if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    missing = [k for k in required if k not in raw]
+    if missing:
+        raise ValueError(f"{source} lacks required key(s) {missing}; valid keys: {valid}")
+    config = cls(**raw)
+    config.validate()  # type: ignore[attr-defined]
+    return config
+
+
+def new_run_folder(runs_dir: Path, config: Any, **facts: Any) -> Path:
+    """A fresh folder ``runs_dir/<name>-seed<seed>[-N]`` for a run of the config dataclass ``config``, holding
+    config.yaml and meta.json (seed, versions, commit, machine, start time and ``facts``)."""
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    run_dir = runs_dir / f"{config.name}-seed{config.seed}"
+    suffix = 1
+    while run_dir.exists():
+        suffix += 1
+        run_dir = runs_dir / f"{config.name}-seed{config.seed}-{suffix}"
+    run_dir.mkdir()
+    write_atomically(run_dir / "config.yaml", yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
+    meta = {"seed": config.seed, "versions": versions(), "commit": commit(), "machine": f"{machine()}, no GPU used",
+            "started": time.strftime("%Y-%m-%d %H:%M:%S %Z"), **facts}  # fmt: skip
+    write_json(run_dir / "meta.json", meta)
+    return run_dir

@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 import yaml
 
-from panda_grasp_env.runs import commit, machine, versions, write_atomically, write_json
+from panda_grasp_env.runs import atomic_path, config_from_mapping, new_run_folder, write_atomically, write_json
 from perception.dynamics import FallPredictor, check_compatible, evaluate, one_hot, predict_batch
 from perception.falls import load_split, read_metadata
 
@@ -50,10 +50,6 @@ class FallConfig:
     max_minutes: float | None = None
     torch_threads: int = 2
 
-    @classmethod
-    def keys(cls) -> list[str]:
-        return [f.name for f in dataclasses.fields(cls)]
-
     def validate(self) -> None:
         for key in ("context", "rollout", "hidden", "epochs", "batch_size", "torch_threads"):
             value = getattr(self, key)
@@ -71,16 +67,7 @@ class FallConfig:
 
 
 def fall_config(raw: dict[str, Any], source: str) -> FallConfig:
-    valid = FallConfig.keys()
-    unknown = [k for k in raw if k not in valid]
-    if unknown:
-        raise ValueError(f"unknown key(s) {unknown} in {source}; valid keys: {valid}")
-    missing = [k for k in ("kind", "name", "dataset") if k not in raw]
-    if missing:
-        raise ValueError(f"{source} lacks required key(s) {missing}; valid keys: {valid}")
-    config = FallConfig(**raw)
-    config.validate()
-    return config
+    return config_from_mapping(FallConfig, raw, source)
 
 
 def prediction_loss(logits: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
@@ -92,12 +79,6 @@ def prediction_loss(logits: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
     union = (probabilities + target - probabilities * target).sum((0, 2, 3))
     soft_iou = (intersection / union.clamp_min(1.0)).mean()
     return F.cross_entropy(logits, truth.long()) + (1.0 - soft_iou)
-
-
-def save_torch(payload: dict[str, Any], path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(payload, tmp)
-    os.replace(tmp, path)
 
 
 def load_fall_model(path: Path | str) -> tuple[FallPredictor, dict[str, Any]]:
@@ -132,25 +113,15 @@ def write_strips(model: FallPredictor, labels: np.ndarray, seeds: np.ndarray, fo
         blank = np.full_like(inputs, 255)
         top = np.concatenate([inputs, gap, *[label_image(f) for f in truth]], 1)
         bottom = np.concatenate([blank, gap, *[label_image(f) for f in guess]], 1)
-        tmp = folder / f"seed{int(seed)}.tmp.png"
-        iio.imwrite(tmp, np.concatenate([top, bottom], 0))
-        os.replace(tmp, folder / f"seed{int(seed)}.png")
+        with atomic_path(folder / f"seed{int(seed)}.png") as tmp:
+            iio.imwrite(tmp, np.concatenate([top, bottom], 0), extension=".png")
 
 
 def start_fall_run(config: FallConfig, runs_dir: Path) -> Path:
-    runs_dir.mkdir(parents=True, exist_ok=True)
-    run_dir = runs_dir / f"{config.name}-seed{config.seed}"
-    suffix = 1
-    while run_dir.exists():
-        suffix += 1
-        run_dir = runs_dir / f"{config.name}-seed{config.seed}-{suffix}"
-    run_dir.mkdir()
-    write_atomically(run_dir / "config.yaml", yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
+    """A fresh run folder with config.yaml and meta.json (which also names the dataset)."""
     dataset = read_metadata(config.dataset)
-    write_json(run_dir / "meta.json", {"seed": config.seed, "versions": versions(), "commit": commit(),
-               "machine": f"{machine()}, no GPU used", "dataset": {"path": config.dataset, "sequences": dataset["sequences"],
-               "splits": dataset["splits"]}})  # fmt: skip
-    return run_dir
+    facts = {"path": config.dataset, "sequences": dataset["sequences"], "splits": dataset["splits"]}
+    return new_run_folder(runs_dir, config, dataset=facts)
 
 
 def train_fall_model(
@@ -192,10 +163,11 @@ def train_fall_model(
         return wall_before + time.perf_counter() - began
 
     def checkpoint(path: Path) -> None:
-        save_torch({"model": model.state_dict(), "model_args": model.describe(), "classes": train.classes,
-                    "optimiser": optimiser.state_dict(), "torch_rng": torch.get_rng_state(),
-                    "numpy_rng": rng.bit_generator.state, "epoch": epoch, "wall_seconds": wall(), "best": best,
-                    "frame_interval": train.frame_interval, "label_source": config.label_source}, path)  # fmt: skip
+        with atomic_path(path) as tmp:
+            torch.save({"model": model.state_dict(), "model_args": model.describe(), "classes": train.classes,
+                        "optimiser": optimiser.state_dict(), "torch_rng": torch.get_rng_state(),
+                        "numpy_rng": rng.bit_generator.state, "epoch": epoch, "wall_seconds": wall(), "best": best,
+                        "frame_interval": train.frame_interval, "label_source": config.label_source}, tmp)  # fmt: skip
 
     bar = tqdm(total=config.epochs * batches, initial=epoch * batches, unit="batch", disable=not progress_bar,
                desc=config.name, mininterval=5.0)  # fmt: skip
@@ -299,10 +271,9 @@ def plot_fall_curve(run_dir: Path) -> None:
     axes[0].set_ylabel("validation")
     axes[0].legend(loc="lower right", fontsize=8)
     figure.tight_layout()
-    tmp = run_dir / "curve.tmp.png"
-    figure.savefig(tmp, dpi=100)
+    with atomic_path(run_dir / "curve.png") as tmp:
+        figure.savefig(tmp, dpi=100, format="png")
     plt.close(figure)
-    os.replace(tmp, run_dir / "curve.png")
 
 
 def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
