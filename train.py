@@ -9,7 +9,8 @@ folder under ``--runs`` (see ``agents/training.py``); Ctrl-C checkpoints it, and
 ``--resume <run folder>`` continues it.  ``--ship <run folder> --name N`` copies
 a finished run's model, card and curve to ``agents/checkpoints/N`` where
 ``agents.learned.LearnedAgent`` and ``evaluate.py`` find it (fall-dynamics runs:
-``perception/checkpoints/N``).
+``perception/checkpoints/N``).  ``--retest <run folder>`` runs a policy run's final
+held-out test again (final.json, card.md), e.g. after the evaluation protocol changed.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from pathlib import Path  # noqa: E402
 
 import yaml  # noqa: E402
 
-from agents.training import config_from_dict, read_config, start_run, train  # noqa: E402
+from agents.training import config_from_dict, read_config, retest, start_run, train  # noqa: E402
 from panda_grasp_env.runs import interrupt_on_signals, write_atomically  # noqa: E402
 from perception.dynamics_training import fall_config, start_fall_run, train_fall_model  # noqa: E402
 
@@ -47,11 +48,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--resume", type=Path, default=None, help="continue this run folder")
     parser.add_argument("--ship", type=Path, default=None, help="copy this finished run to agents/checkpoints/--name")
     parser.add_argument("--name", default=None, help="checkpoint name for --ship")
+    parser.add_argument("--retest", type=Path, default=None, help="run the final held-out test of this run again")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
-    chosen = sum(x is not None for x in (args.config, args.resume, args.ship))
+    chosen = sum(x is not None for x in (args.config, args.resume, args.ship, args.retest))
     if chosen != 1:
-        parser.error("give exactly one of --config, --resume or --ship")
+        parser.error("give exactly one of --config, --resume, --ship or --retest")
     if args.ship is not None and not args.name:
         parser.error("--ship needs --name")
     return args
@@ -68,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
                 from agents.learned import ship
             print(f"shipped to {ship(args.ship, args.name)}")
             return 0
+        if args.retest is not None:
+            return report(retest(args.retest), args.retest)
         if args.resume is not None:
             run_dir = args.resume
             if not (run_dir / "config.yaml").is_file():
@@ -97,6 +101,10 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"time budget spent at {outcome['steps']} steps; more with  python train.py --resume {run_dir} max_minutes=M"
         )
+    return report(outcome, run_dir)
+
+
+def report(outcome: dict, run_dir: Path) -> int:
     print(json.dumps({k: v for k, v in outcome.items() if k != "metrics"}, indent=2))
     metrics = outcome["metrics"]
     print(

@@ -9,10 +9,12 @@ weights serves all headings and the Q-map moves with the objects.
 
 Actions are masked from the observation itself: grasps only on occupied cells
 (height above ``PixelActions.OCCUPIED``), pushes only near them (a square of
-``PixelActions.NEAR``), primitives not
-in ``primitives_used`` never -- for acting, exploring and the TD target.  The
-policy assumes an empty hand between steps (true for ``Grasp``, which sets the
-grasped object aside), so ``place`` is not supported.
+``PixelActions.NEAR``), primitives not in ``primitives_used`` never -- for
+acting, exploring and the TD target.  A policy that uses ``place`` sees a
+fifth plane, whether the hand holds something (``holding_after``): places only
+on occupied cells and only when holding, grasps and pushes only with an empty
+hand (SPOT's masking for stacking).  Without it the policy assumes an empty
+hand (true for ``Grasp``, which sets the grasped object aside).
 
 ``HeightmapDQN`` trains only the rotation that was taken (one network pass per
 sample instead of R), as VPG does.
@@ -37,29 +39,50 @@ from panda_grasp_env.actions import PixelActions
 HEIGHT_RANGE = 0.255
 
 
-def encode_heightmap(heightmap: np.ndarray) -> np.ndarray:
-    """Env heightmap (H, W, 4) float32 -- colour 0-1, height metres -- as (4, H, W) uint8 (height in mm)."""
+def holding_after(info: dict[str, Any]) -> bool:
+    """Whether the hand holds something after the step that returned ``info``: its primitive was a grasp
+    that succeeded (SPOT's rule; the finger gap cannot tell, since a block grasped across a corner can wedge
+    between fully open fingers)."""
+    return info.get("primitive") == "grasp" and bool(info.get("primitive_success"))
+
+
+def encode_heightmap(heightmap: np.ndarray, holding: bool | None = None) -> np.ndarray:
+    """Env heightmap (H, W, 4) float32 -- colour 0-1, height metres -- as (4, H, W) uint8 (height in mm);
+    with ``holding`` given, (5, H, W): the fifth plane is 255 when the hand holds something, else 0."""
     heightmap = np.asarray(heightmap)
     if heightmap.ndim != 3 or heightmap.shape[-1] != 4:
         raise ValueError(f"expected a (rows, cols, 4) heightmap observation, got shape {heightmap.shape}")
     scaled = heightmap.astype(np.float32)
     scaled[..., 3] = scaled[..., 3] / HEIGHT_RANGE
-    return np.ascontiguousarray(np.round(np.clip(scaled, 0.0, 1.0) * 255).astype(np.uint8).transpose(2, 0, 1))
+    planes = np.round(np.clip(scaled, 0.0, 1.0) * 255).astype(np.uint8).transpose(2, 0, 1)
+    if holding is not None:
+        planes = np.concatenate([planes, np.full((1, *planes.shape[1:]), 255 if holding else 0, dtype=np.uint8)])
+    return np.ascontiguousarray(planes)
 
 
-class EncodedHeightmap(gym.ObservationWrapper):
-    """Gives the policy ``encode_heightmap`` of the env's ``heightmap`` observation (4x smaller in replay)."""
+class EncodedHeightmap(gym.Wrapper):
+    """Gives the policy ``encode_heightmap`` of the env's ``heightmap`` observation (uint8: 4x smaller in
+    replay), with the holding plane (``holding_after`` the last step) if ``holding_plane``."""
 
-    def __init__(self, env: gym.Env) -> None:
+    def __init__(self, env: gym.Env, holding_plane: bool = False) -> None:
         super().__init__(env)
         space = env.observation_space
         if not isinstance(space, gym.spaces.Box) or space.shape[-1:] != (4,) or len(space.shape) != 3:
             raise ValueError(f"EncodedHeightmap needs obs_mode='heightmap' (rows, cols, 4); got {space}")
         rows, cols, _ = space.shape
-        self.observation_space = gym.spaces.Box(0, 255, (4, rows, cols), dtype=np.uint8)
+        self.holding_plane = holding_plane
+        self.observation_space = gym.spaces.Box(0, 255, (5 if holding_plane else 4, rows, cols), dtype=np.uint8)
 
-    def observation(self, observation: np.ndarray) -> np.ndarray:
-        return encode_heightmap(observation)
+    def _encode(self, observation: np.ndarray, info: dict[str, Any]) -> np.ndarray:
+        return encode_heightmap(observation, holding_after(info) if self.holding_plane else None)
+
+    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
+        observation, info = self.env.reset(**kwargs)
+        return self._encode(observation, info), info
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        return self._encode(observation, info), reward, terminated, truncated, info
 
 
 def rotation_matrices(angles: th.Tensor) -> th.Tensor:
@@ -81,7 +104,7 @@ def rotate(images: th.Tensor, angles: th.Tensor) -> th.Tensor:
 
 
 class HeightmapQNetwork(nn.Module):
-    """Q-values of every ``pixel`` action from an encoded heightmap (B, 4, H, W) uint8."""
+    """Q-values of every ``pixel`` action from an encoded heightmap (B, 4 or 5, H, W) uint8."""
 
     def __init__(
         self,
@@ -90,8 +113,10 @@ class HeightmapQNetwork(nn.Module):
         used: tuple[str, ...],
         width: int,
         near_cells: int,
+        channels: int = 4,
     ) -> None:
-        """``shape``: (primitives, rotations, rows, cols); ``near_cells``: push-mask radius in cells."""
+        """``shape``: (primitives, rotations, rows, cols); ``near_cells``: push-mask radius in cells;
+        ``channels``: 4 (heightmap) or 5 (heightmap and the holding plane)."""
         super().__init__()
         self.n_primitives, self.rotations, self.rows, self.cols = shape
         self.primitives, self.used = primitives, used
@@ -100,7 +125,7 @@ class HeightmapQNetwork(nn.Module):
         self.pad = ((side - self.cols) // 2, side - self.cols - (side - self.cols) // 2,
                     (side - self.rows) // 2, side - self.rows - (side - self.rows) // 2)  # fmt: skip
         self.net = nn.Sequential(
-            nn.Conv2d(4, 16, 5, stride=2, padding=2),
+            nn.Conv2d(channels, 16, 5, stride=2, padding=2),
             nn.ReLU(),
             nn.Conv2d(16, 32, 3, stride=2, padding=1),
             nn.ReLU(),
@@ -152,7 +177,12 @@ class HeightmapQNetwork(nn.Module):
         occupied = height > PixelActions.OCCUPIED
         radius = self.near_cells
         near = F.max_pool2d(occupied.float(), 2 * radius + 1, stride=1, padding=radius) > 0
-        per_primitive = th.cat([occupied if name == "grasp" else near for name in self.primitives], 1)
+        if observations.shape[1] == 5:
+            holding = observations[:, 4:5].amax((2, 3), keepdim=True) > 127
+        else:
+            holding = th.zeros_like(occupied[:, :, :1, :1])
+        by_name = {"grasp": occupied & ~holding, "place": occupied & holding}
+        per_primitive = th.cat([by_name.get(name, near & ~holding) for name in self.primitives], 1)
         used = th.tensor([name in self.used for name in self.primitives], device=observations.device)
         mask = per_primitive.unsqueeze(2) & used.view(1, -1, 1, 1, 1)
         mask = mask.expand(-1, -1, self.rotations, -1, -1).reshape(observations.shape[0], -1)
@@ -170,7 +200,8 @@ class HeightmapQPolicy(DQNPolicy):
         primitives: the env's primitives, in its order (``info``/task ``primitives``).
         rotations: headings in the env's ``pixel`` mode.
         cell_size: heightmap resolution, metres per cell.
-        primitives_used: the primitives this policy may choose (default: all but ``place``).
+        primitives_used: the primitives this policy may choose (default: all but ``place``; ``place`` needs
+            the holding plane: ``EncodedHeightmap(env, holding_plane=True)``).
         width: channels of the network's inner layers.
     """
 
@@ -188,13 +219,15 @@ class HeightmapQPolicy(DQNPolicy):
         optimizer_kwargs: dict[str, Any] | None = None,
     ) -> None:
         primitives = tuple(primitives)
+        if len(observation_space.shape) != 3 or observation_space.shape[0] not in (4, 5):
+            raise ValueError(f"HeightmapQPolicy needs encoded heightmaps (4 or 5, rows, cols), got {observation_space}")
+        sees_hand = observation_space.shape[0] == 5
         used = tuple(p for p in primitives if p != "place") if primitives_used is None else tuple(primitives_used)
-        unknown = [p for p in used if p not in primitives or p == "place"]
+        unknown = [p for p in used if p not in primitives or (p == "place" and not sees_hand)]
         if unknown or not used:
-            valid = [p for p in primitives if p != "place"]
-            raise ValueError(f"primitives_used {list(used)}: each must be one of {valid}")
-        if len(observation_space.shape) != 3 or observation_space.shape[0] != 4:
-            raise ValueError(f"HeightmapQPolicy needs encoded heightmaps (4, rows, cols), got {observation_space}")
+            valid = [p for p in primitives if p != "place" or sees_hand]
+            raise ValueError(f"primitives_used {list(used)}: each must be one of {valid}"
+                             + ("" if sees_hand else " (place needs the holding plane)"))  # fmt: skip
         shape = (len(primitives), int(rotations), *observation_space.shape[1:])
         if int(np.prod(shape)) != action_space.n:
             raise ValueError(f"action space {action_space} does not match {shape} (primitives x rotations x cells)")
@@ -211,7 +244,10 @@ class HeightmapQPolicy(DQNPolicy):
     def make_q_net(self) -> HeightmapQNetwork:  # type: ignore[override]
         args = self.network_args
         near_cells = max(1, round(PixelActions.NEAR / args["cell_size"]))
-        network = HeightmapQNetwork(self.shape, args["primitives"], args["primitives_used"], args["width"], near_cells)
+        network = HeightmapQNetwork(
+            self.shape, args["primitives"], args["primitives_used"], args["width"], near_cells,
+            channels=self.observation_space.shape[0],
+        )  # fmt: skip
         return network.to(self.device)
 
     def _predict(self, observation: th.Tensor, deterministic: bool = True) -> th.Tensor:

@@ -98,7 +98,7 @@ def check_compatible(policy: Any, config: TrainConfig, env: gym.Env, name: str) 
     if env_id != config.env_id:
         raise ValueError(f"checkpoint {name} was trained on {config.env_id}, not {env_id}")
     mismatch = observation_mismatch(
-        policy.observation_space, observation_transform(config)(env.observation_space.sample())
+        policy.observation_space, observation_transform(config)(env.observation_space.sample(), {})
     )
     if mismatch:
         raise ValueError(f"checkpoint {name} {mismatch}")
@@ -117,7 +117,8 @@ class LearnedAgent(PolicyAgent):
             check_compatible(policy, self.checkpoint.config, env, self.name)
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
-        mismatch = observation_mismatch(self.model.observation_space, self.transform(observation))
+        super().reset(observation, info)
+        mismatch = observation_mismatch(self.model.observation_space, self.transform(observation, info))
         if mismatch:
             raise ValueError(f"checkpoint {self.name} cannot act here: it {mismatch}")
 

@@ -157,13 +157,21 @@ def config_from_dict(raw: dict[str, Any], source: str = "config") -> TrainConfig
 # --- envs -------------------------------------------------------------------------------
 
 
-def observation_transform(config: TrainConfig) -> Callable[[Any], Any]:
-    """What the policy sees of an env observation (the same in training, evaluation and ``LearnedAgent``)."""
-    if config.algo == "heightmap_dqn":
-        from agents.heightmap_policy import encode_heightmap
+def holding_plane(config: TrainConfig) -> bool:
+    """Whether a heightmap policy sees the holding plane: it does when it may ``place``."""
+    return config.algo == "heightmap_dqn" and "place" in config.policy_kwargs.get("primitives_used", ())
 
-        return encode_heightmap
-    return lambda observation: observation
+
+def observation_transform(config: TrainConfig) -> Callable[[Any, dict[str, Any]], Any]:
+    """What the policy sees of an env observation and the step's info (the same in training, evaluation and
+    ``LearnedAgent``)."""
+    if config.algo == "heightmap_dqn":
+        from agents.heightmap_policy import encode_heightmap, holding_after
+
+        if holding_plane(config):
+            return lambda observation, info: encode_heightmap(observation, holding_after(info))
+        return lambda observation, info: encode_heightmap(observation)
+    return lambda observation, info: observation
 
 
 def make_env(config: TrainConfig, render_mode: str | None = None) -> gym.Env:
@@ -185,7 +193,7 @@ def _wrapped_env(config: TrainConfig) -> gym.Env:
     if config.algo == "heightmap_dqn":
         from agents.heightmap_policy import EncodedHeightmap
 
-        env = EncodedHeightmap(env)
+        env = EncodedHeightmap(env, holding_plane(config))
     return env
 
 
@@ -251,14 +259,14 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
 class PolicyAgent:
     """An SB3 model or policy as an ``Agent``: deterministic actions from transformed observations."""
 
-    def __init__(self, model: Any, transform: Callable[[Any], Any], name: str) -> None:
+    def __init__(self, model: Any, transform: Callable[[Any, dict[str, Any]], Any], name: str) -> None:
         self.model, self.transform, self.name = model, transform, name
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
         pass
 
     def act(self, observation: Any, info: dict[str, Any]) -> Any:
-        action, _ = self.model.predict(self.transform(observation), deterministic=True)
+        action, _ = self.model.predict(self.transform(observation, info), deterministic=True)
         return action
 
 
@@ -273,8 +281,7 @@ def evaluate_policy(
     agent = PolicyAgent(model, observation_transform(config), config.name)
     task = task_label(config.env_id, config.env_kwargs)
     results = [
-        play_episode(env, agent, EpisodeSpec(config.name, task, config.eval_seed + i))["result"]
-        for i in range(episodes)
+        play_episode(env, agent, EpisodeSpec(config.name, task, first_seed + i))["result"] for i in range(episodes)
     ]
     if own_env:
         env.close()
@@ -451,20 +458,25 @@ def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar
 
     torch.set_num_threads(config.torch_threads)
     progress = json.loads((run_dir / "progress.json").read_text()) if resume else {"steps": 0, "wall_seconds": 0.0}
+    budget_left = config.max_minutes is None or progress["wall_seconds"] < 60 * config.max_minutes
+    will_learn = progress["steps"] < config.total_steps and budget_left
     env = make_vec_env(config)
     if resume:
         algo_class = load_class(ALGORITHMS[config.algo][0])
         model = algo_class.load(run_dir / "latest.zip", env=env, tensorboard_log=str(run_dir / "tb"))
-        if (run_dir / "replay.pkl").exists():
+        if will_learn and (run_dir / "replay.pkl").exists():  # a finished run resumed only to be re-tested skips it
             model.load_replay_buffer(run_dir / "replay.pkl")
     else:
         model = build_model(config, env, run_dir / "tb")
     callback = _callback(config, run_dir, float(progress["wall_seconds"]), progress_bar)
-    remaining = config.total_steps - int(model.num_timesteps)
-    budget_left = config.max_minutes is None or progress["wall_seconds"] < 60 * config.max_minutes
     try:
-        if remaining > 0 and budget_left:
-            model.learn(remaining, callback=callback, reset_num_timesteps=not resume, tb_log_name="run")
+        if will_learn:
+            model.learn(
+                config.total_steps - int(model.num_timesteps),
+                callback=callback,
+                reset_num_timesteps=not resume,
+                tb_log_name="run",
+            )
     except KeyboardInterrupt:
         save_checkpoint(model, run_dir, callback.wall())
         raise
@@ -486,10 +498,24 @@ def stopped_by(config: TrainConfig, steps: int, wall_seconds: float) -> str:
 
 
 def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) -> dict[str, Any]:
-    """The final test of the best validated policy on held-out seeds (``final_eval_episodes`` episodes):
-    final.json and card.md."""
+    """The final test of the best validated policy (``final_test``) once training has ended."""
     if not (run_dir / "best.json").exists():  # no periodic evaluation ran: the final policy is the best known
         save_best_policy(model.policy, run_dir, int(model.num_timesteps), chosen_by="final")
+    return final_test(config, run_dir, int(model.num_timesteps), wall_seconds)
+
+
+def retest(run_dir: Path) -> dict[str, Any]:
+    """``final_test`` again on a run whose training has ended (after the evaluation protocol changed)."""
+    config = load_run(run_dir)
+    if not (run_dir / "best.json").is_file() or not (run_dir / "progress.json").is_file():
+        raise ValueError(f"{run_dir} has no best policy to test yet (best.json, progress.json)")
+    progress = json.loads((run_dir / "progress.json").read_text())
+    return final_test(config, run_dir, int(progress["steps"]), float(progress["wall_seconds"]))
+
+
+def final_test(config: TrainConfig, run_dir: Path, steps: int, wall_seconds: float) -> dict[str, Any]:
+    """Test the best validated policy on held-out seeds (``final_eval_episodes`` episodes from
+    ``eval_seed + TEST_SEED_OFFSET``): final.json and card.md."""
     policy, best = load_best_policy(run_dir)
     began = time.perf_counter()
     metrics = evaluate_policy(
@@ -498,7 +524,7 @@ def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) 
     evaluations = read_evaluations(run_dir)
     first_90 = next((r for r in evaluations if r["metrics"]["trial_success"]["rate"] >= 0.9), None)
     final = {
-        "steps": int(model.num_timesteps),
+        "steps": steps,
         "best_steps": best["steps"],
         "chosen_by": best.get("chosen_by", "validation"),
         "policy_class": best["policy_class"],
@@ -506,9 +532,9 @@ def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) 
             config.eval_seed + TEST_SEED_OFFSET,
             config.eval_seed + TEST_SEED_OFFSET + config.final_eval_episodes - 1,
         ],
-        "stopped_by": stopped_by(config, int(model.num_timesteps), wall_seconds),
+        "stopped_by": stopped_by(config, steps, wall_seconds),
         "wall_seconds": round(wall_seconds, 1),
-        "steps_per_second": round(model.num_timesteps / max(wall_seconds, 1e-9), 2),
+        "steps_per_second": round(steps / max(wall_seconds, 1e-9), 2),
         "final_eval_seconds": round(time.perf_counter() - began, 1),
         "steps_to_90_percent": first_90["steps"] if first_90 else None,
         "minutes_to_90_percent": round(first_90["wall_seconds"] / 60, 1) if first_90 else None,

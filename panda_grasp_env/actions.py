@@ -274,16 +274,19 @@ class EEDeltaActions(ActionMode):
     """``Box(4)`` in [-1, 1]: grasp-site displacement (dx, dy, dz) x ``EE_STEP`` metres, and gripper.
 
     The hand keeps pointing down with a fixed heading.  Gripper: -1 fully
-    open, +1 closed (position target between; squeeze force limited).
+    open, +1 closed (position target between; squeeze force limited).  With
+    ``block_gripper`` (panda-gym's Push) the action is ``Box(3)`` and the
+    fingers stay closed, so a pushed block cannot slip between them.
     """
 
     name = "ee_delta"
     low_level = True
-    MAX_LAG = 0.02  # metres
+    MAX_LAG = 0.02  # metres, horizontal
     LOW, HIGH = LOW_LEVEL_BOUNDS[:, 0].copy(), LOW_LEVEL_BOUNDS[:, 1].copy()
 
-    def __init__(self, cell: Workcell) -> None:
-        self.space = gym.spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
+    def __init__(self, cell: Workcell, block_gripper: bool = False) -> None:
+        self.block_gripper = block_gripper
+        self.space = gym.spaces.Box(-1.0, 1.0, (3 if block_gripper else 4,), dtype=np.float32)
         self.servo = JacobianServo(cell.model, cell.data)
         self.target = np.zeros(3)
 
@@ -292,15 +295,17 @@ class EEDeltaActions(ActionMode):
 
     def execute(self, cell: Workcell, action: np.ndarray) -> None:
         # The target integrates the commanded displacements (so a zero action holds the hand where it
-        # was told to be), but never runs more than MAX_LAG ahead of the hand (pushing on the table).
-        position = cell.robot.ee_position
-        lag = self.target - position
+        # was told to be), but never runs more than MAX_LAG ahead of the hand horizontally (pushing against
+        # something).  Heights need no such limit (the target stays above the table), and clamping them
+        # too would copy the hand's height error into the target during fast horizontal moves.
+        lag = self.target[:2] - cell.robot.ee_position[:2]
         distance = float(np.sqrt(lag @ lag))
         if distance > self.MAX_LAG:
-            self.target = position + lag * (self.MAX_LAG / distance)
+            self.target[:2] = cell.robot.ee_position[:2] + lag * (self.MAX_LAG / distance)
         self.target = np.minimum(np.maximum(self.target + action[:3] * EE_STEP, self.LOW), self.HIGH)
         cell.robot.command_joints(self.servo.command(self.target, HOME_YAW, cell.control_dt))
-        cell.robot.command_fingers(FINGER_OPEN * (1.0 - action[3]) / 2.0)
+        closing = 1.0 if self.block_gripper else float(action[3])
+        cell.robot.command_fingers(FINGER_OPEN * (1.0 - closing) / 2.0)
         cell.step_physics(cell.control_substeps)
         return None
 

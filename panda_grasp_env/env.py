@@ -59,6 +59,7 @@ class PandaEnv(gym.Env):
         rotations: number of headings in the ``pixel`` action mode (VPG: 16).
         primitive_z: add a z component to ``primitive`` actions (default: heights chosen from the scene).
         push_distance: push length, metres.
+        block_gripper: ``ee_delta`` only: fingers held closed, the action is (dx, dy, dz) (panda-gym's Push).
         render_size: (width, height) of ``render()`` frames.
         planner: OMPL planner of the ``grasp_pose`` mode (``panda_grasp_env.planning.PLANNERS``).
         scene: base ``SceneConfig`` (block size, masses, friction, ...); the task sets the objects.
@@ -80,6 +81,7 @@ class PandaEnv(gym.Env):
         rotations: int = 16,
         primitive_z: bool = False,
         push_distance: float = 0.1,
+        block_gripper: bool = False,
         render_size: tuple[int, int] = (640, 480),
         planner: str = "RRTConnect",
         scene: SceneConfig | None = None,
@@ -104,6 +106,8 @@ class PandaEnv(gym.Env):
         for name, size in (("image_size", image_size), ("render_size", render_size)):
             if len(tuple(size)) != 2 or not all(isinstance(v, (int, np.integer)) and v > 0 for v in size):
                 raise ValueError(f"{name} must be (width, height) in positive ints, got {size!r}")
+        if block_gripper and action_mode != "ee_delta":
+            raise ValueError(f"block_gripper=True needs action_mode='ee_delta', not {action_mode!r}")
         if not 0 < push_distance <= 0.3:
             raise ValueError(f"push_distance must be in (0, 0.3] m, got {push_distance!r}")
         modalities = parse_obs_mode(obs_mode)
@@ -132,7 +136,7 @@ class PandaEnv(gym.Env):
 
             self.actions = GraspPoseActions(MotionStack(self.cell, planner=planner))
         elif action_mode == "ee_delta":
-            self.actions = EEDeltaActions(self.cell)
+            self.actions = EEDeltaActions(self.cell, block_gripper)
         else:
             self.actions = JointActions()
         self.goal_conditioned = low_level and self.task.goal_conditioned

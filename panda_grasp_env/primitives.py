@@ -118,9 +118,11 @@ def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
 
     Open, hover ``APPROACH_HEIGHT`` above, descend, close with the force-limited
     gripper, lift ``LIFT_HEIGHT``, hold ``HOLD_TIME``.  Success: the fingers
-    stopped short of closing on a body that rose >= 5 cm and is still held.  On
-    success the object stays in the hand above the grasp point; on failure the
-    arm retreats home.  ``z`` is raised to ``MIN_GRASP_HEIGHT`` if lower.
+    stopped short of closing on a body that rose >= 5 cm and is still held after
+    the arm carried it home.  Home, as after a failure, so that the arm does not
+    hide the table from the overhead camera (lifted above the grasp point, the
+    elbow fills its view and a heightmap would show an empty table).  ``z`` is
+    raised to ``MIN_GRASP_HEIGHT`` if lower.
     """
     z = max(z, MIN_GRASP_HEIGHT)
     target = np.array([x, y, z])
@@ -142,6 +144,9 @@ def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     cell.wait(HOLD_TIME)
     held = cell.robot.body_between_pads() == body
     if not held or cell.data.xpos[body][2] - start_height < MIN_LIFT:
+        return _fail(cell, "grasp", "dropped", cell.name_of(body))
+    cell.move_home()
+    if cell.robot.body_between_pads() != body:
         return _fail(cell, "grasp", "dropped", cell.name_of(body))
     return PrimitiveResult("grasp", True, "ok", object=cell.name_of(body))
 

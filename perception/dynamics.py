@@ -4,10 +4,14 @@ Input: the past ``context`` frames as one-hot class maps (background + one class
 per block colour, ``perception/falls.py``).  Five convolutions encode each
 frame to a quarter-resolution feature map, a ConvLSTM carries the motion, and
 five convolutions decode, with skip connections from the newest frame's
-encoder features, a flow field and correction logits: the next frame is the
-newest frame warped by the flow (blocks mostly translate between frames),
-plus the correction (rotation, occlusion, blocks appearing).  Multi-step
-rollouts feed the predicted class probabilities back in.
+encoder features, a residual flow field and correction logits.  Blocks mostly
+translate between frames, so each block's channel of the newest frame is
+shifted by that block's own velocity -- its centroid step from the frame before,
+computed from the inputs (constant velocity) -- plus the learned residual flow
+(acceleration, impacts), and the correction logits add what warping cannot
+(rotation, occlusion, blocks coming into view).  Untrained, the model is
+constant-velocity extrapolation with soft edges.  Multi-step rollouts feed the
+predicted class probabilities back in (their centroids give the next velocity).
 
 Metrics (``evaluate``), over every evaluated (sequence, t) of a split, for the
 prediction of frame t + h from frames t - context + 1 ... t:
@@ -19,6 +23,8 @@ prediction of frame t + h from frames t - context + 1 ... t:
 
 Baselines: ``copy_last`` (frame t is the prediction) and ``constant_velocity``
 (each block's mask at t shifted by h times its centroid displacement from t - 1 to t).
+Reference, not a predictor: ``translation_oracle`` shifts each block's mask at t by
+its true centroid displacement to t + h -- the ceiling of mask translation.
 """
 
 from __future__ import annotations
@@ -31,8 +37,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-#: Pixels of flow per unit of the decoder's flow output (falling blocks move up to ~20 px per frame).
-FLOW_SCALE = 8.0
+#: Pixels of residual flow per unit of the decoder's flow output.
+FLOW_SCALE = 4.0
+#: Changes whenever the same weights would mean another model; saved in checkpoints and checked on load.
+ARCHITECTURE = 2
 
 
 def conv(in_channels: int, out_channels: int, stride: int = 1) -> nn.Sequential:
@@ -75,17 +83,36 @@ class FallPredictor(nn.Module):
         self.d2 = conv(64 + 32, 32)
         self.d3 = conv(32, 32)
         self.d4 = conv(32 + 16, 16)
-        self.d5 = nn.Conv2d(16, 2 + n_classes, 3, padding=1)  # flow (x, y pixels) and correction logits
+        self.d5 = nn.Conv2d(16, 2 + n_classes, 3, padding=1)  # residual flow (x, y) and correction logits
         nn.init.zeros_(self.d5.weight)
-        nn.init.zeros_(self.d5.bias)  # starts as copy-last-frame
+        nn.init.zeros_(self.d5.bias)  # starts as constant-velocity extrapolation
         self.copy_gain = nn.Parameter(torch.tensor(1.0))
         axis = (torch.arange(image_size, dtype=torch.float32) + 0.5) / image_size * 2 - 1
         rows, cols = torch.meshgrid(axis, axis, indexing="ij")
         self.register_buffer("grid", torch.stack([cols, rows], -1)[None], persistent=False)
+        self.register_buffer("pixels", torch.arange(image_size, dtype=torch.float32), persistent=False)
 
-    def step(self, frame: torch.Tensor, previous: torch.Tensor, state: Any) -> tuple[torch.Tensor, Any]:
+    def block_velocities(self, frame: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
+        """(B, K, 2) centroid step (x, y pixels) of each block class's probability mass from ``previous`` to
+        ``frame`` (B, C, S, S); zero for a block with under a pixel of mass in either."""
+
+        def centroids(frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            masks = frames[:, 1:]
+            mass = masks.sum((2, 3))
+            x = (masks.sum(2) * self.pixels).sum(2) / mass.clamp_min(1e-6)
+            y = (masks.sum(3) * self.pixels).sum(2) / mass.clamp_min(1e-6)
+            return torch.stack([x, y], 2), mass
+
+        now, mass_now = centroids(frame)
+        before, mass_before = centroids(previous)
+        seen = ((mass_now > 1.0) & (mass_before > 1.0)).float()[..., None]
+        return (now - before) * seen
+
+    def step(self, frame: torch.Tensor, previous: torch.Tensor, state: Any) -> tuple[torch.Tensor, torch.Tensor, Any]:
         """Consume one frame (B, C, S, S) of class probabilities (with the one before it, so that the first
-        convolutions see motion directly); logits of the next frame and the new state."""
+        convolutions see motion directly); logits of the next frame, each block's flow (B, K, 2, S, S) that
+        warped it (pixels, x = column then y = row: block k's channel of the next frame at p is drawn from
+        this frame's at p + flow[:, k]) and the new state."""
         f1 = self.e1(torch.cat([frame, previous], 1))
         f3 = self.e3(self.e2(f1))
         f5 = self.e5(self.e4(f3))
@@ -93,23 +120,39 @@ class FallPredictor(nn.Module):
         x = self.d1(torch.cat([h, f5], 1))
         x = self.d3(self.d2(torch.cat([F.interpolate(x, scale_factor=2.0), f3], 1)))
         out = self.d5(self.d4(torch.cat([F.interpolate(x, scale_factor=2.0), f1], 1)))
-        flow = out[:, :2].permute(0, 2, 3, 1) * (FLOW_SCALE * 2.0 / self.image_size)  # -> grid units
-        warped = F.grid_sample(frame, self.grid + flow, mode="bilinear", padding_mode="border", align_corners=False)
+        batch, blocks, size = frame.shape[0], self.n_classes - 1, self.image_size
+        velocity = self.block_velocities(frame, previous)
+        flows = out[:, None, :2] * FLOW_SCALE - velocity[..., None, None]  # (B, K, 2, S, S)
+        grids = self.grid[:, None] + flows.permute(0, 1, 3, 4, 2) * (2.0 / size)  # pixels -> grid units
+        moved = F.grid_sample(
+            frame[:, 1:].reshape(batch * blocks, 1, size, size),
+            grids.reshape(batch * blocks, size, size, 2),
+            mode="bilinear",
+            padding_mode="zeros",
+            align_corners=False,
+        ).view(batch, blocks, size, size)
+        warped = torch.cat([(1.0 - moved.sum(1, keepdim=True)).clamp_min(0.0), moved], 1)
         logits = self.copy_gain * torch.log(warped + 0.1) + out[:, 2:]
-        return logits, (h, c)
+        return logits, flows, (h, c)
+
+    def rollout_with_flow(self, frames: torch.Tensor, horizon: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Logits (B, horizon, C, S, S) of the ``horizon`` frames after ``frames`` (B, T, C, S, S), and the
+        block flows (B, horizon, K, 2, S, S) that produced them (see ``step``)."""
+        state, logits, flow = None, None, None
+        for t in range(frames.shape[1]):
+            logits, flow, state = self.step(frames[:, t], frames[:, max(t - 1, 0)], state)
+        outputs, flows, previous = [logits], [flow], frames[:, -1]
+        for _ in range(horizon - 1):
+            frame = torch.softmax(logits, 1)
+            logits, flow, state = self.step(frame, previous, state)
+            outputs.append(logits)
+            flows.append(flow)
+            previous = frame
+        return torch.stack(outputs, 1), torch.stack(flows, 1)
 
     def rollout(self, frames: torch.Tensor, horizon: int) -> torch.Tensor:
         """Logits (B, horizon, C, S, S) of the ``horizon`` frames after ``frames`` (B, T, C, S, S)."""
-        state, logits = None, None
-        for t in range(frames.shape[1]):
-            logits, state = self.step(frames[:, t], frames[:, max(t - 1, 0)], state)
-        outputs, previous = [logits], frames[:, -1]
-        for _ in range(horizon - 1):
-            frame = torch.softmax(logits, 1)
-            logits, state = self.step(frame, previous, state)
-            outputs.append(logits)
-            previous = frame
-        return torch.stack(outputs, 1)
+        return self.rollout_with_flow(frames, horizon)[0]
 
     def describe(self) -> dict[str, int]:
         return {
@@ -123,6 +166,31 @@ class FallPredictor(nn.Module):
 def one_hot(labels: torch.Tensor, n_classes: int) -> torch.Tensor:
     """(..., S, S) integer labels -> (..., C, S, S) float one-hot."""
     return F.one_hot(labels.long(), n_classes).movedim(-1, -3).float()
+
+
+def block_flow_targets(before: torch.Tensor, after: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The flow a frame-to-frame warp should use, from true labels (B, S, S) of two consecutive frames.
+
+    Each block is taken to translate by its mask centroid's displacement d; the next frame at a pixel of
+    that block is then drawn from p - d.  Returns the target flow (B, 2, S, S) in pixels (x, y) and a mask
+    (B, S, S) of the pixels it is defined on: blocks seen in both frames, where they are in ``after``.
+    """
+    n_classes = int(max(before.max(), after.max())) + 1
+    size = before.shape[-1]
+    axis = torch.arange(size, dtype=torch.float32, device=before.device)
+    masks_before, masks_after = one_hot(before, n_classes)[:, 1:], one_hot(after, n_classes)[:, 1:]
+
+    def centroids(masks: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        area = masks.sum((2, 3))
+        x = (masks.sum(2) * axis).sum(2) / area.clamp_min(1.0)
+        y = (masks.sum(3) * axis).sum(2) / area.clamp_min(1.0)
+        return torch.stack([x, y], 2), area > 0  # (B, blocks, 2), (B, blocks)
+
+    start, seen_before = centroids(masks_before)
+    end, seen_after = centroids(masks_after)
+    usable = (seen_before & seen_after).float()[:, :, None, None] * masks_after  # (B, blocks, S, S)
+    flow = torch.einsum("bkhw,bkc->bchw", usable, start - end)
+    return flow, usable.sum(1) > 0
 
 
 def check_compatible(model: FallPredictor, labels: np.ndarray, classes: list[str]) -> None:
@@ -142,27 +210,50 @@ def copy_last(labels: np.ndarray, t: int, horizon: int) -> np.ndarray:
     return labels[t]
 
 
-def constant_velocity(labels: np.ndarray, t: int, horizon: int) -> np.ndarray:
-    """Each block's mask at ``t`` moved by ``horizon`` times its centroid step from t - 1 to t."""
-    current, previous = labels[t], labels[t - 1]
-    size = current.shape[0]
-    predicted = np.zeros_like(current)
-    for c in np.unique(current[current > 0]):
-        rows, cols = np.nonzero(current == c)
-        before = np.nonzero(previous == c)
-        if len(before[0]):
-            dr = horizon * (rows.mean() - before[0].mean())
-            dc = horizon * (cols.mean() - before[1].mean())
-        else:
-            dr = dc = 0.0
+def centroid(mask: np.ndarray) -> np.ndarray | None:
+    """(row, column) mean of a boolean mask's pixels, or None if it is empty."""
+    rows, cols = np.nonzero(mask)
+    return np.array([rows.mean(), cols.mean()]) if len(rows) else None
+
+
+def translate_blocks(frame: np.ndarray, displacement: dict[int, np.ndarray]) -> np.ndarray:
+    """Each block's mask in ``frame`` moved by ``displacement[class]`` (rows, columns; rounded to pixels)."""
+    size = frame.shape[0]
+    moved = np.zeros_like(frame)
+    for c, (dr, dc) in displacement.items():
+        rows, cols = np.nonzero(frame == c)
         r = np.round(rows + dr).astype(int)
         k = np.round(cols + dc).astype(int)
         keep = (r >= 0) & (r < size) & (k >= 0) & (k < size)
-        predicted[r[keep], k[keep]] = c
-    return predicted
+        moved[r[keep], k[keep]] = c
+    return moved
 
 
-BASELINES = {"copy_last": copy_last, "constant_velocity": constant_velocity}
+def displacements(frame: np.ndarray, other: np.ndarray) -> dict[int, np.ndarray]:
+    """Centroid displacement from ``frame`` to ``other`` of each block in ``frame`` (zero if gone in ``other``)."""
+    moves = {}
+    for c in np.unique(frame[frame > 0]):
+        start, end = centroid(frame == c), centroid(other == c)
+        moves[int(c)] = np.zeros(2) if end is None else end - start
+    return moves
+
+
+def constant_velocity(labels: np.ndarray, t: int, horizon: int) -> np.ndarray:
+    """Each block's mask at ``t`` moved by ``horizon`` times its centroid step from t - 1 to t."""
+    steps = displacements(labels[t - 1], labels[t])
+    current = displacements(labels[t], labels[t])  # every block at t, unmoved
+    return translate_blocks(labels[t], {c: horizon * steps.get(c, zero) for c, zero in current.items()})
+
+
+def translation_oracle(labels: np.ndarray, t: int, horizon: int) -> np.ndarray:
+    """Not a predictor: each block's mask at ``t`` moved by its *true* centroid displacement to t + horizon.
+
+    The best any pure mask translation can do; the gap to the truth is rotation, occlusion and blocks coming
+    into view -- the ceiling of copy-and-shift predictors, reported beside the baselines."""
+    return translate_blocks(labels[t], displacements(labels[t], labels[t + horizon]))
+
+
+BASELINES = {"copy_last": copy_last, "constant_velocity": constant_velocity, "translation_oracle": translation_oracle}
 
 
 # --- metrics -------------------------------------------------------------------------------------

@@ -2,7 +2,10 @@
 
 Each step samples sequences and a window: ``context`` true frames in, then a
 ``rollout``-step free-running prediction (probabilities fed back), scored by
-cross-entropy plus a soft block IoU -- trained the way it is evaluated.  The run
+cross-entropy plus a soft block IoU -- trained the way it is evaluated -- plus,
+weighted by ``flow_loss_weight``, the distance of the model's warp flow from
+each block's true centroid displacement (``block_flow_targets``): through the
+warp alone, flow gets gradient only at block edges and barely learns.  The run
 folder holds config.yaml, meta.json, tb/, evaluations.jsonl (validation
 metrics per epoch), curve.png, latest.pt / best.pt (atomic), and at the end
 final.json (test metrics against the baselines), card.md and strips/ (one PNG
@@ -25,7 +28,15 @@ import torch.nn.functional as F
 import yaml
 
 from panda_grasp_env.runs import atomic_path, config_from_mapping, new_run_folder, write_atomically, write_json
-from perception.dynamics import FallPredictor, check_compatible, evaluate, one_hot, predict_batch
+from perception.dynamics import (
+    ARCHITECTURE,
+    FallPredictor,
+    block_flow_targets,
+    check_compatible,
+    evaluate,
+    one_hot,
+    predict_batch,
+)
 from perception.falls import load_split, read_metadata
 
 #: Colours of the class maps in strips: background, then the blocks in the scene's order.
@@ -46,6 +57,7 @@ class FallConfig:
     epochs: int = 30
     batch_size: int = 16
     learning_rate: float = 0.002
+    flow_loss_weight: float = 1.0
     seed: int = 0
     max_minutes: float | None = None
     torch_threads: int = 2
@@ -61,6 +73,8 @@ class FallConfig:
             raise ValueError(f"config label_source={self.label_source!r}: expected 'labels' or 'colour_labels'")
         if not (isinstance(self.learning_rate, (int, float)) and 0 < self.learning_rate < 1):
             raise ValueError(f"config learning_rate={self.learning_rate!r}: expected a number in (0, 1)")
+        if not (isinstance(self.flow_loss_weight, (int, float)) and self.flow_loss_weight >= 0):
+            raise ValueError(f"config flow_loss_weight={self.flow_loss_weight!r}: expected a number >= 0")
         if self.max_minutes is not None and not self.max_minutes > 0:
             raise ValueError(f"config max_minutes={self.max_minutes!r}: expected a positive number or null")
         read_metadata(self.dataset)  # a clear error now, not after the model is built
@@ -81,6 +95,18 @@ def prediction_loss(logits: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
     return F.cross_entropy(logits, truth.long()) + (1.0 - soft_iou)
 
 
+def flow_loss(flows: torch.Tensor, before: torch.Tensor, after: torch.Tensor) -> torch.Tensor:
+    """Mean distance in pixels (smooth below 0.1 px) of predicted block flows (N, K, 2, S, S) from the block
+    centroid displacements between true frames ``before`` and ``after`` (N, S, S), over the blocks' pixels
+    in ``after`` (each pixel read from its own block's flow).  In pixels, not flow units: blocks move ~1 px
+    a frame on average, and a sub-pixel error costs IoU."""
+    target, mask = block_flow_targets(before, after)
+    own_block = one_hot(after, flows.shape[1] + 1)[:, 1:, None]  # (N, K, 1, S, S)
+    flow = (flows * own_block).sum(1)
+    distance = F.smooth_l1_loss(flow, target, reduction="none", beta=0.1).sum(1)
+    return (distance * mask).sum() / mask.sum().clamp_min(1.0)
+
+
 def load_fall_model(path: Path | str) -> tuple[FallPredictor, dict[str, Any]]:
     """A trained model and its saved facts (classes, image size, context) from a ``.pt`` checkpoint."""
     path = Path(path)
@@ -88,6 +114,14 @@ def load_fall_model(path: Path | str) -> tuple[FallPredictor, dict[str, Any]]:
         raise ValueError(f"fall-dynamics checkpoint {path} not found")
     try:
         saved = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as error:
+        raise ValueError(f"cannot load fall-dynamics checkpoint {path}: {error}") from error
+    if saved.get("architecture") != ARCHITECTURE:
+        raise ValueError(
+            f"fall-dynamics checkpoint {path} is of model architecture {saved.get('architecture', 1)}; "
+            f"this code runs architecture {ARCHITECTURE}: retrain it with train.py"
+        )
+    try:
         model = FallPredictor(**saved["model_args"])
         model.load_state_dict(saved["model"])
     except Exception as error:
@@ -165,6 +199,7 @@ def train_fall_model(
     def checkpoint(path: Path) -> None:
         with atomic_path(path) as tmp:
             torch.save({"model": model.state_dict(), "model_args": model.describe(), "classes": train.classes,
+                        "architecture": ARCHITECTURE,
                         "optimiser": optimiser.state_dict(), "torch_rng": torch.get_rng_state(),
                         "numpy_rng": rng.bit_generator.state, "epoch": epoch, "wall_seconds": wall(), "best": best,
                         "frame_interval": train.frame_interval, "label_source": config.label_source}, tmp)  # fmt: skip
@@ -182,8 +217,12 @@ def train_fall_model(
                 starts = rng.integers(train.labels.shape[1] - window + 1, size=config.batch_size)
                 clips = np.stack([train.labels[i, s : s + window] for i, s in zip(chosen, starts)])
                 clips = torch.as_tensor(clips)
-                logits = model.rollout(one_hot(clips[:, : config.context], n_classes), config.rollout)
-                loss = prediction_loss(logits.flatten(0, 1), clips[:, config.context :].flatten(0, 1))
+                logits, flows = model.rollout_with_flow(one_hot(clips[:, : config.context], n_classes), config.rollout)
+                truth = clips[:, config.context :].flatten(0, 1)
+                loss = prediction_loss(logits.flatten(0, 1), truth)
+                if config.flow_loss_weight:
+                    before = clips[:, config.context - 1 : -1].flatten(0, 1)
+                    loss = loss + config.flow_loss_weight * flow_loss(flows.flatten(0, 1), before, truth)
                 optimiser.zero_grad()
                 loss.backward()
                 optimiser.step()
@@ -336,7 +375,7 @@ def ship_fall_run(run_dir: Path, name: str, strips: int = 5) -> Path:
     shutil.rmtree(staging, ignore_errors=True)
     (staging / "strips").mkdir(parents=True)
     torch.save({"model": model.state_dict(), "model_args": model.describe(), "classes": saved["classes"],
-                "epoch": saved["epoch"], "frame_interval": saved["frame_interval"],
+                "architecture": ARCHITECTURE, "epoch": saved["epoch"], "frame_interval": saved["frame_interval"],
                 "label_source": saved["label_source"]}, staging / "model.pt")  # fmt: skip
     for f in ("final.json", "card.md", "curve.png", "config.yaml", "meta.json", "evaluations.jsonl"):
         shutil.copy2(run_dir / f, staging / f)

@@ -162,6 +162,28 @@ def test_out_of_range_actions_are_clipped_and_counted(push_env):
     assert info["actions_clipped"] == 2 and info["actions_clipped_total"] >= 2
 
 
+def test_block_gripper_pushes_with_closed_fingers_and_a_three_value_action():
+    env = make("PandaPush-v0", block_gripper=True)
+    env.reset(seed=0)
+    assert env.action_space.shape == (3,)
+    for _ in range(5):
+        env.step(np.array([0.0, 0.0, 0.0], dtype=np.float32))
+    assert env.unwrapped.cell.robot.finger_gap < 0.005
+    with pytest.raises(ValueError, match="block_gripper=True needs action_mode='ee_delta'"):
+        make("PandaTowerBreak-v0", action_mode="pixel", block_gripper=True)
+    env.close()
+
+
+def test_a_zero_height_action_holds_the_height_while_the_hand_moves_fast():
+    env = make("PandaPush-v0", block_gripper=True)
+    env.reset(seed=0)
+    height = env.unwrapped.cell.robot.ee_position[2]
+    for _ in range(15):
+        env.step(np.array([1.0, 0.0, 0.0], dtype=np.float32))
+    assert abs(env.unwrapped.cell.robot.ee_position[2] - height) < 0.006
+    env.close()
+
+
 def test_bad_pixel_actions_raise():
     env = make("PandaTowerBreak-v0", action_mode="pixel")
     env.reset(seed=0)

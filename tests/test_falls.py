@@ -126,7 +126,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     rows = [json.loads(line) for line in (run / "evaluations.jsonl").read_text().splitlines()]
     assert [r["epoch"] for r in rows] == [1, 2]
     final = json.loads((run / "final.json").read_text())
-    assert set(final["metrics"]) == {"model", "copy_last", "constant_velocity"}
+    assert set(final["metrics"]) == {"model", "copy_last", "constant_velocity", "translation_oracle"}
     assert list((run / "strips").glob("seed*.png"))
     assert "mean block IoU" in (run / "card.md").read_text()
     model, saved = load_fall_model(run / "best.pt")
@@ -140,3 +140,24 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     (run / "broken.pt").write_bytes(b"x")
     with pytest.raises(ValueError, match="cannot load fall-dynamics checkpoint"):
         load_fall_model(run / "broken.pt")
+    older = {**torch.load(run / "best.pt", weights_only=False), "architecture": 1}
+    torch.save(older, run / "older.pt")
+    with pytest.raises(ValueError, match="architecture 1; this code runs architecture"):
+        load_fall_model(run / "older.pt")
+
+
+def test_untrained_model_moves_each_block_by_its_own_velocity_and_flow_targets_agree():
+    from perception.dynamics import FallPredictor, block_flow_targets, one_hot
+
+    labels = torch.zeros(1, 3, 32, 32, dtype=torch.long)
+    for t in range(3):
+        labels[0, t, 10:16, 4 + 2 * t : 10 + 2 * t] = 1  # block 1 moves 2 px a frame along x (columns)
+        labels[0, t, 20:26, 20:26] = 2  # block 2 stands still
+    model = FallPredictor(3, 32, context=3, hidden=8)
+    predicted = model.rollout(one_hot(labels, 3), 1)[0, 0].argmax(0)
+    expected = torch.zeros(32, 32, dtype=torch.long)
+    expected[10:16, 10:16], expected[20:26, 20:26] = 1, 2
+    assert torch.equal(predicted, expected)
+    target, mask = block_flow_targets(labels[:, 1], labels[:, 2])
+    assert torch.allclose(target[0, :, 12, 12], torch.tensor([-2.0, 0.0])) and mask[0, 22, 22]
+    assert torch.allclose(target[0, :, 22, 22], torch.zeros(2))

@@ -98,6 +98,20 @@ def test_grasp_ends_after_k_consecutive_failures():
     env.close()
 
 
+def test_an_object_pushed_out_of_the_heightmap_workspace_is_out_of_play():
+    from panda_grasp_env.tasks.grasp import PLAY_REGION
+
+    env = make("PandaGrasp-v0", n_objects=2, shapes=("cube",))
+    env.reset(seed=0)
+    cell, task = env.unwrapped.cell, env.unwrapped.task
+    assert len(task.on_table(cell)) == 2
+    outside = int(cell.object_ids[1])
+    cell.set_body_pose(outside, [0.6, PLAY_REGION[1, 1] + 0.05, 0.03], [1.0, 0.0, 0.0, 0.0])  # in reach, out of view
+    cell.settle(0.3)
+    assert task.on_table(cell) == [int(cell.object_ids[0])]
+    env.close()
+
+
 @pytest.mark.parametrize("shape", ["cube", "box", "cylinder", "sphere", "capsule"])
 def test_every_shape_rests_on_the_table(shape):
     env = make("PandaGrasp-v0", n_objects=3, shapes=(shape,))

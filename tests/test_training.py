@@ -17,6 +17,7 @@ from agents.heightmap_policy import (
     HeightmapQPolicy,
     encode_heightmap,
     heading_in_image,
+    holding_after,
     rotate,
 )
 from agents.training import TrainConfig, load_config
@@ -202,7 +203,7 @@ def test_a_run_folder_holds_everything_and_resumes(finished_run):
     meta = json.loads((run / "meta.json").read_text())
     assert meta["seed"] == 0 and "torch" in meta["versions"]
     final = json.loads((run / "final.json").read_text())
-    assert final["test_seeds"][0] == 1_000_000 + 100_000  # held out from the validation seeds
+    assert final["test_seeds"][0] == final["metrics"]["seeds"][0] == 1_000_000 + 100_000  # held out from validation
     assert final["best_steps"] in (0, 6, 12) and (run / "best_policy.zip").is_file()
     card = (run / "card.md").read_text()
     assert "95 % CI" in card and "environment steps | 12" in card
@@ -273,3 +274,48 @@ def test_evaluate_runs_a_shipped_checkpoint_by_name_and_skips_other_tasks(finish
     assert (out / "curve_tiny.png").exists()
     with pytest.raises(SystemExit):
         evaluate.main(["--agents", "nope", "--out", str(out)])
+
+
+def test_evaluation_plays_the_seeds_it_is_given():
+    """Validation and the held-out test must be different episodes: evaluate_policy seeds from first_seed."""
+    from agents.training import evaluate_policy
+
+    class Still:  # a stand-in policy: do nothing
+        def predict(self, observation, deterministic=True):
+            return np.zeros(4, dtype=np.float32), None
+
+    config = TrainConfig(name="s", env_id="PandaPush-v0", algo="sac", total_steps=1, max_episode_steps=2, eval_seed=7)
+    assert evaluate_policy(Still(), config, 2)["seeds"] == [7, 8]
+    assert evaluate_policy(Still(), config, 2, first_seed=100)["seeds"] == [100, 101]
+
+
+def test_holding_plane_switches_the_masks_between_grasp_and_place():
+    import gymnasium as gym
+
+    heightmap = np.zeros((40, 40, 4), dtype=np.float32)
+    heightmap[10:15, 10:15] = [0.8, 0.2, 0.2, 0.05]
+    assert holding_after({"primitive": "grasp", "primitive_success": True})
+    assert not holding_after({"primitive": "place", "primitive_success": True})
+    assert not holding_after({"primitive": "grasp", "primitive_success": False}) and not holding_after({})
+    holding, empty = encode_heightmap(heightmap, True), encode_heightmap(heightmap, False)
+    assert holding.shape == (5, 40, 40) and holding[4].min() == 255 and empty[4].max() == 0
+    primitives = ("grasp", "place", "push")
+    space = gym.spaces.Box(0, 255, (5, 40, 40), dtype=np.uint8)
+    policy = HeightmapQPolicy(space, gym.spaces.Discrete(3 * 4 * 1600), lambda _: 1e-3, primitives=primitives,
+                              rotations=4, cell_size=0.01, primitives_used=("grasp", "place"))  # fmt: skip
+    allowed = policy.q_net.allowed(th.as_tensor(np.stack([holding, empty]))).reshape(2, 3, 4, 40, 40)
+    assert allowed[0, 1].any() and not allowed[0, 0].any()  # holding: place only
+    assert allowed[1, 0].any() and not allowed[1, 1].any()  # empty hand: grasp only
+    assert not allowed[:, 2].any()  # push unused
+    with pytest.raises(ValueError, match="place needs the holding plane"):
+        tiny_policy(primitives=primitives, used=("grasp", "place"))
+
+
+def test_retest_runs_the_final_test_again_without_training(finished_run, capsys):
+    before = json.loads((finished_run / "final.json").read_text())
+    (finished_run / "final.json").unlink()
+    assert train.main(["--retest", str(finished_run)]) == 0
+    after = json.loads((finished_run / "final.json").read_text())
+    assert after["metrics"] == before["metrics"] and after["steps"] == 12  # deterministic, same seeds
+    assert json.loads((finished_run / "progress.json").read_text())["steps"] == 12  # nothing trained
+    assert "final: success" in capsys.readouterr().out

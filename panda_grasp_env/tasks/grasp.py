@@ -10,12 +10,17 @@ from panda_grasp_env.objects import SHAPES, ObjectShape, sample_shape, validate_
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, register_task, with_scene
-from panda_grasp_env.workcell import SPAWN_REGION, WORKSPACE, Workcell, body_bottom_height, yaw_quaternion
+from panda_grasp_env.workcell import SPAWN_REGION, Workcell, body_bottom_height, yaw_quaternion
+from perception.heightmap import DEFAULT_BOUNDS
 
 #: VPG drops its clutter into the middle of the workspace; a 0.2 m square here.
 CLUTTER_REGION = np.array([[0.4, 0.6], [-0.1, 0.1]])
 #: A push "changed the scene" if some object moved at least this far (metres): VPG's push reward condition.
 SCENE_CHANGE = 0.01
+#: Objects are in play inside this xy region (metres): the 0.448 m square the default heightmap covers,
+#: VPG's workspace.  As in VPG, one pushed or rolled beyond it is out of the episode: no policy that sees
+#: the workspace through the heightmap could find it.
+PLAY_REGION = np.array(DEFAULT_BOUNDS[:2])
 #: Low-level lift goal: this many metres above the object's resting centre (range).
 LIFT_GOAL_HEIGHT = (0.05, 0.15)
 
@@ -49,8 +54,8 @@ class Grasp(Task):
     0.2 m square heap as VPG does (default: spread apart); ``max_failures``:
     consecutive failed attempts that end the episode (VPG's rule, default 10).
     A successful grasp sets the object aside (off the table).  Objects in play
-    are those on the table inside the workspace (one pushed or rolled out of
-    reach is lost).  Terminates when none is left (success if every object in
+    are those on the table inside ``PLAY_REGION`` (VPG's workspace; one pushed
+    or rolled out of it is lost).  Terminates when none is left (success if every object in
     play after the reset drop was grasped) or after ``max_failures``
     consecutive failed attempts (failed grasps and pushes that moved nothing).  Reward: 1 per successful grasp,
     0.5 for a push that moved something (VPG).
@@ -129,10 +134,10 @@ class Grasp(Task):
         return {"shapes": [s.kind for s in shapes], **self._info(cell)}
 
     def on_table(self, cell: Workcell) -> list[int]:
-        """Body ids of the objects still in play: on the table inside the workspace (not set aside, not
-        fallen off, not pushed or rolled out of the robot's reach)."""
+        """Body ids of the objects still in play: on the table inside ``PLAY_REGION`` (not set aside, not
+        fallen off, not pushed or rolled out of the workspace)."""
         xy = cell.data.xpos[cell.object_ids, :2]
-        inside = np.all((xy >= WORKSPACE[:2, 0]) & (xy <= WORKSPACE[:2, 1]), axis=1)
+        inside = np.all((xy >= PLAY_REGION[:, 0]) & (xy <= PLAY_REGION[:, 1]), axis=1)
         return [int(b) for b, ok in zip(cell.object_ids, inside) if ok and not cell.is_parked(b)]
 
     def _info(self, cell: Workcell, remaining: int | None = None) -> dict[str, Any]:
