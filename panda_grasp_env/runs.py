@@ -67,13 +67,18 @@ def machine() -> str:
 
 
 def commit() -> str:
-    """Short hash of the checked-out commit of this repository, or ``unknown``."""
+    """Short hash of the checked-out commit of this repository, ``+changes`` if tracked files differ from
+    it (the run used code no commit holds), or ``unknown``."""
     root = Path(__file__).resolve().parent.parent
     try:
-        out = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+        changes = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                                 capture_output=True, text=True)  # fmt: skip
     except OSError:
         return "unknown"
-    return out.stdout.strip() or "unknown"
+    if not head.stdout.strip():
+        return "unknown"
+    return head.stdout.strip() + ("+changes" if changes.stdout.strip() else "")
 
 
 def interrupt_on_signals() -> None:

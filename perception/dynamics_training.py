@@ -208,7 +208,8 @@ def train_fall_model(
                desc=config.name, mininterval=5.0)  # fmt: skip
     try:
         while epoch < config.epochs:
-            if config.max_minutes is not None and wall() >= 60 * config.max_minutes:
+            # Start no epoch that would end past the budget (at the mean epoch's duration so far).
+            if config.max_minutes is not None and wall() * (1 + 1 / max(epoch, 1)) >= 60 * config.max_minutes:
                 break
             model.train()
             losses = []

@@ -161,3 +161,11 @@ def test_untrained_model_moves_each_block_by_its_own_velocity_and_flow_targets_a
     target, mask = block_flow_targets(labels[:, 1], labels[:, 2])
     assert torch.allclose(target[0, :, 12, 12], torch.tensor([-2.0, 0.0])) and mask[0, 22, 22]
     assert torch.allclose(target[0, :, 22, 22], torch.zeros(2))
+
+
+def test_the_shipped_fall_model_loads_and_matches_its_card():
+    path = dynamics_training.FALL_CHECKPOINTS / "fall_convlstm"
+    model, saved = load_fall_model(path / "model.pt")
+    final = json.loads((path / "final.json").read_text())
+    assert saved["classes"][0] == "background" and model.n_classes == len(saved["classes"])
+    assert final["metrics"]["model"]["t+1"]["mean_block_iou"] > final["metrics"]["copy_last"]["t+1"]["mean_block_iou"]
