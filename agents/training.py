@@ -39,6 +39,8 @@ ALGORITHMS: dict[str, tuple[str, str]] = {
     "tqc": ("sb3_contrib:TQC", "MultiInputPolicy"),
     "ppo": ("stable_baselines3:PPO", "MultiInputPolicy"),
 }
+#: Training rewards: ``task`` is the env's own; ``outcome`` pays each primitive for what it achieved (``OutcomeReward``).
+REWARDS = ("task", "outcome")
 #: The final test's seeds start this far above the validation seeds: choosing the best checkpoint on the
 #: validation episodes does not flatter the reported figures.
 TEST_SEED_OFFSET = 100_000
@@ -57,6 +59,7 @@ class TrainConfig:
     algo_kwargs: dict[str, Any] = field(default_factory=dict)  # SB3 constructor arguments
     policy_kwargs: dict[str, Any] = field(default_factory=dict)
     her: dict[str, Any] | None = None  # HerReplayBuffer arguments; None = no HER
+    reward: str = "task"  # what the learner is paid: one of REWARDS (evaluation always uses the task's metrics)
     n_envs: int = 1
     vec_env: str = "dummy"  # dummy | subproc (spawn)
     seed: int = 0
@@ -99,6 +102,9 @@ class TrainConfig:
             check(isinstance(getattr(self, key), dict), key, "a mapping")
         check(self.her is None or isinstance(self.her, dict), "her", "a mapping or null")
         check(self.her is None or self.algo in ("sac", "tqc"), "her", "null unless algo is sac or tqc")
+        check(self.reward in REWARDS, "reward", f"one of {list(REWARDS)}")
+        check(self.reward == "task" or ENV_IDS[self.env_id][0].get("task") == "TowerBuild", "reward",
+              "'task' unless env_id is a TowerBuild id (the outcome reward reads the stack height)")  # fmt: skip
         algo_class = load_class(ALGORITHMS[self.algo][0])
         valid = [p for p in inspect.signature(algo_class.__init__).parameters if p not in ("self", "policy", "env")]
         unknown = [k for k in self.algo_kwargs if k not in valid or k in ("seed", "policy_kwargs", "tensorboard_log")]
@@ -184,12 +190,41 @@ def make_env(config: TrainConfig, render_mode: str | None = None) -> gym.Env:
     return gym.make(config.env_id, render_mode=render_mode, **options)
 
 
+class OutcomeReward(gym.Wrapper):
+    """Pays each tower-building primitive for what it achieved, read from the step's info (VPG/SPOT style).
+
+    A grasp earns 1 when it holds a block and the tower kept its height (so not a block lifted off the
+    tower), every time; any step also earns the tower's change in height (levels, negative when it loses
+    blocks) and 1 on success.  The task's own reward pays a block's grasp only once an episode (so that
+    grasp-and-put-back cannot pay forever); a myopic learner (``gamma: 0``) cannot see which blocks were
+    grasped before, so to it a repeated good grasp paid 0 looks like a failure.
+    """
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        observation, info = self.env.reset(**kwargs)
+        if "stack_height" not in info:
+            raise ValueError("OutcomeReward needs a task that reports stack_height (TowerBuild)")
+        self._levels = int(info["stack_height"])
+        return observation, info
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        observation, _, terminated, truncated, info = self.env.step(action)
+        levels = int(info["stack_height"])
+        reward = float(levels - self._levels) + float(bool(info["is_success"]))
+        if info.get("primitive") == "grasp" and info.get("primitive_success") and levels >= self._levels:
+            reward += 1.0
+        self._levels = levels
+        return observation, reward, terminated, truncated, info
+
+
 def _wrapped_env(config: TrainConfig) -> gym.Env:
-    """The training env: ``make_env`` plus the policy's observation wrapper."""
+    """The training env: ``make_env`` plus the training reward and the policy's observation wrapper."""
     import torch
 
     torch.set_num_threads(config.torch_threads)  # worker processes: never oversubscribe the cores
     env = make_env(config)
+    if config.reward == "outcome":
+        env = OutcomeReward(env)
     if config.algo == "heightmap_dqn":
         from agents.heightmap_policy import EncodedHeightmap
 

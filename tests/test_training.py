@@ -4,6 +4,7 @@ import json
 import math
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
@@ -20,7 +21,7 @@ from agents.heightmap_policy import (
     holding_after,
     rotate,
 )
-from agents.training import TrainConfig, load_config
+from agents.training import OutcomeReward, TrainConfig, load_config
 from perception.heightmap import HeightmapGrid
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
@@ -69,6 +70,8 @@ def test_unknown_key_fails_listing_the_valid_ones(tmp_path):
         ("env_id=PandaFly-v0", "expected one of"),
         ("algo_kwargs.learnin_rate=0.1", r"unknown algo_kwargs \['learnin_rate'\].*valid: .*learning_rate"),
         ("vec_env=threads", "'dummy' or 'subproc'"),
+        ("reward=progress", r"expected one of \['task', 'outcome'\]"),
+        ("reward=outcome", "'task' unless env_id is a TowerBuild id"),
         ("her={n_sampled_goal: 4}", None),  # fine for sac
         ("seed", "key=value"),
     ],
@@ -79,6 +82,43 @@ def test_bad_values_fail_before_training(override, message):
         return
     with pytest.raises(ValueError, match=message):
         load_config(CONFIGS / "push_sac_her.yaml", [override])
+
+
+class ScriptedTowerSteps(gym.Env):
+    """Replays (primitive, success, stack height, is_success) steps, as TowerBuild's info reports them."""
+
+    observation_space = gym.spaces.Discrete(1)
+    action_space = gym.spaces.Discrete(1)
+
+    def __init__(self, steps, reset_info=None):
+        self.steps, self.reset_info = steps, reset_info if reset_info is not None else {"stack_height": 1}
+
+    def reset(self, seed=None, options=None):
+        self.i = 0
+        return 0, dict(self.reset_info)
+
+    def step(self, action):
+        primitive, success, height, done = self.steps[self.i]
+        self.i += 1
+        info = {"primitive": primitive, "primitive_success": success, "stack_height": height, "is_success": done}
+        return 0, -99.0, done, False, info
+
+
+def test_outcome_reward_pays_every_good_grasp_and_the_towers_progress():
+    steps = [
+        ("grasp", True, 1, False),  # a loose block: +1
+        ("place", False, 1, False),  # placed off: 0
+        ("grasp", True, 1, False),  # the same block again: +1 (the task pays it only once)
+        ("place", True, 2, False),  # one level: +1
+        ("grasp", False, 2, False),  # missed: 0
+        ("grasp", True, 1, False),  # lifted the top block off the tower: -1, no grasp pay
+        ("place", True, 3, True),  # (scripted) two levels and the tower stands: +2 +1
+    ]
+    env = OutcomeReward(ScriptedTowerSteps(steps))
+    env.reset(seed=0)
+    assert [env.step(0)[1] for _ in steps] == [1.0, 0.0, 1.0, 1.0, 0.0, -1.0, 3.0]
+    with pytest.raises(ValueError, match="stack_height"):
+        OutcomeReward(ScriptedTowerSteps(steps, reset_info={})).reset()
 
 
 def test_overrides_reach_into_mappings_and_read_numbers():
