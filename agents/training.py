@@ -193,25 +193,26 @@ def make_env(config: TrainConfig, render_mode: str | None = None) -> gym.Env:
 class OutcomeReward(gym.Wrapper):
     """Pays each tower-building primitive for what it achieved, read from the step's info (VPG/SPOT style).
 
-    A grasp earns 1 when it holds a block and the tower kept its height (so not a block lifted off the
-    tower), every time; any step also earns the tower's change in height (levels, negative when it loses
-    blocks) and 1 on success.  The task's own reward pays a block's grasp only once an episode (so that
+    A grasp earns 1 when it holds a block other than the base and the tower kept its height (so not a block
+    lifted off the tower), every time; any step also earns the tower's change in height (levels, negative
+    when it loses blocks) and 1 on success.  (Lifting the base never helps to build, so it earns nothing.)  The task's own reward pays a block's grasp only once an episode (so that
     grasp-and-put-back cannot pay forever); a myopic learner (``gamma: 0``) cannot see which blocks were
     grasped before, so to it a repeated good grasp paid 0 looks like a failure.
     """
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
         observation, info = self.env.reset(**kwargs)
-        if "stack_height" not in info:
-            raise ValueError("OutcomeReward needs a task that reports stack_height (TowerBuild)")
-        self._levels = int(info["stack_height"])
+        if "stack_height" not in info or "base" not in info:
+            raise ValueError("OutcomeReward needs a task that reports stack_height and base (TowerBuild)")
+        self._levels, self._base = int(info["stack_height"]), info["base"]
         return observation, info
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         observation, _, terminated, truncated, info = self.env.step(action)
         levels = int(info["stack_height"])
         reward = float(levels - self._levels) + float(bool(info["is_success"]))
-        if info.get("primitive") == "grasp" and info.get("primitive_success") and levels >= self._levels:
+        held = info.get("primitive") == "grasp" and info.get("primitive_success")
+        if held and info.get("primitive_object") != self._base and levels >= self._levels:
             reward += 1.0
         self._levels = levels
         return observation, reward, terminated, truncated, info

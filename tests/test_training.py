@@ -91,32 +91,38 @@ class ScriptedTowerSteps(gym.Env):
     action_space = gym.spaces.Discrete(1)
 
     def __init__(self, steps, reset_info=None):
-        self.steps, self.reset_info = steps, reset_info if reset_info is not None else {"stack_height": 1}
+        self.steps = steps
+        self.reset_info = reset_info if reset_info is not None else {"stack_height": 1, "base": "block_red"}
 
     def reset(self, seed=None, options=None):
         self.i = 0
         return 0, dict(self.reset_info)
 
     def step(self, action):
-        primitive, success, height, done = self.steps[self.i]
+        primitive, block, success, height, done = self.steps[self.i]
         self.i += 1
-        info = {"primitive": primitive, "primitive_success": success, "stack_height": height, "is_success": done}
+        info = {"primitive": primitive, "primitive_object": block, "primitive_success": success,
+                "stack_height": height, "is_success": done}  # fmt: skip
         return 0, -99.0, done, False, info
 
 
 def test_outcome_reward_pays_every_good_grasp_and_the_towers_progress():
     steps = [
-        ("grasp", True, 1, False),  # a loose block: +1
-        ("place", False, 1, False),  # placed off: 0
-        ("grasp", True, 1, False),  # the same block again: +1 (the task pays it only once)
-        ("place", True, 2, False),  # one level: +1
-        ("grasp", False, 2, False),  # missed: 0
-        ("grasp", True, 1, False),  # lifted the top block off the tower: -1, no grasp pay
-        ("place", True, 3, True),  # (scripted) two levels and the tower stands: +2 +1
+        ("grasp", "block_green", True, 1, False),  # a loose block: +1
+        ("place", "block_green", False, 1, False),  # placed off: 0
+        ("grasp", "block_green", True, 1, False),  # the same block again: +1 (the task pays it only once)
+        ("place", "block_green", True, 2, False),  # one level: +1
+        ("grasp", "", False, 2, False),  # missed: 0
+        ("grasp", "block_green", True, 1, False),  # lifted the top block off the tower: -1, no grasp pay
+        ("place", "block_green", True, 1, False),  # set down off the tower: 0
+        ("grasp", "block_red", True, 1, False),  # the base: 0
+        ("place", "block_red", True, 1, False),  # set down again: 0
+        ("grasp", "block_blue", True, 1, False),  # +1
+        ("place", "block_blue", True, 3, True),  # (scripted) two levels and the tower stands: +2 +1
     ]
     env = OutcomeReward(ScriptedTowerSteps(steps))
     env.reset(seed=0)
-    assert [env.step(0)[1] for _ in steps] == [1.0, 0.0, 1.0, 1.0, 0.0, -1.0, 3.0]
+    assert [env.step(0)[1] for _ in steps] == [1.0, 0.0, 1.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0, 3.0]
     with pytest.raises(ValueError, match="stack_height"):
         OutcomeReward(ScriptedTowerSteps(steps, reset_info={})).reset()
 
