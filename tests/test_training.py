@@ -161,14 +161,11 @@ def blob_observation(rows=40, cols=40, centre=(12, 25), radius=3, height=0.04):
     return encode_heightmap(heightmap), inside
 
 
-def tiny_policy(primitives=("grasp", "push"), used=("grasp",), rotations=4, rows=40, cols=40):
-    import gymnasium as gym
-
+def tiny_policy(primitives=("grasp", "push"), used=("grasp",), rotations=4, rows=40, cols=40, refine=False):
     space = gym.spaces.Box(0, 255, (4, rows, cols), dtype=np.uint8)
     actions = gym.spaces.Discrete(len(primitives) * rotations * rows * cols)
-    return HeightmapQPolicy(
-        space, actions, lambda _: 1e-3, primitives=primitives, rotations=rotations, cell_size=0.01, primitives_used=used
-    )
+    return HeightmapQPolicy(space, actions, lambda _: 1e-3, primitives=primitives, rotations=rotations, cell_size=0.01,
+                            primitives_used=used, refine=refine)  # fmt: skip
 
 
 def test_encoded_heightmap_keeps_millimetres():
@@ -179,9 +176,11 @@ def test_encoded_heightmap_keeps_millimetres():
         encode_heightmap(np.zeros((40, 40, 3)))
 
 
-def test_policy_only_grasps_on_objects_and_scores_one_rotation_like_all():
+@pytest.mark.parametrize("refine", [False, True])
+def test_policy_only_grasps_on_objects_and_scores_one_rotation_like_all(refine):
     th.manual_seed(0)
-    policy = tiny_policy()
+    policy = tiny_policy(refine=refine)
+    assert (policy.q_net.refine is not None) == refine and policy._get_constructor_parameters()["refine"] == refine
     observation, inside = blob_observation()
     action, _ = policy.predict(observation, deterministic=True)
     p, r, row, col = np.unravel_index(int(action), (2, 4, 40, 40))
