@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import yaml
 
 from agents.evaluation import EpisodeSpec, aggregate, is_low_level, play_episode, task_label
@@ -191,30 +192,44 @@ def make_env(config: TrainConfig, render_mode: str | None = None) -> gym.Env:
 
 
 class OutcomeReward(gym.Wrapper):
-    """Pays each tower-building primitive for what it achieved, read from the step's info (VPG/SPOT style).
+    """Pays each tower-building primitive for what it achieved (VPG/SPOT style), for ``pixel`` actions on
+    ``heightmap`` observations.
 
-    A grasp earns 1 when it holds a block other than the base and the tower kept its height (so not a block
-    lifted off the tower), every time; any step also earns the tower's change in height (levels, negative
-    when it loses blocks) and 1 on success.  (Lifting the base never helps to build, so it earns nothing.)  The task's own reward pays a block's grasp only once an episode (so that
-    grasp-and-put-back cannot pay forever); a myopic learner (``gamma: 0``) cannot see which blocks were
-    grasped before, so to it a repeated good grasp paid 0 looks like a failure.
+    A grasp earns 1 when it holds a block that lay on the table (the heightmap at the grasped cell under 1.5
+    block sizes) other than the base; any step also earns the tower's change in height (levels, negative
+    when it loses blocks) and 1 on success.  The task's own reward pays a block's grasp only once an
+    episode, which a myopic learner (``gamma: 0``) that cannot see which blocks it grasped before reads as
+    noise.  Paying every grasp needs the table rule: without it a policy learned to set a block on a loose
+    one and grasp it back, +1 every other step.
     """
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        space = env.observation_space
+        if not isinstance(env.action_space, gym.spaces.Discrete) or not (
+            isinstance(space, gym.spaces.Box) and len(space.shape) == 3 and space.shape[-1] == 4
+        ):
+            raise ValueError(f"OutcomeReward needs action_mode='pixel' and obs_mode='heightmap'; got {space}")
+        self._cells = space.shape[:2]
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
         observation, info = self.env.reset(**kwargs)
-        if "stack_height" not in info or "base" not in info:
-            raise ValueError("OutcomeReward needs a task that reports stack_height and base (TowerBuild)")
-        self._levels, self._base = int(info["stack_height"]), info["base"]
+        if not {"stack_height", "base", "block_size"} <= set(info):
+            raise ValueError("OutcomeReward needs a task that reports stack_height, base and block_size (TowerBuild)")
+        self._levels, self._base, self._block = int(info["stack_height"]), info["base"], float(info["block_size"])
+        self._heightmap = observation
         return observation, info
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        row, col = np.unravel_index(int(action) % (self._cells[0] * self._cells[1]), self._cells)
+        from_table = self._heightmap[row, col, 3] < 1.5 * self._block
         observation, _, terminated, truncated, info = self.env.step(action)
         levels = int(info["stack_height"])
         reward = float(levels - self._levels) + float(bool(info["is_success"]))
         held = info.get("primitive") == "grasp" and info.get("primitive_success")
-        if held and info.get("primitive_object") != self._base and levels >= self._levels:
+        if held and from_table and info.get("primitive_object") != self._base:
             reward += 1.0
-        self._levels = levels
+        self._levels, self._heightmap = levels, observation
         return observation, reward, terminated, truncated, info
 
 

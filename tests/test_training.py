@@ -85,46 +85,54 @@ def test_bad_values_fail_before_training(override, message):
 
 
 class ScriptedTowerSteps(gym.Env):
-    """Replays (primitive, success, stack height, is_success) steps, as TowerBuild's info reports them."""
+    """Replays TowerBuild steps (primitive, block, success, stack height, is_success, height under the next
+    action's cell) on a 2x2 heightmap; every action is cell (0, 0)."""
 
-    observation_space = gym.spaces.Discrete(1)
-    action_space = gym.spaces.Discrete(1)
+    observation_space = gym.spaces.Box(0.0, 1.0, (2, 2, 4), dtype=np.float32)
+    action_space = gym.spaces.Discrete(3 * 4)
 
-    def __init__(self, steps, reset_info=None):
-        self.steps = steps
-        self.reset_info = reset_info if reset_info is not None else {"stack_height": 1, "base": "block_red"}
+    def __init__(self, steps, first_height=0.05, reset_info=None):
+        self.steps, self.first_height = steps, first_height
+        self.reset_info = reset_info if reset_info is not None else {"stack_height": 1, "base": "r", "block_size": 0.05}
+
+    def heightmap(self, height):
+        return np.full((2, 2, 4), height, dtype=np.float32)
 
     def reset(self, seed=None, options=None):
         self.i = 0
-        return 0, dict(self.reset_info)
+        return self.heightmap(self.first_height), dict(self.reset_info)
 
     def step(self, action):
-        primitive, block, success, height, done = self.steps[self.i]
+        primitive, block, success, height, done, next_height = self.steps[self.i]
         self.i += 1
         info = {"primitive": primitive, "primitive_object": block, "primitive_success": success,
                 "stack_height": height, "is_success": done}  # fmt: skip
-        return 0, -99.0, done, False, info
+        return self.heightmap(next_height), -99.0, done, False, info
 
 
-def test_outcome_reward_pays_every_good_grasp_and_the_towers_progress():
+def test_outcome_reward_pays_every_grasp_from_the_table_and_the_towers_progress():
     steps = [
-        ("grasp", "block_green", True, 1, False),  # a loose block: +1
-        ("place", "block_green", False, 1, False),  # placed off: 0
-        ("grasp", "block_green", True, 1, False),  # the same block again: +1 (the task pays it only once)
-        ("place", "block_green", True, 2, False),  # one level: +1
-        ("grasp", "", False, 2, False),  # missed: 0
-        ("grasp", "block_green", True, 1, False),  # lifted the top block off the tower: -1, no grasp pay
-        ("place", "block_green", True, 1, False),  # set down off the tower: 0
-        ("grasp", "block_red", True, 1, False),  # the base: 0
-        ("place", "block_red", True, 1, False),  # set down again: 0
-        ("grasp", "block_blue", True, 1, False),  # +1
-        ("place", "block_blue", True, 3, True),  # (scripted) two levels and the tower stands: +2 +1
+        ("grasp", "g", True, 1, False, 0.05),  # a loose block from the table: +1
+        ("place", "g", False, 1, False, 0.05),  # placed off: 0
+        ("grasp", "g", True, 1, False, 0.10),  # the same block again: +1 (the task pays it only once)
+        ("place", "g", True, 2, False, 0.05),  # one level: +1
+        ("grasp", "", False, 2, False, 0.10),  # missed: 0
+        ("grasp", "g", True, 1, False, 0.05),  # lifted the top block off the tower: -1, no grasp pay
+        ("place", "g", True, 1, False, 0.10),  # set down on a loose block: 0
+        ("grasp", "g", True, 1, False, 0.05),  # and grasped back from there: 0
+        ("place", "g", True, 1, False, 0.05),  # 0
+        ("grasp", "r", True, 1, False, 0.05),  # the base: 0
+        ("place", "r", True, 1, False, 0.05),  # 0
+        ("grasp", "b", True, 1, False, 0.05),  # +1
+        ("place", "b", True, 3, True, 0.0),  # (scripted) two levels and the tower stands: +2 +1
     ]
     env = OutcomeReward(ScriptedTowerSteps(steps))
     env.reset(seed=0)
-    assert [env.step(0)[1] for _ in steps] == [1.0, 0.0, 1.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0, 3.0]
-    with pytest.raises(ValueError, match="stack_height"):
+    assert [env.step(0)[1] for _ in steps] == [1, 0, 1, 1, 0, -1, 0, 0, 0, 0, 0, 1, 3]
+    with pytest.raises(ValueError, match="stack_height, base and block_size"):
         OutcomeReward(ScriptedTowerSteps(steps, reset_info={})).reset()
+    with pytest.raises(ValueError, match="action_mode='pixel' and obs_mode='heightmap'"):
+        OutcomeReward(gym.make("panda_grasp_env:PandaTowerBuild-v0"))
 
 
 def test_overrides_reach_into_mappings_and_read_numbers():
