@@ -611,7 +611,7 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
         f"# {config.name}",
         "",
         f"`{config.algo}` on `{config.env_id}` ({json.dumps(config.env_kwargs)}), trained by this repository's "
-        f"`train.py` from `configs/{config.name}.yaml`.",
+        "`train.py` with the resolved config below.",
         "",
         "| | |",
         "|---|---|",
