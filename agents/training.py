@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import json
+import math
 import os
 import time
 from collections.abc import Callable
@@ -106,11 +107,30 @@ class TrainConfig:
         check(self.reward in REWARDS, "reward", f"one of {list(REWARDS)}")
         check(self.reward == "task" or ENV_IDS[self.env_id][0].get("task") == "TowerBuild", "reward",
               "'task' unless env_id is a TowerBuild id (the outcome reward reads the stack height)")  # fmt: skip
+        rate = self.algo_kwargs.get("learning_rate", 1.0)
+        if isinstance(rate, dict):
+            ok = sorted(rate) == ["end", "start"] and all(_is_number(v) and v >= 0 for v in rate.values())
+            check(ok and rate["start"] > 0, "algo_kwargs",
+                  "learning_rate as a positive number or {start: > 0, end: >= 0} (linear over total_steps)")  # fmt: skip
         algo_class = load_class(ALGORITHMS[self.algo][0])
         valid = [p for p in inspect.signature(algo_class.__init__).parameters if p not in ("self", "policy", "env")]
         unknown = [k for k in self.algo_kwargs if k not in valid or k in ("seed", "policy_kwargs", "tensorboard_log")]
         if unknown:
             raise ValueError(f"unknown algo_kwargs {unknown} for {self.algo}; valid: {sorted(valid)}")
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def learning_rate(value: float | dict[str, float]) -> Any:
+    """SB3's ``learning_rate`` from a config's: a number, or ``{start, end}`` for a linear decay from ``start``
+    to ``end`` over the run's ``total_steps`` (SB3's progress is measured against them, also when resumed)."""
+    from stable_baselines3.common.utils import LinearSchedule
+
+    if isinstance(value, dict):
+        return LinearSchedule(float(value["start"]), float(value["end"]), 1.0)
+    return value
 
 
 def load_class(path: str) -> Any:
@@ -273,6 +293,8 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
     algo_class = load_class(algo_path)
     policy_kwargs = dict(config.policy_kwargs)
     kwargs = dict(config.algo_kwargs)
+    if "learning_rate" in kwargs:
+        kwargs["learning_rate"] = learning_rate(kwargs["learning_rate"])
     if config.algo == "heightmap_dqn":
         policy = load_class(policy)
         probe = make_env(config)

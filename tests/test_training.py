@@ -73,6 +73,9 @@ def test_unknown_key_fails_listing_the_valid_ones(tmp_path):
         ("reward=progress", r"expected one of \['task', 'outcome'\]"),
         ("reward=outcome", "'task' unless env_id is a TowerBuild id"),
         ("her={n_sampled_goal: 4}", None),  # fine for sac
+        ("algo_kwargs.learning_rate={start: 0.001, end: 0.0001}", None),
+        ("algo_kwargs.learning_rate={start: 0.001, end: -1}", r"learning_rate as a positive number or \{start"),
+        ("algo_kwargs.learning_rate={start: 0.001}", r"learning_rate as a positive number or \{start"),
         ("seed", "key=value"),
     ],
 )
@@ -294,6 +297,25 @@ def test_her_pipeline_runs_with_vectorised_envs(tmp_path):
     assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *overrides]) == 0
     final = json.loads((tmp_path / "push_sac_her-seed0" / "final.json").read_text())
     assert final["steps"] == 200 and final["metrics"]["episodes"] == 1
+
+
+def test_learning_rate_decays_linearly_over_total_steps_also_when_resumed(tmp_path, monkeypatch):
+    decay = "algo_kwargs.learning_rate={start: 0.001, end: 0.0001}"
+    config = str(CONFIGS / "grasp_clutter_dqn.yaml")
+    assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *TINY_DQN, decay,
+                       "total_steps=6"]) == 0  # fmt: skip
+    rates = []
+    original = HeightmapDQN.train
+
+    def recording_train(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        rates.append((self.num_timesteps, self.policy.optimizer.param_groups[0]["lr"]))
+
+    monkeypatch.setattr(HeightmapDQN, "train", recording_train)
+    assert train.main(["--resume", str(tmp_path / "grasp_clutter_dqn-seed0"), "total_steps=12", "--no-progress"]) == 0
+    assert [steps for steps, _ in rates] == [7, 8, 9, 10, 11, 12]
+    for steps, rate in rates:  # progress counts from the run's first step to its total_steps, across sessions
+        assert rate == pytest.approx(1e-3 + (1e-4 - 1e-3) * steps / 12)
 
 
 def test_config_dataclass_lists_its_keys():
