@@ -37,6 +37,10 @@ from panda_grasp_env.actions import PixelActions
 
 #: Heights (metres) the uint8 height channel spans: one level per millimetre.
 HEIGHT_RANGE = 0.255
+#: An acting policy does not try a primitive again within this many metres of a cell where it failed while
+#: the heights there stay within ``RETRY_HEIGHT_CHANGE`` metres of what they were (``FailureMemory``).
+RETRY_RADIUS = 0.012
+RETRY_HEIGHT_CHANGE = 0.005
 
 
 def holding_after(info: dict[str, Any]) -> bool:
@@ -209,6 +213,41 @@ class HeightmapQNetwork(nn.Module):
         return mask
 
 
+class FailureMemory:
+    """The primitives that failed in an episode, with the heights around their cells when they were chosen.
+
+    In an unchanged scene a greedy policy chooses the same action again and, the physics being
+    deterministic, fails the same way: held-out tower trials ended at the action limit retrying one grasp
+    next to the tower.  ``excluded`` marks the actions near an earlier failure whose surroundings have not
+    changed, for every heading.  Works on encoded heightmaps (``encode_heightmap``).
+    """
+
+    def __init__(self, shape: tuple[int, int, int, int], cell_size: float) -> None:
+        """``shape``: (primitives, rotations, rows, cols) of the ``pixel`` actions; ``cell_size``: metres."""
+        self.shape = shape
+        self.radius = max(1, round(RETRY_RADIUS / cell_size))
+        self.tolerance = RETRY_HEIGHT_CHANGE / HEIGHT_RANGE * 255  # encoded height levels
+        self.failures: list[tuple[int, slice, slice, np.ndarray]] = []
+
+    def reset(self) -> None:
+        self.failures.clear()
+
+    def record_failure(self, action: int, observation: np.ndarray) -> None:
+        """``action`` failed; ``observation`` is the encoded heightmap it was chosen on."""
+        primitive, _, row, col = np.unravel_index(int(action), self.shape)
+        rows = slice(max(0, row - self.radius), row + self.radius + 1)
+        cols = slice(max(0, col - self.radius), col + self.radius + 1)
+        self.failures.append((int(primitive), rows, cols, observation[3, rows, cols].astype(np.int16)))
+
+    def excluded(self, observation: np.ndarray) -> np.ndarray | None:
+        """(P * R * H * W,) bool: the actions near a failure whose heights are as they were; None if none."""
+        mask = np.zeros(self.shape, dtype=bool)
+        for primitive, rows, cols, heights in self.failures:
+            if np.abs(observation[3, rows, cols].astype(np.int16) - heights).max() <= self.tolerance:
+                mask[primitive, :, rows, cols] = True
+        return mask.ravel() if mask.any() else None
+
+
 class HeightmapQPolicy(DQNPolicy):
     """SB3 DQN policy around ``HeightmapQNetwork``; actions outside ``allowed`` are never chosen.
 
@@ -271,6 +310,18 @@ class HeightmapQPolicy(DQNPolicy):
     def _predict(self, observation: th.Tensor, deterministic: bool = True) -> th.Tensor:
         q = self.q_net(observation).masked_fill(~self.q_net.allowed(observation), -th.inf)
         return q.argmax(dim=1)
+
+    def greedy_action(self, observation: np.ndarray, excluded: np.ndarray | None = None) -> int:
+        """The best allowed action on one encoded heightmap (C, H, W), avoiding ``excluded`` (bool per
+        action, e.g. ``FailureMemory.excluded``) unless that leaves no allowed action."""
+        with th.no_grad():
+            batch = th.as_tensor(observation[None], device=self.device)
+            allowed = self.q_net.allowed(batch)
+            if excluded is not None:
+                others = allowed & ~th.as_tensor(excluded, device=self.device)[None]
+                if others.any():
+                    allowed = others
+            return int(self.q_net(batch).masked_fill(~allowed, -th.inf).argmax(1))
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return {

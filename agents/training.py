@@ -330,28 +330,57 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
 
 
 class PolicyAgent:
-    """An SB3 model or policy as an ``Agent``: deterministic actions from transformed observations."""
+    """An SB3 model or policy as an ``Agent``: deterministic actions from transformed observations.
 
-    def __init__(self, model: Any, transform: Callable[[Any, dict[str, Any]], Any], name: str) -> None:
+    A heightmap Q-policy also keeps a ``FailureMemory`` (unless ``avoid_failures`` is False): it does not
+    choose again, anywhere within a few millimetres and at any heading, a primitive that failed there
+    while the heights around it are unchanged.
+    """
+
+    def __init__(
+        self, model: Any, transform: Callable[[Any, dict[str, Any]], Any], name: str, avoid_failures: bool = True
+    ) -> None:
+        from agents.heightmap_policy import FailureMemory, HeightmapQPolicy
+
         self.model, self.transform, self.name = model, transform, name
+        policy = getattr(model, "policy", model)
+        self.memory = None
+        if avoid_failures and isinstance(policy, HeightmapQPolicy):
+            self.memory = FailureMemory(policy.shape, policy.network_args["cell_size"])
+        self._chosen: tuple[int, np.ndarray] | None = None  # the last action and what it was chosen on
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
-        pass
+        if self.memory is not None:
+            self.memory.reset()
+        self._chosen = None
 
     def act(self, observation: Any, info: dict[str, Any]) -> Any:
-        action, _ = self.model.predict(self.transform(observation, info), deterministic=True)
+        seen = self.transform(observation, info)
+        if self.memory is None:
+            action, _ = self.model.predict(seen, deterministic=True)
+            return action
+        if self._chosen is not None and not info.get("primitive_success", True):
+            self.memory.record_failure(*self._chosen)
+        action = getattr(self.model, "policy", self.model).greedy_action(seen, self.memory.excluded(seen))
+        self._chosen = (action, seen)
         return action
 
 
 def evaluate_policy(
-    model: Any, config: TrainConfig, episodes: int, env: gym.Env | None = None, first_seed: int | None = None
+    model: Any,
+    config: TrainConfig,
+    episodes: int,
+    env: gym.Env | None = None,
+    first_seed: int | None = None,
+    avoid_failures: bool = True,
 ) -> dict[str, Any]:
-    """Task metrics (``agents.evaluation.aggregate``) of ``model`` (an SB3 model or policy) over ``episodes``
-    episodes seeded ``first_seed``, ``first_seed + 1``, ... (default: the validation seeds, ``eval_seed``...)."""
+    """Task metrics (``agents.evaluation.aggregate``) of ``model`` (an SB3 model or policy) acting as a
+    ``PolicyAgent`` over ``episodes`` episodes seeded ``first_seed``, ``first_seed + 1``, ... (default: the
+    validation seeds, ``eval_seed``...)."""
     first_seed = config.eval_seed if first_seed is None else first_seed
     own_env = env is None
     env = make_env(config) if env is None else env
-    agent = PolicyAgent(model, observation_transform(config), config.name)
+    agent = PolicyAgent(model, observation_transform(config), config.name, avoid_failures)
     task = task_label(config.env_id, config.env_kwargs)
     results = [
         play_episode(env, agent, EpisodeSpec(config.name, task, first_seed + i))["result"] for i in range(episodes)

@@ -21,7 +21,7 @@ from agents.heightmap_policy import (
     holding_after,
     rotate,
 )
-from agents.training import OutcomeReward, TrainConfig, load_config
+from agents.training import OutcomeReward, PolicyAgent, TrainConfig, load_config
 from perception.heightmap import HeightmapGrid
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
@@ -205,6 +205,33 @@ def test_policy_only_grasps_on_objects_and_scores_one_rotation_like_all(refine):
     assert np.array_equal(allowed[0, 2].numpy(), inside)
     with pytest.raises(ValueError, match="primitives_used"):
         tiny_policy(used=("place",))
+
+
+def test_agent_does_not_retry_a_failed_primitive_where_nothing_changed():
+    th.manual_seed(0)
+    policy = tiny_policy()
+    observation, inside = blob_observation()
+    failed = {"primitive": "grasp", "primitive_success": False}
+    forgetful = PolicyAgent(policy, lambda o, i: o, "tiny", avoid_failures=False)
+    agent = PolicyAgent(policy, lambda o, i: o, "tiny")
+    for each in (forgetful, agent):
+        each.reset(observation, {})
+    first = agent.act(observation, {})
+    assert forgetful.act(observation, {}) == forgetful.act(observation, failed) == first
+    cells = [np.unravel_index(first, (2, 4, 40, 40))[2:]]
+    for _ in range(int(inside.sum()) + 2):  # every blob cell fails in turn, then the least bad one again
+        p, _, row, col = np.unravel_index(agent.act(observation, failed), (2, 4, 40, 40))
+        assert p == 0 and inside[row, col]
+        cells.append((row, col))
+    radius = agent.memory.radius
+    fresh = [(r, c) for i, (r, c) in enumerate(cells) if all(max(abs(r - r0), abs(c - c0)) > radius
+                                                              for r0, c0 in cells[:i])]  # fmt: skip
+    assert len(fresh) >= 4 and cells[: len(fresh)] == fresh  # new places first, repeats only when none is left
+    assert agent.memory.excluded(observation).reshape(2, 4, 40, 40)[0, :, inside].all()
+    raised, _ = blob_observation(height=0.08)  # the heights there changed: everything may be tried again
+    assert agent.memory.excluded(raised) is None
+    agent.reset(observation, {})
+    assert agent.act(observation, failed) == first  # a new episode forgets
 
 
 def test_exploration_samples_only_allowed_actions():

@@ -1,0 +1,70 @@
+"""Shipped heightmap policies on their held-out test seeds, with and without the agent's ``FailureMemory``.
+
+    python benchmarks/failure_memory.py [--checkpoints tower_build_dqn,grasp_clutter_dqn] [--episodes N]
+                                        [--out results/benchmarks/failure_memory.json] [--resume]
+
+Same policy, same seeds (the run's final-test seeds, ``eval_seed + TEST_SEED_OFFSET``...), side by side:
+trial success (95 % CI), completion, grasp success and action efficiency.  Without the memory a greedy
+policy in an unchanged scene repeats the action that just failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from agents.learned import Checkpoint, available_checkpoints
+from agents.training import TEST_SEED_OFFSET, evaluate_policy
+from benchmarks._common import Results
+
+
+def heightmap_checkpoints() -> list[str]:
+    return [name for name in available_checkpoints() if Checkpoint(name).config.algo == "heightmap_dqn"]
+
+
+def measure(name: str, episodes: int | None, avoid_failures: bool) -> dict:
+    checkpoint = Checkpoint(name)
+    config = checkpoint.config
+    metrics = evaluate_policy(
+        checkpoint.load_policy(),
+        config,
+        episodes or config.final_eval_episodes,
+        first_seed=config.eval_seed + TEST_SEED_OFFSET,
+        avoid_failures=avoid_failures,
+    )
+    return {key: metrics[key] for key in ("trial_success", "completion", "grasp_success", "action_efficiency",
+                                          "failures", "episodes", "seeds")}  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--checkpoints", default=None, help="comma-separated names (default: every heightmap one)")
+    parser.add_argument("--episodes", type=int, default=None, help="default: each run's final_eval_episodes")
+    parser.add_argument("--out", type=Path, default=Path("results/benchmarks/failure_memory.json"))
+    parser.add_argument("--resume", action="store_true", help="keep the sections already in --out")
+    args = parser.parse_args()
+    names = args.checkpoints.split(",") if args.checkpoints else heightmap_checkpoints()
+    for name in names:
+        Checkpoint(name)  # unknown names fail before anything runs
+    results = Results(args.out, args.resume)
+    print(f"{'checkpoint':<20} {'memory':<7} {'N':>4} {'success (95 % CI)':<24} {'completion':>10} "
+          f"{'grasp success':>16} {'efficiency':>10}  failures")  # fmt: skip
+    for name in names:
+        for avoid in (False, True):
+            section = f"{name}/{'memory' if avoid else 'none'}"
+            row = results.section(section, lambda: measure(name, args.episodes, avoid))
+            success, grasp = row["trial_success"], row["grasp_success"]
+            low, high = success["ci95"]
+            print(f"{name:<20} {'on' if avoid else 'off':<7} {row['episodes']:>4} "
+                  f"{success['rate']:>6.1%} ({low:.1%}-{high:.1%}){'':<4} {row['completion']['rate']:>10.1%} "
+                  f"{grasp['rate']:>7.1%} ({grasp['successes']}/{grasp['n']}) {row['action_efficiency']:>10.1%}  "
+                  f"{row['failures']}")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
