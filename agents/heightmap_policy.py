@@ -148,7 +148,9 @@ class HeightmapQNetwork(nn.Module):
         # features.  Its last layer starts at zero, so a refined network starts as the plain one.
         self.refine = None
         if refine:
-            self.refine = nn.Sequential(nn.Conv2d(16 + width, 32, 3, padding=1), nn.ReLU(), nn.Conv2d(32, self.n_primitives, 1))
+            self.refine = nn.Sequential(
+                nn.Conv2d(16 + width, 32, 3, padding=1), nn.ReLU(), nn.Conv2d(32, self.n_primitives, 1)
+            )
             nn.init.zeros_(self.refine[-1].weight)
             nn.init.zeros_(self.refine[-1].bias)
         headings = 2 * math.pi * th.arange(self.rotations) / self.rotations

@@ -608,9 +608,12 @@ def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) 
 
 def retest(run_dir: Path) -> dict[str, Any]:
     """``final_test`` again on a run whose training has ended (after the evaluation protocol changed)."""
+    import torch
+
     config = load_run(run_dir)
     if not (run_dir / "best.json").is_file() or not (run_dir / "progress.json").is_file():
         raise ValueError(f"{run_dir} has no best policy to test yet (best.json, progress.json)")
+    torch.set_num_threads(config.torch_threads)  # as in training: other thread counts may round (and choose) apart
     progress = json.loads((run_dir / "progress.json").read_text())
     return final_test(config, run_dir, int(progress["steps"]), float(progress["wall_seconds"]))
 
@@ -687,6 +690,11 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
             if final["chosen_by"] == "validation"
             else f"The policy tested is the final one (step {final['steps']}): this run kept no validated best."
         ),  # fmt: skip
+        *(
+            ["It acts with its `FailureMemory` (no retry of a failed primitive where the heights are unchanged)."]
+            if config.algo == "heightmap_dqn"
+            else []
+        ),
         "",
         f"- trial success: {pct(m['trial_success'])}",
         *(

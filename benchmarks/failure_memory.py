@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from functools import partial
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -28,8 +29,11 @@ def heightmap_checkpoints() -> list[str]:
 
 
 def measure(name: str, episodes: int | None, avoid_failures: bool) -> dict:
+    import torch
+
     checkpoint = Checkpoint(name)
     config = checkpoint.config
+    torch.set_num_threads(config.torch_threads)  # as in its training run's tests
     metrics = evaluate_policy(
         checkpoint.load_policy(),
         config,
@@ -57,7 +61,7 @@ def main() -> None:
     for name in names:
         for avoid in (False, True):
             section = f"{name}/{'memory' if avoid else 'none'}"
-            row = results.section(section, lambda: measure(name, args.episodes, avoid))
+            row = results.section(section, partial(measure, name, args.episodes, avoid))
             success, grasp = row["trial_success"], row["grasp_success"]
             low, high = success["ci95"]
             print(f"{name:<20} {'on' if avoid else 'off':<7} {row['episodes']:>4} "
