@@ -218,10 +218,11 @@ class HeightmapQNetwork(nn.Module):
 class FailureMemory:
     """The primitives that failed in an episode, with the heights around their cells when they were chosen.
 
-    In an unchanged scene a greedy policy chooses the same action again and, the physics being
-    deterministic, fails the same way: held-out tower trials ended at the action limit retrying one grasp
-    next to the tower.  ``excluded`` marks the actions near an earlier failure whose surroundings have not
-    changed, for every heading.  Works on encoded heightmaps (``encode_heightmap``).
+    In an unchanged scene a greedy policy chooses the same action again and often fails the same way:
+    held-out tower trials ended at the action limit retrying one grasp next to the tower.  ``excluded``
+    marks the actions near an earlier failure whose surroundings have not changed, for every heading.
+    Heights are all it compares: the arm may stand elsewhere after a failure, so a retry can differ.
+    Works on encoded heightmaps (``encode_heightmap``).  Used by ``PolicyAgent(avoid_failures=True)``.
     """
 
     def __init__(self, shape: tuple[int, int, int, int], cell_size: float) -> None:

@@ -107,10 +107,10 @@ def check_compatible(policy: Any, config: TrainConfig, env: gym.Env, name: str) 
 
 
 class LearnedAgent(PolicyAgent):
-    """A shipped policy as an ``Agent``: deterministic actions from the observation (and a heightmap
-    policy's ``FailureMemory`` of the episode; ``avoid_failures=False`` turns it off)."""
+    """A shipped policy as an ``Agent``: deterministic actions from the observation (with ``avoid_failures``,
+    and a heightmap policy's ``FailureMemory`` of the episode: see ``PolicyAgent``)."""
 
-    def __init__(self, checkpoint: str | Path, env: gym.Env | None = None, avoid_failures: bool = True) -> None:
+    def __init__(self, checkpoint: str | Path, env: gym.Env | None = None, avoid_failures: bool = False) -> None:
         self.checkpoint = Checkpoint(checkpoint)
         policy = self.checkpoint.load_policy()
         super().__init__(policy, observation_transform(self.checkpoint.config), self.checkpoint.name, avoid_failures)

@@ -212,8 +212,8 @@ def test_agent_does_not_retry_a_failed_primitive_where_nothing_changed():
     policy = tiny_policy()
     observation, inside = blob_observation()
     failed = {"primitive": "grasp", "primitive_success": False}
-    forgetful = PolicyAgent(policy, lambda o, i: o, "tiny", avoid_failures=False)
-    agent = PolicyAgent(policy, lambda o, i: o, "tiny")
+    forgetful = PolicyAgent(policy, lambda o, i: o, "tiny")
+    agent = PolicyAgent(policy, lambda o, i: o, "tiny", avoid_failures=True)
     for each in (forgetful, agent):
         each.reset(observation, {})
     first = agent.act(observation, {})
