@@ -311,20 +311,23 @@ class HeightmapQPolicy(DQNPolicy):
         return network.to(self.device)
 
     def _predict(self, observation: th.Tensor, deterministic: bool = True) -> th.Tensor:
-        q = self.q_net(observation).masked_fill(~self.q_net.allowed(observation), -th.inf)
-        return q.argmax(dim=1)
+        return self._best_allowed(observation)
+
+    def _best_allowed(self, observations: th.Tensor, excluded: th.Tensor | None = None) -> th.Tensor:
+        """(B,) the best allowed actions, avoiding ``excluded`` (B, actions) where that leaves any."""
+        allowed = self.q_net.allowed(observations)
+        if excluded is not None:
+            others = allowed & ~excluded
+            allowed = th.where(others.any(1, keepdim=True), others, allowed)
+        return self.q_net(observations).masked_fill(~allowed, -th.inf).argmax(dim=1)
 
     def greedy_action(self, observation: np.ndarray, excluded: np.ndarray | None = None) -> int:
         """The best allowed action on one encoded heightmap (C, H, W), avoiding ``excluded`` (bool per
         action, e.g. ``FailureMemory.excluded``) unless that leaves no allowed action."""
         with th.no_grad():
             batch = th.as_tensor(observation[None], device=self.device)
-            allowed = self.q_net.allowed(batch)
-            if excluded is not None:
-                others = allowed & ~th.as_tensor(excluded, device=self.device)[None]
-                if others.any():
-                    allowed = others
-            return int(self.q_net(batch).masked_fill(~allowed, -th.inf).argmax(1))
+            avoid = None if excluded is None else th.as_tensor(excluded, device=self.device)[None]
+            return int(self._best_allowed(batch, avoid))
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return {

@@ -344,10 +344,10 @@ class PolicyAgent:
         from agents.heightmap_policy import FailureMemory, HeightmapQPolicy
 
         self.model, self.transform, self.name = model, transform, name
-        policy = getattr(model, "policy", model)
+        self.policy = getattr(model, "policy", model)  # an SB3 model's policy, or the policy itself
         self.memory = None
-        if avoid_failures and isinstance(policy, HeightmapQPolicy):
-            self.memory = FailureMemory(policy.shape, policy.network_args["cell_size"])
+        if avoid_failures and isinstance(self.policy, HeightmapQPolicy):
+            self.memory = FailureMemory(self.policy.shape, self.policy.network_args["cell_size"])
         self._chosen: tuple[int, np.ndarray] | None = None  # the last action and what it was chosen on
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
@@ -362,7 +362,7 @@ class PolicyAgent:
             return action
         if self._chosen is not None and not info.get("primitive_success", True):
             self.memory.record_failure(*self._chosen)
-        action = getattr(self.model, "policy", self.model).greedy_action(seen, self.memory.excluded(seen))
+        action = self.policy.greedy_action(seen, self.memory.excluded(seen))
         self._chosen = (action, seen)
         return action
 
@@ -378,6 +378,9 @@ def evaluate_policy(
     """Task metrics (``agents.evaluation.aggregate``) of ``model`` (an SB3 model or policy) acting as a
     ``PolicyAgent`` over ``episodes`` episodes seeded ``first_seed``, ``first_seed + 1``, ... (default: the
     validation seeds, ``eval_seed``...)."""
+    import torch
+
+    torch.set_num_threads(config.torch_threads)  # as in training: other thread counts may round (and choose) apart
     first_seed = config.eval_seed if first_seed is None else first_seed
     own_env = env is None
     env = make_env(config) if env is None else env
@@ -609,12 +612,9 @@ def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) 
 
 def retest(run_dir: Path) -> dict[str, Any]:
     """``final_test`` again on a run whose training has ended (after the evaluation protocol changed)."""
-    import torch
-
     config = load_run(run_dir)
     if not (run_dir / "best.json").is_file() or not (run_dir / "progress.json").is_file():
         raise ValueError(f"{run_dir} has no best policy to test yet (best.json, progress.json)")
-    torch.set_num_threads(config.torch_threads)  # as in training: other thread counts may round (and choose) apart
     progress = json.loads((run_dir / "progress.json").read_text())
     return final_test(config, run_dir, int(progress["steps"]), float(progress["wall_seconds"]))
 

@@ -29,11 +29,8 @@ def heightmap_checkpoints() -> list[str]:
 
 
 def measure(name: str, episodes: int | None, avoid_failures: bool) -> dict:
-    import torch
-
     checkpoint = Checkpoint(name)
     config = checkpoint.config
-    torch.set_num_threads(config.torch_threads)  # as in its training run's tests
     metrics = evaluate_policy(
         checkpoint.load_policy(),
         config,
