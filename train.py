@@ -27,7 +27,15 @@ from pathlib import Path  # noqa: E402
 
 import yaml  # noqa: E402
 
-from agents.training import config_from_dict, read_config, retest, start_run, train  # noqa: E402
+from agents.training import (  # noqa: E402
+    check_resume_changes,
+    config_from_dict,
+    load_run,
+    read_config,
+    retest,
+    start_run,
+    train,
+)
 from panda_grasp_env.runs import interrupt_on_signals, write_atomically  # noqa: E402
 from perception.dynamics_training import fall_config, start_fall_run, train_fall_model  # noqa: E402
 
@@ -77,6 +85,8 @@ def main(argv: list[str] | None = None) -> int:
             if not (run_dir / "config.yaml").is_file():
                 raise ValueError(f"{run_dir} is not a run folder (no config.yaml)")
             config, kind = load_any(run_dir / "config.yaml", args.overrides, str(run_dir / "config.yaml"))
+            if kind == "policy":
+                check_resume_changes(load_run(run_dir), config)
             if args.overrides:  # the run folder keeps the config it actually ran with
                 write_atomically(run_dir / "config.yaml", yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
             latest = "latest.pt" if kind == "fall_dynamics" else "latest.zip"

@@ -284,6 +284,40 @@ def make_vec_env(config: TrainConfig) -> Any:
 # --- model --------------------------------------------------------------------------------
 
 
+#: What ``--resume`` may change: budgets, evaluation cadence and the learner's settings (``algo_kwargs``,
+#: applied when SB3 loads the model).  Every other key built the saved networks, replay buffer or seeds.
+RESUME_CHANGEABLE = (
+    "total_steps",
+    "max_minutes",
+    "eval_every",
+    "eval_episodes",
+    "final_eval_episodes",
+    "checkpoint_every",
+    "torch_threads",
+    "algo_kwargs",
+)
+
+
+def check_resume_changes(saved: TrainConfig, resumed: TrainConfig) -> None:
+    """``ValueError`` naming the keys a resumed run changed that it cannot (see ``RESUME_CHANGEABLE``)."""
+    fixed = [k for k in TrainConfig.keys() if k not in RESUME_CHANGEABLE and getattr(saved, k) != getattr(resumed, k)]
+    if saved.algo_kwargs.get("buffer_size") != resumed.algo_kwargs.get("buffer_size"):
+        fixed.append("algo_kwargs.buffer_size")  # the saved replay buffer keeps its size
+    if fixed:
+        raise ValueError(
+            f"a resumed run cannot change {fixed}: they built its model, replay buffer or seeds; "
+            f"it may change {list(RESUME_CHANGEABLE)} (except algo_kwargs.buffer_size)"
+        )
+
+
+def algo_arguments(config: TrainConfig) -> dict[str, Any]:
+    """The SB3 algorithm's keyword arguments from ``algo_kwargs`` (a ``{start, end}`` rate made a schedule)."""
+    kwargs = dict(config.algo_kwargs)
+    if "learning_rate" in kwargs:
+        kwargs["learning_rate"] = learning_rate(kwargs["learning_rate"])
+    return kwargs
+
+
 def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
     """A fresh SB3 model for ``config`` on the vectorised ``env``, logging to TensorBoard under ``log_dir``.
 
@@ -292,9 +326,7 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
     algo_path, policy = ALGORITHMS[config.algo]
     algo_class = load_class(algo_path)
     policy_kwargs = dict(config.policy_kwargs)
-    kwargs = dict(config.algo_kwargs)
-    if "learning_rate" in kwargs:
-        kwargs["learning_rate"] = learning_rate(kwargs["learning_rate"])
+    kwargs = algo_arguments(config)
     if config.algo == "heightmap_dqn":
         policy = load_class(policy)
         probe = make_env(config)
@@ -569,7 +601,9 @@ def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar
     env = make_vec_env(config)
     if resume:
         algo_class = load_class(ALGORITHMS[config.algo][0])
-        model = algo_class.load(run_dir / "latest.zip", env=env, tensorboard_log=str(run_dir / "tb"))
+        # The config's algo_kwargs replace the saved ones (a resumed run may change them: RESUME_CHANGEABLE).
+        kwargs = {k: v for k, v in algo_arguments(config).items() if k != "buffer_size"}
+        model = algo_class.load(run_dir / "latest.zip", env=env, tensorboard_log=str(run_dir / "tb"), **kwargs)
         if will_learn and (run_dir / "replay.pkl").exists():  # a finished run resumed only to be re-tested skips it
             model.load_replay_buffer(run_dir / "replay.pkl")
     else:

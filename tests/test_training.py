@@ -344,6 +344,20 @@ def test_learning_rate_decays_linearly_over_total_steps_also_when_resumed(tmp_pa
     for steps, rate in rates:  # progress counts from the run's first step to its total_steps, across sessions
         assert rate == pytest.approx(1e-3 + (1e-4 - 1e-3) * steps / 12)
 
+    rates.clear()  # a resumed run may change the learner's settings: they reach the loaded model
+    run = str(tmp_path / "grasp_clutter_dqn-seed0")
+    assert train.main(["--resume", run, "total_steps=14", "algo_kwargs.learning_rate=0.0005", "--no-progress"]) == 0
+    assert rates == [(13, pytest.approx(5e-4)), (14, pytest.approx(5e-4))]
+    assert "learning_rate: 0.0005" in (tmp_path / "grasp_clutter_dqn-seed0" / "config.yaml").read_text()
+
+
+def test_resume_refuses_changes_to_what_built_the_model(finished_run, capsys):
+    saved = (finished_run / "config.yaml").read_text()
+    for override in ("seed=5", "policy_kwargs.rotations=8", "algo_kwargs.buffer_size=7"):
+        assert train.main(["--resume", str(finished_run), override, "--no-progress"]) == 2
+        assert "a resumed run cannot change" in capsys.readouterr().err
+    assert (finished_run / "config.yaml").read_text() == saved
+
 
 def test_config_dataclass_lists_its_keys():
     assert TrainConfig.keys()[:4] == ["name", "env_id", "algo", "total_steps"]
