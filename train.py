@@ -36,7 +36,7 @@ from agents.training import (  # noqa: E402
     start_run,
     train,
 )
-from panda_grasp_env.runs import interrupt_on_signals, write_atomically  # noqa: E402
+from panda_grasp_env.runs import interrupt_on_signals, record_resume, write_atomically  # noqa: E402
 from perception.dynamics_training import fall_config, start_fall_run, train_fall_model  # noqa: E402
 
 
@@ -92,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
             latest = "latest.pt" if kind == "fall_dynamics" else "latest.zip"
             if not (run_dir / latest).exists():
                 raise ValueError(f"{run_dir} has no checkpoint ({latest}) to resume from")
+            record_resume(run_dir, args.overrides)
         else:
             config, kind = load_any(args.config, args.overrides, str(args.config))
             run_dir = start_fall_run(config, args.runs) if kind == "fall_dynamics" else start_run(config, args.runs)

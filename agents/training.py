@@ -32,7 +32,14 @@ import numpy as np
 import yaml
 
 from agents.evaluation import EpisodeSpec, aggregate, is_low_level, play_episode, task_label
-from panda_grasp_env.runs import atomic_path, config_from_mapping, new_run_folder, write_atomically, write_json
+from panda_grasp_env.runs import (
+    atomic_path,
+    config_from_mapping,
+    new_run_folder,
+    resume_summary,
+    write_atomically,
+    write_json,
+)
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
 ALGORITHMS: dict[str, tuple[str, str]] = {
@@ -706,6 +713,7 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
         "|---|---|",
         f"| seed | {config.seed} |",
         f"| environment steps | {final['steps']} |",
+        *([f"| sessions | {resumed} |"] if (resumed := resume_summary(meta)) else []),
         f"| wall time | {final['wall_seconds'] / 60:.1f} min ({final['steps_per_second']} steps/s, evaluations included) |",
         f"| machine | {meta['machine']} |",
         f"| commit | {meta['commit']} |",
@@ -740,7 +748,7 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
         "",
         "![learning curve](curve.png)",
         "",
-        "## Config",
+        "## Config" + (" (as of the last session)" if meta.get("resumed") else ""),
         "",
         "```yaml",
         yaml.safe_dump(dataclasses.asdict(config), sort_keys=False).rstrip(),

@@ -126,3 +126,26 @@ def new_run_folder(runs_dir: Path, config: Any, **facts: Any) -> Path:
             "started": time.strftime("%Y-%m-%d %H:%M:%S %Z"), **facts}  # fmt: skip
     write_json(run_dir / "meta.json", meta)
     return run_dir
+
+
+def record_resume(run_dir: Path, overrides: list[str]) -> None:
+    """Append a resumed session to meta.json's ``resumed`` list: when, at which commit, after how many steps
+    (progress.json, where the run keeps one) and with which ``key=value`` overrides -- config.yaml holds only
+    the latest values, so this is how a card tells a two-stage recipe from a one-stage one."""
+    meta = json.loads((run_dir / "meta.json").read_text())
+    progress = run_dir / "progress.json"
+    session = {"at": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "commit": commit(), "overrides": list(overrides)}
+    if progress.is_file():
+        session["after_steps"] = json.loads(progress.read_text())["steps"]
+    meta.setdefault("resumed", []).append(session)
+    write_json(run_dir / "meta.json", meta)
+
+
+def resume_summary(meta: dict[str, Any]) -> str | None:
+    """One line for a card: each resumed session's start and overrides (``record_resume``), or None."""
+    sessions = [
+        ("" if "after_steps" not in r else f"at step {r['after_steps']} ")
+        + f"with {' '.join(f'`{o}`' for o in r['overrides']) or 'no changes'}"
+        for r in meta.get("resumed", [])
+    ]
+    return "resumed " + "; ".join(sessions) if sessions else None

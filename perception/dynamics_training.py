@@ -27,7 +27,14 @@ import torch
 import torch.nn.functional as F
 import yaml
 
-from panda_grasp_env.runs import atomic_path, config_from_mapping, new_run_folder, write_atomically, write_json
+from panda_grasp_env.runs import (
+    atomic_path,
+    config_from_mapping,
+    new_run_folder,
+    resume_summary,
+    write_atomically,
+    write_json,
+)
 from perception.dynamics import (
     ARCHITECTURE,
     FallPredictor,
@@ -339,6 +346,7 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
             f"best on validation: epoch {final['best_epoch']}); "
             f"wall time {final['wall_seconds'] / 60:.1f} min on {meta['machine']}",
             f"- commit {meta['commit']}; {', '.join(f'{k} {v}' for k, v in meta['versions'].items())}",
+            *([f"- {resumed}"] if (resumed := resume_summary(meta)) else []),
             f"- test: {final['test_sequences']} held-out sequences, every t with {config.context} context frames; "
             f"{m['copy_last']['t+1']['frames']} predictions per horizon",
             "",

@@ -128,7 +128,8 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     final = json.loads((run / "final.json").read_text())
     assert set(final["metrics"]) == {"model", "copy_last", "constant_velocity", "translation_oracle"}
     assert list((run / "strips").glob("seed*.png"))
-    assert "mean block IoU" in (run / "card.md").read_text()
+    card = (run / "card.md").read_text()
+    assert "mean block IoU" in card and "resumed with `epochs=2`" in card
     model, saved = load_fall_model(run / "best.pt")
     assert model.context == 3 and saved["classes"][0] == "background"
     monkeypatch.setattr(dynamics_training, "FALL_CHECKPOINTS", tmp_path / "shipped")

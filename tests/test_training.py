@@ -349,6 +349,16 @@ def test_learning_rate_decays_linearly_over_total_steps_also_when_resumed(tmp_pa
     assert train.main(["--resume", run, "total_steps=14", "algo_kwargs.learning_rate=0.0005", "--no-progress"]) == 0
     assert rates == [(13, pytest.approx(5e-4)), (14, pytest.approx(5e-4))]
     assert "learning_rate: 0.0005" in (tmp_path / "grasp_clutter_dqn-seed0" / "config.yaml").read_text()
+    sessions = json.loads((tmp_path / "grasp_clutter_dqn-seed0" / "meta.json").read_text())["resumed"]
+    assert [(r["after_steps"], r["overrides"]) for r in sessions] == [
+        (6, ["total_steps=12"]),
+        (12, ["total_steps=14", "algo_kwargs.learning_rate=0.0005"]),
+    ]  # config.yaml keeps only the latest values: the card tells the stages apart
+    card = (tmp_path / "grasp_clutter_dqn-seed0" / "card.md").read_text()
+    assert (
+        "| sessions | resumed at step 6 with `total_steps=12`; at step 12 with `total_steps=14` "
+        "`algo_kwargs.learning_rate=0.0005` |" in card
+    )
 
 
 def test_resume_refuses_changes_to_what_built_the_model(finished_run, capsys):
