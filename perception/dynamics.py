@@ -13,6 +13,12 @@ computed from the inputs (constant velocity) -- plus the learned residual flow
 constant-velocity extrapolation with soft edges.  Multi-step rollouts feed the
 predicted class probabilities back in (their centroids give the next velocity).
 
+With ``use_depth`` each input frame also carries a height map (``heights``:
+block units above the frame's lowest surface, from the depth image): a top view
+of class masks cannot tell a block about to land from one still falling.  The
+model then also predicts the next height map (each block's heights carried by
+its warp, plus a learned correction), which multi-step rollouts feed back.
+
 Metrics (``evaluate``), over every evaluated (sequence, t) of a split, for the
 prediction of frame t + h from frames t - context + 1 ... t:
 
@@ -41,6 +47,8 @@ from torch import nn
 FLOW_SCALE = 4.0
 #: Changes whenever the same weights would mean another model; saved in checkpoints and checked on load.
 ARCHITECTURE = 2
+#: Metres of height per unit of a height map (one block's edge).
+HEIGHT_UNIT = 0.05
 
 
 def conv(in_channels: int, out_channels: int, stride: int = 1) -> nn.Sequential:
@@ -69,21 +77,26 @@ class ConvLSTMCell(nn.Module):
 
 
 class FallPredictor(nn.Module):
-    """Next-frame class logits from a sequence of class-probability frames (B, T, C, S, S)."""
+    """Next-frame class logits from a sequence of frames (B, T, C [+ 1], S, S): class probabilities, then
+    with ``use_depth`` a height map (``model_inputs`` builds them)."""
 
-    def __init__(self, n_classes: int, image_size: int, context: int, hidden: int = 32) -> None:
+    def __init__(
+        self, n_classes: int, image_size: int, context: int, hidden: int = 32, use_depth: bool = False
+    ) -> None:
         super().__init__()
         if image_size % 4:
             raise ValueError(f"image_size must be a multiple of 4, got {image_size}")
         self.n_classes, self.image_size, self.context, self.hidden = n_classes, image_size, context, hidden
-        self.e1, self.e2, self.e3 = conv(2 * n_classes, 16), conv(16, 32, 2), conv(32, 32)  # frame and its predecessor
+        self.use_depth = use_depth
+        channels = n_classes + int(use_depth)
+        self.e1, self.e2, self.e3 = conv(2 * channels, 16), conv(16, 32, 2), conv(32, 32)  # frame and its predecessor
         self.e4, self.e5 = conv(32, 64, 2), conv(64, 64)
         self.lstm = ConvLSTMCell(64, hidden)
         self.d1 = conv(hidden + 64, 64)
         self.d2 = conv(64 + 32, 32)
         self.d3 = conv(32, 32)
         self.d4 = conv(32 + 16, 16)
-        self.d5 = nn.Conv2d(16, 2 + n_classes, 3, padding=1)  # residual flow (x, y) and correction logits
+        self.d5 = nn.Conv2d(16, 2 + channels, 3, padding=1)  # residual flow (x, y), correction logits [, heights]
         nn.init.zeros_(self.d5.weight)
         nn.init.zeros_(self.d5.bias)  # starts as constant-velocity extrapolation
         self.copy_gain = nn.Parameter(torch.tensor(1.0))
@@ -103,16 +116,18 @@ class FallPredictor(nn.Module):
             y = (masks.sum(3) * self.pixels).sum(2) / mass.clamp_min(1e-6)
             return torch.stack([x, y], 2), mass
 
-        now, mass_now = centroids(frame)
-        before, mass_before = centroids(previous)
+        now, mass_now = centroids(frame[:, : self.n_classes])
+        before, mass_before = centroids(previous[:, : self.n_classes])
         seen = ((mass_now > 1.0) & (mass_before > 1.0)).float()[..., None]
         return (now - before) * seen
 
-    def step(self, frame: torch.Tensor, previous: torch.Tensor, state: Any) -> tuple[torch.Tensor, torch.Tensor, Any]:
-        """Consume one frame (B, C, S, S) of class probabilities (with the one before it, so that the first
-        convolutions see motion directly); logits of the next frame, each block's flow (B, K, 2, S, S) that
-        warped it (pixels, x = column then y = row: block k's channel of the next frame at p is drawn from
-        this frame's at p + flow[:, k]) and the new state."""
+    def step(
+        self, frame: torch.Tensor, previous: torch.Tensor, state: Any
+    ) -> tuple[torch.Tensor, torch.Tensor, Any, torch.Tensor | None]:
+        """Consume one frame (B, C [+ 1], S, S) (with the one before it, so that the first convolutions see
+        motion directly); logits of the next frame, each block's flow (B, K, 2, S, S) that warped it (pixels,
+        x = column then y = row: block k's channel of the next frame at p is drawn from this frame's at
+        p + flow[:, k]), the new state and, with ``use_depth``, the next height map (B, 1, S, S)."""
         f1 = self.e1(torch.cat([frame, previous], 1))
         f3 = self.e3(self.e2(f1))
         f5 = self.e5(self.e4(f3))
@@ -120,38 +135,52 @@ class FallPredictor(nn.Module):
         x = self.d1(torch.cat([h, f5], 1))
         x = self.d3(self.d2(torch.cat([F.interpolate(x, scale_factor=2.0), f3], 1)))
         out = self.d5(self.d4(torch.cat([F.interpolate(x, scale_factor=2.0), f1], 1)))
-        batch, blocks, size = frame.shape[0], self.n_classes - 1, self.image_size
+        batch, blocks, size, n = frame.shape[0], self.n_classes - 1, self.image_size, self.n_classes
         velocity = self.block_velocities(frame, previous)
         flows = out[:, None, :2] * FLOW_SCALE - velocity[..., None, None]  # (B, K, 2, S, S)
         grids = self.grid[:, None] + flows.permute(0, 1, 3, 4, 2) * (2.0 / size)  # pixels -> grid units
+        masks = frame[:, 1:n, None]  # (B, K, 1, S, S); with depth each block also carries its heights
+        carried = torch.cat([masks, masks * frame[:, n:, None]], 2) if self.use_depth else masks
         moved = F.grid_sample(
-            frame[:, 1:].reshape(batch * blocks, 1, size, size),
+            carried.reshape(batch * blocks, carried.shape[2], size, size),
             grids.reshape(batch * blocks, size, size, 2),
             mode="bilinear",
             padding_mode="zeros",
             align_corners=False,
-        ).view(batch, blocks, size, size)
-        warped = torch.cat([(1.0 - moved.sum(1, keepdim=True)).clamp_min(0.0), moved], 1)
-        logits = self.copy_gain * torch.log(warped + 0.1) + out[:, 2:]
-        return logits, flows, (h, c)
+        ).view(batch, blocks, carried.shape[2], size, size)
+        warped = torch.cat([(1.0 - moved[:, :, 0].sum(1, keepdim=True)).clamp_min(0.0), moved[:, :, 0]], 1)
+        logits = self.copy_gain * torch.log(warped + 0.1) + out[:, 2 : 2 + n]
+        heights = moved[:, :, 1].sum(1, keepdim=True) + out[:, 2 + n :] if self.use_depth else None
+        return logits, flows, (h, c), heights
 
-    def rollout_with_flow(self, frames: torch.Tensor, horizon: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """Logits (B, horizon, C, S, S) of the ``horizon`` frames after ``frames`` (B, T, C, S, S), and the
-        block flows (B, horizon, K, 2, S, S) that produced them (see ``step``)."""
-        state, logits, flow = None, None, None
+    def rollout_with_flow(
+        self, frames: torch.Tensor, horizon: int
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Logits (B, horizon, C, S, S) of the ``horizon`` frames after ``frames`` (B, T, C [+ 1], S, S), the
+        block flows (B, horizon, K, 2, S, S) that produced them (see ``step``) and, with ``use_depth``, the
+        predicted height maps (B, horizon, 1, S, S)."""
+        if frames.shape[2] != self.n_classes + int(self.use_depth):
+            raise ValueError(
+                f"frames have {frames.shape[2]} channels; this model reads {self.n_classes} classes"
+                + (" and a height map" if self.use_depth else "")
+            )
+        state, logits, flow, heights = None, None, None, None
         for t in range(frames.shape[1]):
-            logits, flow, state = self.step(frames[:, t], frames[:, max(t - 1, 0)], state)
-        outputs, flows, previous = [logits], [flow], frames[:, -1]
+            logits, flow, state, heights = self.step(frames[:, t], frames[:, max(t - 1, 0)], state)
+        outputs, flows, all_heights, previous = [logits], [flow], [heights], frames[:, -1]
         for _ in range(horizon - 1):
             frame = torch.softmax(logits, 1)
-            logits, flow, state = self.step(frame, previous, state)
+            if self.use_depth:
+                frame = torch.cat([frame, heights], 1)
+            logits, flow, state, heights = self.step(frame, previous, state)
             outputs.append(logits)
             flows.append(flow)
+            all_heights.append(heights)
             previous = frame
-        return torch.stack(outputs, 1), torch.stack(flows, 1)
+        return torch.stack(outputs, 1), torch.stack(flows, 1), torch.stack(all_heights, 1) if self.use_depth else None
 
     def rollout(self, frames: torch.Tensor, horizon: int) -> torch.Tensor:
-        """Logits (B, horizon, C, S, S) of the ``horizon`` frames after ``frames`` (B, T, C, S, S)."""
+        """Logits (B, horizon, C, S, S) of the ``horizon`` frames after ``frames`` (B, T, C [+ 1], S, S)."""
         return self.rollout_with_flow(frames, horizon)[0]
 
     def describe(self) -> dict[str, int]:
@@ -160,12 +189,31 @@ class FallPredictor(nn.Module):
             "image_size": self.image_size,
             "context": self.context,
             "hidden": self.hidden,
+            "use_depth": self.use_depth,
         }
 
 
 def one_hot(labels: torch.Tensor, n_classes: int) -> torch.Tensor:
     """(..., S, S) integer labels -> (..., C, S, S) float one-hot."""
     return F.one_hot(labels.long(), n_classes).movedim(-1, -3).float()
+
+
+def heights(depth: torch.Tensor) -> torch.Tensor:
+    """(..., S, S) depth images (metres along the optical axis of a top-down camera) -> (..., 1, S, S) heights
+    above each frame's lowest (deepest) surface, in blocks (``HEIGHT_UNIT``)."""
+    depth = depth.float()
+    return ((depth.amax((-2, -1), keepdim=True) - depth) / HEIGHT_UNIT).unsqueeze(-3)
+
+
+def model_inputs(model: FallPredictor, labels: Any, depth: Any = None) -> torch.Tensor:
+    """The model's frames (B, T, C [+ 1], S, S) from labels (B, T, S, S) and, for a ``use_depth`` model,
+    depth images of the same frames (``ValueError`` without them)."""
+    frames = one_hot(torch.as_tensor(labels), model.n_classes)
+    if not model.use_depth:
+        return frames
+    if depth is None:
+        raise ValueError("this model reads depth images with its labels; load the split with depth=True")
+    return torch.cat([frames, heights(torch.as_tensor(depth))], -3)
 
 
 def block_flow_targets(before: torch.Tensor, after: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -193,8 +241,12 @@ def block_flow_targets(before: torch.Tensor, after: torch.Tensor) -> tuple[torch
     return flow, usable.sum(1) > 0
 
 
-def check_compatible(model: FallPredictor, labels: np.ndarray, classes: list[str]) -> None:
-    """``ValueError`` if a dataset's images or classes do not match what the model was trained on."""
+def check_compatible(model: FallPredictor, labels: np.ndarray, classes: list[str], depth: Any = None) -> None:
+    """``ValueError`` if a dataset's images or classes do not match what the model was trained on (or it reads
+    depth and none is given)."""
+    if model.use_depth and (depth is None or np.shape(depth) != np.shape(labels)):
+        shape = None if depth is None else np.shape(depth)
+        raise ValueError(f"model reads depth images shaped like its labels {np.shape(labels)}; got {shape}")
     if labels.shape[-1] != model.image_size or labels.shape[-2] != model.image_size:
         raise ValueError(f"model expects {model.image_size}x{model.image_size} frames, dataset has {labels.shape[-2:]}")
     if len(classes) != model.n_classes:
@@ -289,11 +341,13 @@ class Confusion:
         }
 
 
-def predict_batch(model: FallPredictor, windows: np.ndarray, horizon: int) -> np.ndarray:
-    """Predicted labels (B, horizon, S, S) after context windows (B, K, S, S) of labels."""
+def predict_batch(
+    model: FallPredictor, windows: np.ndarray, horizon: int, depth: np.ndarray | None = None
+) -> np.ndarray:
+    """Predicted labels (B, horizon, S, S) after context windows (B, K, S, S) of labels (and of depth images,
+    for a ``use_depth`` model)."""
     with torch.no_grad():
-        frames = one_hot(torch.as_tensor(windows), model.n_classes)
-        return model.rollout(frames, horizon).argmax(2).numpy().astype(np.uint8)
+        return model.rollout(model_inputs(model, windows, depth), horizon).argmax(2).numpy().astype(np.uint8)
 
 
 def evaluate(
@@ -303,8 +357,10 @@ def evaluate(
     context: int,
     horizons: tuple[int, ...] = (1, 5),
     batch_size: int = 64,
+    depth: np.ndarray | None = None,
 ) -> dict[str, dict[str, Any]]:
-    """Metrics of the model (if given) and the baselines at each horizon over sequences ``labels`` (N, T, S, S).
+    """Metrics of the model (if given) and the baselines at each horizon over sequences ``labels`` (N, T, S, S)
+    (with their depth images (N, T, S, S) for a ``use_depth`` model).
 
     Evaluated at every t with ``context`` frames up to t and t + max(horizons) inside the sequence.
     """
@@ -324,12 +380,13 @@ def evaluate(
             for h in horizons:
                 scores[name][h].add(labels[i, t + h], baseline(labels[i], t, h))
     if model is not None:
-        check_compatible(model, labels, classes)
+        check_compatible(model, labels, classes, depth)
         model.eval()
         for b in range(0, len(starts), batch_size):
             chunk = starts[b : b + batch_size]
             windows = np.stack([labels[i, t - context + 1 : t + 1] for i, t in chunk])
-            predicted = predict_batch(model, windows, max(horizons))
+            depths = None if depth is None else np.stack([depth[i, t - context + 1 : t + 1] for i, t in chunk])
+            predicted = predict_batch(model, windows, max(horizons), depths if model.use_depth else None)
             truth_frames = {h: np.stack([labels[i, t + h] for i, t in chunk]) for h in horizons}
             for h in horizons:
                 scores["model"][h].add(truth_frames[h], predicted[:, h - 1])

@@ -5,7 +5,10 @@ Each step samples sequences and a window: ``context`` true frames in, then a
 cross-entropy plus a soft block IoU -- trained the way it is evaluated -- plus,
 weighted by ``flow_loss_weight``, the distance of the model's warp flow from
 each block's true centroid displacement (``block_flow_targets``): through the
-warp alone, flow gets gradient only at block edges and barely learns.  The run
+warp alone, flow gets gradient only at block edges and barely learns.  With
+``use_depth`` the model also reads height maps from the depth images and is
+scored, weighted by ``height_loss_weight``, on the heights it predicts (mean
+absolute error in blocks).  The run
 folder holds config.yaml, meta.json, tb/, evaluations.jsonl (validation
 metrics per epoch), curve.png, latest.pt / best.pt (atomic), and at the end
 final.json (test metrics against the baselines), card.md and strips/ (one PNG
@@ -41,6 +44,8 @@ from perception.dynamics import (
     block_flow_targets,
     check_compatible,
     evaluate,
+    heights,
+    model_inputs,
     one_hot,
     predict_batch,
 )
@@ -65,6 +70,8 @@ class FallConfig:
     batch_size: int = 16
     learning_rate: float = 0.002
     flow_loss_weight: float = 1.0
+    use_depth: bool = False  # also read the depth images (height maps; see perception/dynamics.py)
+    height_loss_weight: float = 1.0
     seed: int = 0
     max_minutes: float | None = None
     torch_threads: int = 2
@@ -80,8 +87,12 @@ class FallConfig:
             raise ValueError(f"config label_source={self.label_source!r}: expected 'labels' or 'colour_labels'")
         if not (isinstance(self.learning_rate, (int, float)) and 0 < self.learning_rate < 1):
             raise ValueError(f"config learning_rate={self.learning_rate!r}: expected a number in (0, 1)")
-        if not (isinstance(self.flow_loss_weight, (int, float)) and self.flow_loss_weight >= 0):
-            raise ValueError(f"config flow_loss_weight={self.flow_loss_weight!r}: expected a number >= 0")
+        for key in ("flow_loss_weight", "height_loss_weight"):
+            value = getattr(self, key)
+            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0):
+                raise ValueError(f"config {key}={value!r}: expected a number >= 0")
+        if not isinstance(self.use_depth, bool):
+            raise ValueError(f"config use_depth={self.use_depth!r}: expected true or false")
         if self.max_minutes is not None and not self.max_minutes > 0:
             raise ValueError(f"config max_minutes={self.max_minutes!r}: expected a positive number or null")
         read_metadata(self.dataset)  # a clear error now, not after the model is built
@@ -141,13 +152,15 @@ def label_image(labels: np.ndarray, scale: int = 2) -> np.ndarray:
     return np.repeat(np.repeat(image, scale, 0), scale, 1)
 
 
-def write_strips(model: FallPredictor, labels: np.ndarray, seeds: np.ndarray, folder: Path, rollout: int) -> None:
+def write_strips(
+    model: FallPredictor, labels: np.ndarray, seeds: np.ndarray, folder: Path, rollout: int, depth: Any = None
+) -> None:
     """One PNG per sequence: the context frames, then truth (top) and prediction (bottom) for ``rollout`` steps."""
     import imageio.v3 as iio
 
     folder.mkdir(parents=True, exist_ok=True)
     k = model.context
-    predicted = predict_batch(model, labels[:, :k], rollout)
+    predicted = predict_batch(model, labels[:, :k], rollout, None if depth is None else depth[:, :k])
     gap = np.full((labels.shape[-1] * 2, 4, 3), 255, dtype=np.uint8)
     for sequence, truth, guess, seed in zip(labels, labels[:, k : k + rollout], predicted, seeds):
         inputs = np.concatenate([label_image(f) for f in sequence[:k]], 1)
@@ -173,8 +186,8 @@ def train_fall_model(
     from tqdm import tqdm
 
     torch.set_num_threads(config.torch_threads)
-    train = load_split(config.dataset, "train", config.label_source)
-    val = load_split(config.dataset, "val", config.label_source, verify=False)
+    train = load_split(config.dataset, "train", config.label_source, depth=config.use_depth)
+    val = load_split(config.dataset, "val", config.label_source, verify=False, depth=config.use_depth)
     n_classes, size = len(train.classes), train.image_size
     if train.labels.shape[1] < config.context + config.rollout:
         raise ValueError(
@@ -182,7 +195,7 @@ def train_fall_model(
         )
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
-    model = FallPredictor(n_classes, size, config.context, config.hidden)
+    model = FallPredictor(n_classes, size, config.context, config.hidden, config.use_depth)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     epoch, wall_before, best = 0, 0.0, -1.0
     if resume:
@@ -192,7 +205,7 @@ def train_fall_model(
         torch.set_rng_state(saved["torch_rng"])
         rng.bit_generator.state = saved["numpy_rng"]
         epoch, wall_before, best = saved["epoch"], saved["wall_seconds"], saved["best"]
-    check_compatible(model, train.labels, train.classes)
+    check_compatible(model, train.labels, train.classes, train.depth)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.epochs, last_epoch=epoch - 1) if epoch else \
         torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.epochs)  # fmt: skip
     writer = SummaryWriter(str(run_dir / "tb"))
@@ -223,11 +236,19 @@ def train_fall_model(
             for _ in range(batches):
                 chosen = rng.integers(len(train.labels), size=config.batch_size)
                 starts = rng.integers(train.labels.shape[1] - window + 1, size=config.batch_size)
-                clips = np.stack([train.labels[i, s : s + window] for i, s in zip(chosen, starts)])
-                clips = torch.as_tensor(clips)
-                logits, flows = model.rollout_with_flow(one_hot(clips[:, : config.context], n_classes), config.rollout)
+                clips = torch.as_tensor(np.stack([train.labels[i, s : s + window] for i, s in zip(chosen, starts)]))
+                depths = None
+                if config.use_depth:
+                    depths = torch.as_tensor(np.stack([train.depth[i, s : s + window] for i, s in zip(chosen, starts)]))
+                inputs = model_inputs(
+                    model, clips[:, : config.context], None if depths is None else depths[:, : config.context]
+                )
+                logits, flows, predicted_heights = model.rollout_with_flow(inputs, config.rollout)
                 truth = clips[:, config.context :].flatten(0, 1)
                 loss = prediction_loss(logits.flatten(0, 1), truth)
+                if predicted_heights is not None and config.height_loss_weight:
+                    true_heights = heights(depths[:, config.context :])
+                    loss = loss + config.height_loss_weight * (predicted_heights - true_heights).abs().mean()
                 if config.flow_loss_weight:
                     before = clips[:, config.context - 1 : -1].flatten(0, 1)
                     loss = loss + config.flow_loss_weight * flow_loss(flows.flatten(0, 1), before, truth)
@@ -238,7 +259,7 @@ def train_fall_model(
                 bar.update(1)
             schedule.step()
             epoch += 1
-            metrics = evaluate(model, val.labels, val.classes, config.context)["model"]
+            metrics = evaluate(model, val.labels, val.classes, config.context, depth=val.depth)["model"]
             score = metrics["t+1"]["mean_block_iou"]
             row = {
                 "epoch": epoch,
@@ -275,10 +296,10 @@ def finish_fall_run(
 ) -> dict[str, Any]:
     """Test the best checkpoint against the baselines: final.json, card.md, strips/."""
     model, saved = load_fall_model(run_dir / "best.pt")
-    test = load_split(config.dataset, "test", config.label_source, verify=False)
+    test = load_split(config.dataset, "test", config.label_source, verify=False, depth=model.use_depth)
     began = time.perf_counter()
-    metrics = evaluate(model, test.labels, test.classes, config.context)
-    write_strips(model, test.labels, test.seeds, run_dir / "strips", config.rollout)
+    metrics = evaluate(model, test.labels, test.classes, config.context, depth=test.depth)
+    write_strips(model, test.labels, test.seeds, run_dir / "strips", config.rollout, test.depth)
     final = {
         "epochs": epochs_done,
         "stopped_by": stopped_by,

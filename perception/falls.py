@@ -56,12 +56,14 @@ def sha256(path: Path) -> str:
 
 @dataclass
 class FallSequences:
-    """Segmentation sequences of one split, in memory: ``labels`` (N, T, S, S) uint8 class ids."""
+    """Segmentation sequences of one split, in memory: ``labels`` (N, T, S, S) uint8 class ids and, if loaded,
+    ``depth`` (N, T, S, S) float16 metres along the camera's optical axis."""
 
     labels: np.ndarray
     seeds: np.ndarray
     classes: list[str]
     frame_interval: float
+    depth: np.ndarray | None = None
 
     @property
     def image_size(self) -> int:
@@ -90,15 +92,18 @@ def verify_shard(root: Path, entry: dict[str, Any]) -> None:
         raise ValueError(f"shard {entry['file']} is corrupt: its SHA-256 does not match metadata.json")
 
 
-def load_split(root: Path | str, split: str, label_source: str = "labels", verify: bool = True) -> FallSequences:
-    """All sequences of ``split`` (``train``, ``val``, ``test``); ``label_source``: ``labels`` or ``colour_labels``."""
+def load_split(
+    root: Path | str, split: str, label_source: str = "labels", verify: bool = True, depth: bool = False
+) -> FallSequences:
+    """All sequences of ``split`` (``train``, ``val``, ``test``); ``label_source``: ``labels`` or
+    ``colour_labels``; with ``depth`` also their depth images."""
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r}; valid: {list(SPLITS)}")
     if label_source not in ("labels", "colour_labels"):
         raise ValueError(f"label_source must be 'labels' or 'colour_labels', got {label_source!r}")
     root = Path(root)
     meta = read_metadata(root)
-    labels, seeds = [], []
+    labels, seeds, depths = [], [], []
     for entry in meta["shards"]:
         if verify:
             verify_shard(root, entry)
@@ -106,18 +111,31 @@ def load_split(root: Path | str, split: str, label_source: str = "labels", verif
             with np.load(root / entry["file"]) as shard:
                 shard_seeds = shard["seeds"]
                 shard_labels = shard[label_source]
+                shard_depth = shard["depth"] if depth else shard_labels
         except (OSError, ValueError, KeyError) as error:
             raise ValueError(f"shard {entry['file']} cannot be read: {error}") from error
         expected = (entry["sequences"], meta["frames"], meta["crop"], meta["crop"])
-        if shard_labels.shape != expected or shard_seeds.shape != (entry["sequences"],):
+        if (
+            shard_labels.shape != expected
+            or shard_depth.shape != expected
+            or shard_seeds.shape != (entry["sequences"],)
+        ):
             raise ValueError(
-                f"shard {entry['file']} has {label_source} of shape {shard_labels.shape}, expected {expected}"
+                f"shard {entry['file']} has {label_source} of shape {shard_labels.shape}"
+                + (f" and depth of shape {shard_depth.shape}" if depth else "")
+                + f", expected {expected}"
             )
         keep = np.array([split_of(int(s)) == split for s in shard_seeds], dtype=bool)
         labels.append(shard_labels[keep])
         seeds.append(shard_seeds[keep])
+        if depth:
+            depths.append(shard_depth[keep])
     if not labels:
         raise ValueError(f"{root} lists no shards")
     return FallSequences(
-        np.concatenate(labels), np.concatenate(seeds), list(meta["classes"]), float(meta["frame_interval"])
+        np.concatenate(labels),
+        np.concatenate(seeds),
+        list(meta["classes"]),
+        float(meta["frame_interval"]),
+        np.concatenate(depths) if depth else None,
     )

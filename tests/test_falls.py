@@ -164,6 +164,40 @@ def test_untrained_model_moves_each_block_by_its_own_velocity_and_flow_targets_a
     assert torch.allclose(target[0, :, 22, 22], torch.zeros(2))
 
 
+def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
+    from perception.dynamics import model_inputs
+
+    labels = np.zeros((1, 3, 32, 32), dtype=np.uint8)
+    depth = np.full((1, 3, 32, 32), 1.0, dtype=np.float16)  # the table, 1 m below the camera
+    for t in range(3):
+        labels[0, t, 10:16, 4 + 2 * t : 10 + 2 * t] = 1  # a block 5 cm tall moving 2 px a frame
+        depth[0, t, 10:16, 4 + 2 * t : 10 + 2 * t] = 0.95
+    model = FallPredictor(3, 32, context=3, hidden=8, use_depth=True)
+    logits, _, heights = model.rollout_with_flow(model_inputs(model, labels, depth), 2)
+    assert torch.equal(logits[0, 0].argmax(0)[10:16, 10:16], torch.ones(6, 6, dtype=torch.long))
+    assert heights.shape == (1, 2, 1, 32, 32)
+    assert torch.allclose(
+        heights[0, 0, 0, 11:15, 11:15], torch.ones(4, 4), atol=0.01
+    )  # one block high (float16), moved
+    assert heights[0, 0, 0, 20:, 20:].abs().max() < 1e-6
+    with pytest.raises(ValueError, match="reads depth images"):
+        model_inputs(model, labels)
+    with pytest.raises(ValueError, match="reads depth images shaped like its labels"):
+        evaluate(model, np.zeros((1, 10, 32, 32), dtype=np.uint8), ["b", "1", "2"], context=2)
+
+
+def test_depth_model_trains_from_the_recorded_depth(dataset, tmp_path):
+    config = "configs/fall_convlstm.yaml"
+    tiny = [f"dataset={dataset}", "hidden=8", "batch_size=4", "torch_threads=1", "context=3", "rollout=3", "epochs=1"]
+    assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *tiny, "use_depth=true"]) == 0
+    model, _ = load_fall_model(tmp_path / "fall_convlstm-seed0" / "best.pt")
+    assert model.use_depth
+    split = load_split(dataset, "val", depth=True)
+    assert split.depth.shape == split.labels.shape and split.depth.dtype == np.float16
+    assert evaluate(model, split.labels, split.classes, 3, depth=split.depth)["model"]["t+1"]["frames"] > 0
+    assert train.main(["--config", config, "--runs", str(tmp_path), f"dataset={dataset}", "use_depth=1"]) == 2
+
+
 def test_the_shipped_fall_model_loads_and_matches_its_card():
     path = dynamics_training.FALL_CHECKPOINTS / "fall_convlstm"
     model, saved = load_fall_model(path / "model.pt")
