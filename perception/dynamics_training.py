@@ -359,9 +359,10 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
             f"# {config.name}",
             "",
             "ConvLSTM encoder-decoder predicting the next segmentation frames of a falling 4-block tower "
-            "(`perception/dynamics.py`), trained by this repository's `train.py` from "
-            f"`configs/{config.name}.yaml` on `{config.dataset}` ({meta['dataset']['sequences']} sequences, "
-            f"splits {meta['dataset']['splits']}).",
+            "(`perception/dynamics.py`"
+            + (", reading depth as well as labels" if config.use_depth else "")
+            + "), trained by this repository's `train.py` with the resolved config below on "
+            f"`{config.dataset}` ({meta['dataset']['sequences']} sequences, splits {meta['dataset']['splits']}).",
             "",
             f"- seed {config.seed}; {final['epochs']} of {config.epochs} epochs (stopped by {final['stopped_by']}; "
             f"best on validation: epoch {final['best_epoch']}); "

@@ -131,7 +131,8 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     card = (run / "card.md").read_text()
     assert "mean block IoU" in card and "resumed with `epochs=2`" in card
     model, saved = load_fall_model(run / "best.pt")
-    assert model.context == 3 and saved["classes"][0] == "background"
+    assert model.context == 3 and model.use_depth and saved["classes"][0] == "background"
+    assert load_split(dataset, "val", depth=True).depth.dtype == np.float16
     monkeypatch.setattr(dynamics_training, "FALL_CHECKPOINTS", tmp_path / "shipped")
     assert train.main(["--ship", str(run), "--name", "tiny"]) == 0
     shipped, _ = load_fall_model(tmp_path / "shipped" / "tiny" / "model.pt")
@@ -186,15 +187,16 @@ def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
         evaluate(model, np.zeros((1, 10, 32, 32), dtype=np.uint8), ["b", "1", "2"], context=2)
 
 
-def test_depth_model_trains_from_the_recorded_depth(dataset, tmp_path):
+def test_labels_only_model_trains_without_depth(dataset, tmp_path):
+    """The config reads depth (``use_depth: true``, covered above); with it off the model reads labels only."""
     config = "configs/fall_convlstm.yaml"
     tiny = [f"dataset={dataset}", "hidden=8", "batch_size=4", "torch_threads=1", "context=3", "rollout=3", "epochs=1"]
-    assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *tiny, "use_depth=true"]) == 0
+    assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *tiny, "use_depth=false"]) == 0
     model, _ = load_fall_model(tmp_path / "fall_convlstm-seed0" / "best.pt")
-    assert model.use_depth
-    split = load_split(dataset, "val", depth=True)
-    assert split.depth.shape == split.labels.shape and split.depth.dtype == np.float16
-    assert evaluate(model, split.labels, split.classes, 3, depth=split.depth)["model"]["t+1"]["frames"] > 0
+    assert not model.use_depth
+    split = load_split(dataset, "val")
+    assert split.depth is None
+    assert evaluate(model, split.labels, split.classes, 3)["model"]["t+1"]["frames"] > 0
     assert train.main(["--config", config, "--runs", str(tmp_path), f"dataset={dataset}", "use_depth=1"]) == 2
 
 
