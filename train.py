@@ -28,7 +28,7 @@ from pathlib import Path  # noqa: E402
 import yaml  # noqa: E402
 
 from agents.training import (  # noqa: E402
-    check_resume_changes,
+    check_policy_resume,
     config_from_dict,
     load_run,
     read_config,
@@ -36,8 +36,13 @@ from agents.training import (  # noqa: E402
     start_run,
     train,
 )
-from panda_grasp_env.runs import interrupt_on_signals, record_resume, write_atomically  # noqa: E402
-from perception.dynamics_training import fall_config, start_fall_run, train_fall_model  # noqa: E402
+from panda_grasp_env.runs import check_resume_changes, interrupt_on_signals, record_resume, write_atomically  # noqa: E402
+from perception.dynamics_training import (  # noqa: E402
+    FALL_RESUME_CHANGEABLE,
+    fall_config,
+    start_fall_run,
+    train_fall_model,
+)
 
 
 def load_any(path: Path, overrides: list[str], source: str):
@@ -86,7 +91,10 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError(f"{run_dir} is not a run folder (no config.yaml)")
             config, kind = load_any(run_dir / "config.yaml", args.overrides, str(run_dir / "config.yaml"))
             if kind == "policy":
-                check_resume_changes(load_run(run_dir), config)
+                check_policy_resume(load_run(run_dir), config)
+            else:
+                saved, _ = load_any(run_dir / "config.yaml", [], str(run_dir / "config.yaml"))
+                check_resume_changes(saved, config, FALL_RESUME_CHANGEABLE)
             if args.overrides:  # the run folder keeps the config it actually ran with
                 write_atomically(run_dir / "config.yaml", yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
             latest = "latest.pt" if kind == "fall_dynamics" else "latest.zip"

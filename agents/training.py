@@ -34,6 +34,7 @@ import yaml
 from agents.evaluation import EpisodeSpec, aggregate, is_low_level, play_episode, task_label
 from panda_grasp_env.runs import (
     atomic_path,
+    check_resume_changes,
     config_from_mapping,
     new_run_folder,
     resume_summary,
@@ -305,16 +306,11 @@ RESUME_CHANGEABLE = (
 )
 
 
-def check_resume_changes(saved: TrainConfig, resumed: TrainConfig) -> None:
+def check_policy_resume(saved: TrainConfig, resumed: TrainConfig) -> None:
     """``ValueError`` naming the keys a resumed run changed that it cannot (see ``RESUME_CHANGEABLE``)."""
-    fixed = [k for k in TrainConfig.keys() if k not in RESUME_CHANGEABLE and getattr(saved, k) != getattr(resumed, k)]
-    if saved.algo_kwargs.get("buffer_size") != resumed.algo_kwargs.get("buffer_size"):
-        fixed.append("algo_kwargs.buffer_size")  # the saved replay buffer keeps its size
-    if fixed:
-        raise ValueError(
-            f"a resumed run cannot change {fixed}: they built its model, replay buffer or seeds; "
-            f"it may change {list(RESUME_CHANGEABLE)} (except algo_kwargs.buffer_size)"
-        )
+    buffer_changed = saved.algo_kwargs.get("buffer_size") != resumed.algo_kwargs.get("buffer_size")
+    # the saved replay buffer keeps its size
+    check_resume_changes(saved, resumed, RESUME_CHANGEABLE, ["algo_kwargs.buffer_size"] if buffer_changed else [])
 
 
 def algo_arguments(config: TrainConfig) -> dict[str, Any]:

@@ -149,3 +149,19 @@ def resume_summary(meta: dict[str, Any]) -> str | None:
         for r in meta.get("resumed", [])
     ]
     return "resumed " + "; ".join(sessions) if sessions else None
+
+
+def check_resume_changes(
+    saved: Any, resumed: Any, changeable: tuple[str, ...], also_fixed: list[str] | None = None
+) -> None:
+    """``ValueError`` if the config dataclass of a resumed run (``resumed``) differs from the one it was saved
+    with in a key outside ``changeable`` (those built its model, data or seeds), naming them and what may change."""
+    fixed = [
+        f.name
+        for f in dataclasses.fields(saved)
+        if f.name not in changeable and getattr(saved, f.name) != getattr(resumed, f.name)
+    ] + list(also_fixed or [])
+    if fixed:
+        raise ValueError(
+            f"a resumed run cannot change {fixed}: they built its model, data or seeds; it may change {list(changeable)}"
+        )

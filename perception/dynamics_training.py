@@ -98,6 +98,10 @@ class FallConfig:
         read_metadata(self.dataset)  # a clear error now, not after the model is built
 
 
+#: What ``--resume`` may change in a fall-dynamics run; every other key built its model, data or optimiser.
+FALL_RESUME_CHANGEABLE = ("epochs", "max_minutes", "torch_threads")
+
+
 def fall_config(raw: dict[str, Any], source: str) -> FallConfig:
     return config_from_mapping(FallConfig, raw, source)
 

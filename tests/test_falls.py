@@ -122,6 +122,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     common = [f"dataset={dataset}", "hidden=8", "batch_size=4", "torch_threads=1", "context=3", "rollout=3"]
     assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *common, "epochs=1"]) == 0
     run = tmp_path / "fall_convlstm-seed0"
+    assert train.main(["--resume", str(run), "hidden=16", "--no-progress"]) == 2  # the saved weights are 8 wide
     assert train.main(["--resume", str(run), "epochs=2", "--no-progress"]) == 0
     rows = [json.loads(line) for line in (run / "evaluations.jsonl").read_text().splitlines()]
     assert [r["epoch"] for r in rows] == [1, 2]
