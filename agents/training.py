@@ -308,8 +308,7 @@ RESUME_CHANGEABLE = (
 
 def check_policy_resume(saved: TrainConfig, resumed: TrainConfig) -> None:
     """``ValueError`` naming the keys a resumed run changed that it cannot (see ``RESUME_CHANGEABLE``)."""
-    buffer_changed = saved.algo_kwargs.get("buffer_size") != resumed.algo_kwargs.get("buffer_size")
-    # the saved replay buffer keeps its size
+    buffer_changed = saved.algo_kwargs.get("buffer_size") != resumed.algo_kwargs.get("buffer_size")  # saved buffer
     check_resume_changes(saved, resumed, RESUME_CHANGEABLE, ["algo_kwargs.buffer_size"] if buffer_changed else [])
 
 
@@ -605,8 +604,9 @@ def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar
     if resume:
         algo_class = load_class(ALGORITHMS[config.algo][0])
         # The config's algo_kwargs replace the saved ones (a resumed run may change them: RESUME_CHANGEABLE).
-        kwargs = {k: v for k, v in algo_arguments(config).items() if k != "buffer_size"}
-        model = algo_class.load(run_dir / "latest.zip", env=env, tensorboard_log=str(run_dir / "tb"), **kwargs)
+        model = algo_class.load(
+            run_dir / "latest.zip", env=env, tensorboard_log=str(run_dir / "tb"), **algo_arguments(config)
+        )
         if will_learn and (run_dir / "replay.pkl").exists():  # a finished run resumed only to be re-tested skips it
             model.load_replay_buffer(run_dir / "replay.pkl")
     else:

@@ -385,8 +385,8 @@ def evaluate(
         for b in range(0, len(starts), batch_size):
             chunk = starts[b : b + batch_size]
             windows = np.stack([labels[i, t - context + 1 : t + 1] for i, t in chunk])
-            depths = None if depth is None else np.stack([depth[i, t - context + 1 : t + 1] for i, t in chunk])
-            predicted = predict_batch(model, windows, max(horizons), depths if model.use_depth else None)
+            depths = np.stack([depth[i, t - context + 1 : t + 1] for i, t in chunk]) if model.use_depth else None
+            predicted = predict_batch(model, windows, max(horizons), depths)
             truth_frames = {h: np.stack([labels[i, t + h] for i, t in chunk]) for h in horizons}
             for h in horizons:
                 scores["model"][h].add(truth_frames[h], predicted[:, h - 1])

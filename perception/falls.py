@@ -103,39 +103,30 @@ def load_split(
         raise ValueError(f"label_source must be 'labels' or 'colour_labels', got {label_source!r}")
     root = Path(root)
     meta = read_metadata(root)
-    labels, seeds, depths = [], [], []
+    names = [label_source, "depth"] if depth else [label_source]
+    kept: dict[str, list[np.ndarray]] = {name: [] for name in [*names, "seeds"]}
     for entry in meta["shards"]:
         if verify:
             verify_shard(root, entry)
         try:
             with np.load(root / entry["file"]) as shard:
-                shard_seeds = shard["seeds"]
-                shard_labels = shard[label_source]
-                shard_depth = shard["depth"] if depth else shard_labels
+                arrays = {name: shard[name] for name in [*names, "seeds"]}
         except (OSError, ValueError, KeyError) as error:
             raise ValueError(f"shard {entry['file']} cannot be read: {error}") from error
         expected = (entry["sequences"], meta["frames"], meta["crop"], meta["crop"])
-        if (
-            shard_labels.shape != expected
-            or shard_depth.shape != expected
-            or shard_seeds.shape != (entry["sequences"],)
-        ):
-            raise ValueError(
-                f"shard {entry['file']} has {label_source} of shape {shard_labels.shape}"
-                + (f" and depth of shape {shard_depth.shape}" if depth else "")
-                + f", expected {expected}"
-            )
-        keep = np.array([split_of(int(s)) == split for s in shard_seeds], dtype=bool)
-        labels.append(shard_labels[keep])
-        seeds.append(shard_seeds[keep])
-        if depth:
-            depths.append(shard_depth[keep])
-    if not labels:
+        wrong = {name: arrays[name].shape for name in names if arrays[name].shape != expected}
+        if wrong or arrays["seeds"].shape != (entry["sequences"],):
+            shapes = ", ".join(f"{name} of shape {shape}" for name, shape in wrong.items()) or "a wrong seed count"
+            raise ValueError(f"shard {entry['file']} has {shapes}, expected {expected}")
+        keep = np.array([split_of(int(s)) == split for s in arrays["seeds"]], dtype=bool)
+        for name, array in arrays.items():
+            kept[name].append(array[keep])
+    if not meta["shards"]:
         raise ValueError(f"{root} lists no shards")
     return FallSequences(
-        np.concatenate(labels),
-        np.concatenate(seeds),
+        np.concatenate(kept[label_source]),
+        np.concatenate(kept["seeds"]),
         list(meta["classes"]),
         float(meta["frame_interval"]),
-        np.concatenate(depths) if depth else None,
+        np.concatenate(kept["depth"]) if depth else None,
     )
