@@ -65,6 +65,9 @@ class TrainConfig:
     algo: str
     total_steps: int
     env_kwargs: dict[str, Any] = field(default_factory=dict)  # options for gymnasium.make
+    # Added to env_kwargs in the training envs only (curricula such as start_in_hand); evaluation, the final
+    # test and LearnedAgent use env_kwargs alone.
+    train_env_kwargs: dict[str, Any] = field(default_factory=dict)
     max_episode_steps: int | None = None  # None: the id's own limit
     algo_kwargs: dict[str, Any] = field(default_factory=dict)  # SB3 constructor arguments
     policy_kwargs: dict[str, Any] = field(default_factory=dict)
@@ -108,7 +111,7 @@ class TrainConfig:
               "max_minutes", "a positive number or null")  # fmt: skip
         check(self.max_episode_steps is None or (isinstance(self.max_episode_steps, int) and self.max_episode_steps > 0),
               "max_episode_steps", "a positive int or null")  # fmt: skip
-        for key in ("env_kwargs", "algo_kwargs", "policy_kwargs"):
+        for key in ("env_kwargs", "train_env_kwargs", "algo_kwargs", "policy_kwargs"):
             check(isinstance(getattr(self, key), dict), key, "a mapping")
         check(self.her is None or isinstance(self.her, dict), "her", "a mapping or null")
         check(self.her is None or self.algo in ("sac", "tqc"), "her", "null unless algo is sac or tqc")
@@ -209,11 +212,12 @@ def observation_transform(config: TrainConfig) -> Callable[[Any, dict[str, Any]]
     return lambda observation, info: observation
 
 
-def make_env(config: TrainConfig, render_mode: str | None = None) -> gym.Env:
-    """One env as the policy is trained on it (raw observations; see ``observation_transform``)."""
+def make_env(config: TrainConfig, render_mode: str | None = None, training: bool = False) -> gym.Env:
+    """One env as the policy is evaluated on it, or with ``training`` as it is trained on it (with
+    ``train_env_kwargs``); raw observations (see ``observation_transform``)."""
     import panda_grasp_env  # noqa: F401  (registers the ids)
 
-    options = dict(config.env_kwargs)
+    options = {**config.env_kwargs, **(config.train_env_kwargs if training else {})}
     if config.max_episode_steps is not None:
         options["max_episode_steps"] = config.max_episode_steps
     return gym.make(config.env_id, render_mode=render_mode, **options)
@@ -266,7 +270,7 @@ def _wrapped_env(config: TrainConfig) -> gym.Env:
     import torch
 
     torch.set_num_threads(config.torch_threads)  # worker processes: never oversubscribe the cores
-    env = make_env(config)
+    env = make_env(config, training=True)
     if config.reward == "outcome":
         env = OutcomeReward(env)
     if config.algo == "heightmap_dqn":

@@ -17,6 +17,7 @@ import numpy as np
 from panda_grasp_env.actions import (
     ACTION_MODES,
     EE_STEP,
+    LOW_LEVEL_BOUNDS,
     ActionMode,
     EEDeltaActions,
     GraspPoseActions,
@@ -29,7 +30,7 @@ from panda_grasp_env.controller import ControllerLimits
 from panda_grasp_env.observations import ObservationBuilder, Sensors, parse_obs_mode
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.rendering import CameraRenderer
-from panda_grasp_env.robot import HOME_YAW
+from panda_grasp_env.robot import FINGER_OPEN, HOME_YAW
 from panda_grasp_env.scene import CAMERA_NAMES, SceneConfig
 from panda_grasp_env.tasks import TaskStep, make_task
 from panda_grasp_env.workcell import PhysicsError, Workcell
@@ -41,6 +42,9 @@ from perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
 READY_XY = (0.45, 0.0)
 READY_CLEARANCE = 0.08
 READY_MIN_HEIGHT = 0.15
+#: ``start_in_hand``: an object that moved more than this (metres) while the fingers closed on it was not
+#: cleanly held; the episode starts normally instead.
+HOLD_START_DRIFT = 0.015
 COUNTERS = ("grasps_attempted", "grasps_succeeded", "places", "places_succeeded", "pushes", "impulses")
 
 
@@ -63,6 +67,10 @@ class PandaEnv(gym.Env):
         render_size: (width, height) of ``render()`` frames.
         planner: OMPL planner of the ``grasp_pose`` mode (``panda_grasp_env.planning.PLANNERS``).
         scene: base ``SceneConfig`` (block size, masses, friction, ...); the task sets the objects.
+        start_in_hand: low-level modes only: the probability (0-1) that an episode starts with the task's
+            object already between the closed fingers (``Task.object_to_hold``: the object to lift, the
+            next block to stack) -- a training curriculum, as resets to demonstration states (Nair et al.
+            2018); evaluation keeps 0.  ``info["started_in_hand"]`` says whether it did.
         **task_options: passed to the task (see each task's docstring).
     """
 
@@ -85,6 +93,7 @@ class PandaEnv(gym.Env):
         render_size: tuple[int, int] = (640, 480),
         planner: str = "RRTConnect",
         scene: SceneConfig | None = None,
+        start_in_hand: float = 0.0,
         **task_options: Any,
     ) -> None:
         try:
@@ -111,6 +120,15 @@ class PandaEnv(gym.Env):
         if not 0 < push_distance <= 0.3:
             raise ValueError(f"push_distance must be in (0, 0.3] m, got {push_distance!r}")
         modalities = parse_obs_mode(obs_mode)
+        if not (isinstance(start_in_hand, (int, float)) and not isinstance(start_in_hand, bool)
+                and 0.0 <= start_in_hand <= 1.0):  # fmt: skip
+            raise ValueError(f"start_in_hand must be a probability in [0, 1], got {start_in_hand!r}")
+        if start_in_hand and not (action_mode in ("ee_delta", "joint") and self.task.can_start_in_hand):
+            raise ValueError(
+                f"start_in_hand needs a low-level action mode (ee_delta, joint) and a task with an object to "
+                f"hold (Grasp, TowerBuild); got action_mode={action_mode!r}, task={task!r}"
+            )
+        self.start_in_hand = float(start_in_hand)
 
         self.obs_mode, self.action_mode, self.render_mode = obs_mode, action_mode, render_mode
         low_level = action_mode in ("ee_delta", "joint")
@@ -169,10 +187,13 @@ class PandaEnv(gym.Env):
         task_info = self.task.reset(self.cell, self.np_random)
         if isinstance(self.actions, GraspPoseActions):
             self.actions.stack.reseed(int(self.np_random.integers(2**31)))
+        started_in_hand = False
         if self.actions.low_level:
             tallest = max((float(body_top) for body_top in self._object_tops()), default=0.0)
             ready = np.array([*READY_XY, max(READY_MIN_HEIGHT, tallest + READY_CLEARANCE)])
             self.cell.teleport_hand(ready, HOME_YAW)
+            if self.start_in_hand and self.np_random.random() < self.start_in_hand:  # no draw when 0
+                started_in_hand = self._start_holding(self.task.object_to_hold(self.cell), ready)
         self.actions.reset(self.cell)
         self.sensors.invalidate()
         self._counters = dict.fromkeys(COUNTERS, 0)
@@ -185,6 +206,8 @@ class PandaEnv(gym.Env):
             "sim_time": 0.0,
             **self._published_facts(),
         }
+        if self.start_in_hand:
+            info["started_in_hand"] = started_in_hand
         if self.render_mode == "human":
             self.render()
         return self._observe(), info
@@ -233,6 +256,28 @@ class PandaEnv(gym.Env):
         elif isinstance(self.actions, GraspPoseActions):
             facts["action_layout"] = {"mode": "grasp_pose"}
         return facts
+
+    def _start_holding(self, body: int, ready: np.ndarray) -> bool:
+        """Close the fingers on ``body`` where it lies (grasp site at its centre, the low-level heading) and
+        restart the clock.  If the open hand put there touches it (too wide for the fingers at this heading)
+        or closing does not hold it, put the object and the hand back (the hand at ``ready``, open) and
+        return False."""
+        cell = self.cell
+        position, orientation = cell.data.xpos[body].copy(), cell.data.xquat[body].copy()
+        centre = np.array([*position[:2], max(position[2], LOW_LEVEL_BOUNDS[2, 0])])
+        cell.teleport_hand(centre, HOME_YAW)
+        held = not cell.touches_robot(body)  # the open hand must be around the object, not in it
+        if held:
+            cell.actuate_gripper(close=True, timeout=0.5)
+            held = cell.robot.body_between_pads() == body
+        if not held or np.linalg.norm(cell.data.xpos[body] - position) > HOLD_START_DRIFT:
+            cell.set_body_pose(body, position, orientation)
+            cell.robot.open_gripper()
+            cell.data.qpos[cell.robot.finger_qpos_idx] = FINGER_OPEN
+            cell.teleport_hand(ready, HOME_YAW)
+            held = False
+        cell.settle(0.0)
+        return held
 
     def _object_tops(self) -> list[float]:
         cell = self.cell

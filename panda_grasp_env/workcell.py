@@ -127,16 +127,23 @@ class Workcell:
     def name_of(self, body_id: int | None) -> str | None:
         return None if body_id is None else mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_BODY, body_id)
 
+    def bodies_touching(self, body_id: int) -> set[int]:
+        """Ids of the bodies in contact with a body (as of the last forward pass or step)."""
+        geom_body = self.model.geom_bodyid
+        touching = set()
+        for contact in self.data.contact[: self.data.ncon]:
+            b1, b2 = int(geom_body[contact.geom1]), int(geom_body[contact.geom2])
+            if body_id in (b1, b2):
+                touching.add(b2 if b1 == body_id else b1)
+        return touching
+
     def touches_world(self, body_id: int) -> bool:
         """Whether a body is in contact with anything other than the robot."""
-        geom_body = self.model.geom_bodyid
-        for contact in self.data.contact[: self.data.ncon]:
-            b1, b2 = geom_body[contact.geom1], geom_body[contact.geom2]
-            if body_id in (b1, b2):
-                other = b2 if b1 == body_id else b1
-                if other not in self.robot.body_ids:
-                    return True
-        return False
+        return any(other not in self.robot.body_ids for other in self.bodies_touching(body_id))
+
+    def touches_robot(self, body_id: int) -> bool:
+        """Whether a body is in contact with the robot."""
+        return any(other in self.robot.body_ids for other in self.bodies_touching(body_id))
 
     # --- stepping ----------------------------------------------------------
     def step_physics(self, n_steps: int) -> None:

@@ -203,6 +203,8 @@ def test_bad_pixel_actions_raise():
         ({"cameras": ("ceiling",)}, "valid: \\['overhead', 'front', 'wrist'\\]"),
         ({"render_mode": "ascii"}, "render_mode"),
         ({"image_size": (0, 10)}, "image_size"),
+        ({"start_in_hand": 1.5}, "start_in_hand must be a probability in \\[0, 1\\], got 1.5"),
+        ({"start_in_hand": 0.5}, "start_in_hand needs a low-level action mode .*action_mode='primitive'"),
     ],
 )
 @pytest.mark.filterwarnings("ignore:.*render_mode")  # gymnasium warns before our error

@@ -152,6 +152,49 @@ def test_ee_delta_moves_the_hand_and_closes_the_gripper():
     env.close()
 
 
+def test_start_in_hand_holds_the_object_to_lift_and_a_lift_reaches_the_goal():
+    env = make("PandaGrasp-v0", action_mode="ee_delta", shapes=("cube",), start_in_hand=1.0)
+    observation, info = env.reset(seed=3)
+    cell = env.unwrapped.cell
+    assert info["started_in_hand"] and cell.robot.body_between_pads() == env.unwrapped.task.object_to_hold(cell)
+    assert info["sim_time"] == 0.0 and not info["is_success"]
+    start = observation["achieved_goal"].copy()
+    reached = False
+    for _ in range(15):  # straight up with closed fingers: the object comes along and passes the goal
+        observation, _, _, _, info = env.step(np.array([0.0, 0.0, 0.3, 1.0]))
+        reached |= info["is_success"]
+    assert reached and observation["achieved_goal"][2] - start[2] > 0.1
+    again, info_again = env.reset(seed=3)
+    np.testing.assert_array_equal(again["observation"], env.reset(seed=3)[0]["observation"])  # deterministic
+    assert info_again["started_in_hand"]
+    env.close()
+
+
+def test_start_in_hand_starts_normally_when_the_object_is_too_wide_for_the_fingers():
+    wide = {"box": ((0.05, 0.05), (0.05, 0.05), (0.02, 0.02))}  # 10 cm square: wider than the open fingers
+    env = make("PandaGrasp-v0", action_mode="ee_delta", shapes=("box",), size_ranges=wide, start_in_hand=1.0)
+    plain = make("PandaGrasp-v0", action_mode="ee_delta", shapes=("box",), size_ranges=wide)
+    observation, info = env.reset(seed=0)
+    expected, _ = plain.reset(seed=0)
+    assert info["started_in_hand"] is False and info["sim_time"] == 0.0
+    np.testing.assert_allclose(observation["achieved_goal"], expected["achieved_goal"], atol=1e-6)  # left as it lay
+    np.testing.assert_allclose(observation["observation"][:3], expected["observation"][:3], atol=1e-3)  # hand ready
+    env.close()
+    plain.close()
+
+
+def test_start_in_hand_probability_draws_per_episode_and_zero_changes_nothing():
+    env = make("PandaStack-v0", start_in_hand=0.5)
+    started = [env.reset(seed=seed)[1]["started_in_hand"] for seed in range(12)]
+    assert 0 < sum(started) < 12  # the next block to stack, in hand in about half of the episodes
+    plain, with_zero = make("PandaStack-v0"), make("PandaStack-v0", start_in_hand=0.0)
+    first, info = plain.reset(seed=5)
+    np.testing.assert_array_equal(first["observation"], with_zero.reset(seed=5)[0]["observation"])
+    assert "started_in_hand" not in info
+    for e in (env, plain, with_zero):
+        e.close()
+
+
 def test_her_replay_buffer_trains_on_push():
     from stable_baselines3 import SAC, HerReplayBuffer
 

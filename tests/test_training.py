@@ -77,6 +77,7 @@ def test_unknown_key_fails_listing_the_valid_ones(tmp_path):
         ("algo_kwargs.learning_rate={start: 0.001, end: -1}", r"learning_rate as a positive number or \{start"),
         ("algo_kwargs.learning_rate={start: 0.001}", r"learning_rate as a positive number or \{start"),
         ("seed", "key=value"),
+        ("train_env_kwargs=0.5", "train_env_kwargs=0.5: expected a mapping"),
     ],
 )
 def test_bad_values_fail_before_training(override, message):
@@ -324,6 +325,18 @@ def test_her_pipeline_runs_with_vectorised_envs(tmp_path):
     assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *overrides]) == 0
     final = json.loads((tmp_path / "push_sac_her-seed0" / "final.json").read_text())
     assert final["steps"] == 200 and final["metrics"]["episodes"] == 1
+
+
+def test_train_env_kwargs_reach_the_training_envs_only():
+    from agents.training import make_env, make_vec_env
+
+    config = load_config(CONFIGS / "lift_sac_her.yaml", ["n_envs=2", "train_env_kwargs={start_in_hand: 0.5}"])
+    training = make_vec_env(config)
+    assert [e.unwrapped.start_in_hand for e in training.envs] == [0.5, 0.5]
+    evaluation = make_env(config)
+    assert evaluation.unwrapped.start_in_hand == 0.0 and evaluation.unwrapped.action_mode == "ee_delta"
+    training.close()
+    evaluation.close()
 
 
 def test_learning_rate_decays_linearly_over_total_steps_also_when_resumed(tmp_path, monkeypatch):

@@ -55,6 +55,8 @@ class Task(ABC):
     goal_conditioned: ClassVar[bool] = False
     #: Action mode used when ``make`` is not given one.
     default_action_mode: ClassVar[str] = "primitive"
+    #: Whether low-level episodes may start holding ``object_to_hold`` (the env's ``start_in_hand``).
+    can_start_in_hand: ClassVar[bool] = False
 
     def scene_config(self, base: SceneConfig) -> SceneConfig:
         """The scene this task needs, derived from the env's ``base`` scene (blocks, object slots)."""
@@ -70,6 +72,10 @@ class Task(ABC):
 
     def on_control_step(self, cell: Workcell) -> None:  # noqa: B027 (an optional hook)
         """Called after every 25 Hz control step (inside primitives too): track time-based conditions."""
+
+    def object_to_hold(self, cell: Workcell) -> int:
+        """Body id of the object a low-level episode may start holding (tasks with ``can_start_in_hand``)."""
+        raise TypeError(f"task {self.name!r} has no object to start holding")
 
     @property
     def ideal_actions(self) -> int | None:

@@ -66,6 +66,7 @@ class Grasp(Task):
     name = "Grasp"
     primitives = ("grasp", "push")
     goal_conditioned = True
+    can_start_in_hand = True
 
     def __init__(
         self,
@@ -132,6 +133,10 @@ class Grasp(Task):
         self._goal_body = on_table[0] if on_table else int(cell.object_ids[0])
         self._goal = cell.data.xpos[self._goal_body] + [0.0, 0.0, rng.uniform(*LIFT_GOAL_HEIGHT)]
         return {"shapes": [s.kind for s in shapes], **self._info(cell)}
+
+    def object_to_hold(self, cell: Workcell) -> int:
+        """The object to lift."""
+        return self._goal_body
 
     def on_table(self, cell: Workcell) -> list[int]:
         """Body ids of the objects still in play: on the table inside ``PLAY_REGION`` (not set aside, not
