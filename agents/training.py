@@ -706,8 +706,9 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
     lines = [
         f"# {config.name}",
         "",
-        f"`{config.algo}` on `{config.env_id}` ({json.dumps(config.env_kwargs)}), trained by this repository's "
-        "`train.py` with the resolved config below.",
+        f"`{config.algo}` on `{config.env_id}` ({json.dumps(config.env_kwargs)}"
+        + (f"; training envs also {json.dumps(config.train_env_kwargs)}" if config.train_env_kwargs else "")
+        + "), trained by this repository's `train.py` with the resolved config below.",
         "",
         "| | |",
         "|---|---|",

@@ -321,10 +321,12 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
 def test_her_pipeline_runs_with_vectorised_envs(tmp_path):
     overrides = ["total_steps=200", "n_envs=2", "algo_kwargs.learning_starts=100", "algo_kwargs.buffer_size=1000",
                  "eval_every=200", "eval_episodes=1", "final_eval_episodes=1", "checkpoint_every=200"]  # fmt: skip
-    config = str(CONFIGS / "push_sac_her.yaml")
+    config = str(CONFIGS / "lift_sac_her.yaml")  # with training envs that start some episodes holding the object
     assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *overrides]) == 0
-    final = json.loads((tmp_path / "push_sac_her-seed0" / "final.json").read_text())
+    final = json.loads((tmp_path / "lift_sac_her-seed0" / "final.json").read_text())
     assert final["steps"] == 200 and final["metrics"]["episodes"] == 1
+    card = (tmp_path / "lift_sac_her-seed0" / "card.md").read_text()
+    assert 'training envs also {"start_in_hand": 0.5}' in card
 
 
 def test_train_env_kwargs_reach_the_training_envs_only():
