@@ -70,7 +70,11 @@ class PandaEnv(gym.Env):
         start_in_hand: low-level modes only: the probability (0-1) that an episode starts with the task's
             object already between the closed fingers (``Task.object_to_hold``: the object to lift, the
             next block to stack) -- a training curriculum, as resets to demonstration states (Nair et al.
-            2018); evaluation keeps 0.  ``info["started_in_hand"]`` says whether it did.
+            2018); evaluation keeps 0.
+        start_above_object: as ``start_in_hand``: the probability that an episode starts with the open hand
+            straight above that object, anywhere from around it to the usual start height (uniform); the
+            two curricula together cover the way from the usual start to the object (their sum <= 1).
+            ``info["start"]`` says how an episode started: ``ready``, ``in_hand`` or ``above_object``.
         **task_options: passed to the task (see each task's docstring).
     """
 
@@ -94,6 +98,7 @@ class PandaEnv(gym.Env):
         planner: str = "RRTConnect",
         scene: SceneConfig | None = None,
         start_in_hand: float = 0.0,
+        start_above_object: float = 0.0,
         **task_options: Any,
     ) -> None:
         try:
@@ -120,15 +125,19 @@ class PandaEnv(gym.Env):
         if not 0 < push_distance <= 0.3:
             raise ValueError(f"push_distance must be in (0, 0.3] m, got {push_distance!r}")
         modalities = parse_obs_mode(obs_mode)
-        if not (isinstance(start_in_hand, (int, float)) and not isinstance(start_in_hand, bool)
-                and 0.0 <= start_in_hand <= 1.0):  # fmt: skip
-            raise ValueError(f"start_in_hand must be a probability in [0, 1], got {start_in_hand!r}")
-        if start_in_hand and not (action_mode in ("ee_delta", "joint") and self.task.can_start_in_hand):
+        for name, value in (("start_in_hand", start_in_hand), ("start_above_object", start_above_object)):
+            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 <= value <= 1.0):
+                raise ValueError(f"{name} must be a probability in [0, 1], got {value!r}")
+            if value and not (action_mode in ("ee_delta", "joint") and self.task.can_start_in_hand):
+                raise ValueError(
+                    f"{name} needs a low-level action mode (ee_delta, joint) and a task with an object to "
+                    f"hold (Grasp, TowerBuild); got action_mode={action_mode!r}, task={task!r}"
+                )
+        if start_in_hand + start_above_object > 1.0:
             raise ValueError(
-                f"start_in_hand needs a low-level action mode (ee_delta, joint) and a task with an object to "
-                f"hold (Grasp, TowerBuild); got action_mode={action_mode!r}, task={task!r}"
+                f"start_in_hand + start_above_object must be <= 1, got {start_in_hand + start_above_object}"
             )
-        self.start_in_hand = float(start_in_hand)
+        self.start_in_hand, self.start_above_object = float(start_in_hand), float(start_above_object)
 
         self.obs_mode, self.action_mode, self.render_mode = obs_mode, action_mode, render_mode
         low_level = action_mode in ("ee_delta", "joint")
@@ -187,13 +196,17 @@ class PandaEnv(gym.Env):
         task_info = self.task.reset(self.cell, self.np_random)
         if isinstance(self.actions, GraspPoseActions):
             self.actions.stack.reseed(int(self.np_random.integers(2**31)))
-        started_in_hand = False
+        start = "ready"
         if self.actions.low_level:
             tallest = max((float(body_top) for body_top in self._object_tops()), default=0.0)
             ready = np.array([*READY_XY, max(READY_MIN_HEIGHT, tallest + READY_CLEARANCE)])
             self.cell.teleport_hand(ready, HOME_YAW)
-            if self.start_in_hand and self.np_random.random() < self.start_in_hand:  # no draw when 0
-                started_in_hand = self._start_holding(self.task.object_to_hold(self.cell), ready)
+            if self.start_in_hand or self.start_above_object:  # no draw without a curriculum
+                draw, body = self.np_random.random(), self.task.object_to_hold(self.cell)
+                if draw < self.start_in_hand:
+                    start = "in_hand" if self._start_holding(body, ready) else "ready"
+                elif draw < self.start_in_hand + self.start_above_object:
+                    start = "above_object" if self._start_above(body, ready) else "ready"
         self.actions.reset(self.cell)
         self.sensors.invalidate()
         self._counters = dict.fromkeys(COUNTERS, 0)
@@ -206,8 +219,8 @@ class PandaEnv(gym.Env):
             "sim_time": 0.0,
             **self._published_facts(),
         }
-        if self.start_in_hand:
-            info["started_in_hand"] = started_in_hand
+        if self.start_in_hand or self.start_above_object:
+            info["start"] = start
         if self.render_mode == "human":
             self.render()
         return self._observe(), info
@@ -278,6 +291,18 @@ class PandaEnv(gym.Env):
             held = False
         cell.settle(0.0)
         return held
+
+    def _start_above(self, body: int, ready: np.ndarray) -> bool:
+        """Put the open hand straight above ``body``, the grasp site anywhere (uniform) from the object's centre
+        up to the height of ``ready``; if it touches the object there, back to ``ready`` and return False."""
+        cell = self.cell
+        position = cell.data.xpos[body]
+        low = max(position[2], LOW_LEVEL_BOUNDS[2, 0])
+        cell.teleport_hand(np.array([*position[:2], low + self.np_random.random() * (ready[2] - low)]), HOME_YAW)
+        if cell.touches_robot(body):
+            cell.teleport_hand(ready, HOME_YAW)
+            return False
+        return True
 
     def _object_tops(self) -> list[float]:
         cell = self.cell

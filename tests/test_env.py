@@ -205,6 +205,8 @@ def test_bad_pixel_actions_raise():
         ({"image_size": (0, 10)}, "image_size"),
         ({"start_in_hand": 1.5}, "start_in_hand must be a probability in \\[0, 1\\], got 1.5"),
         ({"start_in_hand": 0.5}, "start_in_hand needs a low-level action mode .*action_mode='primitive'"),
+        ({"start_above_object": -0.1}, "start_above_object must be a probability in \\[0, 1\\]"),
+        ({"action_mode": "ee_delta", "start_in_hand": 0.6, "start_above_object": 0.6}, "sum|must be <= 1"),
     ],
 )
 @pytest.mark.filterwarnings("ignore:.*render_mode")  # gymnasium warns before our error

@@ -156,7 +156,7 @@ def test_start_in_hand_holds_the_object_to_lift_and_a_lift_reaches_the_goal():
     env = make("PandaGrasp-v0", action_mode="ee_delta", shapes=("cube",), start_in_hand=1.0)
     observation, info = env.reset(seed=3)
     cell = env.unwrapped.cell
-    assert info["started_in_hand"] and cell.robot.body_between_pads() == env.unwrapped.task.object_to_hold(cell)
+    assert info["start"] == "in_hand" and cell.robot.body_between_pads() == env.unwrapped.task.object_to_hold(cell)
     assert info["sim_time"] == 0.0 and not info["is_success"]
     start = observation["achieved_goal"].copy()
     reached = False
@@ -166,7 +166,7 @@ def test_start_in_hand_holds_the_object_to_lift_and_a_lift_reaches_the_goal():
     assert reached and observation["achieved_goal"][2] - start[2] > 0.1
     again, info_again = env.reset(seed=3)
     np.testing.assert_array_equal(again["observation"], env.reset(seed=3)[0]["observation"])  # deterministic
-    assert info_again["started_in_hand"]
+    assert info_again["start"] == "in_hand"
     env.close()
 
 
@@ -176,21 +176,29 @@ def test_start_in_hand_starts_normally_when_the_object_is_too_wide_for_the_finge
     plain = make("PandaGrasp-v0", action_mode="ee_delta", shapes=("box",), size_ranges=wide)
     observation, info = env.reset(seed=0)
     expected, _ = plain.reset(seed=0)
-    assert info["started_in_hand"] is False and info["sim_time"] == 0.0
+    assert info["start"] == "ready" and info["sim_time"] == 0.0
     np.testing.assert_allclose(observation["achieved_goal"], expected["achieved_goal"], atol=1e-6)  # left as it lay
     np.testing.assert_allclose(observation["observation"][:3], expected["observation"][:3], atol=1e-3)  # hand ready
     env.close()
     plain.close()
 
 
-def test_start_in_hand_probability_draws_per_episode_and_zero_changes_nothing():
-    env = make("PandaStack-v0", start_in_hand=0.5)
-    started = [env.reset(seed=seed)[1]["started_in_hand"] for seed in range(12)]
-    assert 0 < sum(started) < 12  # the next block to stack, in hand in about half of the episodes
-    plain, with_zero = make("PandaStack-v0"), make("PandaStack-v0", start_in_hand=0.0)
+def test_start_curricula_draw_per_episode_and_zero_changes_nothing():
+    env = make("PandaStack-v0", start_in_hand=0.4, start_above_object=0.4)
+    starts = {}
+    for seed in range(30):
+        observation, info = env.reset(seed=seed)
+        starts[info["start"]] = starts.get(info["start"], 0) + 1
+        if info["start"] == "above_object":  # the open hand straight above the next block, not touching it
+            cell = env.unwrapped.cell
+            block = cell.data.xpos[env.unwrapped.task.object_to_hold(cell)]
+            assert np.linalg.norm(observation["observation"][:2] - block[:2]) < 0.005
+            assert cell.robot.finger_gap > 0.06 and not cell.touches_robot(env.unwrapped.task.object_to_hold(cell))
+    assert set(starts) == {"ready", "in_hand", "above_object"}
+    plain, with_zero = make("PandaStack-v0"), make("PandaStack-v0", start_in_hand=0.0, start_above_object=0.0)
     first, info = plain.reset(seed=5)
     np.testing.assert_array_equal(first["observation"], with_zero.reset(seed=5)[0]["observation"])
-    assert "started_in_hand" not in info
+    assert "start" not in info
     for e in (env, plain, with_zero):
         e.close()
 
