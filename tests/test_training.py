@@ -326,7 +326,8 @@ def test_her_pipeline_runs_with_vectorised_envs(tmp_path):
     final = json.loads((tmp_path / "lift_sac_her-seed0" / "final.json").read_text())
     assert final["steps"] == 200 and final["metrics"]["episodes"] == 1
     card = (tmp_path / "lift_sac_her-seed0" / "card.md").read_text()
-    assert 'training envs also {"start_in_hand": 0.5}' in card
+    curriculum = load_config(config, []).train_env_kwargs
+    assert curriculum and f"training envs also {json.dumps(curriculum)}" in card
 
 
 def test_train_env_kwargs_reach_the_training_envs_only():
