@@ -310,11 +310,12 @@ def print_table(summary: dict) -> str:
     ]
     for key, m in summary["table"].items():
         agent, task = key.split("/")
-        s, t = m["trial_success"], summary["timing"][key]
+        s, g, t = m["trial_success"], m["grasp_success"], summary["timing"][key]
+        grasps = f"{100 * g['rate']:.0f} % ({g['n']})" if g["n"] else "—"  # low-level tasks attempt no primitive grasps
         lines.append(
             f"| {agent} | {task} | {m['episodes']} | {100 * s['rate']:.0f} % ({100 * s['ci95'][0]:.0f}-{100 * s['ci95'][1]:.0f}) "
-            f"| {100 * m['completion']['rate']:.0f} % | {100 * m['grasp_success']['rate']:.0f} % ({m['grasp_success']['n']}) "
-            f"| {100 * m['action_efficiency']:.0f} % | {m['cycles_per_sim_hour']:.0f} | {t['ms_per_decision']:.0f} "
+            f"| {100 * m['completion']['rate']:.0f} % | {grasps} "
+            f"| {100 * m['action_efficiency']:.0f} % | {m['cycles_per_sim_hour']:.0f} | {t['ms_per_decision']:.1f} "
             f"| {', '.join(f'{k} {v}' for k, v in m['failures'].items()) or '-'} |"
         )
     table = "\n".join(lines)

@@ -126,10 +126,11 @@ def main(argv: list[str] | None = None) -> int:
 def report(outcome: dict, run_dir: Path) -> int:
     print(json.dumps({k: v for k, v in outcome.items() if k != "metrics"}, indent=2))
     metrics = outcome["metrics"]
+    grasps = metrics["grasp_success"]  # none attempted in low-level (ee_delta) or tower-break episodes
     print(
         f"final: success {metrics['trial_success']['rate']:.3f} {metrics['trial_success']['ci95']}, "
-        f"grasp success {metrics['grasp_success']['rate']:.3f}, efficiency {metrics['action_efficiency']:.3f} "
-        f"(N={metrics['episodes']}); card: {run_dir / 'card.md'}"
+        + (f"grasp success {grasps['rate']:.3f}, " if grasps["n"] else "")
+        + f"efficiency {metrics['action_efficiency']:.3f} (N={metrics['episodes']}); card: {run_dir / 'card.md'}"
     )
     return 0
 

@@ -318,6 +318,20 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
         learned.LearnedAgent("tiny")
 
 
+@pytest.mark.parametrize("name", learned.available_checkpoints())
+def test_every_shipped_checkpoint_loads_acts_and_has_its_card(name):
+    checkpoint = learned.Checkpoint(name)
+    assert (checkpoint.path / "policy.zip").stat().st_size < 20e6
+    card = (checkpoint.path / "card.md").read_text()
+    assert "held-out seeds" in card and (checkpoint.path / "curve.png").stat().st_size > 0
+    env = checkpoint.make_env()
+    agent = learned.LearnedAgent(name, env)
+    observation, info = env.reset(seed=0)
+    agent.reset(observation, info)
+    assert env.action_space.contains(agent.act(observation, info))
+    env.close()
+
+
 def test_her_pipeline_runs_with_vectorised_envs(tmp_path):
     overrides = ["total_steps=200", "n_envs=2", "algo_kwargs.learning_starts=100", "algo_kwargs.buffer_size=1000",
                  "eval_every=200", "eval_episodes=1", "final_eval_episodes=1", "checkpoint_every=200"]  # fmt: skip
