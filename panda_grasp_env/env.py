@@ -30,7 +30,7 @@ from panda_grasp_env.controller import ControllerLimits
 from panda_grasp_env.observations import ObservationBuilder, Sensors, parse_obs_mode
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.rendering import CameraRenderer
-from panda_grasp_env.robot import FINGER_OPEN, HOME_YAW
+from panda_grasp_env.robot import FINGER_CLOSED, FINGER_OPEN, HOME_YAW
 from panda_grasp_env.scene import CAMERA_NAMES, SceneConfig
 from panda_grasp_env.tasks import TaskStep, make_task
 from panda_grasp_env.workcell import PhysicsError, Workcell
@@ -68,13 +68,17 @@ class PandaEnv(gym.Env):
         planner: OMPL planner of the ``grasp_pose`` mode (``panda_grasp_env.planning.PLANNERS``).
         scene: base ``SceneConfig`` (block size, masses, friction, ...); the task sets the objects.
         start_in_hand: low-level modes only: the probability (0-1) that an episode starts with the task's
-            object already between the closed fingers (``Task.object_to_hold``: the object to lift, the
+            object already between the closed fingers (``Task.start_object``: the object to lift, the
             next block to stack) -- a training curriculum, as resets to demonstration states (Nair et al.
             2018); evaluation keeps 0.
         start_above_object: as ``start_in_hand``: the probability that an episode starts with the open hand
             straight above that object, anywhere from around it to the usual start height (uniform); the
-            two curricula together cover the way from the usual start to the object (their sum <= 1).
-            ``info["start"]`` says how an episode started: ``ready``, ``in_hand`` or ``above_object``.
+            two curricula together cover the way from the usual start to the object.
+        start_behind_object: as ``start_in_hand``, for Push: the probability that an episode starts with the
+            hand at the block's height behind it on the line from the goal through the block, 0-10 cm
+            (uniform) short of touching it -- where a push towards the goal begins.
+            The start probabilities sum to at most 1; ``info["start"]`` says how an episode started: ``ready``
+            or one of ``Task.start_states`` (``in_hand``, ``above_object``, ``behind_object``).
         **task_options: passed to the task (see each task's docstring).
     """
 
@@ -99,6 +103,7 @@ class PandaEnv(gym.Env):
         scene: SceneConfig | None = None,
         start_in_hand: float = 0.0,
         start_above_object: float = 0.0,
+        start_behind_object: float = 0.0,
         **task_options: Any,
     ) -> None:
         try:
@@ -125,19 +130,21 @@ class PandaEnv(gym.Env):
         if not 0 < push_distance <= 0.3:
             raise ValueError(f"push_distance must be in (0, 0.3] m, got {push_distance!r}")
         modalities = parse_obs_mode(obs_mode)
-        for name, value in (("start_in_hand", start_in_hand), ("start_above_object", start_above_object)):
+        requested = {"in_hand": start_in_hand, "above_object": start_above_object, "behind_object": start_behind_object}
+        for state, value in requested.items():
+            name = f"start_{state}"
             if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 <= value <= 1.0):
                 raise ValueError(f"{name} must be a probability in [0, 1], got {value!r}")
-            if value and not (action_mode in ("ee_delta", "joint") and self.task.can_start_in_hand):
+            if value and not (action_mode in ("ee_delta", "joint") and state in self.task.start_states):
                 raise ValueError(
-                    f"{name} needs a low-level action mode (ee_delta, joint) and a task with an object to "
-                    f"hold (Grasp, TowerBuild); got action_mode={action_mode!r}, task={task!r}"
+                    f"{name} needs a low-level action mode (ee_delta, joint) and a task that can start "
+                    f"{state.replace('_', ' ')}; got action_mode={action_mode!r}, task={task!r} "
+                    f"(its start states: {list(self.task.start_states)})"
                 )
-        if start_in_hand + start_above_object > 1.0:
-            raise ValueError(
-                f"start_in_hand + start_above_object must be <= 1, got {start_in_hand + start_above_object}"
-            )
-        self.start_in_hand, self.start_above_object = float(start_in_hand), float(start_above_object)
+        if sum(requested.values()) > 1.0:
+            raise ValueError(f"the start_* probabilities must sum to <= 1, got {sum(requested.values())}")
+        #: Start state -> probability of an episode starting there (a training curriculum; empty: none).
+        self.start_curriculum = {state: float(value) for state, value in requested.items() if value}
 
         self.obs_mode, self.action_mode, self.render_mode = obs_mode, action_mode, render_mode
         low_level = action_mode in ("ee_delta", "joint")
@@ -201,12 +208,15 @@ class PandaEnv(gym.Env):
             tallest = max((float(body_top) for body_top in self._object_tops()), default=0.0)
             ready = np.array([*READY_XY, max(READY_MIN_HEIGHT, tallest + READY_CLEARANCE)])
             self.cell.teleport_hand(ready, HOME_YAW)
-            if self.start_in_hand or self.start_above_object:  # no draw without a curriculum
-                draw, body = self.np_random.random(), self.task.object_to_hold(self.cell)
-                if draw < self.start_in_hand:
-                    start = "in_hand" if self._start_holding(body, ready) else "ready"
-                elif draw < self.start_in_hand + self.start_above_object:
-                    start = "above_object" if self._start_above(body, ready) else "ready"
+            if self.start_curriculum:  # no draw without one
+                draw, body = self.np_random.random(), self.task.start_object(self.cell)
+                starts = {"in_hand": self._start_holding, "above_object": self._start_above,
+                          "behind_object": self._start_behind}  # fmt: skip
+                for state, probability in self.start_curriculum.items():
+                    if draw < probability:
+                        start = state if starts[state](body, ready) else "ready"
+                        break
+                    draw -= probability
         self.actions.reset(self.cell)
         self.sensors.invalidate()
         self._counters = dict.fromkeys(COUNTERS, 0)
@@ -219,7 +229,7 @@ class PandaEnv(gym.Env):
             "sim_time": 0.0,
             **self._published_facts(),
         }
-        if self.start_in_hand or self.start_above_object:
+        if self.start_curriculum:
             info["start"] = start
         if self.render_mode == "human":
             self.render()
@@ -285,8 +295,7 @@ class PandaEnv(gym.Env):
             held = cell.robot.body_between_pads() == body
         if not held or np.linalg.norm(cell.data.xpos[body] - position) > HOLD_START_DRIFT:
             cell.set_body_pose(body, position, orientation)
-            cell.robot.open_gripper()
-            cell.data.qpos[cell.robot.finger_qpos_idx] = FINGER_OPEN
+            cell.robot.teleport_fingers(FINGER_OPEN)
             cell.teleport_hand(ready, HOME_YAW)
             held = False
         cell.settle(0.0)
@@ -303,6 +312,37 @@ class PandaEnv(gym.Env):
             cell.teleport_hand(ready, HOME_YAW)
             return False
         return True
+
+    def _start_behind(self, body: int, ready: np.ndarray) -> bool:
+        """Put the hand at ``body``'s height on the far side from the goal (``Task.desired_goal``): first the
+        nearest grasp-site distance (1 cm steps out from the object's bounding radius) at which it does not
+        touch the object, then 0-10 cm (uniform) further back.  If no such place is found within 8 cm, or the
+        place is outside the low-level workspace, back to ``ready`` and return False.  The fingers start
+        closed."""
+        cell = self.cell
+        position = cell.data.xpos[body].copy()
+        away = position[:2] - self.task.desired_goal()[:2]
+        away /= max(float(np.linalg.norm(away)), 1e-9)
+        height = max(position[2], LOW_LEVEL_BOUNDS[2, 0])
+        radius = float(cell.model.geom_rbound[cell.model.body_geomadr[body]])
+
+        def site(distance: float) -> np.ndarray:
+            return np.array([*(position[:2] + distance * away), height])
+
+        further = 0.1 * self.np_random.random()
+        cell.robot.teleport_fingers(FINGER_CLOSED)  # a fist: a pushed block cannot slip between the fingers
+        for clear in np.arange(radius, radius + 0.085, 0.01):
+            start = site(clear + further)
+            inside = np.all(start >= LOW_LEVEL_BOUNDS[:, 0]) and np.all(start <= LOW_LEVEL_BOUNDS[:, 1])
+            cell.teleport_hand(site(clear), HOME_YAW)
+            if not cell.touches_robot(body):
+                if inside:
+                    cell.teleport_hand(start, HOME_YAW)
+                    return True
+                break
+        cell.robot.teleport_fingers(FINGER_OPEN)
+        cell.teleport_hand(ready, HOME_YAW)
+        return False
 
     def _object_tops(self) -> list[float]:
         cell = self.cell

@@ -107,6 +107,13 @@ class PandaRobot:
         """Finger position target, metres per finger (0 closed .. ``FINGER_OPEN``), force-limited."""
         self.data.ctrl[self.finger_ctrl_idx] = min(max(float(opening), FINGER_CLOSED), FINGER_OPEN)
 
+    def teleport_fingers(self, opening: float) -> None:
+        """Put both fingers at ``opening`` (metres per finger) at once, commanded to stay there (resets only:
+        no physics time passes; the caller's next forward pass or step sees them there)."""
+        self.command_fingers(opening)
+        self.data.qpos[self.finger_qpos_idx] = self.data.ctrl[self.finger_ctrl_idx[0]]
+        self.data.qvel[self.finger_qvel_idx] = 0.0
+
     def close_gripper(self) -> None:
         """Close both fingers; each squeezes with at most the scene's ``gripper_force``."""
         self.data.ctrl[self.finger_ctrl_idx] = FINGER_CLOSED
@@ -119,10 +126,8 @@ class PandaRobot:
         """Teleport to the home configuration at rest with the gripper open (for resets)."""
         self.data.qpos[self.arm_qpos_idx] = HOME_QPOS
         self.data.qvel[self.arm_qvel_idx] = 0.0
-        self.data.qpos[self.finger_qpos_idx] = FINGER_OPEN
-        self.data.qvel[self.finger_qvel_idx] = 0.0
+        self.teleport_fingers(FINGER_OPEN)
         self.command_joints(HOME_QPOS)
-        self.open_gripper()
 
     def contacts_with_pads(self) -> dict[int, set[int]]:
         """Bodies (not the robot's) touching each finger pad: ``{pad_geom: {body ids}}``."""

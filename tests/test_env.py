@@ -207,6 +207,10 @@ def test_bad_pixel_actions_raise():
         ({"start_in_hand": 0.5}, "start_in_hand needs a low-level action mode .*action_mode='primitive'"),
         ({"start_above_object": -0.1}, "start_above_object must be a probability in \\[0, 1\\]"),
         ({"action_mode": "ee_delta", "start_in_hand": 0.6, "start_above_object": 0.6}, "sum|must be <= 1"),
+        (
+            {"action_mode": "ee_delta", "start_behind_object": 0.5},
+            "start_behind_object needs .*can start behind object",
+        ),
     ],
 )
 @pytest.mark.filterwarnings("ignore:.*render_mode")  # gymnasium warns before our error

@@ -4,6 +4,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from panda_grasp_env.actions import LOW_LEVEL_BOUNDS
 from panda_grasp_env.stacking import wrap_quarter_turn
 
 SMALL = {"image_size": (32, 24), "heightmap_resolution": 0.008}
@@ -156,7 +157,7 @@ def test_start_in_hand_holds_the_object_to_lift_and_a_lift_reaches_the_goal():
     env = make("PandaGrasp-v0", action_mode="ee_delta", shapes=("cube",), start_in_hand=1.0)
     observation, info = env.reset(seed=3)
     cell = env.unwrapped.cell
-    assert info["start"] == "in_hand" and cell.robot.body_between_pads() == env.unwrapped.task.object_to_hold(cell)
+    assert info["start"] == "in_hand" and cell.robot.body_between_pads() == env.unwrapped.task.start_object(cell)
     assert info["sim_time"] == 0.0 and not info["is_success"]
     start = observation["achieved_goal"].copy()
     reached = False
@@ -191,9 +192,9 @@ def test_start_curricula_draw_per_episode_and_zero_changes_nothing():
         starts[info["start"]] = starts.get(info["start"], 0) + 1
         if info["start"] == "above_object":  # the open hand straight above the next block, not touching it
             cell = env.unwrapped.cell
-            block = cell.data.xpos[env.unwrapped.task.object_to_hold(cell)]
+            block = cell.data.xpos[env.unwrapped.task.start_object(cell)]
             assert np.linalg.norm(observation["observation"][:2] - block[:2]) < 0.005
-            assert cell.robot.finger_gap > 0.06 and not cell.touches_robot(env.unwrapped.task.object_to_hold(cell))
+            assert cell.robot.finger_gap > 0.06 and not cell.touches_robot(env.unwrapped.task.start_object(cell))
     assert set(starts) == {"ready", "in_hand", "above_object"}
     plain, with_zero = make("PandaStack-v0"), make("PandaStack-v0", start_in_hand=0.0, start_above_object=0.0)
     first, info = plain.reset(seed=5)
@@ -201,6 +202,28 @@ def test_start_curricula_draw_per_episode_and_zero_changes_nothing():
     assert "start" not in info
     for e in (env, plain, with_zero):
         e.close()
+
+
+def test_start_behind_object_puts_the_hand_where_a_push_to_the_goal_begins():
+    env = make("PandaPush-v0", start_behind_object=1.0)
+    starts = []
+    for seed in range(8):
+        observation, info = env.reset(seed=seed)
+        starts.append(info["start"])
+        if info["start"] != "behind_object":
+            continue
+        cell = env.unwrapped.cell
+        hand, block, goal = observation["observation"][:3], observation["achieved_goal"], observation["desired_goal"]
+        away = (block - goal)[:2] / np.linalg.norm((block - goal)[:2])
+        behind = hand[:2] - block[:2]
+        assert 0.02 < behind @ away < 0.2 and abs(behind @ [-away[1], away[0]]) < 0.01  # on the line, behind
+        assert abs(hand[2] - max(block[2], LOW_LEVEL_BOUNDS[2, 0])) < 0.005
+        assert not cell.touches_robot(cell.block_ids[0]) and observation["observation"][5] < 0.005  # a fist
+        for _ in range(10):  # straight at the goal with the fingers closed: the block goes that way
+            observation, _, _, _, info = env.step(np.array([*-away, 0.0, 1.0]))
+        assert (block - observation["achieved_goal"])[:2] @ away > 0.03
+    assert starts.count("behind_object") >= 6
+    env.close()
 
 
 def test_her_replay_buffer_trains_on_push():

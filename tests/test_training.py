@@ -349,9 +349,9 @@ def test_train_env_kwargs_reach_the_training_envs_only():
 
     config = load_config(CONFIGS / "lift_sac_her.yaml", ["n_envs=2", "train_env_kwargs={start_in_hand: 0.5}"])
     training = make_vec_env(config)
-    assert [e.unwrapped.start_in_hand for e in training.envs] == [0.5, 0.5]
+    assert [e.unwrapped.start_curriculum for e in training.envs] == [{"in_hand": 0.5}] * 2
     evaluation = make_env(config)
-    assert evaluation.unwrapped.start_in_hand == 0.0 and evaluation.unwrapped.action_mode == "ee_delta"
+    assert evaluation.unwrapped.start_curriculum == {} and evaluation.unwrapped.action_mode == "ee_delta"
     training.close()
     evaluation.close()
 

@@ -55,8 +55,9 @@ class Task(ABC):
     goal_conditioned: ClassVar[bool] = False
     #: Action mode used when ``make`` is not given one.
     default_action_mode: ClassVar[str] = "primitive"
-    #: Whether low-level episodes may start holding ``object_to_hold`` (the env's ``start_in_hand``).
-    can_start_in_hand: ClassVar[bool] = False
+    #: Where low-level episodes may start besides the ready pose, relative to ``start_object`` (the env's
+    #: ``start_<state>`` curriculum options): ``in_hand``, ``above_object``, ``behind_object``.
+    start_states: ClassVar[tuple[str, ...]] = ()
 
     def scene_config(self, base: SceneConfig) -> SceneConfig:
         """The scene this task needs, derived from the env's ``base`` scene (blocks, object slots)."""
@@ -73,9 +74,9 @@ class Task(ABC):
     def on_control_step(self, cell: Workcell) -> None:  # noqa: B027 (an optional hook)
         """Called after every 25 Hz control step (inside primitives too): track time-based conditions."""
 
-    def object_to_hold(self, cell: Workcell) -> int:
-        """Body id of the object a low-level episode may start holding (tasks with ``can_start_in_hand``)."""
-        raise TypeError(f"task {self.name!r} has no object to start holding")
+    def start_object(self, cell: Workcell) -> int:
+        """Body id of the object the ``start_states`` are relative to (tasks that have some)."""
+        raise TypeError(f"task {self.name!r} has no start states")
 
     @property
     def ideal_actions(self) -> int | None:

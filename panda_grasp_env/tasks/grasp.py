@@ -66,7 +66,7 @@ class Grasp(Task):
     name = "Grasp"
     primitives = ("grasp", "push")
     goal_conditioned = True
-    can_start_in_hand = True
+    start_states = ("in_hand", "above_object")
 
     def __init__(
         self,
@@ -134,7 +134,7 @@ class Grasp(Task):
         self._goal = cell.data.xpos[self._goal_body] + [0.0, 0.0, rng.uniform(*LIFT_GOAL_HEIGHT)]
         return {"shapes": [s.kind for s in shapes], **self._info(cell)}
 
-    def object_to_hold(self, cell: Workcell) -> int:
+    def start_object(self, cell: Workcell) -> int:
         """The object to lift."""
         return self._goal_body
 

@@ -34,6 +34,7 @@ class Push(Task):
     primitives = ("push",)
     goal_conditioned = True
     default_action_mode = "ee_delta"
+    start_states = ("behind_object",)
 
     def __init__(self, goal_distance: tuple[float, float] = (0.1, 0.25)) -> None:
         low, high = goal_distance
@@ -81,6 +82,10 @@ class Push(Task):
         reward = 10.0 * (self._distance - distance) + (1.0 if success else 0.0)
         self._distance = distance
         return TaskStep(reward, success, success or cell.is_parked(cell.block_ids[0]), info)
+
+    def start_object(self, cell: Workcell) -> int:
+        """The block to push."""
+        return int(cell.block_ids[0])
 
     def achieved_goal(self, cell: Workcell) -> np.ndarray:
         return cell.data.xpos[cell.block_ids[0]].copy()

@@ -47,7 +47,7 @@ class TowerBuild(Task):
     name = "TowerBuild"
     primitives = ("grasp", "place", "push")
     goal_conditioned = True
-    can_start_in_hand = True
+    start_states = ("in_hand", "above_object")
 
     def __init__(self, n_blocks: int = 4, order: str = "any", tolerance: float | None = None) -> None:
         check_option("n_blocks", n_blocks, isinstance(n_blocks, int) and 2 <= n_blocks <= 4, "an int in [2, 4]")
@@ -131,7 +131,7 @@ class TowerBuild(Task):
     def goal_size(self) -> int:
         return 3 * (self.n_blocks - 1)
 
-    def object_to_hold(self, cell: Workcell) -> int:
+    def start_object(self, cell: Workcell) -> int:
         """The first block not yet in the tower."""
         return int(cell.block_ids[next(i for i in range(self.n_blocks) if i not in self._column)])
 
