@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from agents.evaluation import rate, wilson  # noqa: F401  (one implementation each)
+from agents.learned import Checkpoint, available_checkpoints
 from panda_grasp_env.runs import machine as machine_name
 from panda_grasp_env.runs import write_atomically
 
@@ -27,6 +28,11 @@ def median_rate(run: Callable[[], int], repeats: int = 5) -> float:
         count = run()
         rates.append(count / (time.perf_counter() - start))
     return statistics.median(rates)
+
+
+def shipped_checkpoints(heightmap: bool) -> list[str]:
+    """Names of the shipped heightmap (pixel-action DQN) checkpoints, or of the low-level ones."""
+    return [name for name in available_checkpoints() if (Checkpoint(name).config.algo == "heightmap_dqn") == heightmap]
 
 
 def machine() -> dict[str, Any]:

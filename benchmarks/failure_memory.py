@@ -19,13 +19,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from agents.learned import Checkpoint, available_checkpoints
+from agents.learned import Checkpoint
 from agents.training import TEST_SEED_OFFSET, evaluate_policy
-from benchmarks._common import Results
-
-
-def heightmap_checkpoints() -> list[str]:
-    return [name for name in available_checkpoints() if Checkpoint(name).config.algo == "heightmap_dqn"]
+from benchmarks._common import Results, shipped_checkpoints
 
 
 def measure(name: str, episodes: int | None, avoid_failures: bool) -> dict:
@@ -49,7 +45,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("results/benchmarks/failure_memory.json"))
     parser.add_argument("--resume", action="store_true", help="keep the sections already in --out")
     args = parser.parse_args()
-    names = args.checkpoints.split(",") if args.checkpoints else heightmap_checkpoints()
+    names = args.checkpoints.split(",") if args.checkpoints else shipped_checkpoints(heightmap=True)
     for name in names:
         Checkpoint(name)  # unknown names fail before anything runs
     results = Results(args.out, args.resume)

@@ -25,9 +25,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco
 import numpy as np
 
-from agents.learned import Checkpoint, LearnedAgent, available_checkpoints
+from agents.learned import Checkpoint, LearnedAgent
 from agents.training import TEST_SEED_OFFSET
-from benchmarks._common import Results, rate
+from benchmarks._common import Results, rate, shipped_checkpoints
 from panda_grasp_env.robot import FINGER_OPEN
 from panda_grasp_env.workcell import Workcell
 
@@ -81,10 +81,6 @@ def measure(name: str, episodes: int | None, speed_limit: float) -> dict:
             "speed_limit": speed_limit}  # fmt: skip
 
 
-def low_level_checkpoints() -> list[str]:
-    return [name for name in available_checkpoints() if Checkpoint(name).config.algo != "heightmap_dqn"]
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoints", default=None, help="comma-separated names (default: every low-level one)")
@@ -95,7 +91,7 @@ def main() -> None:
     args = parser.parse_args()
     if not args.speed > 0:
         raise ValueError(f"--speed must be > 0 m/s, got {args.speed}")
-    names = args.checkpoints.split(",") if args.checkpoints else low_level_checkpoints()
+    names = args.checkpoints.split(",") if args.checkpoints else shipped_checkpoints(heightmap=False)
     for name in names:
         Checkpoint(name)  # unknown names fail before anything runs
     results = Results(args.out, args.resume)
