@@ -9,8 +9,8 @@ folder under ``--runs`` (see ``agents/training.py``); Ctrl-C checkpoints it, and
 ``--resume <run folder>`` continues it.  ``--ship <run folder> --name N`` copies
 a finished run's model, card and curve to ``agents/checkpoints/N`` where
 ``agents.learned.LearnedAgent`` and ``evaluate.py`` find it (fall-dynamics runs:
-``perception/checkpoints/N``).  ``--retest <run folder>`` runs a policy run's final
-held-out test again (final.json, card.md), e.g. after the evaluation protocol changed.
+``perception/checkpoints/N``).  ``--retest <run or checkpoint folder>`` runs a policy's final
+held-out test again (final.json, card.md), e.g. after the evaluation protocol or the physics changed.
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--resume", type=Path, default=None, help="continue this run folder")
     parser.add_argument("--ship", type=Path, default=None, help="copy this finished run to agents/checkpoints/--name")
     parser.add_argument("--name", default=None, help="checkpoint name for --ship")
-    parser.add_argument("--retest", type=Path, default=None, help="run the final held-out test of this run again")
+    parser.add_argument("--retest", type=Path, default=None, help="test this run or checkpoint again")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     chosen = sum(x is not None for x in (args.config, args.resume, args.ship, args.retest))

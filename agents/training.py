@@ -506,9 +506,13 @@ def save_best_policy(policy: Any, run_dir: Path, steps: int, chosen_by: str = "v
 
 
 def load_best_policy(run_dir: Path) -> tuple[Any, dict[str, Any]]:
-    """The best validated policy of a run and its facts (steps, class)."""
+    """The best validated policy of a run (or of a shipped checkpoint, where it is ``policy.zip``) and its
+    facts (steps, class)."""
     best = json.loads((run_dir / "best.json").read_text())
-    return load_class(best["policy_class"]).load(str(run_dir / "best_policy.zip"), device="cpu"), best
+    path = run_dir / "best_policy.zip"
+    if not path.is_file() and (run_dir / "policy.zip").is_file():
+        path = run_dir / "policy.zip"
+    return load_class(best["policy_class"]).load(str(path), device="cpu"), best
 
 
 def save_checkpoint(model: Any, run_dir: Path, wall_seconds: float) -> None:
@@ -652,11 +656,14 @@ def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) 
 
 
 def retest(run_dir: Path) -> dict[str, Any]:
-    """``final_test`` again on a run whose training has ended (after the evaluation protocol changed)."""
+    """``final_test`` again on a run whose training has ended, or on a shipped checkpoint folder (after the
+    evaluation protocol or the physics changed)."""
     config = load_run(run_dir)
-    if not (run_dir / "best.json").is_file() or not (run_dir / "progress.json").is_file():
+    # A run's totals are in progress.json; a shipped checkpoint keeps its run's in final.json.
+    totals = run_dir / ("progress.json" if (run_dir / "progress.json").is_file() else "final.json")
+    if not (run_dir / "best.json").is_file() or not totals.is_file():
         raise ValueError(f"{run_dir} has no best policy to test yet (best.json, progress.json)")
-    progress = json.loads((run_dir / "progress.json").read_text())
+    progress = json.loads(totals.read_text())
     return final_test(config, run_dir, int(progress["steps"]), float(progress["wall_seconds"]))
 
 

@@ -475,3 +475,13 @@ def test_retest_runs_the_final_test_again_without_training(finished_run, capsys)
     assert after["metrics"] == before["metrics"] and after["steps"] == 12  # deterministic, same seeds
     assert json.loads((finished_run / "progress.json").read_text())["steps"] == 12  # nothing trained
     assert "final: success" in capsys.readouterr().out
+
+
+def test_retest_runs_on_a_shipped_checkpoint_too(finished_run, tmp_path, monkeypatch):
+    monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path)
+    shipped = learned.ship(finished_run, "tiny")  # policy.zip, no progress.json: the run's totals are in final.json
+    before = json.loads((shipped / "final.json").read_text())
+    assert train.main(["--retest", str(shipped)]) == 0
+    after = json.loads((shipped / "final.json").read_text())
+    assert after["metrics"] == before["metrics"] and after["steps"] == before["steps"] == 12
+    assert not (shipped / "progress.json").exists()
