@@ -35,6 +35,7 @@ from agents.evaluation import EpisodeSpec, aggregate, is_low_level, play_episode
 from panda_grasp_env.runs import (
     atomic_path,
     check_resume_changes,
+    commit,
     config_from_mapping,
     new_run_folder,
     resume_summary,
@@ -690,6 +691,7 @@ def final_test(config: TrainConfig, run_dir: Path, steps: int, wall_seconds: flo
         "wall_seconds": round(wall_seconds, 1),
         "steps_per_second": round(steps / max(wall_seconds, 1e-9), 2),
         "final_eval_seconds": round(time.perf_counter() - began, 1),
+        "test_commit": commit(),  # a retest may run on newer code than the training did
         "steps_to_90_percent": first_90["steps"] if first_90 else None,
         "minutes_to_90_percent": round(first_90["wall_seconds"] / 60, 1) if first_90 else None,
         "metrics": metrics,
@@ -725,6 +727,11 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
         f"| wall time | {final['wall_seconds'] / 60:.1f} min ({final['steps_per_second']} steps/s, evaluations included) |",
         f"| machine | {meta['machine']} |",
         f"| commit | {meta['commit']} |",
+        *(
+            [f"| final test at commit | {tested} |"]
+            if (tested := final.get("test_commit", meta["commit"])) != meta["commit"]
+            else []
+        ),
         f"| versions | {', '.join(f'{k} {v}' for k, v in meta['versions'].items())} |",
         "| steps to 90 % validation success | "
         + (

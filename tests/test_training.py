@@ -485,3 +485,4 @@ def test_retest_runs_on_a_shipped_checkpoint_too(finished_run, tmp_path, monkeyp
     after = json.loads((shipped / "final.json").read_text())
     assert after["metrics"] == before["metrics"] and after["steps"] == before["steps"] == 12
     assert not (shipped / "progress.json").exists()
+    assert after["test_commit"]  # the code the test ran on, which a card names when it differs from training's
