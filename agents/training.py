@@ -663,7 +663,7 @@ def retest(run_dir: Path) -> dict[str, Any]:
     # A run's totals are in progress.json; a shipped checkpoint keeps its run's in final.json.
     totals = run_dir / ("progress.json" if (run_dir / "progress.json").is_file() else "final.json")
     if not (run_dir / "best.json").is_file() or not totals.is_file():
-        raise ValueError(f"{run_dir} has no best policy to test yet (best.json, progress.json)")
+        raise ValueError(f"{run_dir} has no best policy to test yet (best.json, {totals.name})")
     progress = json.loads(totals.read_text())
     return final_test(config, run_dir, int(progress["steps"]), float(progress["wall_seconds"]))
 
