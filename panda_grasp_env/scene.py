@@ -230,6 +230,13 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
     # capsules touched a block they wedged it sideways out of the grasp.
     # condim 4 adds torsional friction so a held block cannot pivot between the pads.
     for finger in FINGER_BODIES:
+        # The asset's finger collision geoms carry a torsional friction coefficient of 0.5 m (a contact
+        # patch half a metre across).  An object pinched between them near the table could take ~1.4 N·m
+        # of torsion within that bound in one 2 ms step and leave at 3-9 m/s (~2.4 % of low-level lift
+        # episodes).  They take the blocks' coefficient; the pad holds the grasp.
+        for geom in spec.body(finger).geoms:
+            if geom.contype:
+                geom.friction = [geom.friction[0], config.block_friction[1], geom.friction[2]]
         pad = spec.body(finger).add_geom()
         pad.name = f"{finger}_pad"
         pad.type = mujoco.mjtGeom.mjGEOM_BOX
@@ -248,15 +255,6 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
         pad.margin = 0.0
         pad.solref = [0.004, 1.0]
         pad.solimp = [0.95, 0.99, 0.001, 0.5, 2.0]
-
-    # The asset's finger collision geoms carry a torsional friction coefficient of 0.5 m (a contact
-    # patch half a metre across).  An object pinched between them near the table could take ~1.4 N·m
-    # of torsion within that bound in one 2 ms step and leave at 3-9 m/s (~2.4 % of low-level lift
-    # episodes).  They take the blocks' coefficient; the pads above hold the grasp.
-    for finger in FINGER_BODIES:
-        for geom in spec.body(finger).geoms:
-            if geom.contype and not geom.name.endswith("_pad"):
-                geom.friction = [geom.friction[0], config.block_friction[1], geom.friction[2]]
 
     # Wrist camera looking along the approach direction, image up = hand +x.
     wrist = hand.add_camera()
