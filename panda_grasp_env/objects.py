@@ -87,6 +87,18 @@ class ObjectShape:
             return float(size[0] + size[1])
         return float(size[0])
 
+    def width_across(self, yaw: float, direction: float) -> float:
+        """Horizontal width (metres) of the shape resting as spawned at ``yaw`` (radians, world; see
+        ``tasks.grasp.spawn_quaternion``), measured along the horizontal world direction ``direction`` (radians)."""
+        angle = direction - yaw  # the direction in the shape's own frame
+        along_x, along_y = abs(np.cos(angle)), abs(np.sin(angle))
+        size = self.geom_size
+        if self.kind in ("cube", "box"):
+            return float(2 * (along_x * size[0] + along_y * size[1]))
+        if self.kind == "capsule":  # lies with its axis along its own y
+            return float(2 * (size[0] + along_y * size[1]))
+        return float(2 * size[0])  # sphere; cylinder standing
+
     def mass_and_inertia(self) -> tuple[float, np.ndarray]:
         """Mass (kg) and principal moments of inertia (kg m^2) about the shape's own axes."""
         size = self.geom_size

@@ -123,6 +123,39 @@ def test_every_shape_rests_on_the_table(shape):
     env.close()
 
 
+def width_across_the_fingers(env) -> float:
+    """The lift object's width along the line between the open fingers, from the simulated geometry (metres)."""
+    cell = env.unwrapped.cell
+    model, data = cell.model, cell.data
+    closing = data.body("panda0_leftfinger").xpos - data.body("panda0_rightfinger").xpos
+    closing[2] = 0.0
+    closing /= np.linalg.norm(closing)
+    body = int(cell.object_ids[0])
+    geom = model.body_geomadr[body]
+    size, axes = model.geom_size[geom], data.geom_xmat[geom].reshape(3, 3)
+    if model.geom_type[geom] == 6:  # box: a face-to-face extent per axis
+        return float(2 * sum(abs(closing @ axes[:, i]) * size[i] for i in range(3)))
+    return float(2 * (size[0] + abs(closing @ axes[:, 2]) * size[1]))  # capsule: radius plus its axis' share
+
+
+def test_objects_to_lift_fit_between_the_fingers_of_a_hand_that_cannot_turn():
+    from panda_grasp_env.tasks.grasp import HAND_FIT_WIDTH
+
+    for shape in ("box", "capsule"):  # the shapes longer one way than the 73 mm opening
+        lift = make("PandaGrasp-v0", action_mode="ee_delta", shapes=(shape,))
+        primitive = make("PandaGrasp-v0", shapes=(shape,))  # turns the hand to the object: no need to fit
+        widths, unturned = [], []
+        for seed in range(40):
+            lift.reset(seed=seed)
+            widths.append(width_across_the_fingers(lift))
+            primitive.reset(seed=seed)
+            unturned.append(width_across_the_fingers(primitive))
+        assert max(widths) <= HAND_FIT_WIDTH + 0.002  # settling turns them a little
+        assert max(unturned) > 0.075  # spawned as before: some long side across the fingers
+        lift.close()
+        primitive.close()
+
+
 def test_clutter_drops_ten_objects_into_a_heap():
     env = make("PandaGraspClutter-v0")
     _, info = env.reset(seed=0)

@@ -59,6 +59,10 @@ class Task(ABC):
     #: ``start_<state>`` curriculum options): ``in_hand``, ``above_object``, ``behind_object``.
     start_states: ClassVar[tuple[str, ...]] = ()
 
+    #: Set by the env: the hand's heading (radians, world) in the low-level action modes, which cannot turn
+    #: it; None where actions choose the heading.  Tasks whose objects must fit between the fingers read it.
+    fixed_hand_yaw: float | None = None
+
     def scene_config(self, base: SceneConfig) -> SceneConfig:
         """The scene this task needs, derived from the env's ``base`` scene (blocks, object slots)."""
         return base

@@ -24,6 +24,10 @@ PLAY_REGION = np.array(DEFAULT_BOUNDS[:2])
 #: Low-level lift goal: this many metres above the object's resting centre (range).
 LIFT_GOAL_HEIGHT = (0.05, 0.15)
 
+#: Widest an object may be across the fingers of a hand that cannot turn (metres): the 73 mm opening
+#: between the pads less 6.5 mm each side for the approach's error.  Every default size fits at some yaw.
+HAND_FIT_WIDTH = 0.06
+
 
 def spawn_quaternion(shape: ObjectShape, yaw: float) -> np.ndarray:
     """Resting orientation: upright, except capsules, which lie on their side (axis horizontal)."""
@@ -43,6 +47,18 @@ def spawn_quaternion(shape: ObjectShape, yaw: float) -> np.ndarray:
     )
 
 
+def fitting_yaw(shape: ObjectShape, yaw: float, hand_yaw: float, rng: np.random.Generator) -> float:
+    """``yaw`` if the shape resting at it is at most ``HAND_FIT_WIDTH`` wide across the fingers of a hand
+    at heading ``hand_yaw`` (radians, world; the fingers close along that heading), else a yaw drawn
+    uniformly among those where it fits (the narrowest of the draws if none does: sizes past the defaults)."""
+    if shape.width_across(yaw, hand_yaw) <= HAND_FIT_WIDTH:
+        return yaw
+    draws = rng.uniform(-np.pi / 2, np.pi / 2, 256)
+    widths = np.array([shape.width_across(y, hand_yaw) for y in draws])
+    fits = np.flatnonzero(widths <= HAND_FIT_WIDTH)
+    return float(draws[fits[0]] if fits.size else draws[np.argmin(widths)])
+
+
 @register_task
 class Grasp(Task):
     """Grasp every object off the table.
@@ -60,7 +76,9 @@ class Grasp(Task):
     consecutive failed attempts (failed grasps and pushes that moved nothing).  Reward: 1 per successful grasp,
     0.5 for a push that moved something (VPG).
     Goal-conditioned (low-level modes, lift): lift object 0 to a point 5-15 cm
-    above where it rests; success = within 5 cm.
+    above where it rests; success = within 5 cm.  The hand keeps one heading in
+    these modes, so objects spread apart are turned to fit between its fingers
+    (``fitting_yaw``): a box lying long side across them could not be grasped.
     """
 
     name = "Grasp"
@@ -116,8 +134,11 @@ class Grasp(Task):
                     if all(np.linalg.norm(xy - p) >= shape.bounding_radius + r + 0.04 for p, r in placed):
                         break
                 placed.append((xy, shape.bounding_radius))
+                yaw = rng.uniform(-np.pi / 4, np.pi / 4)
+                if self.fixed_hand_yaw is not None:  # a hand that cannot turn must fit around the object
+                    yaw = fitting_yaw(shape, yaw, self.fixed_hand_yaw, rng)
                 position = [*xy, shape.resting_half_height + 0.001]
-                cell.set_body_pose(body, position, spawn_quaternion(shape, rng.uniform(-np.pi / 4, np.pi / 4)))
+                cell.set_body_pose(body, position, spawn_quaternion(shape, yaw))
             cell.settle(0.3)
         # Objects that rolled or fell off the table in the drop are out of the episode, and so are the
         # rare ones a heap pressed into the table top (soft contacts; they could never be lifted).
