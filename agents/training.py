@@ -85,6 +85,11 @@ class TrainConfig:
     checkpoint_every: int = 5000
     max_minutes: float | None = None  # stop (and checkpoint) after this much wall time in total
     torch_threads: int = 1
+    # A shipped checkpoint (name in agents/checkpoints, or folder) whose policy weights -- actor and critics --
+    # start the run instead of random ones: fine-tuning after the task changed.  Same algorithm, spaces and
+    # network; the optimisers, the entropy coefficient (set algo_kwargs.ent_coef) and the replay buffer start
+    # afresh.  None: random weights.
+    init_policy: str | None = None
 
     @classmethod
     def keys(cls) -> list[str]:
@@ -119,6 +124,8 @@ class TrainConfig:
         check(self.reward in REWARDS, "reward", f"one of {list(REWARDS)}")
         check(self.reward == "task" or ENV_IDS[self.env_id][0].get("task") == "TowerBuild", "reward",
               "'task' unless env_id is a TowerBuild id (the outcome reward reads the stack height)")  # fmt: skip
+        check(self.init_policy is None or isinstance(self.init_policy, str), "init_policy",
+              "a checkpoint name or folder, or null")  # fmt: skip
         rate = self.algo_kwargs.get("learning_rate", 1.0)
         if isinstance(rate, dict):
             ok = sorted(rate) == ["end", "start"] and all(_is_number(v) and v >= 0 for v in rate.values())
@@ -363,6 +370,28 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
         )
     except TypeError as error:
         raise ValueError(f"{config.algo}: bad algo_kwargs/policy_kwargs/her: {error}") from None
+
+
+def load_initial_policy(model: Any, config: TrainConfig) -> None:
+    """Copy the policy weights of the checkpoint ``config.init_policy`` into the fresh ``model``; ``ValueError``
+    if it is unknown or its algorithm, spaces or network differ from the run's."""
+    from agents.learned import Checkpoint
+
+    name = config.init_policy
+    source = Checkpoint(str(name))  # ValueError listing the shipped ones if unknown
+    if source.config.algo != config.algo:
+        raise ValueError(f"init_policy {name} was trained with {source.config.algo}, this run uses {config.algo}")
+    policy = source.load_policy()
+    for what in ("observation_space", "action_space"):
+        if getattr(policy, what) != getattr(model.policy, what):
+            raise ValueError(f"init_policy {name}: its {what} {getattr(policy, what)} is not this run's "
+                             f"{getattr(model.policy, what)}")  # fmt: skip
+    try:
+        model.policy.load_state_dict(policy.state_dict())
+    except RuntimeError as error:  # another net_arch: missing keys or tensors of other shapes
+        raise ValueError(f"init_policy {name}: its network does not match this run's policy_kwargs "
+                         f"{config.policy_kwargs} (it was trained with {source.config.policy_kwargs}): "
+                         f"{error}") from None  # fmt: skip
 
 
 # --- evaluation ---------------------------------------------------------------------------
@@ -620,6 +649,8 @@ def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar
             model.load_replay_buffer(run_dir / "replay.pkl")
     else:
         model = build_model(config, env, run_dir / "tb")
+        if config.init_policy is not None:
+            load_initial_policy(model, config)
     callback = _callback(config, run_dir, float(progress["wall_seconds"]), progress_bar)
     try:
         if will_learn:

@@ -318,6 +318,34 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
         learned.LearnedAgent("tiny")
 
 
+def test_init_policy_starts_a_run_from_a_checkpoints_weights(finished_run, tmp_path, monkeypatch):
+    from agents.training import build_model, load_initial_policy, make_vec_env
+
+    monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path / "checkpoints")
+    learned.ship(finished_run, "tiny")
+    source = learned.Checkpoint("tiny").load_policy().state_dict()
+    config = load_config(CONFIGS / "grasp_clutter_dqn.yaml", [*TINY_DQN, "init_policy=tiny"])
+    env = make_vec_env(config)
+    model = build_model(config, env, None)
+    assert not all(th.equal(v, model.policy.state_dict()[k]) for k, v in source.items())  # random to begin with
+    load_initial_policy(model, config)
+    assert all(th.equal(v, model.policy.state_dict()[k]) for k, v in source.items())
+    narrower = load_config(
+        CONFIGS / "grasp_clutter_dqn.yaml", [*TINY_DQN, "init_policy=tiny", "policy_kwargs.width=16"]
+    )
+    with pytest.raises(ValueError, match="init_policy tiny: its network does not match"):
+        load_initial_policy(build_model(narrower, env, None), narrower)
+    with pytest.raises(ValueError, match="init_policy tiny was trained with heightmap_dqn, this run uses sac"):
+        load_initial_policy(model, TrainConfig(**{**vars(config), "algo": "sac"}))
+    with pytest.raises(ValueError, match="unknown checkpoint 'nope'"):
+        load_initial_policy(model, TrainConfig(**{**vars(config), "init_policy": "nope"}))
+    env.close()
+    runs = tmp_path / "runs"  # through train.py, where a fine-tuning run starts
+    assert train.main(["--config", str(CONFIGS / "grasp_clutter_dqn.yaml"), "--runs", str(runs), "--no-progress",
+                       *TINY_DQN, "init_policy=tiny", "total_steps=6"]) == 0  # fmt: skip
+    assert yaml.safe_load((runs / "grasp_clutter_dqn-seed0" / "config.yaml").read_text())["init_policy"] == "tiny"
+
+
 @pytest.mark.parametrize("name", learned.available_checkpoints())
 def test_every_shipped_checkpoint_loads_acts_and_has_its_card(name):
     checkpoint = learned.Checkpoint(name)
