@@ -22,6 +22,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import json  # noqa: E402
+import shutil  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -116,6 +117,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"\ninterrupted: checkpoint saved; continue with  python train.py --resume {run_dir}", file=sys.stderr)
         return 130
+    except ValueError as error:  # a new run that could not start (an init_policy of another network) leaves no folder
+        if args.resume is None and not any(run_dir.glob("latest.*")):
+            shutil.rmtree(run_dir)
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     if outcome["stopped_by"] == "max_minutes":
         print(
             f"time budget spent at {outcome['steps']} steps; more with  python train.py --resume {run_dir} max_minutes=M"

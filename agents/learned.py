@@ -75,6 +75,14 @@ class Checkpoint:
         except Exception as error:  # a truncated zip, a class that changed shape: say which file
             raise ValueError(f"checkpoint {self.name}: cannot load {self.path / 'policy.zip'}: {error}") from error
 
+    def provenance(self) -> dict[str, Any]:
+        """Where this checkpoint's weights came from: its folder, the training step they were saved at and the
+        SHA-256 of policy.zip (a fine-tuning run records it: the name alone may be shipped again)."""
+        from perception.falls import sha256
+
+        return {"path": str(self.path.resolve()), "steps": self.meta["steps"],
+                "policy_sha256": sha256(self.path / "policy.zip")}  # fmt: skip
+
     def make_env(self) -> gym.Env:
         """The env the policy was trained on (raw observations; the agent transforms them)."""
         from agents.training import make_env

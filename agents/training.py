@@ -372,24 +372,38 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
         raise ValueError(f"{config.algo}: bad algo_kwargs/policy_kwargs/her: {error}") from None
 
 
-def load_initial_policy(model: Any, config: TrainConfig) -> None:
-    """Copy the policy weights of the checkpoint ``config.init_policy`` into the fresh ``model``; ``ValueError``
-    if it is unknown or its algorithm, spaces or network differ from the run's."""
+def initial_policy_source(config: TrainConfig) -> Any:
+    """The checkpoint (``agents.learned.Checkpoint``) that ``config.init_policy`` names, checked against the run
+    before anything is written: ``ValueError`` if it is unknown, was trained with another algorithm, or acts on
+    other observation or action spaces than the run's training env."""
     from agents.learned import Checkpoint
 
     name = config.init_policy
-    source = Checkpoint(str(name))  # ValueError listing the shipped ones if unknown
+    try:
+        source = Checkpoint(str(name))
+    except ValueError as error:  # it lists the shipped checkpoints
+        raise ValueError(f"init_policy: {error}") from None
     if source.config.algo != config.algo:
         raise ValueError(f"init_policy {name} was trained with {source.config.algo}, this run uses {config.algo}")
     policy = source.load_policy()
-    for what in ("observation_space", "action_space"):
-        if getattr(policy, what) != getattr(model.policy, what):
-            raise ValueError(f"init_policy {name}: its {what} {getattr(policy, what)} is not this run's "
-                             f"{getattr(model.policy, what)}")  # fmt: skip
+    env = _wrapped_env(config)  # what the run's policy will see and do
     try:
-        model.policy.load_state_dict(policy.state_dict())
+        for what in ("observation_space", "action_space"):
+            if getattr(policy, what) != getattr(env, what):
+                raise ValueError(f"init_policy {name}: its {what} {getattr(policy, what)} is not this run's "
+                                 f"{getattr(env, what)}")  # fmt: skip
+    finally:
+        env.close()
+    return source
+
+
+def load_initial_policy(model: Any, config: TrainConfig, source: Any) -> None:
+    """Copy the policy weights of ``source`` (checked by ``initial_policy_source``) into the fresh ``model``;
+    ``ValueError`` if its network differs from the run's (other ``policy_kwargs``)."""
+    try:
+        model.policy.load_state_dict(source.load_policy().state_dict())
     except RuntimeError as error:  # another net_arch: missing keys or tensors of other shapes
-        raise ValueError(f"init_policy {name}: its network does not match this run's policy_kwargs "
+        raise ValueError(f"init_policy {config.init_policy}: its network does not match this run's policy_kwargs "
                          f"{config.policy_kwargs} (it was trained with {source.config.policy_kwargs}): "
                          f"{error}") from None  # fmt: skip
 
@@ -619,8 +633,12 @@ def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_b
 
 
 def start_run(config: TrainConfig, runs_dir: Path) -> Path:
-    """A fresh run folder ``runs_dir/<name>-seed<seed>[-N]`` with config.yaml and meta.json."""
-    return new_run_folder(runs_dir, config)
+    """A fresh run folder ``runs_dir/<name>-seed<seed>[-N]`` with config.yaml and meta.json (which, for a run
+    that starts from ``init_policy``, records the checkpoint's folder, step and policy.zip digest); ``ValueError``
+    before anything is written if that checkpoint does not fit the run."""
+    if config.init_policy is None:
+        return new_run_folder(runs_dir, config)
+    return new_run_folder(runs_dir, config, init_policy=initial_policy_source(config).provenance())
 
 
 def load_run(run_dir: Path) -> TrainConfig:
@@ -638,31 +656,33 @@ def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar
     progress = json.loads((run_dir / "progress.json").read_text()) if resume else {"steps": 0, "wall_seconds": 0.0}
     budget_left = config.max_minutes is None or progress["wall_seconds"] < 60 * config.max_minutes
     will_learn = progress["steps"] < config.total_steps and budget_left
+    source = initial_policy_source(config) if config.init_policy is not None and not resume else None
     env = make_vec_env(config)
-    if resume:
-        algo_class = load_class(ALGORITHMS[config.algo][0])
-        # The config's algo_kwargs replace the saved ones (a resumed run may change them: RESUME_CHANGEABLE).
-        model = algo_class.load(
-            run_dir / "latest.zip", env=env, tensorboard_log=str(run_dir / "tb"), **algo_arguments(config)
-        )
-        if will_learn and (run_dir / "replay.pkl").exists():  # a finished run resumed only to be re-tested skips it
-            model.load_replay_buffer(run_dir / "replay.pkl")
-    else:
-        model = build_model(config, env, run_dir / "tb")
-        if config.init_policy is not None:
-            load_initial_policy(model, config)
-    callback = _callback(config, run_dir, float(progress["wall_seconds"]), progress_bar)
     try:
-        if will_learn:
-            model.learn(
-                config.total_steps - int(model.num_timesteps),
-                callback=callback,
-                reset_num_timesteps=not resume,
-                tb_log_name="run",
+        if resume:
+            algo_class = load_class(ALGORITHMS[config.algo][0])
+            # The config's algo_kwargs replace the saved ones (a resumed run may change them: RESUME_CHANGEABLE).
+            model = algo_class.load(
+                run_dir / "latest.zip", env=env, tensorboard_log=str(run_dir / "tb"), **algo_arguments(config)
             )
-    except KeyboardInterrupt:
-        save_checkpoint(model, run_dir, callback.wall())
-        raise
+            if will_learn and (run_dir / "replay.pkl").exists():  # a finished run resumed only to be re-tested
+                model.load_replay_buffer(run_dir / "replay.pkl")
+        else:
+            model = build_model(config, env, run_dir / "tb")
+            if source is not None:
+                load_initial_policy(model, config, source)
+        callback = _callback(config, run_dir, float(progress["wall_seconds"]), progress_bar)
+        if will_learn:
+            try:
+                model.learn(
+                    config.total_steps - int(model.num_timesteps),
+                    callback=callback,
+                    reset_num_timesteps=not resume,
+                    tb_log_name="run",
+                )
+            except KeyboardInterrupt:
+                save_checkpoint(model, run_dir, callback.wall())
+                raise
     finally:
         env.close()
     wall = callback.wall() if hasattr(callback, "started") else float(progress["wall_seconds"])

@@ -148,7 +148,7 @@ class PandaEnv(gym.Env):
 
         self.obs_mode, self.action_mode, self.render_mode = obs_mode, action_mode, render_mode
         low_level = action_mode in ("ee_delta", "joint")
-        self.task.fixed_hand_yaw = HOME_YAW if low_level else None
+        self.task.fixed_hand_yaw = HOME_YAW if action_mode == "ee_delta" else None  # joint mode turns the wrist
         # Low-level modes: no noslip pass by default.  It stops a held block creeping in the fingers
         # during long primitive carries (place accuracy); at 25 Hz control it costs ~10 % of the rate.
         scene_config = self.task.scene_config(scene or SceneConfig(noslip_iterations=0 if low_level else 3))

@@ -21,7 +21,7 @@ from agents.heightmap_policy import (
     holding_after,
     rotate,
 )
-from agents.training import OutcomeReward, PolicyAgent, TrainConfig, load_config
+from agents.training import OutcomeReward, PolicyAgent, TrainConfig, load_class, load_config
 from perception.heightmap import HeightmapGrid
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
@@ -319,7 +319,7 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
 
 
 def test_init_policy_starts_a_run_from_a_checkpoints_weights(finished_run, tmp_path, monkeypatch):
-    from agents.training import build_model, load_initial_policy, make_vec_env
+    from agents.training import build_model, initial_policy_source, load_initial_policy, make_vec_env
 
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path / "checkpoints")
     learned.ship(finished_run, "tiny")
@@ -328,22 +328,34 @@ def test_init_policy_starts_a_run_from_a_checkpoints_weights(finished_run, tmp_p
     env = make_vec_env(config)
     model = build_model(config, env, None)
     assert not all(th.equal(v, model.policy.state_dict()[k]) for k, v in source.items())  # random to begin with
-    load_initial_policy(model, config)
+    load_initial_policy(model, config, initial_policy_source(config))
     assert all(th.equal(v, model.policy.state_dict()[k]) for k, v in source.items())
     narrower = load_config(
         CONFIGS / "grasp_clutter_dqn.yaml", [*TINY_DQN, "init_policy=tiny", "policy_kwargs.width=16"]
     )
     with pytest.raises(ValueError, match="init_policy tiny: its network does not match"):
-        load_initial_policy(build_model(narrower, env, None), narrower)
-    with pytest.raises(ValueError, match="init_policy tiny was trained with heightmap_dqn, this run uses sac"):
-        load_initial_policy(model, TrainConfig(**{**vars(config), "algo": "sac"}))
-    with pytest.raises(ValueError, match="unknown checkpoint 'nope'"):
-        load_initial_policy(model, TrainConfig(**{**vars(config), "init_policy": "nope"}))
+        load_initial_policy(build_model(narrower, env, None), narrower, initial_policy_source(narrower))
     env.close()
-    runs = tmp_path / "runs"  # through train.py, where a fine-tuning run starts
-    assert train.main(["--config", str(CONFIGS / "grasp_clutter_dqn.yaml"), "--runs", str(runs), "--no-progress",
-                       *TINY_DQN, "init_policy=tiny", "total_steps=6"]) == 0  # fmt: skip
-    assert yaml.safe_load((runs / "grasp_clutter_dqn-seed0" / "config.yaml").read_text())["init_policy"] == "tiny"
+    with pytest.raises(ValueError, match="init_policy tiny was trained with heightmap_dqn, this run uses sac"):
+        initial_policy_source(TrainConfig(**{**vars(config), "algo": "sac"}))
+    with pytest.raises(ValueError, match="init_policy tiny: its action_space"):
+        initial_policy_source(load_config(CONFIGS / "grasp_clutter_dqn.yaml", [*TINY_DQN, "init_policy=tiny",
+                                                                               "env_kwargs.rotations=8"]))  # fmt: skip
+
+    # Through train.py: a fine-tuning run starts from the checkpoint's weights (with learning_starts above
+    # total_steps nothing is learned, so its policy is the checkpoint's) and records where they came from.
+    runs = tmp_path / "runs"
+    cli = ["--config", str(CONFIGS / "grasp_clutter_dqn.yaml"), "--runs", str(runs), "--no-progress", *TINY_DQN]
+    assert train.main([*cli, "init_policy=tiny", "total_steps=6", "algo_kwargs.learning_starts=100"]) == 0
+    run = runs / "grasp_clutter_dqn-seed0"
+    trained = load_class(json.loads((run / "best.json").read_text())["policy_class"]).load(run / "best_policy.zip")
+    assert all(th.equal(v, trained.state_dict()[k]) for k, v in source.items())
+    recorded = json.loads((run / "meta.json").read_text())["init_policy"]
+    assert recorded["steps"] == learned.Checkpoint("tiny").meta["steps"] and len(recorded["policy_sha256"]) == 64
+    # A checkpoint that does not fit fails before anything is written, or, for another network, leaves no folder.
+    assert train.main([*cli, "init_policy=nope"]) == 2
+    assert train.main([*cli, "init_policy=tiny", "policy_kwargs.width=16"]) == 2
+    assert sorted(p.name for p in runs.iterdir()) == ["grasp_clutter_dqn-seed0"]
 
 
 @pytest.mark.parametrize("name", learned.available_checkpoints())

@@ -59,7 +59,7 @@ class Task(ABC):
     #: ``start_<state>`` curriculum options): ``in_hand``, ``above_object``, ``behind_object``.
     start_states: ClassVar[tuple[str, ...]] = ()
 
-    #: Set by the env: the hand's heading (radians, world) in the low-level action modes, which cannot turn
+    #: Set by the env: the hand's heading (radians, world) in the ``ee_delta`` action mode, which cannot turn
     #: it; None where actions choose the heading.  Tasks whose objects must fit between the fingers read it.
     fixed_hand_yaw: float | None = None
 
