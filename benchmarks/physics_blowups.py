@@ -95,8 +95,9 @@ def main() -> None:
     for name in names:
         Checkpoint(name)  # unknown names fail before anything runs
     results = Results(args.out, args.resume)
+    episodes = args.episodes or "final_eval_episodes"
     for name in names:
-        row = results.section(f"{name}/{args.episodes}/{args.speed}", partial(measure, name, args.episodes, args.speed))
+        row = results.section(f"{name}/{episodes}/{args.speed}", partial(measure, name, args.episodes, args.speed))
         blown, success = row["blowups"], row["success"]
         print(f"{name}: blow-ups {blown['successes']}/{row['episodes']} = {blown['rate']:.1%} "
               f"({blown['ci95'][0]:.1%}-{blown['ci95'][1]:.1%}); success {success['rate']:.1%}")  # fmt: skip
