@@ -33,6 +33,7 @@ from panda_grasp_env.rendering import CameraRenderer
 from panda_grasp_env.robot import FINGER_CLOSED, FINGER_OPEN, HOME_YAW
 from panda_grasp_env.scene import CAMERA_NAMES, SceneConfig
 from panda_grasp_env.tasks import TaskStep, make_task
+from panda_grasp_env.tasks.base import is_number
 from panda_grasp_env.workcell import PhysicsError, Workcell
 from perception.camera import CameraModel
 from perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
@@ -123,17 +124,19 @@ class PandaEnv(gym.Env):
         if unknown or not cameras:
             raise ValueError(f"unknown camera(s) {unknown or cameras}; valid: {list(CAMERA_NAMES)}")
         for name, size in (("image_size", image_size), ("render_size", render_size)):
-            if len(tuple(size)) != 2 or not all(isinstance(v, (int, np.integer)) and v > 0 for v in size):
+            if len(tuple(size)) != 2 or not all(
+                isinstance(v, (int, np.integer)) and is_number(v) and v > 0 for v in size
+            ):
                 raise ValueError(f"{name} must be (width, height) in positive ints, got {size!r}")
         if block_gripper and action_mode != "ee_delta":
             raise ValueError(f"block_gripper=True needs action_mode='ee_delta', not {action_mode!r}")
-        if not 0 < push_distance <= 0.3:
+        if not (is_number(push_distance) and 0 < push_distance <= 0.3):
             raise ValueError(f"push_distance must be in (0, 0.3] m, got {push_distance!r}")
         modalities = parse_obs_mode(obs_mode)
         requested = {"in_hand": start_in_hand, "above_object": start_above_object, "behind_object": start_behind_object}
         for state, value in requested.items():
             name = f"start_{state}"
-            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 <= value <= 1.0):
+            if not (is_number(value) and 0.0 <= value <= 1.0):
                 raise ValueError(f"{name} must be a probability in [0, 1], got {value!r}")
             if value and not (action_mode in ("ee_delta", "joint") and state in self.task.start_states):
                 raise ValueError(
@@ -239,7 +242,7 @@ class PandaEnv(gym.Env):
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         command, clipped = self.actions.validate(action)
         self._clipped_total += clipped
-        result, verdict = None, TaskStep(0.0, False, False)
+        result, verdict = None, None
         try:
             result = self.actions.execute(self.cell, command)
             physics_error = result is not None and result.reason == "physics_error"
@@ -247,6 +250,8 @@ class PandaEnv(gym.Env):
                 verdict = self.task.evaluate(self.cell, result)  # may move things too (Grasp sets objects aside)
         except PhysicsError:
             physics_error = True
+        if verdict is None:  # a diverged step earns nothing (sparse goal rewards: -1, since 0 is success)
+            verdict = TaskStep(-1.0 if self.goal_conditioned else 0.0, False, False)
         self.sensors.invalidate()
         self._count(result)
         info = {
@@ -261,7 +266,8 @@ class PandaEnv(gym.Env):
         }
         if self.render_mode == "human":
             self.render()
-        return self._observe(physics_error), verdict.reward, verdict.terminated, physics_error, info
+        truncated = physics_error or verdict.truncated
+        return self._observe(physics_error), verdict.reward, verdict.terminated, truncated, info
 
     # --- helpers ------------------------------------------------------------------
     def _published_facts(self) -> dict[str, Any]:

@@ -195,7 +195,7 @@ class ObservationBuilder:
         if modality == "depth":
             far = self.cell.model.vis.map.zfar * self.cell.model.stat.extent
             return gym.spaces.Box(0.0, far, (height, width, 1), dtype=np.float32)
-        return gym.spaces.Box(0, 2 + self.n_objects, (height, width, 1), dtype=np.uint8)
+        return gym.spaces.Box(0, 1 + self.n_objects, (height, width, 1), dtype=np.uint8)  # labels 0 .. 1 + n
 
     def state(self, extra: np.ndarray | None = None) -> np.ndarray:
         """The state vector (see ``state_layout``), float32."""

@@ -19,7 +19,8 @@ ENV_IDS: dict[str, tuple[dict, int]] = {
     "PandaTowerBreak-v0": ({"task": "TowerBreak"}, 5),
     "PandaBuildAndBreak-v0": ({"task": "BuildAndBreak"}, 100),
     "PandaGraspClutter-v0": ({"task": "Grasp", "clutter": True}, 60),
-    # Goal-conditioned tasks: 50 low-level steps of 40 ms in ee_delta (their default for Push and Stack).
+    # Goal-conditioned in the low-level modes (the default for Push and Stack; Grasp defaults to primitives, and
+    # ee_delta makes it the lift task): 50 steps of 40 ms, or 50 primitives.
     "PandaGrasp-v0": ({"task": "Grasp"}, 50),
     "PandaPush-v0": ({"task": "Push"}, 50),
     "PandaStack-v0": ({"task": "TowerBuild", "n_blocks": 2, "action_mode": "ee_delta"}, 100),

@@ -59,6 +59,15 @@ def test_checkers_pass_for_single_image_modalities(env_id, action_mode, obs_mode
     env.close()
 
 
+def test_segmentation_labels_span_their_space_exactly():
+    env = make("PandaTowerBuild-v0", obs_mode="segmentation", action_mode="primitive")
+    observation, _ = env.reset(seed=0)
+    n_objects = len(env.unwrapped.cell.object_ids)
+    assert env.observation_space.high.max() == 1 + n_objects  # 0 background, 1 robot, 2 + i object slot i
+    assert observation.max() == 1 + n_objects  # the last block is in view of the overhead camera
+    env.close()
+
+
 def test_make_in_a_fresh_interpreter_without_import():
     code = (
         "import gymnasium as gym; env = gym.make('panda_grasp_env:PandaTowerBuild-v0', obs_mode='state', "
@@ -203,6 +212,9 @@ def test_bad_pixel_actions_raise():
         ({"cameras": ("ceiling",)}, "valid: \\['overhead', 'front', 'wrist'\\]"),
         ({"render_mode": "ascii"}, "render_mode"),
         ({"image_size": (0, 10)}, "image_size"),
+        ({"image_size": (True, True)}, "image_size"),
+        ({"push_distance": "far"}, "push_distance"),
+        ({"start_in_hand": "half"}, "start_in_hand must be a probability"),
         ({"start_in_hand": 1.5}, "start_in_hand must be a probability in \\[0, 1\\], got 1.5"),
         ({"start_in_hand": 0.5}, "start_in_hand needs a low-level action mode .*action_mode='primitive'"),
         ({"start_above_object": -0.1}, "start_above_object must be a probability in \\[0, 1\\]"),
@@ -219,12 +231,28 @@ def test_bad_options_raise_at_make(kwargs, message):
         gym.make("panda_grasp_env:PandaTowerBuild-v0", **kwargs)
 
 
+@pytest.mark.parametrize(
+    "env_id, kwargs",
+    [
+        ("PandaPush-v0", {"goal_distance": 0.2}),
+        ("PandaPush-v0", {"goal_distance": (0.3, 0.1)}),
+        ("PandaPush-v0", {"goal_distance": (0.1, float("nan"))}),
+        ("PandaTowerBreak-v0", {"impulse_magnitude": "strong"}),
+        ("PandaTowerBreak-v0", {"impulse_magnitude": True}),
+    ],
+)
+def test_task_options_of_the_wrong_type_raise_value_errors_naming_them(env_id, kwargs):
+    with pytest.raises(ValueError, match=f"task option '{next(iter(kwargs))}' must be"):
+        gym.make(f"panda_grasp_env:{env_id}", **kwargs)
+
+
 def test_physics_divergence_truncates_and_reset_recovers():
     env = make("PandaPush-v0")
     env.reset(seed=0)
     env.unwrapped.cell.data.qvel[:] = np.nan
     observation, reward, terminated, truncated, info = env.step(np.zeros(4))
     assert truncated and not terminated and info["physics_error"]
+    assert reward == -1.0 and not info["is_success"]  # a sparse goal reward of 0 would read as success
     assert all(np.isfinite(v).all() for v in observation.values())
     _, info = env.reset(seed=1)
     _, _, _, truncated, info = env.step(np.zeros(4))

@@ -35,12 +35,14 @@ GOAL_THRESHOLD = 0.05
 
 @dataclass
 class TaskStep:
-    """A task's verdict on one env step."""
+    """A task's verdict on one env step: ``terminated`` where the MDP ends (the task done or lost for good),
+    ``truncated`` where the task stops it for a reason the observation does not show (a count of attempts)."""
 
     reward: float
     success: bool
     terminated: bool
     info: dict[str, Any] = field(default_factory=dict)
+    truncated: bool = False
 
 
 class Task(ABC):
@@ -106,7 +108,7 @@ class Task(ABC):
 
         Vectorised: goals may carry leading batch dimensions (SB3's HER relabels in batches).
         """
-        return -(~goals_reached(achieved_goal, desired_goal)).astype(np.float32)
+        return goals_reached(achieved_goal, desired_goal).astype(np.float32) - 1.0
 
 
 def goals_reached(achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.ndarray:
@@ -143,6 +145,21 @@ def make_task(name: str, options: dict[str, Any]) -> Task:
 def with_scene(base: SceneConfig, **changes: Any) -> SceneConfig:
     """``base`` with some fields replaced (validated by SceneConfig)."""
     return replace(base, **changes)
+
+
+def is_number(value: Any) -> bool:
+    """Whether ``value`` is a finite real number (an int or float, not a bool): test it before comparing."""
+    return (
+        isinstance(value, (int, float, np.integer, np.floating))
+        and not isinstance(value, bool)
+        and bool(np.isfinite(value))
+    )
+
+
+def is_interval(value: Any) -> bool:
+    """Whether ``value`` is a ``(low, high)`` pair of numbers with low <= high."""
+    pair = tuple(value) if isinstance(value, (tuple, list)) else ()
+    return len(pair) == 2 and all(map(is_number, pair)) and pair[0] <= pair[1]
 
 
 def check_option(name: str, value: Any, valid: bool, expected: str) -> None:

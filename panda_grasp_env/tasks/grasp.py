@@ -195,8 +195,9 @@ class Grasp(Task):
         self._positions = cell.object_positions()
         remaining = len(self.on_table(cell))
         success = remaining == 0 and self.grasped == self.in_play
-        terminated = remaining == 0 or self.consecutive_failures >= self.max_failures
-        return TaskStep(reward, success, terminated, self._info(cell, remaining))
+        # VPG's K-failure rule ends the trial, not the MDP: the count is not in the observation.
+        gave_up = remaining > 0 and self.consecutive_failures >= self.max_failures
+        return TaskStep(reward, success, remaining == 0, self._info(cell, remaining), truncated=gave_up)
 
     def achieved_goal(self, cell: Workcell) -> np.ndarray:
         return cell.data.xpos[self._goal_body].copy()

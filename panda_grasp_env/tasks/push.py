@@ -13,6 +13,7 @@ from panda_grasp_env.tasks.base import (
     Task,
     TaskStep,
     check_option,
+    is_interval,
     register_task,
     with_scene,
 )
@@ -37,9 +38,9 @@ class Push(Task):
     start_states = ("behind_object",)
 
     def __init__(self, goal_distance: tuple[float, float] = (0.1, 0.25)) -> None:
-        low, high = goal_distance
-        check_option("goal_distance", goal_distance, 0 < low <= high <= 0.4, "(min, max) with 0 < min <= max <= 0.4 m")
-        self.goal_distance = (float(low), float(high))
+        valid = is_interval(goal_distance) and 0 < goal_distance[0] and goal_distance[1] <= 0.4
+        check_option("goal_distance", goal_distance, valid, "(min, max) with 0 < min <= max <= 0.4 m")
+        self.goal_distance = (float(goal_distance[0]), float(goal_distance[1]))
         self._goal = np.zeros(3)
         self._distance = 0.0
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.scene import SceneConfig
-from panda_grasp_env.tasks.base import Task, TaskStep, check_option, register_task, with_scene
+from panda_grasp_env.tasks.base import Task, TaskStep, check_option, is_number, register_task, with_scene
 from panda_grasp_env.workcell import Workcell
 
 
@@ -26,7 +26,7 @@ class TowerBreak(Task):
     ``allow_impulse``: add the ``impulse`` primitive (a horizontal impulse of
     ``impulse_magnitude`` N s on the block nearest the chosen point, as in the
     fall-dynamics study) next to ``push``.
-    Success: >= k blocks moved; terminates then (primitive modes).  Reward:
+    Success: >= k blocks moved; terminates then.  Reward:
     blocks newly moved this step, +1 on success.
     """
 
@@ -40,7 +40,8 @@ class TowerBreak(Task):
         k = n_blocks - 1 if k is None else k
         check_option("k", k, isinstance(k, int) and 1 <= k <= n_blocks, f"an int in [1, {n_blocks}]")
         check_option("allow_impulse", allow_impulse, isinstance(allow_impulse, bool), "a bool")
-        check_option("impulse_magnitude", impulse_magnitude, 0 < impulse_magnitude <= 1.0, "in (0, 1] N s")
+        valid = is_number(impulse_magnitude) and 0 < impulse_magnitude <= 1.0
+        check_option("impulse_magnitude", impulse_magnitude, valid, "in (0, 1] N s")
         self.n_blocks, self.k = n_blocks, k
         self.impulse_magnitude = float(impulse_magnitude)
         self.primitives = ("push", "impulse") if allow_impulse else ("push",)
