@@ -57,6 +57,9 @@ class PrimitiveActionWriter:
     def __init__(self, info: dict[str, Any], agent: str, needs: tuple[str, ...], needs_z: bool = False) -> None:
         require(info, ("action_layout",), agent, "make the env with action_mode='primitive'")
         layout = info["action_layout"]
+        if layout["mode"] != "primitive":
+            raise ValueError(f"{agent} writes primitive actions: make the env with action_mode='primitive', "
+                             f"not {layout['mode']!r}")  # fmt: skip
         missing = [p for p in needs if p not in layout["primitives"]]
         if missing:
             raise ValueError(f"{agent} needs the primitives {missing}; this env offers {layout['primitives']}")

@@ -283,6 +283,14 @@ class PandaEnv(gym.Env):
                 "primitives": list(self.actions.settings.primitives),
                 "primitive_z": self.actions.settings.with_z,
             }
+        elif isinstance(self.actions, PixelActions):
+            facts["action_layout"] = {
+                "mode": "pixel",
+                "primitives": list(self.actions.settings.primitives),
+                "shape": list(self.actions.shape),  # (primitive, rotation, row, column): the index's layout
+                "heightmap_bounds": [list(map(float, b)) for b in self.actions.grid.bounds],
+                "heightmap_resolution": self.actions.grid.resolution,
+            }
         elif isinstance(self.actions, GraspPoseActions):
             facts["action_layout"] = {"mode": "grasp_pose"}
         return facts

@@ -193,6 +193,25 @@ def test_a_zero_height_action_holds_the_height_while_the_hand_moves_fast():
     env.close()
 
 
+def test_pixel_mode_publishes_its_action_layout():
+    from agents.base import PrimitiveActionWriter
+
+    env = make("PandaTowerBreak-v0", action_mode="pixel", rotations=8)
+    _, info = env.reset(seed=0)
+    layout = info["action_layout"]
+    assert layout["mode"] == "pixel" and int(np.prod(layout["shape"])) == env.action_space.n
+    index = env.action_space.n - 1  # the last primitive, rotation, row and column
+    primitive, rotation, row, column = np.unravel_index(index, layout["shape"])
+    (_, x1), (_, y1), _ = layout["heightmap_bounds"]
+    cell = layout["heightmap_resolution"]
+    expected = (layout["primitives"][primitive], x1 - (row + 0.5) * cell, y1 - (column + 0.5) * cell)
+    assert env.unwrapped.actions.decode(index)[:3] == pytest.approx(expected)
+    assert rotation == 7
+    with pytest.raises(ValueError, match="action_mode='primitive', not 'pixel'"):
+        PrimitiveActionWriter(info, "scripted", ("push",))
+    env.close()
+
+
 def test_bad_pixel_actions_raise():
     env = make("PandaTowerBreak-v0", action_mode="pixel")
     env.reset(seed=0)
