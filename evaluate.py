@@ -36,6 +36,7 @@ from agents.evaluation import (  # noqa: E402
     AGENTS,
     TASKS,
     EpisodeSpec,
+    action_mode_of,
     aggregate,
     all_agents,
     run_episode,
@@ -238,6 +239,19 @@ def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) 
     return {s.key: done[s.key] for s in specs}
 
 
+def applicable(task: str, metrics: dict) -> dict[str, float | None]:
+    """The task's grasp success, action efficiency and cycles per simulated hour, None where a figure does not
+    apply: no grasp primitives attempted, low-level episodes (they run to the time limit, so actions per ideal
+    action say nothing), or a task without build-and-break cycles."""
+    grasps = metrics["grasp_success"]
+    low_level = action_mode_of(*TASKS[task]) in ("ee_delta", "joint")
+    return {
+        "grasp_success": grasps["rate"] if grasps["n"] else None,
+        "action_efficiency": None if low_level else metrics["action_efficiency"],
+        "cycles_per_sim_hour": metrics["cycles_per_sim_hour"] if task == "BuildAndBreak" else None,
+    }
+
+
 def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
     import csv
 
@@ -277,9 +291,7 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
                 s["rate"],
                 *s["ci95"],
                 m["completion"]["rate"],
-                m["grasp_success"]["rate"],
-                m["action_efficiency"],
-                m["cycles_per_sim_hour"],
+                *applicable(task, m).values(),  # None: an empty cell
                 json.dumps(m["failures"]),
             ]
         )
@@ -310,12 +322,18 @@ def print_table(summary: dict) -> str:
     ]
     for key, m in summary["table"].items():
         agent, task = key.split("/")
-        s, g, t = m["trial_success"], m["grasp_success"], summary["timing"][key]
-        grasps = f"{100 * g['rate']:.0f} % ({g['n']})" if g["n"] else "—"  # low-level tasks attempt no primitive grasps
+        s, t, shown = m["trial_success"], summary["timing"][key], applicable(task, m)
+        grasps = (
+            "—"
+            if shown["grasp_success"] is None
+            else f"{100 * shown['grasp_success']:.0f} % ({m['grasp_success']['n']})"
+        )
+        efficiency = "—" if shown["action_efficiency"] is None else f"{100 * shown['action_efficiency']:.0f} %"
+        cycles = "—" if shown["cycles_per_sim_hour"] is None else f"{shown['cycles_per_sim_hour']:.0f}"
         lines.append(
             f"| {agent} | {task} | {m['episodes']} | {100 * s['rate']:.0f} % ({100 * s['ci95'][0]:.0f}-{100 * s['ci95'][1]:.0f}) "
             f"| {100 * m['completion']['rate']:.0f} % | {grasps} "
-            f"| {100 * m['action_efficiency']:.0f} % | {m['cycles_per_sim_hour']:.0f} | {t['ms_per_decision']:.1f} "
+            f"| {efficiency} | {cycles} | {t['ms_per_decision']:.1f} "
             f"| {', '.join(f'{k} {v}' for k, v in m['failures'].items()) or '-'} |"
         )
     table = "\n".join(lines)

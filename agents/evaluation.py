@@ -161,12 +161,14 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
     ideal = env.unwrapped.task.ideal_actions if in_play is None else in_play
     decisions, actions = [], 0
     failures: Counter[str] = Counter()
+    task_facts = dict(info)  # the latest of each info key: a diverged step reports no task keys (cycles, objects)
     while True:
         start = time.perf_counter()
         action = agent.act(observation, info)
         decisions.append(time.perf_counter() - start)
         observation, _, terminated, truncated, info = env.step(action)
         actions += 1
+        task_facts.update(info)
         if "primitive_reason" in info and not info["primitive_success"]:
             failures[info["primitive_reason"]] += 1
         if recorder is not None and "primitive" in info:
@@ -175,18 +177,18 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
             break
     failures.update({k: v for k, v in getattr(agent, "failures", {}).items() if k == "no_candidate"})
     if spec.task == "BuildAndBreak":  # the ideal is per build-and-break cycle
-        ideal = ideal * int(info.get("cycles", 0))
+        ideal = ideal * int(task_facts.get("cycles", 0))
     success = bool(info["is_success"])
-    grasping = spec.task.startswith("Grasp") and "primitive_reason" in info
+    grasping = spec.task.startswith("Grasp") and "primitive_reason" in task_facts
     result = {
         "spec": asdict(spec),
         "success": success,
-        "completion": bool(info.get("objects_remaining", 1) == 0) if grasping else success,
+        "completion": bool(task_facts.get("objects_remaining", 1) == 0) if grasping else success,
         "actions": actions,
         "ideal_actions": int(ideal),
         "grasps_attempted": int(info["grasps_attempted"]),
         "grasps_succeeded": int(info["grasps_succeeded"]),
-        "cycles": int(info.get("cycles", 0)),
+        "cycles": int(task_facts.get("cycles", 0)),
         "sim_seconds": round(float(info["sim_time"]), 6),
         "failures": dict(sorted(failures.items())),
         "physics_error": bool(info["physics_error"]),

@@ -51,3 +51,39 @@ def test_bad_arguments_exit_with_a_message(bad, capsys):
     with pytest.raises(SystemExit):
         evaluate.main(bad)
     assert "error" in capsys.readouterr().err
+
+
+def test_figures_that_do_not_apply_are_left_blank():
+    none_attempted = {"grasp_success": {"rate": 0.0, "n": 0}, "action_efficiency": 0.02, "cycles_per_sim_hour": 0.0}
+    assert set(evaluate.applicable("Lift", none_attempted).values()) == {None}  # low-level: runs to the time limit
+    grasped = {"grasp_success": {"rate": 0.9, "n": 10}, "action_efficiency": 0.8, "cycles_per_sim_hour": 0.0}
+    assert evaluate.applicable("GraspClutter", grasped) == {
+        "grasp_success": 0.9,
+        "action_efficiency": 0.8,
+        "cycles_per_sim_hour": None,
+    }
+    assert evaluate.applicable("BuildAndBreak", grasped)["cycles_per_sim_hour"] == 0.0
+
+
+def test_a_diverged_step_keeps_the_cycles_the_episode_completed():
+    import gymnasium as gym
+    import numpy as np
+
+    from agents.evaluation import EpisodeSpec, play_episode
+    from agents.random_agent import RandomAgent
+
+    class CycleThenDiverge(gym.Wrapper):  # a cycle done from the first step; the physics diverges at the second
+        def step(self, action):
+            self.calls = getattr(self, "calls", 0) + 1
+            if self.calls == 2:
+                self.env.unwrapped.cell.data.qvel[:] = np.nan
+            observation, reward, terminated, truncated, info = self.env.step(action)
+            if not info["physics_error"]:
+                info["cycles"] = 1
+            return observation, reward, terminated, truncated, info
+
+    env = CycleThenDiverge(gym.make("panda_grasp_env:PandaBuildAndBreak-v0"))
+    result = play_episode(env, RandomAgent(env.action_space), EpisodeSpec("random", "BuildAndBreak", 0))["result"]
+    assert result["physics_error"] and result["actions"] >= 2 and result["cycles"] == 1
+    assert result["ideal_actions"] == env.unwrapped.task.ideal_actions
+    env.close()
