@@ -3,14 +3,13 @@
 Grid layout (matches the overhead camera's view, robot at the bottom):
 row ``i`` covers world x = ``x_max - (i + 0.5) * resolution`` and column ``j``
 covers world y = ``y_max - (j + 0.5) * resolution``.  Heights are metres above
-``z_min`` (the table top by default), clipped to ``[0, z_max - z_min]``.
+``z_min`` (the table top by default), at least 0; points above ``z_max`` are left out.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from perception.camera import CameraModel
@@ -96,10 +95,17 @@ def heightmap_from_points(
     height_map = height_map.reshape(rows_n, cols_n)
     if fill_holes:
         holes = ~observed.reshape(rows_n, cols_n)
-        kernel = np.ones((3, 3), np.uint8)
-        height_map[holes] = cv2.dilate(height_map, kernel)[holes]
+        # The highest of the 3 x 3 neighbourhood, and that same neighbour's colour (a per-channel maximum
+        # would mix a red and a green neighbour into yellow).
+        padded = np.pad(height_map, 1, constant_values=-np.inf)
+        windows = np.lib.stride_tricks.sliding_window_view(padded, (3, 3)).reshape(rows_n, cols_n, 9)
+        highest = windows.argmax(-1)
+        height_map[holes] = np.take_along_axis(windows, highest[..., None], -1)[..., 0][holes]
         if colour_map is not None:
-            colour_map[holes] = cv2.dilate(colour_map, kernel)[holes]
+            padded_colours = np.pad(colour_map, ((1, 1), (1, 1), (0, 0)))
+            colour_windows = np.lib.stride_tricks.sliding_window_view(padded_colours, (3, 3), axis=(0, 1))
+            colour_windows = colour_windows.reshape(rows_n, cols_n, 3, 9)
+            colour_map[holes] = np.take_along_axis(colour_windows, highest[..., None, None], -1)[..., 0][holes]
     return height_map, colour_map
 
 

@@ -6,7 +6,7 @@ import pytest
 from panda_grasp_env.rendering import CameraRenderer
 from panda_grasp_env.workcell import Workcell
 from perception.camera import CameraModel
-from perception.heightmap import HeightmapGrid, heightmap_from_rgbd
+from perception.heightmap import HeightmapGrid, heightmap_from_points, heightmap_from_rgbd
 from perception.noise import DepthNoise, RGBNoise
 from perception.pose import View, detect_towers, estimate_block_poses, wrap_quarter
 from perception.segmentation import colour_masks, fit_plane_ransac, foreground_mask
@@ -170,3 +170,11 @@ def test_grasp_detection_on_an_empty_table_returns_nothing(scene):
         )
         == []
     )
+
+
+def test_a_filled_heightmap_hole_takes_its_highest_neighbours_height_and_colour():
+    grid = HeightmapGrid(bounds=((0.0, 0.01), (0.0, 0.01), (0.0, 0.3)), resolution=0.002)
+    points = np.array([[0.009, 0.009, 0.05], [0.005, 0.009, 0.04]])  # cells (0, 0) and (2, 0); (1, 0) is a hole
+    heights, colours = heightmap_from_points(grid, points, np.array([[255, 0, 0], [0, 255, 0]], np.uint8))
+    assert heights[1, 0] == pytest.approx(0.05)
+    assert colours[1, 0].tolist() == [255, 0, 0]  # the red neighbour's colour, not a channel-wise max (yellow)
