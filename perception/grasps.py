@@ -31,7 +31,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from perception.camera import CameraModel
-from perception.images import check_depth
+from perception.images import check_depth, check_points
 from perception.segmentation import Plane, fit_plane_ransac
 
 #: Where grasps are looked for (world metres): the table in front of the robot, up to 30 cm high.
@@ -95,7 +95,7 @@ def prepare_cloud(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Object points above the table inside ``region`` ((x0, x1), (y0, y1), (z0, z1)), voxel-downsampled:
     points (M, 3), upward-ish unit normals (M, 3), cluster label per point (M,)."""
-    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    points = check_points(points)
     points = points[np.isfinite(points).all(axis=1)]
     inside = np.all((points >= region[:, 0]) & (points <= region[:, 1]), axis=1)
     points = points[inside & (table.height(points) > 0.005)]

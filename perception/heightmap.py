@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from perception.camera import CameraModel
+from perception.images import check_depth, check_pair, check_points
 
 #: VPG's workspace: a 0.448 m square in front of the robot (224 x 224 cells at 2 mm).
 DEFAULT_BOUNDS = ((0.276, 0.724), (-0.224, 0.224), (0.0, 0.3))
@@ -70,7 +71,7 @@ def heightmap_from_points(
     """
     rows_n, cols_n = grid.shape
     (_, _), (_, _), (z0, z1) = grid.bounds
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    points = check_points(points)
     rows, cols = grid.world_to_cell(points[:, :2])
     keep = (rows >= 0) & (rows < rows_n) & (cols >= 0) & (cols < cols_n) & np.isfinite(points[:, 2])
     keep &= points[:, 2] <= z1
@@ -88,7 +89,10 @@ def heightmap_from_points(
     observed[flat[last]] = True
     colour_map = None
     if colours is not None:
-        colours = np.asarray(colours).reshape(-1, 3)[keep][order]
+        colours = np.asarray(colours)
+        if colours.shape[-1:] != (3,) or colours.size != points.size:
+            raise ValueError(f"colours must be one RGB triple per point ({len(points)}), got shape {colours.shape}")
+        colours = colours.reshape(-1, 3)[keep][order]
         colour_map = np.zeros((rows_n * cols_n, 3), dtype=np.uint8)
         colour_map[flat[last]] = colours[last]
         colour_map = colour_map.reshape(rows_n, cols_n, 3)
@@ -114,10 +118,14 @@ def heightmap_from_rgbd(
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Heightmap (and colour map) from one camera's depth (H, W) metres and optional RGB (H, W, 3).
 
-    Only the part of the image that sees the grid's box is back-projected.
+    Only the part of the image that sees the grid's box is back-projected.  ``ValueError`` if the images
+    are not the camera's size, RGB is not uint8, or depth has no finite pixel.
     """
+    rgb, depth = (None, check_depth(depth)) if rgb is None else check_pair(rgb, depth)
+    if depth.shape != (camera.height, camera.width):
+        raise ValueError(f"depth {depth.shape} is not the camera's image size ({camera.height}, {camera.width})")
     corners = np.array([[x, y, z] for x in grid.bounds[0] for y in grid.bounds[1] for z in grid.bounds[2]])
     window = camera.window_around(corners)
     points = camera.depth_to_world_points(depth, window)
-    colours = None if rgb is None else np.asarray(rgb)[window].reshape(-1, 3)
+    colours = None if rgb is None else rgb[window].reshape(-1, 3)
     return heightmap_from_points(grid, points.reshape(-1, 3), colours)

@@ -35,3 +35,11 @@ def check_pair(rgb: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarr
     if rgb.shape[:2] != depth.shape:
         raise ValueError(f"rgb {rgb.shape[:2]} and depth {depth.shape} images differ in size")
     return rgb, depth
+
+
+def check_points(points: np.ndarray, name: str = "points") -> np.ndarray:
+    """Points (..., 3) -- a cloud (N, 3) or a point image (H, W, 3) -- as an (N, 3) float array, or ``ValueError``."""
+    points = np.asarray(points, dtype=float)
+    if points.ndim < 1 or points.shape[-1] != 3:
+        raise ValueError(f"{name} must have shape (..., 3) (x, y, z in metres), got {points.shape}")
+    return points.reshape(-1, 3)

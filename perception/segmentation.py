@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from perception.images import check_rgb
+from perception.images import check_points, check_rgb
 
 #: Hue half-window (OpenCV units, 0-179) around each colour's hue.
 HUE_WINDOW = 10
@@ -90,7 +90,7 @@ def fit_plane_ransac(
 
     Returns the plane and the inlier mask.  ``ValueError`` with fewer than 3 finite points.
     """
-    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    points = check_points(points)
     finite = np.isfinite(points).all(axis=1)
     candidates = points[finite]
     if len(candidates) < 3:

@@ -135,6 +135,18 @@ def test_bad_images_raise(rgb, depth, message):
         estimate_block_poses([View(rgb, depth, camera)], {"red": (1.0, 0.0, 0.0)}, 0.05)
 
 
+def test_bad_clouds_and_heightmap_images_raise():
+    with pytest.raises(ValueError, match=r"points must have shape \(\.\.\., 3\)"):
+        fit_plane_ransac(np.zeros((30, 2)), np.random.default_rng(0))
+    camera = CameraModel(4, 4, np.eye(3), np.eye(3), np.zeros(3))
+    with pytest.raises(ValueError, match="not the camera's image size"):
+        heightmap_from_rgbd(HeightmapGrid(), camera, None, np.ones((5, 4), np.float32))
+    with pytest.raises(ValueError, match="shape"):
+        heightmap_from_rgbd(HeightmapGrid(), camera, np.zeros((4, 4, 4), np.uint8), np.ones((4, 4), np.float32))
+    with pytest.raises(ValueError, match="one RGB triple per point"):
+        heightmap_from_points(HeightmapGrid(), np.zeros((5, 3)), np.zeros((4, 3), np.uint8))
+
+
 @pytest.mark.parametrize("shape", ["cube", "cylinder", "capsule"])
 def test_top_grasp_candidate_picks_the_object_up(shape):
     import gymnasium as gym
