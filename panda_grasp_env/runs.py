@@ -68,11 +68,13 @@ def machine() -> str:
 
 def commit() -> str:
     """Short hash of the checked-out commit of this repository, ``+changes`` if tracked files differ from
-    it (the run used code no commit holds), or ``unknown``."""
+    it (the run used code no commit holds), or ``unknown``.  The shipped checkpoint folders do not count:
+    a retest rewrites their results, not the code."""
     root = Path(__file__).resolve().parent.parent
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-        changes = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+        changes = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no", "--",
+                                  ".", ":(exclude)agents/checkpoints", ":(exclude)perception/checkpoints"],
                                  capture_output=True, text=True)  # fmt: skip
     except OSError:
         return "unknown"
