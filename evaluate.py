@@ -207,6 +207,9 @@ def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) 
     from tqdm import tqdm
 
     done = _load(log) if args.resume else {}
+    if not args.resume and log.exists() and log.stat().st_size:  # a fresh run keeps the last one's episodes
+        os.replace(log, log.with_name(log.name + ".prev"))
+        print(f"earlier episodes moved to {log.name}.prev (continue a run with --resume)")
     if log.exists():  # keep only whole records (an interruption can cut the last line short)
         write_atomically(log, "".join(json.dumps(r, sort_keys=True) + "\n" for r in done.values()))
     todo = [s for s in specs if s.key not in done]

@@ -87,3 +87,10 @@ def test_a_diverged_step_keeps_the_cycles_the_episode_completed():
     assert result["physics_error"] and result["actions"] >= 2 and result["cycles"] == 1
     assert result["ideal_actions"] == env.unwrapped.task.ideal_actions
     env.close()
+
+
+def test_a_fresh_run_keeps_the_previous_runs_episodes(tmp_path):
+    first = (run(tmp_path, "out") / "episodes.jsonl").read_text()
+    out = run(tmp_path, "out")  # again, without --resume
+    assert (out / "episodes.jsonl.prev").read_text() == first
+    assert len((out / "episodes.jsonl").read_text().splitlines()) == len(first.splitlines())
