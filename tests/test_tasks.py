@@ -99,6 +99,17 @@ def test_grasp_ends_after_k_consecutive_failures():
     env.close()
 
 
+def test_a_grasp_episode_with_nothing_in_play_is_no_success():
+    env = make("PandaGrasp-v0", shapes=("cube",))
+    env.reset(seed=0)
+    cell, task = env.unwrapped.cell, env.unwrapped.task
+    cell.park(int(cell.object_ids[0]))  # as if the reset drop had lost it
+    task.in_play = 0
+    _, _, terminated, _, info = env.step(env.unwrapped.actions.encode("grasp", 0.3, 0.3, 0.0))
+    assert terminated and not info["is_success"] and info["objects_remaining"] == 0
+    env.close()
+
+
 def test_an_object_pushed_out_of_the_heightmap_workspace_is_out_of_play():
     from panda_grasp_env.tasks.grasp import PLAY_REGION
 

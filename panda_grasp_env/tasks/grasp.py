@@ -194,7 +194,7 @@ class Grasp(Task):
                 self.consecutive_failures += 1
         self._positions = cell.object_positions()
         remaining = len(self.on_table(cell))
-        success = remaining == 0 and self.grasped == self.in_play
+        success = remaining == 0 and 0 < self.in_play == self.grasped  # nothing in play is no success
         # VPG's K-failure rule ends the trial, not the MDP: the count is not in the observation.
         gave_up = remaining > 0 and self.consecutive_failures >= self.max_failures
         return TaskStep(reward, success, remaining == 0, self._info(cell, remaining), truncated=gave_up)
