@@ -36,9 +36,9 @@ from agents.evaluation import (  # noqa: E402
     AGENTS,
     TASKS,
     EpisodeSpec,
-    action_mode_of,
     aggregate,
     all_agents,
+    is_low_level,
     run_episode,
     skip_reason,
 )
@@ -247,10 +247,9 @@ def applicable(task: str, metrics: dict) -> dict[str, float | None]:
     apply: no grasp primitives attempted, low-level episodes (they run to the time limit, so actions per ideal
     action say nothing), or a task without build-and-break cycles."""
     grasps = metrics["grasp_success"]
-    low_level = action_mode_of(*TASKS[task]) in ("ee_delta", "joint")
     return {
         "grasp_success": grasps["rate"] if grasps["n"] else None,
-        "action_efficiency": None if low_level else metrics["action_efficiency"],
+        "action_efficiency": None if is_low_level(*TASKS[task]) else metrics["action_efficiency"],
         "cycles_per_sim_hour": metrics["cycles_per_sim_hour"] if task == "BuildAndBreak" else None,
     }
 

@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import json
-import math
 import os
 import time
 from collections.abc import Callable
@@ -42,6 +41,7 @@ from panda_grasp_env.runs import (
     write_atomically,
     write_json,
 )
+from panda_grasp_env.tasks.base import is_number
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
 ALGORITHMS: dict[str, tuple[str, str]] = {
@@ -128,7 +128,7 @@ class TrainConfig:
               "a checkpoint name or folder, or null")  # fmt: skip
         rate = self.algo_kwargs.get("learning_rate", 1.0)
         if isinstance(rate, dict):
-            ok = sorted(rate) == ["end", "start"] and all(_is_number(v) and v >= 0 for v in rate.values())
+            ok = sorted(rate) == ["end", "start"] and all(is_number(v) and v >= 0 for v in rate.values())
             check(ok and rate["start"] > 0, "algo_kwargs",
                   "learning_rate as a positive number or {start: > 0, end: >= 0} (linear over total_steps)")  # fmt: skip
         algo_class = load_class(ALGORITHMS[self.algo][0])
@@ -136,10 +136,6 @@ class TrainConfig:
         unknown = [k for k in self.algo_kwargs if k not in valid or k in ("seed", "policy_kwargs", "tensorboard_log")]
         if unknown:
             raise ValueError(f"unknown algo_kwargs {unknown} for {self.algo}; valid: {sorted(valid)}")
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def learning_rate(value: float | dict[str, float]) -> Any:

@@ -17,6 +17,8 @@ from perception.images import check_depth, check_pair, check_points
 
 #: VPG's workspace: a 0.448 m square in front of the robot (224 x 224 cells at 2 mm).
 DEFAULT_BOUNDS = ((0.276, 0.724), (-0.224, 0.224), (0.0, 0.3))
+#: Row and column offsets of a cell's 3 x 3 neighbourhood (itself included), for filling holes.
+NEIGHBOUR_ROWS, NEIGHBOUR_COLS = np.repeat([-1, 0, 1], 3), np.tile([-1, 0, 1], 3)
 
 
 @dataclass(frozen=True)
@@ -99,17 +101,18 @@ def heightmap_from_points(
     height_map = height_map.reshape(rows_n, cols_n)
     if fill_holes:
         holes = ~observed.reshape(rows_n, cols_n)
-        # The highest of the 3 x 3 neighbourhood, and that same neighbour's colour (a per-channel maximum
-        # would mix a red and a green neighbour into yellow).
+        # Each hole takes the highest cell of its 3 x 3 neighbourhood (in padded coordinates) and that same
+        # cell's colour (a per-channel maximum would mix a red and a green neighbour into yellow).
+        rows, cols = np.nonzero(holes)
+        neighbour_rows = rows[:, None] + 1 + NEIGHBOUR_ROWS
+        neighbour_cols = cols[:, None] + 1 + NEIGHBOUR_COLS
         padded = np.pad(height_map, 1, constant_values=-np.inf)
-        windows = np.lib.stride_tricks.sliding_window_view(padded, (3, 3)).reshape(rows_n, cols_n, 9)
-        highest = windows.argmax(-1)
-        height_map[holes] = np.take_along_axis(windows, highest[..., None], -1)[..., 0][holes]
+        best = padded[neighbour_rows, neighbour_cols].argmax(axis=1)
+        source = np.arange(len(rows)), best
+        source_rows, source_cols = neighbour_rows[source], neighbour_cols[source]
+        height_map[rows, cols] = padded[source_rows, source_cols]
         if colour_map is not None:
-            padded_colours = np.pad(colour_map, ((1, 1), (1, 1), (0, 0)))
-            colour_windows = np.lib.stride_tricks.sliding_window_view(padded_colours, (3, 3), axis=(0, 1))
-            colour_windows = colour_windows.reshape(rows_n, cols_n, 3, 9)
-            colour_map[holes] = np.take_along_axis(colour_windows, highest[..., None, None], -1)[..., 0][holes]
+            colour_map[rows, cols] = np.pad(colour_map, ((1, 1), (1, 1), (0, 0)))[source_rows, source_cols]
     return height_map, colour_map
 
 
