@@ -169,15 +169,22 @@ def _append(path: Path, record: dict) -> None:
         os.fsync(handle.fileno())
 
 
-def _load(path: Path) -> dict[str, dict]:
-    done = {}
+def _load(path: Path, code: str) -> dict[str, dict]:
+    """The finished episodes in ``path`` that this code (``commit()``) ran.  A line cut short by an
+    interruption, and an episode run by other code (mixing them would report neither), are run again."""
+    done, stale = {}, 0
     if path.exists():
         for line in path.read_text().splitlines():
             try:
                 record = json.loads(line)
-            except json.JSONDecodeError:  # a line cut short by an interruption: run that episode again
+            except json.JSONDecodeError:
+                continue
+            if record.get("commit") != code:
+                stale += 1
                 continue
             done[record["key"]] = record
+    if stale:
+        print(f"{stale} episode(s) in {path} were run by other code than {code}: running them again")
     return done
 
 
@@ -206,7 +213,8 @@ def _ray_records(specs: list[EpisodeSpec], address: str):
 def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) -> dict[str, dict]:
     from tqdm import tqdm
 
-    done = _load(log) if args.resume else {}
+    code = commit()
+    done = _load(log, code) if args.resume else {}
     if not args.resume and log.exists() and log.stat().st_size:  # a fresh run keeps the last one's episodes
         os.replace(log, log.with_name(log.name + ".prev"))
         print(f"earlier episodes moved to {log.name}.prev (continue a run with --resume)")
@@ -225,6 +233,7 @@ def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) 
             pool = multiprocessing.get_context("spawn").Pool(args.workers)
             records = pool.imap_unordered(_run_job, todo)
         for record in records:
+            record["commit"] = code
             _append(log, record)
             done[record["key"]] = record
             agent = record["result"]["spec"]["agent"]
@@ -265,7 +274,11 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
         "full": args.full,
         "env_ids": {t: TASKS[t][0] for t in args.tasks},
     }
-    payload = {"protocol": protocol, "metrics": table, "episodes": sorted(results, key=lambda r: json.dumps(r["spec"]))}
+    payload = {
+        "protocol": protocol,
+        "metrics": table,
+        "episodes": sorted(results, key=lambda r: json.dumps(r["spec"], sort_keys=True)),
+    }
     write_atomically(args.out / "results.json", json.dumps(payload, indent=2, sort_keys=True))
     rows = [
         [

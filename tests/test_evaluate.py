@@ -39,6 +39,22 @@ def test_resume_finishes_without_redoing_episodes(tmp_path):
     assert (partial / "results.json").read_text() == (full / "results.json").read_text()
 
 
+def test_resume_runs_again_the_episodes_other_code_ran(tmp_path, capsys):
+    full = run(tmp_path, "full")
+    partial = tmp_path / "partial"
+    partial.mkdir()
+    records = [json.loads(line) for line in (full / "episodes.jsonl").read_text().splitlines()]
+    records[0]["commit"] = "0000000"  # as if an earlier checkout had run it
+    (partial / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records[:2]))
+    run(tmp_path, "partial", "--resume")
+    assert "1 episode(s)" in capsys.readouterr().out
+    resumed = [json.loads(line) for line in (partial / "episodes.jsonl").read_text().splitlines()]
+    assert {r["commit"] for r in resumed} == {records[1]["commit"]}
+    assert [r["timing"] for r in resumed if r["key"] == records[1]["key"]] == [records[1]["timing"]]  # kept
+    assert [r["timing"] for r in resumed if r["key"] == records[0]["key"]] != [records[0]["timing"]]  # run again
+    assert (partial / "results.json").read_text() == (full / "results.json").read_text()
+
+
 def test_a_local_ray_instance_gives_the_same_results(tmp_path):
     pytest.importorskip("ray")  # installed by the test extra; optional for users
     local = run(tmp_path, "local")
