@@ -199,9 +199,11 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
 
 def wilson(successes: int, n: int, z: float = 1.96) -> list[float]:
     """95 % Wilson score interval."""
-    if n == 0:
-        return [0.0, 1.0]
-    p = successes / n
+    return wilson_interval(successes / n, n, z) if n else [0.0, 1.0]
+
+
+def wilson_interval(p: float, n: float, z: float = 1.96) -> list[float]:
+    """Wilson score interval of a rate ``p`` observed over ``n`` (possibly effective, fractional) trials."""
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
     return [round(max(0.0, float(centre - half)), 4), round(min(1.0, float(centre + half)), 4)]
@@ -209,6 +211,24 @@ def wilson(successes: int, n: int, z: float = 1.96) -> list[float]:
 
 def rate(successes: int, n: int) -> dict[str, Any]:
     return {"rate": round(successes / n, 4) if n else 0.0, "successes": successes, "n": n, "ci95": wilson(successes, n)}
+
+
+def clustered_rate(successes: list[int], attempts: list[int]) -> dict[str, Any]:
+    """A rate over attempts made in groups (grasps within episodes): the attempts of one episode are not
+    independent (the same scene, the same policy), so the 95 % interval is Wilson's at the effective number
+    of attempts -- n divided by the design effect, the cluster-robust variance of the ratio over the
+    binomial one (never below 1: the interval is at least the per-attempt one)."""
+    s, a = np.asarray(successes, dtype=float), np.asarray(attempts, dtype=float)
+    total, n = int(s.sum()), int(a.sum())
+    result = {**rate(total, n), "design_effect": 1.0}
+    p, groups = (total / n if n else 0.0), int((a > 0).sum())
+    if groups > 1 and 0.0 < p < 1.0:
+        clustered = groups / (groups - 1) * float(((s - p * a) ** 2).sum()) / n**2
+        design_effect = max(1.0, clustered / (p * (1 - p) / n))
+        effective = n / design_effect
+        result["ci95"] = wilson_interval(p, effective)
+        result["design_effect"] = round(design_effect, 3)
+    return result
 
 
 def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
@@ -220,7 +240,6 @@ def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     for key in sorted(groups):
         episodes = sorted(groups[key], key=lambda r: r["spec"]["seed"])
         n = len(episodes)
-        attempted = sum(r["grasps_attempted"] for r in episodes)
         actions = sum(r["actions"] for r in episodes)
         ideal_done = sum(r["ideal_actions"] for r in episodes if r["completion"])
         sim_hours = sum(r["sim_seconds"] for r in episodes) / 3600
@@ -232,7 +251,9 @@ def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             "seeds": [r["spec"]["seed"] for r in episodes],
             "trial_success": rate(sum(r["success"] for r in episodes), n),
             "completion": rate(sum(r["completion"] for r in episodes), n),
-            "grasp_success": rate(sum(r["grasps_succeeded"] for r in episodes), attempted),
+            "grasp_success": clustered_rate(
+                [r["grasps_succeeded"] for r in episodes], [r["grasps_attempted"] for r in episodes]
+            ),
             "action_efficiency": round(ideal_done / actions, 4) if actions else 0.0,
             "cycles_per_sim_hour": round(sum(r["cycles"] for r in episodes) / sim_hours, 2) if sim_hours else 0.0,
             "failures": dict(sorted(failures.items())),

@@ -33,7 +33,7 @@ import gymnasium as gym
 
 from agents.grasping import PlannedGraspAgent
 from agents.towers import OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
-from benchmarks._common import Results, rate
+from benchmarks._common import Results, clustered_rate, rate
 
 RGBD = {"obs_mode": "rgbd", "image_size": (640, 480)}
 
@@ -71,7 +71,8 @@ def isolated_grasps(shape: str, episodes: int, action_mode: str = "primitive") -
 def clutter(episodes: int) -> dict:
     env = gym.make("panda_grasp_env:PandaGraspClutter-v0", primitive_z=True, **RGBD)
     agent = PlannedGraspAgent()
-    completed = attempted = succeeded = actions = in_play = all_grasped = 0
+    completed = actions = in_play = all_grasped = 0
+    attempted, succeeded = [], []  # per episode
     failures, seconds = Counter(), []
     for seed in range(episodes):
         observation, info = env.reset(seed=seed)
@@ -80,8 +81,8 @@ def clutter(episodes: int) -> dict:
         final, steps = run_episode_from(env, agent, observation, info)
         completed += final["objects_remaining"] == 0
         all_grasped += final["is_success"]
-        attempted += final["grasps_attempted"]
-        succeeded += final["grasps_succeeded"]
+        attempted.append(final["grasps_attempted"])
+        succeeded.append(final["grasps_succeeded"])
         actions += len(steps)
         failures.update(agent.failures)
         seconds += agent.compute_seconds
@@ -89,7 +90,7 @@ def clutter(episodes: int) -> dict:
     return {
         "completion": rate(completed, episodes),
         "every_object_grasped": rate(all_grasped, episodes),
-        "grasp_success": rate(succeeded, attempted),
+        "grasp_success": clustered_rate(succeeded, attempted),
         "action_efficiency": in_play / actions,
         "actions": actions,
         "failures": dict(failures),

@@ -110,3 +110,15 @@ def test_a_fresh_run_keeps_the_previous_runs_episodes(tmp_path):
     out = run(tmp_path, "out")  # again, without --resume
     assert (out / "episodes.jsonl.prev").read_text() == first
     assert len((out / "episodes.jsonl").read_text().splitlines()) == len(first.splitlines())
+
+
+def test_grasp_success_interval_widens_when_an_episodes_grasps_fail_together():
+    from agents.evaluation import clustered_rate, wilson
+
+    spread = clustered_rate([3, 3, 3, 3], [4, 4, 4, 4])  # every episode 3 of 4: no sign of clustering
+    assert spread["ci95"] == wilson(12, 16) and spread["design_effect"] == 1.0
+    together = clustered_rate([4, 4, 4, 0], [4, 4, 4, 4])  # the same 12/16, all failures in one episode
+    assert together["rate"] == spread["rate"] and together["design_effect"] > 2
+    (low, high), (w_low, w_high) = together["ci95"], wilson(12, 16)
+    assert low < w_low and high > w_high
+    assert clustered_rate([5, 0], [5, 0])["ci95"] == wilson(5, 5)  # one episode with grasps: nothing to cluster
