@@ -169,23 +169,22 @@ def _append(path: Path, record: dict) -> None:
         os.fsync(handle.fileno())
 
 
-def _load(path: Path, code: str) -> dict[str, dict]:
-    """The finished episodes in ``path`` that this code (``commit()``) ran.  A line cut short by an
-    interruption, and an episode run by other code (mixing them would report neither), are run again."""
-    done, stale = {}, 0
+def _load(path: Path, code: str) -> tuple[dict[str, dict], list[str]]:
+    """The finished episodes in ``path`` that this code (``commit()``) ran, by key, and the lines of those
+    another commit ran (or that predate the commit field): mixing them would report neither.  A line cut
+    short by an interruption is in neither (that episode runs again)."""
+    done, stale = {}, []
     if path.exists():
         for line in path.read_text().splitlines():
             try:
                 record = json.loads(line)
             except json.JSONDecodeError:
                 continue
-            if record.get("commit") != code:
-                stale += 1
-                continue
-            done[record["key"]] = record
-    if stale:
-        print(f"{stale} episode(s) in {path} were run by other code than {code}: running them again")
-    return done
+            if record.get("commit") == code:
+                done[record["key"]] = record
+            else:
+                stale.append(line)
+    return done, stale
 
 
 def _run_job(spec: EpisodeSpec) -> dict:
@@ -214,10 +213,17 @@ def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) 
     from tqdm import tqdm
 
     code = commit()
-    done = _load(log, code) if args.resume else {}
+    previous = log.with_name(log.name + ".prev")
+    done, stale = _load(log, code) if args.resume else ({}, [])
     if not args.resume and log.exists() and log.stat().st_size:  # a fresh run keeps the last one's episodes
-        os.replace(log, log.with_name(log.name + ".prev"))
-        print(f"earlier episodes moved to {log.name}.prev (continue a run with --resume)")
+        os.replace(log, previous)
+        print(f"earlier episodes moved to {previous.name} (continue a run with --resume)")
+    if stale:  # kept aside, not mixed in
+        with previous.open("a") as handle:
+            handle.write("".join(line + "\n" for line in stale))
+        print(
+            f"{len(stale)} episode(s) run by code other than {code} moved to {previous.name}; this run redoes its own"
+        )
     if log.exists():  # keep only whole records (an interruption can cut the last line short)
         write_atomically(log, "".join(json.dumps(r, sort_keys=True) + "\n" for r in done.values()))
     todo = [s for s in specs if s.key not in done]
@@ -277,7 +283,7 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
     payload = {
         "protocol": protocol,
         "metrics": table,
-        "episodes": sorted(results, key=lambda r: json.dumps(r["spec"], sort_keys=True)),
+        "episodes": sorted(results, key=lambda r: (r["spec"]["agent"], r["spec"]["task"], r["spec"]["seed"])),
     }
     write_atomically(args.out / "results.json", json.dumps(payload, indent=2, sort_keys=True))
     rows = [

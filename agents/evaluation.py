@@ -231,6 +231,13 @@ def clustered_rate(successes: list[int], attempts: list[int]) -> dict[str, Any]:
     return result
 
 
+def describe_rate(r: dict[str, Any]) -> str:
+    """``rate`` / ``clustered_rate`` as text: "72.5 % (335/462, 95 % CI 68.3-76.4[, design effect 1.20])"."""
+    low, high = r["ci95"]
+    clustered = f", design effect {r['design_effect']:.2f}" if r.get("design_effect", 1.0) > 1.0 else ""
+    return f"{100 * r['rate']:.1f} % ({r['successes']}/{r['n']}, 95 % CI {100 * low:.1f}-{100 * high:.1f}{clustered})"
+
+
 def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     """Metrics per ``agent/task`` from episode results (deterministic: no wall-clock figures)."""
     groups: dict[str, list[dict[str, Any]]] = {}

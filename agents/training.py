@@ -30,7 +30,7 @@ import gymnasium as gym
 import numpy as np
 import yaml
 
-from agents.evaluation import EpisodeSpec, aggregate, is_low_level, play_episode, task_label
+from agents.evaluation import EpisodeSpec, aggregate, describe_rate, is_low_level, play_episode, task_label
 from panda_grasp_env.runs import (
     atomic_path,
     check_resume_changes,
@@ -757,7 +757,7 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
     def pct(r: dict[str, Any]) -> str:
         if r["n"] == 0:
             return "- (none attempted)"
-        return f"{100 * r['rate']:.1f} % ({r['successes']}/{r['n']}, 95 % CI {100 * r['ci95'][0]:.1f}-{100 * r['ci95'][1]:.1f})"
+        return describe_rate(r)
 
     lines = [
         f"# {config.name}",

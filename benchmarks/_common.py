@@ -12,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from agents.evaluation import clustered_rate, rate, wilson  # noqa: F401  (one implementation each)
+from agents.evaluation import clustered_rate, describe_rate, rate, wilson  # noqa: F401  (one implementation each)
 from agents.learned import Checkpoint, available_checkpoints
 from panda_grasp_env.runs import machine as machine_name
 from panda_grasp_env.runs import write_atomically

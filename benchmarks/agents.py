@@ -33,7 +33,7 @@ import gymnasium as gym
 
 from agents.grasping import PlannedGraspAgent
 from agents.towers import OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
-from benchmarks._common import Results, clustered_rate, rate
+from benchmarks._common import Results, clustered_rate, describe_rate, rate
 
 RGBD = {"obs_mode": "rgbd", "image_size": (640, 480)}
 
@@ -136,12 +136,6 @@ def breaking(episodes: int) -> dict:
     return {"success": rate(successes, episodes), "actions_per_trial": actions / episodes}
 
 
-def fmt(r: dict) -> str:
-    return (
-        f"{100 * r['rate']:5.1f} % ({r['successes']}/{r['n']}, CI {100 * r['ci95'][0]:.1f}-{100 * r['ci95'][1]:.1f} %)"
-    )
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--isolated", type=int, default=200, help="isolated-cube episodes")
@@ -157,33 +151,33 @@ def main() -> None:
         n = args.isolated if shape == "cube" else args.shapes
         r = results.section(f"grasp_{shape}", lambda shape=shape, n=n: isolated_grasps(shape, n))
         print(
-            f"planned grasp, isolated {shape:8s}: first attempt {fmt(r['first_attempt'])}, within 3 "
-            f"{fmt(r['within_3'])}; {r['ms_per_attempt_median']:.0f} ms per attempt; {r['failures']}"
+            f"planned grasp, isolated {shape:8s}: first attempt {describe_rate(r['first_attempt'])}, within 3 "
+            f"{describe_rate(r['within_3'])}; {r['ms_per_attempt_median']:.0f} ms per attempt; {r['failures']}"
         )
     print("    (goal: cubes >= 98 % first, >= 99.5 % within 3; other shapes >= 90 %; <= 100 ms per attempt)")
     r = results.section("grasp_cube_motion_stack", lambda: isolated_grasps("cube", args.pose, "grasp_pose"))
     print(
         f"planned grasp through the motion stack (action_mode='grasp_pose': tolerance IK, RRTConnect, ruckig), "
-        f"isolated cubes: first attempt {fmt(r['first_attempt'])}, within 3 {fmt(r['within_3'])}; "
+        f"isolated cubes: first attempt {describe_rate(r['first_attempt'])}, within 3 {describe_rate(r['within_3'])}; "
         f"{r['ms_per_attempt_median']:.0f} ms perception + {r['ms_per_env_step_median']:.0f} ms per env step "
         f"(IK, plan, simulation); {r['failures']}"
     )
     c = results.section("clutter", lambda: clutter(args.clutter))
     print(
-        f"planned grasp, clutter of 10: completion {fmt(c['completion'])}, grasp success {fmt(c['grasp_success'])}, "
-        f"action efficiency {100 * c['action_efficiency']:.1f} %, every object grasped {fmt(c['every_object_grasped'])}; "
+        f"planned grasp, clutter of 10: completion {describe_rate(c['completion'])}, grasp success {describe_rate(c['grasp_success'])}, "
+        f"action efficiency {100 * c['action_efficiency']:.1f} %, every object grasped {describe_rate(c['every_object_grasped'])}; "
         f"{c['failures']}  (goal: completion >= 95 %, grasp success >= 85 %; VPG 100 / 67.7 / 60.9 %)"
     )
     for oracle in (False, True):
         t = results.section(f"towers_{'oracle' if oracle else 'camera'}", lambda o=oracle: towers(args.towers, o))
         print(
-            f"tower builder ({'oracle' if oracle else 'perception'}): success {fmt(t['success'])}, "
+            f"tower builder ({'oracle' if oracle else 'perception'}): success {describe_rate(t['success'])}, "
             f"action efficiency {100 * t['action_efficiency']:.1f} %; {t['failures']}"
             + ("" if oracle else "  (goal >= 95 %, efficiency >= 85 %; SPOT 100 % at 45-51 %)")
         )
     b = results.section("breaking", lambda: breaking(args.towers))
     print(
-        f"tower breaker (perception): success {fmt(b['success'])}, {b['actions_per_trial']:.2f} actions per trial  (goal >= 99 %)"
+        f"tower breaker (perception): success {describe_rate(b['success'])}, {b['actions_per_trial']:.2f} actions per trial  (goal >= 99 %)"
     )
     print(f"saved {args.out}")
 

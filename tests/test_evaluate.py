@@ -47,7 +47,9 @@ def test_resume_runs_again_the_episodes_other_code_ran(tmp_path, capsys):
     records[0]["commit"] = "0000000"  # as if an earlier checkout had run it
     (partial / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records[:2]))
     run(tmp_path, "partial", "--resume")
-    assert "1 episode(s)" in capsys.readouterr().out
+    assert "1 episode(s) run by code other than" in capsys.readouterr().out
+    set_aside = [json.loads(line) for line in (partial / "episodes.jsonl.prev").read_text().splitlines()]
+    assert set_aside == [records[0]]  # kept aside, not lost
     resumed = [json.loads(line) for line in (partial / "episodes.jsonl").read_text().splitlines()]
     assert {r["commit"] for r in resumed} == {records[1]["commit"]}
     assert [r["timing"] for r in resumed if r["key"] == records[1]["key"]] == [records[1]["timing"]]  # kept
