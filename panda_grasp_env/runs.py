@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import json
 import os
 import platform
@@ -66,10 +67,13 @@ def machine() -> str:
     return f"{cpu}, {os.cpu_count()} logical cores"
 
 
+@functools.cache
 def commit() -> str:
     """Short hash of the checked-out commit of this repository, ``+changes`` if tracked files differ from
     it (the run used code no commit holds), or ``unknown``.  The shipped checkpoint folders do not count:
-    a retest rewrites their results, not the code."""
+    a retest rewrites their results, not the code.  Read once per process: a process runs the code it
+    imported, so the final test at the end of a two-hour run is labelled with that code, not with commits
+    made while it ran."""
     root = Path(__file__).resolve().parent.parent
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
