@@ -30,6 +30,12 @@ def median_rate(run: Callable[[], int], repeats: int = 5) -> float:
     return statistics.median(rates)
 
 
+def policy_figures(metrics: dict[str, Any]) -> dict[str, Any]:
+    """The task figures a policy benchmark saves from ``agents.evaluation.aggregate``'s metrics."""
+    keys = ("trial_success", "completion", "grasp_success", "action_efficiency", "failures", "episodes", "seeds")
+    return {key: metrics[key] for key in keys}
+
+
 def shipped_checkpoints(heightmap: bool) -> list[str]:
     """Names of the shipped heightmap (pixel-action DQN) checkpoints, or of the low-level ones."""
     return [name for name in available_checkpoints() if (Checkpoint(name).config.algo == "heightmap_dqn") == heightmap]

@@ -21,7 +21,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from agents.learned import Checkpoint
 from agents.training import TEST_SEED_OFFSET, evaluate_policy
-from benchmarks._common import Results, shipped_checkpoints
+from benchmarks._common import Results, policy_figures, shipped_checkpoints
 
 
 def measure(name: str, episodes: int | None, avoid_failures: bool) -> dict:
@@ -34,8 +34,7 @@ def measure(name: str, episodes: int | None, avoid_failures: bool) -> dict:
         first_seed=config.eval_seed + TEST_SEED_OFFSET,
         avoid_failures=avoid_failures,
     )
-    return {key: metrics[key] for key in ("trial_success", "completion", "grasp_success", "action_efficiency",
-                                          "failures", "episodes", "seeds")}  # fmt: skip
+    return policy_figures(metrics)
 
 
 def main() -> None:

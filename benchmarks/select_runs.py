@@ -24,7 +24,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from agents.evaluation import describe_rate
 from agents.training import TEST_SEED_OFFSET, evaluate_policy, load_best_policy, load_run, validation_score
-from benchmarks._common import Results
+from benchmarks._common import Results, policy_figures
 
 #: Selection seeds start this far above the validation seeds (runs validate on far fewer episodes).
 SELECTION_SEED_OFFSET = 1_000
@@ -32,12 +32,9 @@ SELECTION_SEED_OFFSET = 1_000
 
 def measure(run_dir: Path, episodes: int) -> dict:
     config = load_run(run_dir)
-    if episodes > TEST_SEED_OFFSET - SELECTION_SEED_OFFSET:
-        raise ValueError(f"--episodes {episodes} would reach the test seeds")
     policy, best = load_best_policy(run_dir)
     metrics = evaluate_policy(policy, config, episodes, first_seed=config.eval_seed + SELECTION_SEED_OFFSET)
-    keys = ("trial_success", "completion", "grasp_success", "action_efficiency", "failures", "episodes", "seeds")
-    return {"best_steps": best["steps"], **{key: metrics[key] for key in keys}}
+    return {"best_steps": best["steps"], **policy_figures(metrics)}
 
 
 def main() -> None:
@@ -47,8 +44,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("results/benchmarks/select_runs.json"))
     parser.add_argument("--resume", action="store_true", help="keep the runs already measured in --out")
     args = parser.parse_args()
-    if args.episodes < 1:
-        parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if not 1 <= args.episodes <= TEST_SEED_OFFSET - SELECTION_SEED_OFFSET:
+        parser.error(f"--episodes must be in [1, {TEST_SEED_OFFSET - SELECTION_SEED_OFFSET}] (clear of the test seeds)")
     for run_dir in args.runs:  # a wrong folder fails before anything runs
         if not (run_dir / "best.json").is_file():
             parser.error(f"{run_dir} has no best.json: not a finished run folder")
