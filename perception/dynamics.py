@@ -3,13 +3,16 @@
 Input: the past ``context`` frames as one-hot class maps (background + one class
 per block colour, ``perception/falls.py``).  Five convolutions encode each
 frame to a quarter-resolution feature map, a ConvLSTM carries the motion, and
-five convolutions decode, with skip connections from the newest frame's
-encoder features, a residual flow field and correction logits.  Blocks mostly
-translate between frames, so each block's channel of the newest frame is
-shifted by that block's own velocity -- its centroid step from the frame before,
-computed from the inputs (constant velocity) -- plus the learned residual flow
-(acceleration, impacts), and the correction logits add what warping cannot
-(rotation, occlusion, blocks coming into view).  Untrained, the model is
+five convolutions decode correction logits, with skip connections from the
+newest frame's encoder features.  Blocks mostly translate between frames, so
+each block's channel of the newest frame is shifted, as a whole, by that
+block's predicted displacement: its own velocity (the centroid step from the
+frame before, computed from the inputs: constant velocity) plus a correction
+from a small motion network that reads the block's last ``MOTION_HISTORY``
+steps (velocity, visible area and, with depth, mean height, each with its
+change) and the ConvLSTM's features pooled over the block (contacts,
+landings).  The correction logits add what translation cannot (rotation,
+occlusion, blocks coming into view).  Untrained, the model is
 constant-velocity extrapolation with soft edges.  Multi-step rollouts feed the
 predicted class probabilities back in (their centroids give the next velocity).
 
@@ -43,10 +46,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-#: Pixels of residual flow per unit of the decoder's flow output.
-FLOW_SCALE = 4.0
 #: Changes whenever the same weights would mean another model; saved in checkpoints and checked on load.
-ARCHITECTURE = 2
+ARCHITECTURE = 3
+#: Steps of each block's motion the motion network reads.
+MOTION_HISTORY = 3
 #: Metres of height per unit of a height map (one block's edge).
 HEIGHT_UNIT = 0.05
 
@@ -96,92 +99,117 @@ class FallPredictor(nn.Module):
         self.d2 = conv(64 + 32, 32)
         self.d3 = conv(32, 32)
         self.d4 = conv(32 + 16, 16)
-        self.d5 = nn.Conv2d(16, 2 + channels, 3, padding=1)  # residual flow (x, y), correction logits [, heights]
-        nn.init.zeros_(self.d5.weight)
-        nn.init.zeros_(self.d5.bias)  # starts as constant-velocity extrapolation
+        self.d5 = nn.Conv2d(16, channels, 3, padding=1)  # correction logits [, heights]
+        self.block_features = 4 + 2 * int(use_depth)  # see block_descriptors
+        self.motion = nn.Sequential(
+            nn.Linear(MOTION_HISTORY * self.block_features + hidden, 128),
+            nn.ReLU(),
+            nn.Linear(128, 128),
+            nn.ReLU(),
+            nn.Linear(128, 2),
+        )
+        for layer in (self.d5, self.motion[-1]):  # starts as constant-velocity extrapolation
+            nn.init.zeros_(layer.weight)
+            nn.init.zeros_(layer.bias)
         self.copy_gain = nn.Parameter(torch.tensor(1.0))
         axis = (torch.arange(image_size, dtype=torch.float32) + 0.5) / image_size * 2 - 1
         rows, cols = torch.meshgrid(axis, axis, indexing="ij")
         self.register_buffer("grid", torch.stack([cols, rows], -1)[None], persistent=False)
         self.register_buffer("pixels", torch.arange(image_size, dtype=torch.float32), persistent=False)
 
-    def block_velocities(self, frame: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
-        """(B, K, 2) centroid step (x, y pixels) of each block class's probability mass from ``previous`` to
-        ``frame`` (B, C, S, S); zero for a block with under a pixel of mass in either."""
+    def block_descriptors(self, frame: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
+        """(B, K, F) of each block class from its probability mass in ``frame`` and ``previous`` (B, C [+ 1], S, S):
+        velocity (x, y: centroid step in pixels, zero for a block with under a pixel of mass in either frame),
+        visible area (hundreds of pixels) and its change, and with ``use_depth`` mean height (blocks) and its
+        change."""
 
-        def centroids(frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-            masks = frames[:, 1:]
+        def measure(frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+            masks = frames[:, 1 : self.n_classes]
             mass = masks.sum((2, 3))
             x = (masks.sum(2) * self.pixels).sum(2) / mass.clamp_min(1e-6)
             y = (masks.sum(3) * self.pixels).sum(2) / mass.clamp_min(1e-6)
-            return torch.stack([x, y], 2), mass
+            height = (masks * frames[:, self.n_classes :]).sum((2, 3)) / mass.clamp_min(1e-6) if self.use_depth \
+                else mass.new_zeros(0)  # fmt: skip
+            return torch.stack([x, y], 2), mass, height
 
-        now, mass_now = centroids(frame[:, : self.n_classes])
-        before, mass_before = centroids(previous[:, : self.n_classes])
-        seen = ((mass_now > 1.0) & (mass_before > 1.0)).float()[..., None]
-        return (now - before) * seen
+        (now, mass_now, height_now), (before, mass_before, height_before) = measure(frame), measure(previous)
+        seen = ((mass_now > 1.0) & (mass_before > 1.0)).float()
+        features = [
+            (now - before) * seen[..., None],
+            mass_now[..., None] / 100,
+            (mass_now - mass_before)[..., None] / 100,
+        ]
+        if self.use_depth:
+            features += [height_now[..., None], ((height_now - height_before) * seen)[..., None]]
+        return torch.cat(features, 2)
 
     def step(
         self, frame: torch.Tensor, previous: torch.Tensor, state: Any
     ) -> tuple[torch.Tensor, torch.Tensor, Any, torch.Tensor | None]:
         """Consume one frame (B, C [+ 1], S, S) (with the one before it, so that the first convolutions see
-        motion directly); logits of the next frame, each block's flow (B, K, 2, S, S) that warped it (pixels,
-        x = column then y = row: block k's channel of the next frame at p is drawn from this frame's at
-        p + flow[:, k]), the new state and, with ``use_depth``, the next height map (B, 1, S, S)."""
+        motion directly); logits of the next frame, each block's displacement (B, K, 2) that moved it (pixels,
+        x = column then y = row), the new state and, with ``use_depth``, the next height map (B, 1, S, S)."""
         f1 = self.e1(torch.cat([frame, previous], 1))
         f3 = self.e3(self.e2(f1))
         f5 = self.e5(self.e4(f3))
-        h, c = self.lstm(f5, state)
+        h, c = self.lstm(f5, None if state is None else state[:2])
         x = self.d1(torch.cat([h, f5], 1))
         x = self.d3(self.d2(torch.cat([F.interpolate(x, scale_factor=2.0), f3], 1)))
         out = self.d5(self.d4(torch.cat([F.interpolate(x, scale_factor=2.0), f1], 1)))
         batch, blocks, size, n = frame.shape[0], self.n_classes - 1, self.image_size, self.n_classes
-        velocity = self.block_velocities(frame, previous)
-        flows = out[:, None, :2] * FLOW_SCALE - velocity[..., None, None]  # (B, K, 2, S, S)
-        grids = self.grid[:, None] + flows.permute(0, 1, 3, 4, 2) * (2.0 / size)  # pixels -> grid units
+        descriptors = self.block_descriptors(frame, previous)
+        history = descriptors.new_zeros(batch, blocks, MOTION_HISTORY, self.block_features) if state is None \
+            else state[2]  # fmt: skip
+        history = torch.cat([history[:, :, 1:], descriptors[:, :, None]], 2)
+        coarse = F.avg_pool2d(frame[:, 1:n], size // h.shape[-1])  # block masks at the ConvLSTM's resolution
+        pooled = torch.einsum("bkhw,bchw->bkc", coarse, h) / coarse.sum((2, 3)).clamp_min(1e-3)[..., None]
+        displacement = descriptors[..., :2] + self.motion(torch.cat([history.flatten(2), pooled], 2))
+        # Block k's channel of the next frame at p is drawn from this frame's at p - displacement[k].
+        grids = self.grid[:, None] - displacement[:, :, None, None, :] * (2.0 / size)  # pixels -> grid units
         masks = frame[:, 1:n, None]  # (B, K, 1, S, S); with depth each block also carries its heights
         carried = torch.cat([masks, masks * frame[:, n:, None]], 2) if self.use_depth else masks
         moved = F.grid_sample(
             carried.reshape(batch * blocks, carried.shape[2], size, size),
-            grids.reshape(batch * blocks, size, size, 2),
+            grids.expand(batch, blocks, size, size, 2).reshape(batch * blocks, size, size, 2),
             mode="bilinear",
             padding_mode="zeros",
             align_corners=False,
         ).view(batch, blocks, carried.shape[2], size, size)
         warped = torch.cat([(1.0 - moved[:, :, 0].sum(1, keepdim=True)).clamp_min(0.0), moved[:, :, 0]], 1)
-        logits = self.copy_gain * torch.log(warped + 0.1) + out[:, 2 : 2 + n]
-        heights = moved[:, :, 1].sum(1, keepdim=True) + out[:, 2 + n :] if self.use_depth else None
-        return logits, flows, (h, c), heights
+        logits = self.copy_gain * torch.log(warped + 0.1) + out[:, :n]
+        heights = moved[:, :, 1].sum(1, keepdim=True) + out[:, n:] if self.use_depth else None
+        return logits, displacement, (h, c, history), heights
 
-    def rollout_with_flow(
+    def rollout_with_motion(
         self, frames: torch.Tensor, horizon: int
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """Logits (B, horizon, C, S, S) of the ``horizon`` frames after ``frames`` (B, T, C [+ 1], S, S), the
-        block flows (B, horizon, K, 2, S, S) that produced them (see ``step``) and, with ``use_depth``, the
+        block displacements (B, horizon, K, 2) that produced them (see ``step``) and, with ``use_depth``, the
         predicted height maps (B, horizon, 1, S, S)."""
         if frames.shape[2] != self.n_classes + int(self.use_depth):
             raise ValueError(
                 f"frames have {frames.shape[2]} channels; this model reads {self.n_classes} classes"
                 + (" and a height map" if self.use_depth else "")
             )
-        state, logits, flow, heights = None, None, None, None
+        state, logits, motion, heights = None, None, None, None
         for t in range(frames.shape[1]):
-            logits, flow, state, heights = self.step(frames[:, t], frames[:, max(t - 1, 0)], state)
-        outputs, flows, all_heights, previous = [logits], [flow], [heights], frames[:, -1]
+            logits, motion, state, heights = self.step(frames[:, t], frames[:, max(t - 1, 0)], state)
+        outputs, motions, all_heights, previous = [logits], [motion], [heights], frames[:, -1]
         for _ in range(horizon - 1):
             frame = torch.softmax(logits, 1)
             if self.use_depth:
                 frame = torch.cat([frame, heights], 1)
-            logits, flow, state, heights = self.step(frame, previous, state)
+            logits, motion, state, heights = self.step(frame, previous, state)
             outputs.append(logits)
-            flows.append(flow)
+            motions.append(motion)
             all_heights.append(heights)
             previous = frame
-        return torch.stack(outputs, 1), torch.stack(flows, 1), torch.stack(all_heights, 1) if self.use_depth else None
+        stacked_heights = torch.stack(all_heights, 1) if self.use_depth else None
+        return torch.stack(outputs, 1), torch.stack(motions, 1), stacked_heights
 
     def rollout(self, frames: torch.Tensor, horizon: int) -> torch.Tensor:
         """Logits (B, horizon, C, S, S) of the ``horizon`` frames after ``frames`` (B, T, C [+ 1], S, S)."""
-        return self.rollout_with_flow(frames, horizon)[0]
+        return self.rollout_with_motion(frames, horizon)[0]
 
     def describe(self) -> dict[str, int]:
         return {
@@ -216,29 +244,23 @@ def model_inputs(model: FallPredictor, labels: Any, depth: Any = None) -> torch.
     return torch.cat([frames, heights(torch.as_tensor(depth))], -3)
 
 
-def block_flow_targets(before: torch.Tensor, after: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The flow a frame-to-frame warp should use, from true labels (B, S, S) of two consecutive frames.
-
-    Each block is taken to translate by its mask centroid's displacement d; the next frame at a pixel of
-    that block is then drawn from p - d.  Returns the target flow (B, 2, S, S) in pixels (x, y) and a mask
-    (B, S, S) of the pixels it is defined on: blocks seen in both frames, where they are in ``after``.
-    """
+def block_displacements(before: torch.Tensor, after: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each block's centroid displacement (B, K, 2) in pixels (x, y) between true labels (B, S, S) of two
+    consecutive frames -- what the model's displacement should be -- and each block's area in ``after``
+    (B, K), zero where the block is missing from either frame (no displacement defined)."""
     n_classes = int(max(before.max(), after.max())) + 1
-    size = before.shape[-1]
-    axis = torch.arange(size, dtype=torch.float32, device=before.device)
-    masks_before, masks_after = one_hot(before, n_classes)[:, 1:], one_hot(after, n_classes)[:, 1:]
+    axis = torch.arange(before.shape[-1], dtype=torch.float32, device=before.device)
 
-    def centroids(masks: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def centroids(labels: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        masks = one_hot(labels, n_classes)[:, 1:]
         area = masks.sum((2, 3))
         x = (masks.sum(2) * axis).sum(2) / area.clamp_min(1.0)
         y = (masks.sum(3) * axis).sum(2) / area.clamp_min(1.0)
-        return torch.stack([x, y], 2), area > 0  # (B, blocks, 2), (B, blocks)
+        return torch.stack([x, y], 2), area
 
-    start, seen_before = centroids(masks_before)
-    end, seen_after = centroids(masks_after)
-    usable = (seen_before & seen_after).float()[:, :, None, None] * masks_after  # (B, blocks, S, S)
-    flow = torch.einsum("bkhw,bkc->bchw", usable, start - end)
-    return flow, usable.sum(1) > 0
+    start, area_before = centroids(before)
+    end, area_after = centroids(after)
+    return end - start, area_after * (area_before > 0)
 
 
 def check_compatible(model: FallPredictor, labels: np.ndarray, classes: list[str], depth: Any = None) -> None:
@@ -358,9 +380,10 @@ def evaluate(
     horizons: tuple[int, ...] = (1, 5),
     batch_size: int = 64,
     depth: np.ndarray | None = None,
+    baselines: bool = True,
 ) -> dict[str, dict[str, Any]]:
-    """Metrics of the model (if given) and the baselines at each horizon over sequences ``labels`` (N, T, S, S)
-    (with their depth images (N, T, S, S) for a ``use_depth`` model).
+    """Metrics of the model (if given) and, with ``baselines``, the baselines at each horizon over sequences
+    ``labels`` (N, T, S, S) (with their depth images (N, T, S, S) for a ``use_depth`` model).
 
     Evaluated at every t with ``context`` frames up to t and t + max(horizons) inside the sequence.
     """
@@ -372,10 +395,9 @@ def evaluate(
         )
     starts = [(i, t) for i in range(n) for t in range(max(context - 1, 1), last + 1)]
     n_classes = len(classes)
-    scores = {
-        name: {h: Confusion(n_classes) for h in horizons} for name in (["model"] if model else []) + list(BASELINES)
-    }
-    for name, baseline in BASELINES.items():
+    compared = BASELINES if baselines else {}
+    scores = {name: {h: Confusion(n_classes) for h in horizons} for name in (["model"] if model else []) + [*compared]}
+    for name, baseline in compared.items():
         for i, t in starts:
             for h in horizons:
                 scores[name][h].add(labels[i, t + h], baseline(labels[i], t, h))

@@ -2,10 +2,12 @@
 
 Each step samples sequences and a window: ``context`` true frames in, then a
 ``rollout``-step free-running prediction (probabilities fed back), scored by
-cross-entropy plus a soft block IoU -- trained the way it is evaluated -- plus,
-weighted by ``flow_loss_weight``, the distance of the model's warp flow from
-each block's true centroid displacement (``block_flow_targets``): through the
-warp alone, flow gets gradient only at block edges and barely learns.  With
+cross-entropy plus a soft block IoU -- trained the way it is evaluated, with the
+first step (t+1) counted ``1 + next_frame_loss_weight`` times -- plus,
+weighted by ``motion_loss_weight``, the distance of each block's predicted
+displacement from its true centroid displacement (``block_displacements``):
+through the warp alone, motion gets gradient only at block edges and barely
+learns.  With
 ``use_depth`` the model also reads height maps from the depth images and is
 scored, weighted by ``height_loss_weight``, on the heights it predicts (mean
 absolute error in blocks).  The run
@@ -41,7 +43,7 @@ from panda_grasp_env.runs import (
 from perception.dynamics import (
     ARCHITECTURE,
     FallPredictor,
-    block_flow_targets,
+    block_displacements,
     check_compatible,
     evaluate,
     heights,
@@ -69,7 +71,8 @@ class FallConfig:
     epochs: int = 30
     batch_size: int = 16
     learning_rate: float = 0.002
-    flow_loss_weight: float = 1.0
+    motion_loss_weight: float = 1.0
+    next_frame_loss_weight: float = 0.0  # extra weight of the t+1 prediction's loss (the headline metric)
     use_depth: bool = False  # also read the depth images (height maps; see perception/dynamics.py)
     height_loss_weight: float = 1.0
     seed: int = 0
@@ -87,7 +90,7 @@ class FallConfig:
             raise ValueError(f"config label_source={self.label_source!r}: expected 'labels' or 'colour_labels'")
         if not (isinstance(self.learning_rate, (int, float)) and 0 < self.learning_rate < 1):
             raise ValueError(f"config learning_rate={self.learning_rate!r}: expected a number in (0, 1)")
-        for key in ("flow_loss_weight", "height_loss_weight"):
+        for key in ("motion_loss_weight", "next_frame_loss_weight", "height_loss_weight"):
             value = getattr(self, key)
             if not (isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0):
                 raise ValueError(f"config {key}={value!r}: expected a number >= 0")
@@ -117,16 +120,14 @@ def prediction_loss(logits: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
     return F.cross_entropy(logits, truth.long()) + (1.0 - soft_iou)
 
 
-def flow_loss(flows: torch.Tensor, before: torch.Tensor, after: torch.Tensor) -> torch.Tensor:
-    """Mean distance in pixels (smooth below 0.1 px) of predicted block flows (N, K, 2, S, S) from the block
-    centroid displacements between true frames ``before`` and ``after`` (N, S, S), over the blocks' pixels
-    in ``after`` (each pixel read from its own block's flow).  In pixels, not flow units: blocks move ~1 px
-    a frame on average, and a sub-pixel error costs IoU."""
-    target, mask = block_flow_targets(before, after)
-    own_block = one_hot(after, flows.shape[1] + 1)[:, 1:, None]  # (N, K, 1, S, S)
-    flow = (flows * own_block).sum(1)
-    distance = F.smooth_l1_loss(flow, target, reduction="none", beta=0.1).sum(1)
-    return (distance * mask).sum() / mask.sum().clamp_min(1.0)
+def motion_loss(displacements: torch.Tensor, before: torch.Tensor, after: torch.Tensor) -> torch.Tensor:
+    """Distance in pixels (smooth below 0.1 px) of predicted block displacements (N, K, 2) from the blocks'
+    centroid displacements between true frames ``before`` and ``after`` (N, S, S), weighted by each block's
+    area in ``after`` (as the IoU weighs it).  In pixels: blocks move ~1 px a frame on average, and a
+    sub-pixel error costs IoU."""
+    target, area = block_displacements(before, after)
+    distance = F.smooth_l1_loss(displacements, target, reduction="none", beta=0.1).sum(2)
+    return (distance * area).sum() / area.sum().clamp_min(1.0)
 
 
 def load_fall_model(path: Path | str) -> tuple[FallPredictor, dict[str, Any]]:
@@ -247,15 +248,19 @@ def train_fall_model(
                 inputs = model_inputs(
                     model, clips[:, : config.context], None if depths is None else depths[:, : config.context]
                 )
-                logits, flows, predicted_heights = model.rollout_with_flow(inputs, config.rollout)
+                logits, motions, predicted_heights = model.rollout_with_motion(inputs, config.rollout)
                 truth = clips[:, config.context :].flatten(0, 1)
                 loss = prediction_loss(logits.flatten(0, 1), truth)
+                if config.next_frame_loss_weight:
+                    loss = loss + config.next_frame_loss_weight * prediction_loss(
+                        logits[:, 0], clips[:, config.context]
+                    )
                 if predicted_heights is not None and config.height_loss_weight:
                     true_heights = heights(depths[:, config.context :])
                     loss = loss + config.height_loss_weight * (predicted_heights - true_heights).abs().mean()
-                if config.flow_loss_weight:
+                if config.motion_loss_weight:
                     before = clips[:, config.context - 1 : -1].flatten(0, 1)
-                    loss = loss + config.flow_loss_weight * flow_loss(flows.flatten(0, 1), before, truth)
+                    loss = loss + config.motion_loss_weight * motion_loss(motions.flatten(0, 1), before, truth)
                 optimiser.zero_grad()
                 loss.backward()
                 optimiser.step()
@@ -263,7 +268,9 @@ def train_fall_model(
                 bar.update(1)
             schedule.step()
             epoch += 1
-            metrics = evaluate(model, val.labels, val.classes, config.context, depth=val.depth)["model"]
+            metrics = evaluate(model, val.labels, val.classes, config.context, depth=val.depth, baselines=False)[
+                "model"
+            ]
             score = metrics["t+1"]["mean_block_iou"]
             row = {
                 "epoch": epoch,

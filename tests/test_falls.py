@@ -149,8 +149,8 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
         load_fall_model(run / "older.pt")
 
 
-def test_untrained_model_moves_each_block_by_its_own_velocity_and_flow_targets_agree():
-    from perception.dynamics import FallPredictor, block_flow_targets, one_hot
+def test_untrained_model_moves_each_block_by_its_own_velocity_and_displacement_targets_agree():
+    from perception.dynamics import FallPredictor, block_displacements, one_hot
 
     labels = torch.zeros(1, 3, 32, 32, dtype=torch.long)
     for t in range(3):
@@ -161,9 +161,10 @@ def test_untrained_model_moves_each_block_by_its_own_velocity_and_flow_targets_a
     expected = torch.zeros(32, 32, dtype=torch.long)
     expected[10:16, 10:16], expected[20:26, 20:26] = 1, 2
     assert torch.equal(predicted, expected)
-    target, mask = block_flow_targets(labels[:, 1], labels[:, 2])
-    assert torch.allclose(target[0, :, 12, 12], torch.tensor([-2.0, 0.0])) and mask[0, 22, 22]
-    assert torch.allclose(target[0, :, 22, 22], torch.zeros(2))
+    target, area = block_displacements(labels[:, 1], labels[:, 2])
+    assert torch.allclose(target[0], torch.tensor([[2.0, 0.0], [0.0, 0.0]])) and area[0].tolist() == [36, 36]
+    labels[0, 2][labels[0, 2] == 2] = 0  # block 2 gone: no displacement to learn from
+    assert block_displacements(labels[:, 1], labels[:, 2])[1][0].tolist() == [36, 0]
 
 
 def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
@@ -175,7 +176,7 @@ def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
         labels[0, t, 10:16, 4 + 2 * t : 10 + 2 * t] = 1  # a block 5 cm tall moving 2 px a frame
         depth[0, t, 10:16, 4 + 2 * t : 10 + 2 * t] = 0.95
     model = FallPredictor(3, 32, context=3, hidden=8, use_depth=True)
-    logits, _, heights = model.rollout_with_flow(model_inputs(model, labels, depth), 2)
+    logits, _, heights = model.rollout_with_motion(model_inputs(model, labels, depth), 2)
     assert torch.equal(logits[0, 0].argmax(0)[10:16, 10:16], torch.ones(6, 6, dtype=torch.long))
     assert heights.shape == (1, 2, 1, 32, 32)
     assert torch.allclose(
