@@ -203,6 +203,7 @@ def train_fall_model(
     model = FallPredictor(n_classes, size, config.context, config.hidden, config.use_depth)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     epoch, wall_before, best = 0, 0.0, -1.0
+    unvalidated_loss = None  # the last epoch's training loss while its validation has not run
     if resume:
         saved = torch.load(run_dir / "latest.pt", map_location="cpu", weights_only=False)
         model.load_state_dict(saved["model"])
@@ -210,6 +211,7 @@ def train_fall_model(
         torch.set_rng_state(saved["torch_rng"])
         rng.bit_generator.state = saved["numpy_rng"]
         epoch, wall_before, best = saved["epoch"], saved["wall_seconds"], saved["best"]
+        unvalidated_loss = saved.get("unvalidated_loss")
     check_compatible(model, train.labels, train.classes, train.depth)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.epochs, last_epoch=epoch - 1) if epoch else \
         torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.epochs)  # fmt: skip
@@ -227,11 +229,35 @@ def train_fall_model(
                         "architecture": ARCHITECTURE,
                         "optimiser": optimiser.state_dict(), "torch_rng": torch.get_rng_state(),
                         "numpy_rng": rng.bit_generator.state, "epoch": epoch, "wall_seconds": wall(), "best": best,
+                        "unvalidated_loss": unvalidated_loss,
                         "frame_interval": train.frame_interval, "label_source": config.label_source}, tmp)  # fmt: skip
 
     bar = tqdm(total=config.epochs * batches, initial=epoch * batches, unit="batch", disable=not progress_bar,
                desc=config.name, mininterval=5.0)  # fmt: skip
+
+    def validate(loss: float) -> None:
+        """Score the model on validation after ``epoch``: evaluations.jsonl, TensorBoard, best.pt, latest.pt."""
+        nonlocal best, unvalidated_loss
+        metrics = evaluate(model, val.labels, val.classes, config.context, depth=val.depth, baselines=False)["model"]
+        score = metrics["t+1"]["mean_block_iou"]
+        row = {"epoch": epoch, "wall_seconds": round(wall(), 1), "loss": round(loss, 4), "val": metrics}
+        with open(run_dir / "evaluations.jsonl", "a") as log:
+            log.write(json.dumps(row) + "\n")
+        writer.add_scalar("train/loss", row["loss"], epoch)
+        for horizon in ("t+1", "t+5"):
+            writer.add_scalar(f"val/mean_block_iou_{horizon}", metrics[horizon]["mean_block_iou"], epoch)
+            writer.add_scalar(f"val/foreground_accuracy_{horizon}", metrics[horizon]["foreground_accuracy"], epoch)
+        bar.set_postfix_str(f"loss {row['loss']:.3f}, val block IoU t+1 {score:.3f}", refresh=False)
+        unvalidated_loss = None
+        if score > best:
+            best = score
+            checkpoint(run_dir / "best.pt")
+        checkpoint(run_dir / "latest.pt")
+        plot_fall_curve(run_dir)
+
     try:
+        if unvalidated_loss is not None:  # interrupted during that epoch's validation
+            validate(unvalidated_loss)
         while epoch < config.epochs:
             # Start no epoch that would end past the budget (at the mean epoch's duration so far).
             if config.max_minutes is not None and wall() * (1 + 1 / max(epoch, 1)) >= 60 * config.max_minutes:
@@ -268,28 +294,8 @@ def train_fall_model(
                 bar.update(1)
             schedule.step()
             epoch += 1
-            metrics = evaluate(model, val.labels, val.classes, config.context, depth=val.depth, baselines=False)[
-                "model"
-            ]
-            score = metrics["t+1"]["mean_block_iou"]
-            row = {
-                "epoch": epoch,
-                "wall_seconds": round(wall(), 1),
-                "loss": round(float(np.mean(losses)), 4),
-                "val": metrics,
-            }
-            with open(run_dir / "evaluations.jsonl", "a") as log:
-                log.write(json.dumps(row) + "\n")
-            writer.add_scalar("train/loss", row["loss"], epoch)
-            for horizon in ("t+1", "t+5"):
-                writer.add_scalar(f"val/mean_block_iou_{horizon}", metrics[horizon]["mean_block_iou"], epoch)
-                writer.add_scalar(f"val/foreground_accuracy_{horizon}", metrics[horizon]["foreground_accuracy"], epoch)
-            bar.set_postfix_str(f"loss {row['loss']:.3f}, val block IoU t+1 {score:.3f}", refresh=False)
-            if score > best:
-                best = score
-                checkpoint(run_dir / "best.pt")
-            checkpoint(run_dir / "latest.pt")
-            plot_fall_curve(run_dir)
+            unvalidated_loss = float(np.mean(losses))
+            validate(unvalidated_loss)
     except KeyboardInterrupt:
         checkpoint(run_dir / "latest.pt")
         raise

@@ -208,3 +208,21 @@ def test_the_shipped_fall_model_loads_and_matches_its_card():
     final = json.loads((path / "final.json").read_text())
     assert saved["classes"][0] == "background" and model.n_classes == len(saved["classes"])
     assert final["metrics"]["model"]["t+1"]["mean_block_iou"] > final["metrics"]["copy_last"]["t+1"]["mean_block_iou"]
+
+
+def test_an_epoch_interrupted_during_its_validation_is_validated_on_resume(dataset, tmp_path, monkeypatch):
+    config = "configs/fall_convlstm.yaml"
+    tiny = [f"dataset={dataset}", "hidden=8", "batch_size=4", "torch_threads=1", "context=3", "rollout=3", "epochs=1"]
+    scoring = dynamics_training.evaluate
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(dynamics_training, "evaluate", interrupted)
+    assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *tiny]) == 130
+    run = tmp_path / "fall_convlstm-seed0"
+    assert not (run / "evaluations.jsonl").exists() and not (run / "best.pt").exists()
+    monkeypatch.setattr(dynamics_training, "evaluate", scoring)
+    assert train.main(["--resume", str(run), "--no-progress"]) == 0
+    rows = [json.loads(line) for line in (run / "evaluations.jsonl").read_text().splitlines()]
+    assert [row["epoch"] for row in rows] == [1] and (run / "best.pt").exists()
