@@ -115,7 +115,6 @@ class FallPredictor(nn.Module):
         axis = (torch.arange(image_size, dtype=torch.float32) + 0.5) / image_size * 2 - 1
         rows, cols = torch.meshgrid(axis, axis, indexing="ij")
         self.register_buffer("grid", torch.stack([cols, rows], -1)[None], persistent=False)
-        self.register_buffer("pixels", torch.arange(image_size, dtype=torch.float32), persistent=False)
 
     def block_descriptors(self, frame: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
         """(B, K, F) of each block class from its probability mass in ``frame`` and ``previous`` (B, C [+ 1], S, S):
@@ -125,12 +124,10 @@ class FallPredictor(nn.Module):
 
         def measure(frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
             masks = frames[:, 1 : self.n_classes]
-            mass = masks.sum((2, 3))
-            x = (masks.sum(2) * self.pixels).sum(2) / mass.clamp_min(1e-6)
-            y = (masks.sum(3) * self.pixels).sum(2) / mass.clamp_min(1e-6)
+            centre, mass = mask_centroids(masks)
             height = (masks * frames[:, self.n_classes :]).sum((2, 3)) / mass.clamp_min(1e-6) if self.use_depth \
                 else mass.new_zeros(0)  # fmt: skip
-            return torch.stack([x, y], 2), mass, height
+            return centre, mass, height
 
         (now, mass_now, height_now), (before, mass_before, height_before) = measure(frame), measure(previous)
         seen = ((mass_now > 1.0) & (mass_before > 1.0)).float()
@@ -221,6 +218,16 @@ class FallPredictor(nn.Module):
         }
 
 
+def mask_centroids(masks: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Centroids (B, K, 2) in pixels (x = column, y = row) and masses (B, K) of masks (B, K, S, S), hard or
+    soft; a centroid is zero where its mask is empty."""
+    mass = masks.sum((2, 3))
+    pixels = torch.arange(masks.shape[-1], dtype=masks.dtype, device=masks.device)
+    x = (masks.sum(2) * pixels).sum(2) / mass.clamp_min(1e-6)
+    y = (masks.sum(3) * pixels).sum(2) / mass.clamp_min(1e-6)
+    return torch.stack([x, y], 2), mass
+
+
 def one_hot(labels: torch.Tensor, n_classes: int) -> torch.Tensor:
     """(..., S, S) integer labels -> (..., C, S, S) float one-hot."""
     return F.one_hot(labels.long(), n_classes).movedim(-1, -3).float()
@@ -249,17 +256,8 @@ def block_displacements(before: torch.Tensor, after: torch.Tensor) -> tuple[torc
     consecutive frames -- what the model's displacement should be -- and each block's area in ``after``
     (B, K), zero where the block is missing from either frame (no displacement defined)."""
     n_classes = int(max(before.max(), after.max())) + 1
-    axis = torch.arange(before.shape[-1], dtype=torch.float32, device=before.device)
-
-    def centroids(labels: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        masks = one_hot(labels, n_classes)[:, 1:]
-        area = masks.sum((2, 3))
-        x = (masks.sum(2) * axis).sum(2) / area.clamp_min(1.0)
-        y = (masks.sum(3) * axis).sum(2) / area.clamp_min(1.0)
-        return torch.stack([x, y], 2), area
-
-    start, area_before = centroids(before)
-    end, area_after = centroids(after)
+    start, area_before = mask_centroids(one_hot(before, n_classes)[:, 1:])
+    end, area_after = mask_centroids(one_hot(after, n_classes)[:, 1:])
     return end - start, area_after * (area_before > 0)
 
 
