@@ -42,7 +42,6 @@ EE_STEP = 0.03
 JOINT_STEP = 0.05
 #: Grasp-site box the ee_delta mode keeps its targets in (fingertips stay clear of the table).
 LOW_LEVEL_BOUNDS = np.array([WORKSPACE[0], WORKSPACE[1], [MIN_GRASP_HEIGHT, WORKSPACE[2, 1]]])
-_WORLD_GROUP = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # ray casts see geom group 0 only: table and objects
 
 
 @dataclass(frozen=True)
@@ -60,16 +59,11 @@ def surface_height(cell: Workcell, x: float, y: float, exclude_body: int = -1, r
 
     Ray casts straight down through a 3 x 3 pattern; the robot is not seen.
     """
-    best = 0.0
-    down = np.array([0.0, 0.0, -1.0])
-    geom = np.zeros(1, dtype=np.int32)
-    for dx in (-radius, 0.0, radius):
-        for dy in (-radius, 0.0, radius):
-            start = np.array([x + dx, y + dy, 1.0])
-            distance = mujoco.mj_ray(cell.model, cell.data, start, down, _WORLD_GROUP, 1, exclude_body, geom)
-            if distance >= 0:
-                best = max(best, 1.0 - distance)
-    return best
+    return max(
+        cell.surface_below(x + dx, y + dy, exclude_body)[0]
+        for dx in (-radius, 0.0, radius)
+        for dy in (-radius, 0.0, radius)
+    )
 
 
 def primitive_parameters(

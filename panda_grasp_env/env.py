@@ -387,6 +387,11 @@ class PandaEnv(gym.Env):
             "primitive_reason": result.reason,
             "primitive_object": result.object or "",
             "primitive_sim_time": result.sim_time,
+            # Collateral (see panda_grasp_env.collateral): counts, and the names of what was disturbed.
+            "transit_contacts": len(result.transit_contacts),
+            "transit_disturbed": len(result.transit_disturbed),
+            "disturbed": len(result.disturbed),
+            "disturbed_objects": list(result.disturbed),
         }
 
     def _goals(self) -> tuple[np.ndarray, np.ndarray] | None:

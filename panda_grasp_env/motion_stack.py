@@ -21,7 +21,7 @@ import numpy as np
 
 from panda_grasp_env.motion import PoseIK, ToleranceSampler
 from panda_grasp_env.planning import MotionPlanner, time_parametrise
-from panda_grasp_env.primitives import HOLD_TIME, MIN_LIFT, PrimitiveResult
+from panda_grasp_env.primitives import HOLD_TIME, MIN_LIFT, PrimitiveResult, record_collateral
 from panda_grasp_env.workcell import PhysicsError, Workcell
 
 PRE_GRASP = 0.10  # metres back along the approach axis
@@ -83,10 +83,14 @@ class MotionStack:
     def grasp(self, cell: Workcell, position: np.ndarray, rotation: np.ndarray) -> PrimitiveResult:
         """Grasp with the grasp site at ``position`` (world, metres) and orientation ``rotation`` (3, 3)."""
         start_time, start_steps = cell.sim_time, cell.physics_steps
+        cell.collateral.begin()
         try:
             result = self._grasp(cell, np.asarray(position, float), np.asarray(rotation, float))
         except PhysicsError:
             result = PrimitiveResult("grasp", False, "physics_error")
+        if result.object is not None:
+            result.targets = {cell.model.body(result.object).id}
+        record_collateral(cell, result)
         result.sim_time, result.physics_steps = cell.sim_time - start_time, cell.physics_steps - start_steps
         return result
 
@@ -112,14 +116,20 @@ class MotionStack:
             return PrimitiveResult("grasp", False, "no_plan")
         self._gripper(cell, close=False)
         self._follow(cell, time_parametrise(plan.path, self.max_velocity * TRANSIT_SPEED, cell.control_dt))
-        self._follow(cell, self._line(cell, at_pre.qpos, at_grasp.qpos, APPROACH_SPEED))
+        with cell.collateral.work():  # approach, close, retreat, lift: the rest (planned path, home) is transit
+            return self._close_and_lift(cell, at_grasp.qpos, at_pre.qpos, at_lift.qpos)
+
+    def _close_and_lift(
+        self, cell: Workcell, at_grasp: np.ndarray, at_pre: np.ndarray, at_lift: np.ndarray
+    ) -> PrimitiveResult:
+        self._follow(cell, self._line(cell, at_pre, at_grasp, APPROACH_SPEED))
         self._gripper(cell, close=True)
         body = cell.robot.body_between_pads()
         if body is None or cell.robot.finger_gap < 0.002:
-            return self._fail(cell, "missed", (cell.robot.joint_positions, at_pre.qpos))
+            return self._fail(cell, "missed", (cell.robot.joint_positions, at_pre))
         start_height = cell.data.xpos[body][2]
-        self._follow(cell, self._line(cell, at_grasp.qpos, at_pre.qpos, APPROACH_SPEED))
-        self._follow(cell, self._line(cell, at_pre.qpos, at_lift.qpos, TRANSIT_SPEED))
+        self._follow(cell, self._line(cell, at_grasp, at_pre, APPROACH_SPEED))
+        self._follow(cell, self._line(cell, at_pre, at_lift, TRANSIT_SPEED))
         self._hold(cell, HOLD_TIME)
         cell.controller.sync(cell.robot.joint_positions)  # later primitives start from here
         held = cell.robot.body_between_pads() == body

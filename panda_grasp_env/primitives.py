@@ -29,7 +29,8 @@ MIN_LIFT = 0.05  # a grasp succeeds only if the object rose at least this much
 HOLD_TIME = 0.5  # ... and stayed held this long, seconds
 SLOW_SPEED = 0.12  # m/s for the last approach and pushes
 PLACE_SPEED = 0.04  # m/s while lowering a held object to contact
-IMPULSE_SETTLE = 1.5  # seconds the scene runs after an impulse
+IMPULSE_SETTLE = 1.5
+PUSH_SLOW_DESCENT = 0.03  # a push's last approach runs at SLOW_SPEED over at least this many metres  # seconds the scene runs after an impulse
 REASONS = (
     "ok",
     "missed",
@@ -42,6 +43,7 @@ REASONS = (
     "physics_error",
     "no_ik_solution",
     "no_plan",
+    "no_contact",
 )
 
 
@@ -59,6 +61,15 @@ class PrimitiveResult:
     #: Name of the object grasped / placed, if any.
     object: str | None = None
     params: dict[str, float] = field(default_factory=dict)
+    #: Body ids of what the primitive acted on: the object grasped (or aimed at) or placed; for pushes and
+    #: impulses the piles (towers, heaps) of the objects struck.  Their motion is not collateral.
+    targets: set[int] = field(default_factory=set)
+    #: Names of the objects the robot or its load touched in transit (see ``collateral``).
+    transit_contacts: list[str] = field(default_factory=list)
+    #: Names of the objects at rest that moved or tipped during transit.
+    transit_disturbed: list[str] = field(default_factory=list)
+    #: Names of the objects other than the targets that moved (> 1 cm) or tipped over during the primitive.
+    disturbed: list[str] = field(default_factory=list)
 
 
 def _check_number(primitive: str, name: str, value: float) -> float:
@@ -74,7 +85,7 @@ def _in_workspace(*points: np.ndarray) -> bool:
 
 
 def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]:
-    """Validate arguments, measure simulated time/steps and turn divergence into a result."""
+    """Validate arguments, measure simulated time/steps and collateral, and turn divergence into a result."""
     names = fn.__code__.co_varnames[1 : fn.__code__.co_argcount]
 
     @functools.wraps(fn)
@@ -83,10 +94,12 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
             raise ValueError(f"{fn.__name__} takes {len(names)} arguments {list(names)}, got {len(args)}")
         values = [_check_number(fn.__name__, n, v) for n, v in zip(names, args)]
         start_time, start_steps = cell.sim_time, cell.physics_steps
+        cell.collateral.begin()
         try:
             result = fn(cell, *values)
         except PhysicsError:
             result = PrimitiveResult(fn.__name__, False, "physics_error")
+        record_collateral(cell, result)
         result.sim_time = cell.sim_time - start_time
         result.physics_steps = cell.physics_steps - start_steps
         result.params = dict(zip(names, values))
@@ -95,70 +108,80 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
     return wrapper
 
 
-def _lift_clear(cell: Workcell, height: float) -> None:
-    """Rise vertically to at least ``height`` above the table before travelling."""
-    position = cell.robot.ee_position
-    if position[2] < height:
-        cell.move_to(
-            np.array([position[0], position[1], height]), cell.robot.ee_yaw, settle_timeout=0.2, tolerance=0.02
-        )
+def record_collateral(cell: Workcell, result: PrimitiveResult) -> None:
+    """End the workcell's collateral watch of a primitive and copy what it saw into ``result`` (names)."""
+    record = cell.collateral.finish(result.targets)
+    result.transit_contacts = sorted(map(cell.name_of, record.transit_contacts))
+    result.transit_disturbed = sorted(map(cell.name_of, record.transit_disturbed))
+    result.disturbed = sorted(map(cell.name_of, record.disturbed))
 
 
-def _fail(cell: Workcell, primitive: str, reason: str, obj: str | None = None) -> PrimitiveResult:
-    """Open, retreat upwards and go home, then report the failure."""
-    cell.actuate_gripper(close=False, timeout=0.4)
-    _lift_clear(cell, cell.robot.ee_position[2] + 0.05)
-    cell.move_home()
-    return PrimitiveResult(primitive, False, reason, object=obj)
+def _body_ids(cell: Workcell, *bodies: int | None) -> set[int]:
+    return {int(b) for b in bodies if b is not None and b >= 0}
 
 
 @_timed
 def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> PrimitiveResult:
     """Top-down grasp with the grasp site at (x, y, z) and closing axis at ``yaw``.
 
-    Open, hover ``APPROACH_HEIGHT`` above, descend, close with the force-limited
-    gripper, lift ``LIFT_HEIGHT``, hold ``HOLD_TIME``.  Success: the fingers
-    stopped short of closing on a body that rose >= 5 cm and is still held after
-    the arm carried it home.  Home, as after a failure, so that the arm does not
-    hide the table from the overhead camera (lifted above the grasp point, the
-    elbow fills its view and a heightmap would show an empty table).  ``z`` is
-    raised to ``MIN_GRASP_HEIGHT`` if lower.
+    Open; transit to above (x, y) at the transit height; the work segment: come
+    straight down to ``APPROACH_HEIGHT`` above the target, descend slowly,
+    close with the force-limited gripper, lift straight up by at least
+    ``LIFT_HEIGHT`` (to the transit height if higher), hold ``HOLD_TIME``; then
+    home.  Success: the fingers stopped short of closing on a body that rose
+    >= 5 cm and is still held after the arm carried it home.  Home, as after a
+    failure, so that the arm does not hide the table from the overhead camera.
+    ``z`` is raised to ``MIN_GRASP_HEIGHT`` if lower.
     """
     z = max(z, MIN_GRASP_HEIGHT)
     target = np.array([x, y, z])
     above = target + [0.0, 0.0, APPROACH_HEIGHT]
     if not _in_workspace(target, above):
         return PrimitiveResult("grasp", False, "out_of_workspace")
+    aimed = cell.surface_below(x, y)[1]
     cell.actuate_gripper(close=False, timeout=0.4)
-    _lift_clear(cell, above[2])
-    if not cell.move_to(above, yaw, tolerance=0.01).reached:
-        return _fail(cell, "grasp", "unreachable")
-    # Descend; if the fingers land on something the grasp is still attempted where they stopped.
-    cell.move_to(target, yaw, speed=SLOW_SPEED, settle_timeout=0.3)
-    cell.actuate_gripper(close=True)
-    body = cell.robot.body_between_pads()
-    if body is None or cell.robot.finger_gap < 0.002:
-        return _fail(cell, "grasp", "missed")
-    start_height = cell.data.xpos[body][2]
-    cell.move_to(target + [0.0, 0.0, LIFT_HEIGHT], yaw, settle_timeout=0.2, tolerance=0.01)
-    cell.wait(HOLD_TIME)
-    held = cell.robot.body_between_pads() == body
-    if not held or cell.data.xpos[body][2] - start_height < MIN_LIFT:
-        return _fail(cell, "grasp", "dropped", cell.name_of(body))
+    if not cell.transit(x, y, yaw).reached:
+        cell.move_home()
+        return PrimitiveResult("grasp", False, "unreachable", targets=_body_ids(cell, aimed))
+    body, reason = None, "ok"
+    with cell.collateral.work():
+        cell.move_to(above, yaw, tolerance=0.01)
+        # If the fingers land on something the grasp is still attempted where they stopped.
+        cell.move_to(target, yaw, speed=SLOW_SPEED, settle_timeout=0.3)
+        cell.actuate_gripper(close=True)
+        body = cell.robot.body_between_pads()
+        if body is None or cell.robot.finger_gap < 0.002:
+            body, reason = None, "missed"
+        else:
+            start_height = cell.data.xpos[body][2]
+            lift = max(z + LIFT_HEIGHT, cell.transit_height())
+            cell.move_to(np.array([x, y, lift]), yaw, settle_timeout=0.2, tolerance=0.01)
+            cell.wait(HOLD_TIME)
+            if cell.robot.body_between_pads() != body or cell.data.xpos[body][2] - start_height < MIN_LIFT:
+                reason = "dropped"
+        if reason != "ok":
+            cell.actuate_gripper(close=False, timeout=0.4)
+            cell.rise()
     cell.move_home()
-    if cell.robot.body_between_pads() != body:
-        return _fail(cell, "grasp", "dropped", cell.name_of(body))
-    return PrimitiveResult("grasp", True, "ok", object=cell.name_of(body))
+    if reason == "ok" and cell.robot.body_between_pads() != body:
+        reason = "dropped"
+    if reason != "ok":
+        cell.actuate_gripper(close=False, timeout=0.4)
+    return PrimitiveResult("grasp", reason == "ok", reason, object=cell.name_of(body),
+                           targets=_body_ids(cell, aimed if body is None else body))  # fmt: skip
 
 
 @_timed
 def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> PrimitiveResult:
     """Put the held object down with its centre over (x, y) and its bottom on a surface at height ``z``.
 
-    Move above, lower slowly until the object touches something, open, retreat
-    and go home.  Success: the object was released, rests with its centre within
-    a quarter of the block size of (x, y) and its bottom within 1 cm of ``z``.
-    ``yaw`` is the closing-axis heading during the place.
+    Transit above (x, y) at the transit height (the load hanging clear of
+    everything); the work segment: down to ``APPROACH_HEIGHT`` above the goal,
+    lower slowly until the object touches something, open, retreat straight
+    up; then home.  If (x, y) cannot be reached the object stays in the hand
+    and the arm goes home.  Success: the object was released, rests with its
+    centre within a quarter of the block size of (x, y) and its bottom within
+    1 cm of ``z``.  ``yaw`` is the closing-axis heading during the place.
     """
     body = cell.robot.body_between_pads()
     if body is None:
@@ -172,57 +195,76 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
 
     above = site_goal(APPROACH_HEIGHT)
     if not _in_workspace(above, above - [0.0, 0.0, APPROACH_HEIGHT]):
-        return PrimitiveResult("place", False, "out_of_workspace", object=name)
-    _lift_clear(cell, above[2])
-    if not cell.move_to(above, yaw, tolerance=0.01).reached:
-        return _fail(cell, "place", "unreachable", name)
-    # The object may have shifted in the fingers while travelling: re-aim from where it hangs now.
-    cell.move_to(site_goal(0.01), yaw, speed=SLOW_SPEED, settle_timeout=0.3)
-    contact_height = site_goal(0.0)
-    cell.move_to(
-        contact_height - [0.0, 0.0, 0.02],
-        yaw,
-        speed=PLACE_SPEED,
-        settle_timeout=0.2,
-        stop_when=lambda: cell.touches_world(body),
-    )
-    cell.actuate_gripper(close=False, timeout=0.5)
-    _lift_clear(cell, cell.robot.ee_position[2] + 0.08)
+        return PrimitiveResult("place", False, "out_of_workspace", object=name, targets={body})
+    if not cell.transit(above[0], above[1], yaw).reached:
+        cell.move_home()
+        return PrimitiveResult("place", False, "unreachable", object=name, targets={body})
+    with cell.collateral.work():
+        cell.move_to(above, yaw, tolerance=0.01)
+        # The object may have shifted in the fingers while travelling: re-aim from where it hangs now.
+        cell.move_to(site_goal(0.01), yaw, speed=SLOW_SPEED, settle_timeout=0.3)
+        contact_height = site_goal(0.0)
+        cell.move_to(
+            contact_height - [0.0, 0.0, 0.02],
+            yaw,
+            speed=PLACE_SPEED,
+            settle_timeout=0.2,
+            stop_when=lambda: cell.touches_world(body),
+        )
+        cell.actuate_gripper(close=False, timeout=0.5)
+        cell.rise(max(cell.robot.ee_position[2] + 0.08, cell.transit_height()))
     cell.move_home()
     centre_error = np.linalg.norm(cell.data.xpos[body][:2] - [x, y])
     bottom_error = abs(body_bottom_height(cell.model, cell.data, body) - z)
     if cell.robot.body_between_pads() == body or centre_error > cell.config.block_size / 4 or bottom_error > 0.01:
-        return PrimitiveResult("place", False, "placed_off", object=name)
-    return PrimitiveResult("place", True, "ok", object=name)
+        return PrimitiveResult("place", False, "placed_off", object=name, targets={body})
+    return PrimitiveResult("place", True, "ok", object=name, targets={body})
 
 
 @_timed
 def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: float) -> PrimitiveResult:
     """Push with the closed gripper from (x, y, z) in a straight line ``distance`` metres along heading ``yaw``.
 
-    The fingers' flat side faces the motion.  Fails with ``"collision"`` if the
-    gripper cannot get down to the start point (something is in the way).
+    The fingers' flat side faces the motion.  Transit above the start at the
+    transit height; the work segment: come straight down slowly to the start,
+    stop at the first touch -- ``"collision"``: the start is taken by something
+    -- push, retreat straight up; then home.  ``"no_contact"``: the stroke
+    touched nothing.  The targets are the piles (towers, heaps) of the objects
+    the hand struck.
     """
     if distance <= 0 or distance > 0.3:
         raise ValueError(f"push: argument 'distance' must be in (0, 0.3] m, got {distance}")
     z = max(z, MIN_GRASP_HEIGHT)
     start = np.array([x, y, z])
     end = start + distance * np.array([np.cos(yaw), np.sin(yaw), 0.0])
-    above = start + [0.0, 0.0, APPROACH_HEIGHT]
-    if not _in_workspace(start, end, above):
+    if not _in_workspace(start, end):
         return PrimitiveResult("push", False, "out_of_workspace")
     grip_yaw = yaw + np.pi / 2
     cell.actuate_gripper(close=True, timeout=0.4)
-    _lift_clear(cell, above[2])
-    if not cell.move_to(above, grip_yaw, tolerance=0.01).reached:
-        return _fail(cell, "push", "unreachable")
-    if not cell.move_to(start, grip_yaw, speed=SLOW_SPEED, settle_timeout=0.3, tolerance=0.01).reached:
-        return _fail(cell, "push", "collision")
-    cell.move_to(end, grip_yaw, speed=SLOW_SPEED, settle_timeout=0.2, tolerance=0.02)
-    _lift_clear(cell, end[2] + APPROACH_HEIGHT)
+    reason = "ok"
+    if not cell.transit(x, y, grip_yaw).reached:
+        reason = "unreachable"
+    else:
+        struck = cell.collateral.record.work_contacts
+        with cell.collateral.work():
+            # Quickly down to where the hand still clears everything around the start, then slowly.
+            clear = max(cell.clear_height_near(x, y), z + PUSH_SLOW_DESCENT)
+            if clear < cell.robot.ee_position[2]:
+                cell.move_to(np.array([x, y, clear]), grip_yaw, settle_timeout=0.1, tolerance=0.02,
+                             stop_when=lambda: bool(struck))  # fmt: skip
+            down = cell.move_to(
+                start, grip_yaw, speed=SLOW_SPEED, settle_timeout=0.3, tolerance=0.01, stop_when=lambda: bool(struck)
+            )
+            if struck or not down.reached:
+                reason = "collision"
+            else:
+                cell.move_to(end, grip_yaw, speed=SLOW_SPEED, settle_timeout=0.2, tolerance=0.02)
+                reason = "ok" if struck else "no_contact"
+            cell.rise()
+        targets = cell.collateral.pile(set(struck))
     cell.move_home()
     cell.actuate_gripper(close=False, timeout=0.3)
-    return PrimitiveResult("push", True, "ok")
+    return PrimitiveResult("push", reason == "ok", reason, targets=targets if reason != "unreachable" else set())
 
 
 @_timed
@@ -232,7 +274,7 @@ def impulse(cell: Workcell, x: float, y: float, z: float, yaw: float, magnitude:
     The source study's way of toppling a tower: the robot does not move; the
     impulse is applied at the object's centre over 10 ms, then the scene runs
     ``IMPULSE_SETTLE`` seconds.  Fails with ``"missed"`` if no object centre is
-    within 5 cm of the point.
+    within 5 cm of the point.  The target is the struck object's pile.
     """
     if not 0 < magnitude <= 1.0:
         raise ValueError(f"impulse: argument 'magnitude' must be in (0, 1] N s, got {magnitude}")
@@ -243,11 +285,12 @@ def impulse(cell: Workcell, x: float, y: float, z: float, yaw: float, magnitude:
         return PrimitiveResult("impulse", False, "missed")
     body = int(cell.object_ids[nearest])
     duration = 0.01
-    cell.data.xfrc_applied[body, :2] = magnitude / duration * np.array([np.cos(yaw), np.sin(yaw)])
-    cell.step_physics(max(1, round(duration / cell.model.opt.timestep)))
-    cell.data.xfrc_applied[body] = 0.0
-    cell.wait(IMPULSE_SETTLE)
-    return PrimitiveResult("impulse", True, "ok", object=cell.name_of(body))
+    with cell.collateral.work():
+        cell.data.xfrc_applied[body, :2] = magnitude / duration * np.array([np.cos(yaw), np.sin(yaw)])
+        cell.step_physics(max(1, round(duration / cell.model.opt.timestep)))
+        cell.data.xfrc_applied[body] = 0.0
+        cell.wait(IMPULSE_SETTLE)
+    return PrimitiveResult("impulse", True, "ok", object=cell.name_of(body), targets=cell.collateral.pile({body}))
 
 
 PRIMITIVES: dict[str, Callable[..., PrimitiveResult]] = {

@@ -13,9 +13,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from panda_grasp_env.collateral import CollateralMonitor
 from panda_grasp_env.controller import CartesianController, ControllerLimits
 from panda_grasp_env.objects import ObjectShape, apply_shape
-from panda_grasp_env.robot import HOME_QPOS, PandaRobot
+from panda_grasp_env.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
 from panda_grasp_env.scene import SceneConfig, build_spec
 
 #: Reachable region for primitive targets: x, y, z bounds of the grasp site, metres.
@@ -25,8 +26,14 @@ SPAWN_REGION = np.array([[0.35, 0.65], [-0.22, 0.22]])
 #: Where removed objects wait, out of every camera's view: a row on the floor behind the front camera.
 PARKING_ORIGIN = np.array([2.5, 1.5, -0.75])
 PARKING_SPACING = 0.3  # more than twice the largest object's bounding radius
+#: Transit: the lowest point of the hand (fingertips, 15 mm below the grasp site) or of the object it carries
+#: crosses this far above the tallest object, metres; and the grasp site never lower than TRANSIT_MIN_HEIGHT.
+TRANSIT_CLEARANCE = 0.03
+FINGERTIP_DEPTH = 0.015
+TRANSIT_MIN_HEIGHT = 0.12
 #: Reset IK solutions kept (least recently used dropped first).
 TELEPORT_CACHE_SIZE = 64
+_WORLD_GROUP = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # ray casts see geom group 0 only: table and objects
 _WARNINGS = [
     int(w)
     for w in (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL)
@@ -44,9 +51,10 @@ class MoveOutcome:
     error: float
 
 
-def body_bottom_height(model: mujoco.MjModel, data: mujoco.MjData, body_id: int) -> float:
-    """Lowest world z of a body's collision geoms, metres (exact for boxes, spheres, capsules, cylinders)."""
-    lowest = np.inf
+def body_vertical_extent(model: mujoco.MjModel, data: mujoco.MjData, body_id: int) -> tuple[float, float]:
+    """Lowest and highest world z of a body's collision geoms, metres (exact for boxes, spheres, capsules,
+    cylinders; bounding spheres otherwise)."""
+    lowest, highest = np.inf, -np.inf
     start, count = model.body_geomadr[body_id], model.body_geomnum[body_id]
     for g in range(start, start + count):
         size, z_axis = model.geom_size[g], data.geom_xmat[g].reshape(3, 3)[2]
@@ -61,8 +69,14 @@ def body_bottom_height(model: mujoco.MjModel, data: mujoco.MjData, body_id: int)
             half = float(abs(z_axis[2]) * size[1] + size[0] * np.sqrt(max(0.0, 1.0 - z_axis[2] ** 2)))
         else:
             half = float(model.geom_rbound[g])
-        lowest = min(lowest, float(data.geom_xpos[g][2]) - half)
-    return lowest
+        centre = float(data.geom_xpos[g][2])
+        lowest, highest = min(lowest, centre - half), max(highest, centre + half)
+    return lowest, highest
+
+
+def body_bottom_height(model: mujoco.MjModel, data: mujoco.MjData, body_id: int) -> float:
+    """Lowest world z of a body's collision geoms, metres (see ``body_vertical_extent``)."""
+    return body_vertical_extent(model, data, body_id)[0]
 
 
 class Workcell:
@@ -99,6 +113,9 @@ class Workcell:
         self._teleport_solutions: dict[tuple, np.ndarray] = {}
         #: Called with the workcell after every control step (video recording, logging).
         self.step_hooks: list[Callable[[Workcell], None]] = []
+        #: Transit and collateral accounting of the primitive running now (see ``collateral``).
+        self.collateral = CollateralMonitor(self)
+        self._scratch = mujoco.MjData(self.model)  # kinematics checks that must not touch the live state
         self.reset_robot()
 
     # --- state -------------------------------------------------------------
@@ -127,6 +144,17 @@ class Workcell:
     def name_of(self, body_id: int | None) -> str | None:
         return None if body_id is None else mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_BODY, body_id)
 
+    def surface_below(self, x: float, y: float, exclude_body: int = -1) -> tuple[float, int]:
+        """(height of the highest table or object surface straight below (x, y), metres, 0 = table top;
+        the body id of that object, -1 for the table or nothing).  The robot is not seen."""
+        geom = np.zeros(1, dtype=np.int32)
+        start, down = np.array([x, y, 1.0]), np.array([0.0, 0.0, -1.0])
+        distance = mujoco.mj_ray(self.model, self.data, start, down, _WORLD_GROUP, 1, exclude_body, geom)
+        if distance < 0:
+            return 0.0, -1
+        body = int(self.model.geom_bodyid[geom[0]])
+        return max(0.0, 1.0 - distance), (body if body in self._qpos_adr else -1)
+
     def bodies_touching(self, body_id: int) -> set[int]:
         """Ids of the bodies in contact with a body (as of the last forward pass or step)."""
         geom_body = self.model.geom_bodyid
@@ -153,6 +181,7 @@ class Workcell:
         # MuJoCo's own checks catch NaN/inf and runaway values (and reset the data when they fire).
         if self.data.warning.number[_WARNINGS].any():
             raise PhysicsError("simulation diverged (MuJoCo reported bad qpos/qvel/qacc)")
+        self.collateral.after_step()
         for hook in self.step_hooks:
             hook(self)
 
@@ -197,8 +226,70 @@ class Workcell:
         error = float(np.linalg.norm(self.robot.ee_position - goal))
         return MoveOutcome(reached=error < tolerance, error=error)
 
+    def transit_height(self) -> float:
+        """Grasp-site height (metres) at which the hand, and whatever it carries, clears every object on the
+        table by ``TRANSIT_CLEARANCE``; at least ``TRANSIT_MIN_HEIGHT``, at most the workspace's top."""
+        held = self.robot.body_between_pads()
+        hang = FINGERTIP_DEPTH
+        if held is not None:
+            hang = max(hang, self.robot.ee_position[2] - body_vertical_extent(self.model, self.data, held)[0])
+        tops = [
+            body_vertical_extent(self.model, self.data, int(b))[1]
+            for b in self.object_ids
+            if b != held and not self.is_parked(int(b))
+        ]
+        height = max(tops, default=0.0) + TRANSIT_CLEARANCE + hang
+        return float(min(max(height, TRANSIT_MIN_HEIGHT), WORKSPACE[2, 1]))
+
+    def clear_height_near(self, x: float, y: float, radius: float = 0.12) -> float:
+        """Grasp-site height (metres) at which the hand over (x, y) clears, by ``TRANSIT_CLEARANCE``, every
+        object whose footprint comes within ``radius`` of (x, y) (the hand's half-span)."""
+        tops = [
+            body_vertical_extent(self.model, self.data, int(b))[1]
+            for b in self.object_ids
+            if not self.is_parked(int(b))
+            and np.hypot(*(self.data.xpos[b][:2] - [x, y]))
+            < radius + self.model.geom_rbound[self.model.body_geomadr[b]]
+        ]
+        return max(tops, default=0.0) + TRANSIT_CLEARANCE + FINGERTIP_DEPTH
+
+    def rise(self, height: float | None = None) -> None:
+        """Straight up to ``height`` (default: the transit height), if the grasp site is lower."""
+        height = self.transit_height() if height is None else height
+        position = self.robot.ee_position
+        if position[2] < height - 0.005:
+            self.move_to(np.array([*position[:2], height]), self.robot.ee_yaw, settle_timeout=0.2, tolerance=0.02)
+
+    def transit(self, x: float, y: float, yaw: float) -> MoveOutcome:
+        """Travel to (x, y) at the transit height, the hand turned to ``yaw``: straight up first, then in a
+        straight line, which never dips below the transit height since it starts at or above it (home is
+        higher than any transit height)."""
+        height = self.transit_height()
+        self.rise(height)
+        return self.move_to(np.array([x, y, height]), yaw, tolerance=0.01)
+
+    def _joint_line_stays_above(self, goal: np.ndarray, height: float, samples: int = 12) -> bool:
+        """Whether the grasp site stays at least ``height`` (metres) high all along the straight joint-space
+        line from the arm's current joints to ``goal`` (the hand is the robot's lowest part there)."""
+        scratch = self._scratch
+        scratch.qpos[:] = self.data.qpos
+        start = self.robot.joint_positions
+        for fraction in np.linspace(0.0, 1.0, samples + 1)[1:]:
+            scratch.qpos[self.robot.arm_qpos_idx] = start + fraction * (goal - start)
+            mujoco.mj_kinematics(self.model, scratch)
+            if scratch.site_xpos[self.robot.site_id][2] < height:
+                return False
+        return True
+
     def move_home(self, joint_speed: float = 1.2) -> None:
-        """Joint-space move to the home configuration at ``joint_speed`` rad/s, then settle."""
+        """Back to the home configuration without sweeping through the scene: straight up to the transit
+        height, then a joint-space move at ``joint_speed`` rad/s onto the home joint angles if the hand stays
+        above the transit height all along it, else across to the home position in a straight line first
+        (home is higher than any transit); settle."""
+        height = self.transit_height()
+        self.rise(height)
+        if not self._joint_line_stays_above(HOME_QPOS, height - 0.01):
+            self.move_to(HOME_POSITION, HOME_YAW, settle_timeout=0.2, tolerance=0.03)
         start = self.robot.joint_positions
         n = max(1, int(np.ceil(np.abs(HOME_QPOS - start).max() / (joint_speed * self.control_dt))))
         for fraction in np.linspace(0.0, 1.0, n + 1)[1:]:

@@ -21,7 +21,8 @@ class BuildAndBreak(Task):
     Starts from scattered blocks in the ``build`` phase.  A built tower (all
     ``n_blocks`` stacked on the base, still and released for 0.5 s) counts a
     build and switches to ``break``; knocking ``n_blocks - 1`` blocks out of that
-    tower counts a break and switches back.  ``info`` carries ``phase``,
+    tower with a successful push counts a break and switches back (a tower a
+    failed primitive knocked over switches back without counting).  ``info`` carries ``phase``,
     ``builds`` and ``breaks``; ``is_success`` is true once a full build-and-break
     cycle is complete.  Reward: the phase's own reward (stack progress while
     building, blocks moved while breaking), +1 per completed phase.  Terminates
@@ -68,9 +69,10 @@ class BuildAndBreak(Task):
         else:
             moved, change = self.breaker.newly_moved(cell)
             reward = float(change)
-            if moved >= self.breaker.k:
-                self.breaks += 1
-                reward += 1.0
+            if moved >= self.breaker.k:  # broken; it counts only if the push that did it succeeded
+                if result is not None and result.success:
+                    self.breaks += 1
+                    reward += 1.0
                 self.phase = "build"
                 self.build.restart(cell)
         lost = any(cell.is_parked(b) for b in cell.block_ids)

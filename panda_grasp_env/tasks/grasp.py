@@ -71,7 +71,8 @@ class Grasp(Task):
     consecutive failed attempts that end the episode (VPG's rule, default 10).
     A successful grasp sets the object aside (off the table).  Objects in play
     are those on the table inside ``PLAY_REGION`` (VPG's workspace; one pushed
-    or rolled out of it is lost).  Terminates when none is left (success if every object in
+    or rolled out of it is lost); one that lands outside it in the reset drop
+    is removed from the scene.  Terminates when none is left (success if every object in
     play after the reset drop was grasped) or after ``max_failures``
     consecutive failed attempts (failed grasps and pushes that moved nothing).  Reward: 1 per successful grasp,
     0.5 for a push that moved something (VPG).
@@ -140,10 +141,16 @@ class Grasp(Task):
                 position = [*xy, shape.resting_half_height + 0.001]
                 cell.set_body_pose(body, position, spawn_quaternion(shape, yaw))
             cell.settle(0.3)
-        # Objects that rolled or fell off the table in the drop are out of the episode, and so are the
-        # rare ones a heap pressed into the table top (soft contacts; they could never be lifted).
-        for body in cell.object_ids:
-            if cell.data.xpos[body][2] < -0.05 or body_bottom_height(cell.model, cell.data, body) < -0.005:
+        # Objects that rolled out of the play region or off the table in the drop are removed from the
+        # scene, and so are the rare ones a heap pressed into the table top (soft contacts; they could never
+        # be lifted): what is left on the table is exactly what is in play.
+        in_region = self._in_play_region(cell)
+        for body, inside in zip(cell.object_ids, in_region):
+            if (
+                not inside
+                or cell.data.xpos[body][2] < -0.05
+                or body_bottom_height(cell.model, cell.data, body) < -0.005
+            ):
                 cell.park(body)
         self.grasped = 0
         self.consecutive_failures = 0
@@ -162,9 +169,13 @@ class Grasp(Task):
     def on_table(self, cell: Workcell) -> list[int]:
         """Body ids of the objects still in play: on the table inside ``PLAY_REGION`` (not set aside, not
         fallen off, not pushed or rolled out of the workspace)."""
-        xy = cell.data.xpos[cell.object_ids, :2]
-        inside = np.all((xy >= PLAY_REGION[:, 0]) & (xy <= PLAY_REGION[:, 1]), axis=1)
+        inside = self._in_play_region(cell)
         return [int(b) for b, ok in zip(cell.object_ids, inside) if ok and not cell.is_parked(b)]
+
+    @staticmethod
+    def _in_play_region(cell: Workcell) -> np.ndarray:
+        xy = cell.data.xpos[cell.object_ids, :2]
+        return np.all((xy >= PLAY_REGION[:, 0]) & (xy <= PLAY_REGION[:, 1]), axis=1)
 
     def _info(self, cell: Workcell, remaining: int | None = None) -> dict[str, Any]:
         return {

@@ -26,8 +26,10 @@ class TowerBreak(Task):
     ``allow_impulse``: add the ``impulse`` primitive (a horizontal impulse of
     ``impulse_magnitude`` N s on the block nearest the chosen point, as in the
     fall-dynamics study) next to ``push``.
-    Success: >= k blocks moved; terminates then.  Reward:
-    blocks newly moved this step, +1 on success.
+    Success: >= k blocks moved by a primitive that succeeded; terminates once
+    >= k blocks moved (``info["broken_by_failure"]`` when a failed primitive
+    moved them: no success).  Reward: blocks newly moved this step, +1 on
+    success.
     """
 
     name = "TowerBreak"
@@ -75,5 +77,9 @@ class TowerBreak(Task):
 
     def evaluate(self, cell: Workcell, result: PrimitiveResult | None) -> TaskStep:
         moved, change = self.newly_moved(cell)
-        success = moved >= self.k
-        return TaskStep(float(change) + (1.0 if success else 0.0), success, success, {"blocks_moved": moved})
+        broken = moved >= self.k
+        # Only a primitive that did what it reports breaks a tower; one knocked over by a failed push
+        # (unreachable, collision) is lost, not broken: the episode ends without success.
+        success = broken and result is not None and result.success
+        info = {"blocks_moved": moved, "broken_by_failure": broken and not success}
+        return TaskStep(float(change) + (1.0 if success else 0.0), success, broken, info)

@@ -1,0 +1,165 @@
+"""Collateral accounting: what a primitive touched and moved besides what it meant to.
+
+Every primitive is split into *transit* (rising to the transit height,
+crossing at it, going home) and one *work segment* (the last approach to the
+work point, the work itself and the retreat straight up).  The monitor watches
+every control step:
+
+* ``transit_contacts``: objects that the robot, or the object it carries,
+  touched during transit (the robot should touch nothing there);
+* ``transit_disturbed``: objects at rest when a transit segment began that
+  moved more than ``MOVE_LIMIT`` or tipped during it;
+* ``disturbed``: objects other than the primitive's targets that moved more than
+  ``MOVE_LIMIT`` or tipped over during the whole primitive (the agent's
+  collateral, work segment included).
+
+Metres, radians, world frame.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+    from panda_grasp_env.workcell import Workcell
+
+#: An object moved if its centre travelled further than this, metres.
+MOVE_LIMIT = 0.01
+#: An object tipped over if its own z axis turned further than this, radians.
+TIP_ANGLE = np.deg2rad(30.0)
+#: An object counts as at rest below this speed, m/s (a transit is not blamed for what was already moving).
+REST_SPEED = 0.02
+
+
+@dataclass
+class Collateral:
+    """What one primitive did besides its work: body ids, see the module docstring."""
+
+    transit_contacts: set[int] = field(default_factory=set)
+    transit_disturbed: set[int] = field(default_factory=set)
+    #: Objects the robot or its load touched during the work segment.
+    work_contacts: set[int] = field(default_factory=set)
+    disturbed: set[int] = field(default_factory=set)
+
+
+class CollateralMonitor:
+    """Watches one workcell's contacts and object poses, segment by segment, for one primitive at a time."""
+
+    def __init__(self, cell: Workcell) -> None:
+        self.cell = cell
+        model = cell.model
+        self._is_robot = np.zeros(model.nbody, dtype=bool)
+        self._is_robot[sorted(cell.robot.body_ids)] = True
+        self._is_object = np.zeros(model.nbody, dtype=bool)
+        self._is_object[cell.object_ids] = True
+        self.active = False
+        self.in_work = False
+        self.record = Collateral()
+        self._load = -1  # the carried object during this segment (-1: none)
+        self._primitive_start: tuple[np.ndarray, np.ndarray] | None = None
+        self._transit_start: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._start_neighbours: dict[int, set[int]] = {}
+
+    def _poses(self) -> tuple[np.ndarray, np.ndarray]:
+        data, ids = self.cell.data, self.cell.object_ids
+        return data.xpos[ids].copy(), data.xmat[ids].reshape(-1, 3, 3)[:, :, 2].copy()
+
+    def _moved(self, start: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """Per object: moved more than ``MOVE_LIMIT`` or tipped more than ``TIP_ANGLE`` since ``start``."""
+        positions, z_axes = self._poses()
+        shifted = np.linalg.norm(positions - start[0], axis=1) > MOVE_LIMIT
+        turned = np.einsum("ij,ij->i", z_axes, start[1]) < np.cos(TIP_ANGLE)
+        return shifted | turned
+
+    def begin(self) -> None:
+        """Start watching a primitive: it starts in transit."""
+        self.active, self.record = True, Collateral()
+        self._primitive_start = self._poses()
+        self._start_neighbours = self._object_neighbours()
+        self._start_segment(work=False)
+
+    def _start_segment(self, work: bool) -> None:
+        self._close_transit()
+        self.in_work = work
+        held = self.cell.robot.body_between_pads()
+        self._load = -1 if held is None else held
+        if not work:
+            speeds = np.linalg.norm(self.cell.data.cvel[self.cell.object_ids, 3:], axis=1)
+            self._transit_start = (*self._poses(), speeds < REST_SPEED)
+
+    def _close_transit(self) -> None:
+        if self._transit_start is not None:
+            positions, z_axes, resting = self._transit_start
+            moved = self._moved((positions, z_axes)) & resting
+            ids = self.cell.object_ids[moved]
+            self.record.transit_disturbed |= {int(b) for b in ids if b != self._load}
+            self._transit_start = None
+
+    @contextmanager
+    def work(self) -> Iterator[None]:
+        """Mark the work segment: everything inside the ``with`` block; transit again afterwards."""
+        self._start_segment(work=True)
+        try:
+            yield
+        finally:
+            self._start_segment(work=False)
+
+    def _contact_bodies(self) -> np.ndarray:
+        """Body ids (ncon, 2) of the two sides of every current contact."""
+        data = self.cell.data
+        n = data.ncon
+        return self.cell.model.geom_bodyid[np.stack([data.contact.geom1[:n], data.contact.geom2[:n]], axis=1)]
+
+    def after_step(self) -> None:
+        """Record the robot-object contacts of the current state (called after every control step)."""
+        if not self.active or self.cell.data.ncon == 0:
+            return
+        bodies = self._contact_bodies()
+        robot_side = self._is_robot[bodies] | (bodies == self._load)
+        objects = self._is_object[bodies] & (bodies != self._load)
+        touched = np.concatenate(
+            [bodies[robot_side[:, 0] & objects[:, 1], 1], bodies[robot_side[:, 1] & objects[:, 0], 0]]
+        )
+        if touched.size:
+            target = self.record.work_contacts if self.in_work else self.record.transit_contacts
+            target.update(int(b) for b in touched)
+
+    def finish(self, targets: set[int]) -> Collateral:
+        """Stop watching; the record with ``disturbed`` = objects moved or tipped, other than ``targets``.
+
+        A target that moved during transit without being touched there (a pushed tower still falling
+        while the arm leaves) is not transit's doing and is left out of ``transit_disturbed``.
+        """
+        self._close_transit()
+        if self._primitive_start is not None:
+            moved = self.cell.object_ids[self._moved(self._primitive_start)]
+            self.record.disturbed = {int(b) for b in moved} - targets
+        self.record.transit_disturbed -= targets - self.record.transit_contacts
+        self.active, self.in_work, self._primitive_start = False, False, None
+        return self.record
+
+    def pile(self, bodies: set[int]) -> set[int]:
+        """``bodies`` and every object connected to them through object-object contacts at the primitive's
+        start (a tower, a heap): what a push or a strike at one of them acts on."""
+        group, frontier = set(bodies), list(bodies)
+        while frontier:
+            for other in self._start_neighbours.get(frontier.pop(), ()):
+                if other not in group:
+                    group.add(other)
+                    frontier.append(other)
+        return group
+
+    def _object_neighbours(self) -> dict[int, set[int]]:
+        """Object-object contacts of the current state, as an adjacency map of body ids."""
+        neighbours: dict[int, set[int]] = {}
+        bodies = self._contact_bodies()
+        for a, b in bodies[self._is_object[bodies].all(axis=1)]:
+            neighbours.setdefault(int(a), set()).add(int(b))
+            neighbours.setdefault(int(b), set()).add(int(a))
+        return neighbours
