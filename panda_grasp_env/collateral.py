@@ -79,7 +79,7 @@ class CollateralMonitor:
 
     def begin(self) -> None:
         """Start watching a primitive: it starts in transit."""
-        self.active, self.record = True, Collateral()
+        self.active, self.record, self._transit_start = True, Collateral(), None
         self._primitive_start = self._poses()
         self._start_neighbours = self._object_neighbours()
         self._start_segment(work=False)
@@ -143,6 +143,10 @@ class CollateralMonitor:
         self.record.transit_disturbed -= targets - self.record.transit_contacts
         self.active, self.in_work, self._primitive_start = False, False, None
         return self.record
+
+    def cancel(self) -> None:
+        """Stop watching without a record (the primitive raised)."""
+        self.active, self.in_work, self._primitive_start, self._transit_start = False, False, None, None
 
     def pile(self, bodies: set[int]) -> set[int]:
         """``bodies`` and every object connected to them through object-object contacts at the primitive's

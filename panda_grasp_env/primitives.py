@@ -99,6 +99,9 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
             result = fn(cell, *values)
         except PhysicsError:
             result = PrimitiveResult(fn.__name__, False, "physics_error")
+        except BaseException:
+            cell.collateral.cancel()
+            raise
         record_collateral(cell, result)
         result.sim_time = cell.sim_time - start_time
         result.physics_steps = cell.physics_steps - start_steps

@@ -1,3 +1,4 @@
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -95,3 +96,54 @@ def test_unreachable_targets_fail_with_a_reason(cell, call, reason):
 def test_malformed_arguments_raise_value_error(cell, call, culprit):
     with pytest.raises(ValueError, match=culprit):
         call(cell)
+
+
+def _three_block_tower_and_a_block(cell, tower_xy, block_xy):
+    """Blocks 0-2 stacked at ``tower_xy``, block 3 alone at ``block_xy``, at rest."""
+    cell.clear()
+    for level in range(3):
+        cell.set_body_pose(cell.block_ids[level], [*tower_xy, 0.025 + level * 0.0501])
+    cell.set_body_pose(cell.block_ids[3], [*block_xy, 0.025])
+    cell.settle(0.3)
+
+
+def test_grasp_next_to_a_tower_leaves_it_standing(cell):
+    # The old transit came down from home in one straight line to 10 cm above the block, through the tower.
+    _three_block_tower_and_a_block(cell, (0.4, -0.1), (0.5, -0.1))
+    tower = cell.block_positions()[:3].copy()
+    result = grasp(cell, *cell.block_positions()[3], 0.0)
+    assert result.transit_contacts == [] and result.transit_disturbed == []
+    assert np.linalg.norm(cell.block_positions()[:3] - tower, axis=1).max() < 0.005
+
+
+def test_a_push_whose_line_misses_the_tower_leaves_it_standing():
+    # Seed 3's random push of the issue: from (0.293, -0.184) along 108 deg, 10 cm from the tower's axis.
+    # The old transit knocked the tower over on the way to the start; now the push starts clear of it or stops
+    # at its first touch coming down.
+    env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
+    env.reset(seed=3)
+    env.action_space.seed(3)
+    _, _, _, _, info = env.step(env.action_space.sample())
+    env.close()
+    assert info["blocks_moved"] == 0 and not info["is_success"]
+    assert info["transit_contacts"] == 0 and info["disturbed"] == 0
+
+
+def test_push_past_everything_reports_no_contact(cell):
+    cell.reset(np.random.default_rng(0), "tower")
+    centre = cell.block_positions()[0, :2]
+    start_y = -0.3 if centre[1] > -0.05 else 0.3
+    result = push(cell, 0.3, start_y, 0.03, 0.0, 0.1)
+    assert not result.success and result.reason == "no_contact" and result.disturbed == []
+
+
+def test_collateral_names_what_a_push_moved_besides_its_pile(cell):
+    # A push through a lone block: the block is the target; a tower far away is not disturbed.
+    _three_block_tower_and_a_block(cell, (0.6, 0.2), (0.45, -0.15))
+    result = push(cell, 0.38, -0.15, 0.03, 0.0, 0.15)
+    assert result.success and result.targets == {int(cell.block_ids[3])}
+    assert result.disturbed == [] and result.transit_contacts == []
+    # A grasp that lands on the tower's top block while aiming at it disturbs nothing else.
+    top = cell.block_positions()[2]
+    result = grasp(cell, *top, float(cell.block_yaws()[2]))
+    assert result.reason == "ok" and result.disturbed == []
