@@ -8,8 +8,8 @@
 
 Agents: random, planned (perception-based planned baselines), oracle (the same, on
 true poses), and every shipped learned checkpoint by name (agents/checkpoints/).
-Tasks: Grasp, GraspClutter, TowerBuild, TowerBreak, BuildAndBreak (primitive
-actions), Push, Lift (low-level ee_delta).  An agent that does not apply to a
+Tasks: Grasp, GraspClutter, TowerBuild, TowerBreak, TowerBreakDirectional,
+BuildAndBreak (primitive actions), Push, Lift (low-level ee_delta).  An agent that does not apply to a
 task is skipped with the reason printed.
 Outputs (``--out``, default results/quick or results/full): results.json and
 results.csv (deterministic: same seeds give identical files), timing.json,
@@ -95,6 +95,7 @@ QUICK_SEEDS = {
     "GraspClutter": 2,
     "TowerBuild": 5,
     "TowerBreak": 5,
+    "TowerBreakDirectional": 5,
     "BuildAndBreak": 1,
     "Push": 20,
     "Lift": 20,
@@ -104,6 +105,7 @@ FULL_SEEDS = {
     "GraspClutter": 30,
     "TowerBuild": 100,
     "TowerBreak": 100,
+    "TowerBreakDirectional": 100,
     "BuildAndBreak": 10,
     "Push": 100,
     "Lift": 100,

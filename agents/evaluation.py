@@ -23,6 +23,7 @@ TASKS: dict[str, tuple[str, dict[str, Any]]] = {
     "GraspClutter": ("PandaGraspClutter-v0", {"primitive_z": True}),
     "TowerBuild": ("PandaTowerBuild-v0", {}),
     "TowerBreak": ("PandaTowerBreak-v0", {}),
+    "TowerBreakDirectional": ("PandaTowerBreakDirectional-v0", {}),
     "BuildAndBreak": ("PandaBuildAndBreak-v0", {"max_episode_steps": 30}),
     # Low-level goal tasks (ee_delta, 50 steps of 40 ms): for learned HER policies and the random baseline.
     "Push": ("PandaPush-v0", {}),
@@ -130,7 +131,7 @@ def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
     blocks = OracleBlocks(env) if oracle else CameraBlocks(noise_seed=spec.seed)
     if spec.task == "TowerBuild":
         return TowerBuilderAgent(blocks)
-    if spec.task == "TowerBreak":
+    if spec.task.startswith("TowerBreak"):
         return TowerBreakerAgent(blocks)
     return BuildAndBreakAgent(blocks)
 

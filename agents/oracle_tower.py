@@ -14,10 +14,11 @@ import numpy as np
 
 from panda_grasp_env.primitives import PrimitiveResult, grasp, place, push
 from panda_grasp_env.stacking import tower_footprint_centre, tower_is_built, wrap_quarter_turn
+from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 from panda_grasp_env.workcell import Workcell
 
 #: The four push directions of the source study, as headings about world z (radians).
-PUSH_DIRECTIONS = {"+x": 0.0, "+y": np.pi / 2, "-x": np.pi, "-y": -np.pi / 2}
+PUSH_DIRECTIONS = BREAK_DIRECTIONS
 
 
 @dataclass

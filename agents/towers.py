@@ -15,10 +15,9 @@ import gymnasium as gym
 import numpy as np
 
 from agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
+from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 from perception.pose import detect_towers, estimate_block_poses, wrap_quarter
 
-#: The four push directions of the source study, as headings about world z.
-PUSH_HEADINGS = (0.0, np.pi / 2, np.pi, -np.pi / 2)
 #: Where a push starts: this far from the tower's axis (half a block plus a finger's clearance).
 PUSH_START = 0.065
 
@@ -151,7 +150,8 @@ class TowerBuilderAgent:
 
 class TowerBreakerAgent:
     """Push the tallest tower over: of the four directions, the one heading most towards the middle of
-    the workspace (so the blocks stay within reach) whose start is clear of other blocks."""
+    the workspace (so the blocks stay within reach) whose start is clear of other blocks; in a directional
+    break (the observation's one-hot ``command``), the commanded one."""
 
     def __init__(self, perceiver: CameraBlocks | OracleBlocks | None = None) -> None:
         self.perceiver = perceiver or CameraBlocks()
@@ -174,14 +174,17 @@ class TowerBreakerAgent:
         centre = blocks[tower[0]].position[:2]
         others = np.array([blocks[n].position[:2] for n in blocks if n not in tower]).reshape(-1, 2)
         inward = np.array([0.5, 0.0]) - centre
-        for heading in sorted(PUSH_HEADINGS, key=lambda h: -(np.cos(h) * inward[0] + np.sin(h) * inward[1])):
+        headings = list(BREAK_DIRECTIONS.values())
+        if isinstance(observation, dict) and "command" in observation:
+            headings = [headings[int(np.argmax(observation["command"]))]]
+        for heading in sorted(headings, key=lambda h: -(np.cos(h) * inward[0] + np.sin(h) * inward[1])):
             direction = np.array([np.cos(heading), np.sin(heading)])
             start = centre - PUSH_START * direction
             clear = len(others) == 0 or np.min(np.linalg.norm(others - start, axis=1)) > 0.06
             if clear and 0.27 < start[0] < 0.73 and abs(start[1]) < 0.33:
                 return self.write("push", start[0], start[1], heading)
-        start = centre - PUSH_START * np.array([1.0, 0.0])
-        return self.write("push", start[0], start[1], 0.0)
+        start = centre - PUSH_START * np.array([np.cos(headings[0]), np.sin(headings[0])])
+        return self.write("push", start[0], start[1], headings[0])
 
 
 class BuildAndBreakAgent:

@@ -190,6 +190,7 @@ class PandaEnv(gym.Env):
             self.sensors,
             self.task.goal_size if self.goal_conditioned else None,
             self.task.goal_size if self._goal_in_state else 0,
+            self.task.command_size,
         )
         self.action_space = self.actions.space
         self.observation_space = self.observations.space
@@ -401,7 +402,7 @@ class PandaEnv(gym.Env):
 
     def _observe(self, sanitise: bool = False) -> Any:
         extra = self.task.desired_goal() if self._goal_in_state else None
-        observation = self.observations.observe(self._goals(), extra)
+        observation = self.observations.observe(self._goals(), extra, self.task.command())
         if sanitise:  # after a divergence the state may hold NaN: never hand that to a learner
             if isinstance(observation, dict):
                 return {k: np.nan_to_num(v, posinf=0.0, neginf=0.0) for k, v in observation.items()}

@@ -10,7 +10,8 @@
 * ``heightmap`` -- (rows, cols, 4) float32: colour in 0-1 and height in metres
   above the table, VPG-style, projected from the overhead camera's RGB-D.
 
-One modality gives a bare ``Box``; several give a ``Dict``.  Goal-conditioned
+One modality gives a bare ``Box``; several give a ``Dict``, and so does a task
+with a command (the directional TowerBreak's one-hot ``command``).  Goal-conditioned
 low-level envs always give a ``Dict`` with ``achieved_goal`` and
 ``desired_goal``, plus ``observation`` (the state) when ``state`` is asked for,
 plus any image keys.  Image keys are
@@ -156,6 +157,7 @@ class ObservationBuilder:
         sensors: Sensors,
         goal_size: int | None,
         extra_state: int = 0,
+        command_size: int = 0,
     ) -> None:
         self.cell, self.modalities, self.cameras, self.sensors = cell, modalities, cameras, sensors
         self.goal_size = goal_size  # None: not goal-conditioned
@@ -180,6 +182,8 @@ class ObservationBuilder:
             else:
                 for camera in cameras:
                     spaces[self.image_key(camera, modality)] = self._image_space(modality, height, width)
+        if command_size:
+            spaces["command"] = gym.spaces.Box(0.0, 1.0, (command_size,), dtype=np.float32)
         if goal_size is not None:
             spaces["achieved_goal"] = gym.spaces.Box(-STATE_BOUND, STATE_BOUND, (goal_size,), dtype=np.float32)
             spaces["desired_goal"] = gym.spaces.Box(-STATE_BOUND, STATE_BOUND, (goal_size,), dtype=np.float32)
@@ -225,8 +229,15 @@ class ObservationBuilder:
             buffer[self.state_size - len(extra) :] = extra
         return bounded(buffer)
 
-    def observe(self, goals: tuple[np.ndarray, np.ndarray] | None, extra: np.ndarray | None = None) -> Any:
+    def observe(
+        self,
+        goals: tuple[np.ndarray, np.ndarray] | None,
+        extra: np.ndarray | None = None,
+        command: np.ndarray | None = None,
+    ) -> Any:
         out: dict[str, Any] = {}
+        if "command" in self.keys:
+            out["command"] = np.asarray(command, dtype=np.float32)
         for modality in self.modalities:
             if modality == "state":
                 out["observation" if self.goal_size is not None else "state"] = self.state(extra)

@@ -17,6 +17,7 @@ ENV_IDS: dict[str, tuple[dict, int]] = {
     # Primitive tasks: steps are motion primitives (~4 s simulated each).
     "PandaTowerBuild-v0": ({"task": "TowerBuild"}, 30),
     "PandaTowerBreak-v0": ({"task": "TowerBreak"}, 5),
+    "PandaTowerBreakDirectional-v0": ({"task": "TowerBreak", "directional": True}, 5),
     "PandaBuildAndBreak-v0": ({"task": "BuildAndBreak"}, 100),
     "PandaGraspClutter-v0": ({"task": "Grasp", "clutter": True}, 60),
     # Goal-conditioned in the low-level modes (the default for Push and Stack; Grasp defaults to primitives, and

@@ -61,6 +61,10 @@ class Task(ABC):
     #: ``start_<state>`` curriculum options): ``in_hand``, ``above_object``, ``behind_object``.
     start_states: ClassVar[tuple[str, ...]] = ()
 
+    #: Length of the task's command vector (what the episode asks for, e.g. a direction), observed as the
+    #: ``command`` entry; 0 for tasks without one.
+    command_size: int = 0
+
     #: Set by the env: the hand's heading (radians, world) in the ``ee_delta`` action mode, which cannot turn
     #: it; None where actions choose the heading.  Tasks whose objects must fit between the fingers read it.
     fixed_hand_yaw: float | None = None
@@ -83,6 +87,10 @@ class Task(ABC):
     def start_object(self, cell: Workcell) -> int:
         """Body id of the object the ``start_states`` are relative to (tasks that have some)."""
         raise TypeError(f"task {self.name!r} has no start states")
+
+    def command(self) -> np.ndarray:
+        """The episode's command (``command_size`` float32 entries), drawn at reset."""
+        return np.zeros(0, dtype=np.float32)
 
     @property
     def ideal_actions(self) -> int | None:

@@ -11,6 +11,9 @@ from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, is_number, register_task, with_scene
 from panda_grasp_env.workcell import Workcell
 
+#: The source study's four push directions, as headings about world z (radians).
+BREAK_DIRECTIONS = {"+x": 0.0, "+y": np.pi / 2, "-x": np.pi, "-y": -np.pi / 2}
+
 
 def blocks_moved(positions: np.ndarray, tower_positions: np.ndarray, block_size: float) -> int:
     """Blocks whose centre is at least one block size from where it stood in the tower."""
@@ -25,7 +28,11 @@ class TowerBreak(Task):
     tower position (moved >= one block size; default all but the base);
     ``allow_impulse``: add the ``impulse`` primitive (a horizontal impulse of
     ``impulse_magnitude`` N s on the block nearest the chosen point, as in the
-    fall-dynamics study) next to ``push``.
+    fall-dynamics study) next to ``push``; ``directional``: the source study's
+    directional break -- each episode commands one of ``BREAK_DIRECTIONS``
+    (drawn at reset, observed as the one-hot ``command``, in that order), and
+    the tower must also fall towards it: the blocks' centroid moves at least one
+    block size, within 45 degrees of the commanded heading.
     Success: >= k blocks moved by a primitive that succeeded; terminates once
     >= k blocks moved (``info["broken_by_failure"]`` when a failed primitive
     moved them: no success).  Reward: blocks newly moved this step, +1 on
@@ -36,7 +43,12 @@ class TowerBreak(Task):
     primitives = ("push",)
 
     def __init__(
-        self, n_blocks: int = 4, k: int | None = None, allow_impulse: bool = False, impulse_magnitude: float = 0.06
+        self,
+        n_blocks: int = 4,
+        k: int | None = None,
+        allow_impulse: bool = False,
+        impulse_magnitude: float = 0.06,
+        directional: bool = False,
     ) -> None:
         check_option("n_blocks", n_blocks, isinstance(n_blocks, int) and 2 <= n_blocks <= 4, "an int in [2, 4]")
         k = n_blocks - 1 if k is None else k
@@ -44,7 +56,10 @@ class TowerBreak(Task):
         check_option("allow_impulse", allow_impulse, isinstance(allow_impulse, bool), "a bool")
         valid = is_number(impulse_magnitude) and 0 < impulse_magnitude <= 1.0
         check_option("impulse_magnitude", impulse_magnitude, valid, "in (0, 1] N s")
-        self.n_blocks, self.k = n_blocks, k
+        check_option("directional", directional, isinstance(directional, bool), "a bool")
+        self.n_blocks, self.k, self.directional = n_blocks, k, directional
+        self.command_size = len(BREAK_DIRECTIONS) if directional else 0
+        self.direction = 0  # index into BREAK_DIRECTIONS
         self.impulse_magnitude = float(impulse_magnitude)
         self.primitives = ("push", "impulse") if allow_impulse else ("push",)
         self._tower = np.zeros((n_blocks, 3))
@@ -62,7 +77,22 @@ class TowerBreak(Task):
         cell.place_blocks(rng, "tower")
         cell.settle(0.3)
         self.mark_tower(cell)
-        return {"blocks_moved": 0}
+        info: dict[str, Any] = {"blocks_moved": 0}
+        if self.directional:
+            self.direction = int(rng.integers(len(BREAK_DIRECTIONS)))
+            info["direction"] = list(BREAK_DIRECTIONS)[self.direction]
+        return info
+
+    def command(self) -> np.ndarray:
+        """One-hot of the commanded direction (directional breaks), in ``BREAK_DIRECTIONS`` order."""
+        return np.eye(len(BREAK_DIRECTIONS), dtype=np.float32)[self.direction]
+
+    def fell_towards_command(self, cell: Workcell) -> bool:
+        """The blocks' centroid moved >= one block size within 45 degrees of the commanded heading."""
+        shift = (cell.block_positions() - self._tower).mean(axis=0)[:2]
+        heading = list(BREAK_DIRECTIONS.values())[self.direction]
+        along = float(shift @ [np.cos(heading), np.sin(heading)])
+        return float(np.hypot(*shift)) >= cell.config.block_size and along >= np.cos(np.pi / 4) * np.hypot(*shift)
 
     def mark_tower(self, cell: Workcell) -> None:
         """Remember the blocks' current positions as the tower to break."""
@@ -82,4 +112,8 @@ class TowerBreak(Task):
         # (unreachable, collision) is lost, not broken: the episode ends without success.
         success = broken and result is not None and result.success
         info = {"blocks_moved": moved, "broken_by_failure": broken and not success}
+        if self.directional:
+            info["direction"] = list(BREAK_DIRECTIONS)[self.direction]
+            info["wrong_direction"] = success and not self.fell_towards_command(cell)
+            success = success and not info["wrong_direction"]
         return TaskStep(float(change) + (1.0 if success else 0.0), success, broken, info)
