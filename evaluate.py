@@ -268,6 +268,7 @@ def applicable(task: str, metrics: dict) -> dict[str, float | None]:
         "grasp_success": grasps["rate"] if grasps["n"] else None,
         "action_efficiency": None if is_low_level(*TASKS[task]) else metrics["action_efficiency"],
         "cycles_per_sim_hour": metrics["cycles_per_sim_hour"] if task == "BuildAndBreak" else None,
+        "collateral_per_action": None if is_low_level(*TASKS[task]) else metrics["collateral_per_action"],
     }
 
 
@@ -300,6 +301,7 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
             "grasp_success",
             "action_efficiency",
             "cycles_per_sim_hour",
+            "collateral_per_action",
             "failures",
         ]
     ]
@@ -340,8 +342,9 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
 
 def print_table(summary: dict) -> str:
     lines = [
-        "| agent | task | N | trial success (95 % CI) | completion | grasp success | action efficiency | cycles / sim h | ms / decision | failures |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| agent | task | N | trial success (95 % CI) | completion | grasp success | action efficiency | cycles / sim h "
+        "| collateral / action | ms / decision | failures |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for key, m in summary["table"].items():
         agent, task = key.split("/")
@@ -353,10 +356,11 @@ def print_table(summary: dict) -> str:
         )
         efficiency = "—" if shown["action_efficiency"] is None else f"{100 * shown['action_efficiency']:.0f} %"
         cycles = "—" if shown["cycles_per_sim_hour"] is None else f"{shown['cycles_per_sim_hour']:.0f}"
+        collateral = "—" if shown["collateral_per_action"] is None else f"{shown['collateral_per_action']:.2f}"
         lines.append(
             f"| {agent} | {task} | {m['episodes']} | {100 * s['rate']:.0f} % ({100 * s['ci95'][0]:.0f}-{100 * s['ci95'][1]:.0f}) "
             f"| {100 * m['completion']['rate']:.0f} % | {grasps} "
-            f"| {efficiency} | {cycles} | {t['ms_per_decision']:.1f} "
+            f"| {efficiency} | {cycles} | {collateral} | {t['ms_per_decision']:.1f} "
             f"| {', '.join(f'{k} {v}' for k, v in m['failures'].items()) or '-'} |"
         )
     table = "\n".join(lines)

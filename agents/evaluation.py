@@ -160,7 +160,7 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
     agent.reset(observation, info)
     in_play = info.get("objects_remaining")
     ideal = env.unwrapped.task.ideal_actions if in_play is None else in_play
-    decisions, actions = [], 0
+    decisions, actions, disturbed, transit_contacts = [], 0, 0, 0
     failures: Counter[str] = Counter()
     task_facts = dict(info)  # the latest of each info key: a diverged step reports no task keys (cycles, objects)
     while True:
@@ -169,6 +169,8 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
         decisions.append(time.perf_counter() - start)
         observation, _, terminated, truncated, info = env.step(action)
         actions += 1
+        disturbed += info.get("disturbed", 0)  # primitive steps only: low-level steps have no collateral keys
+        transit_contacts += info.get("transit_contacts", 0)
         task_facts.update(info)
         if "primitive_reason" in info and not info["primitive_success"]:
             failures[info["primitive_reason"]] += 1
@@ -193,6 +195,8 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
         "sim_seconds": round(float(info["sim_time"]), 6),
         "failures": dict(sorted(failures.items())),
         "physics_error": bool(info["physics_error"]),
+        "disturbed": int(disturbed),
+        "transit_contacts": int(transit_contacts),
     }
     timing = {"wall_seconds": time.perf_counter() - began, "decision_seconds_median": float(np.median(decisions))}
     return {"result": result, "timing": timing}
@@ -267,5 +271,10 @@ def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             "failures": dict(sorted(failures.items())),
             "sim_seconds_per_episode": round(sim_hours * 3600 / n, 3),
             "physics_errors": sum(r["physics_error"] for r in episodes),
+            # Objects moved or tipped besides each primitive's targets, per action (see panda_grasp_env.collateral).
+            "collateral_per_action": round(sum(r.get("disturbed", 0) for r in episodes) / actions, 4)
+            if actions
+            else 0.0,
+            "transit_contacts": sum(r.get("transit_contacts", 0) for r in episodes),
         }
     return table
