@@ -370,3 +370,26 @@ def test_image_observations_are_contiguous_arrays():
     observation, _ = env.reset(seed=0)
     assert observation["rgb"].flags.c_contiguous and observation["depth"].flags.c_contiguous
     env.close()
+
+
+def test_directional_break_observes_its_command_and_checks_where_the_tower_fell():
+    from gymnasium.utils.env_checker import check_env
+
+    from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
+
+    env = gym.make("panda_grasp_env:PandaTowerBreakDirectional-v0")
+    check_env(env.unwrapped, skip_render_check=True)
+    drawn = set()
+    for seed in range(8):
+        observation, info = env.reset(seed=seed)
+        command = observation["command"]
+        assert command.sum() == 1.0 and list(BREAK_DIRECTIONS)[int(np.argmax(command))] == info["direction"]
+        drawn.add(info["direction"])
+    assert len(drawn) > 1  # the command is drawn per episode
+    heading = BREAK_DIRECTIONS[info["direction"]]
+    _, _, terminated, _, info = push_tower_through_env(env, heading)
+    assert info["is_success"] and terminated and not info["wrong_direction"]
+    env.reset(seed=seed)
+    _, _, terminated, _, info = push_tower_through_env(env, heading + np.pi)  # knocked over the other way
+    assert terminated and not info["is_success"] and info["wrong_direction"]
+    env.close()
