@@ -215,7 +215,7 @@ class PixelActions(ActionMode):
     name = "pixel"
     low_level = False
     OCCUPIED = 0.01  # metres: a heightmap cell above this holds an object
-    NEAR = 0.03  # metres: pushes may start this far from an object
+    NEAR = 0.05  # metres: pushes may start this far from an object (the closed hand is ~6 cm thick along a push)
 
     def __init__(
         self, settings: PrimitiveSettings, grid: HeightmapGrid, rotations: int, heightmap: Callable[[], np.ndarray]
