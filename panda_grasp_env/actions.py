@@ -208,7 +208,7 @@ class PixelActions(ActionMode):
 
     The cell's centre on the heightmap grid gives (x, y); rotation r gives the
     heading 2 pi r / R; heights are automatic.  ``action_masks`` allows grasps
-    and pushes only on or near objects (heightmap > 1 cm, dilated by 3 cm)
+    and pushes only on or near objects (heightmap > 1 cm, dilated by ``NEAR``)
     with an empty hand, and places only with something in the hand.
     """
 

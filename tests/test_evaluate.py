@@ -72,13 +72,16 @@ def test_bad_arguments_exit_with_a_message(bad, capsys):
 
 
 def test_figures_that_do_not_apply_are_left_blank():
-    none_attempted = {"grasp_success": {"rate": 0.0, "n": 0}, "action_efficiency": 0.02, "cycles_per_sim_hour": 0.0}
+    none_attempted = {"grasp_success": {"rate": 0.0, "n": 0}, "action_efficiency": 0.02, "cycles_per_sim_hour": 0.0,
+                      "collateral_per_action": 0.0}  # fmt: skip
     assert set(evaluate.applicable("Lift", none_attempted).values()) == {None}  # low-level: runs to the time limit
-    grasped = {"grasp_success": {"rate": 0.9, "n": 10}, "action_efficiency": 0.8, "cycles_per_sim_hour": 0.0}
+    grasped = {"grasp_success": {"rate": 0.9, "n": 10}, "action_efficiency": 0.8, "cycles_per_sim_hour": 0.0,
+               "collateral_per_action": 0.1}  # fmt: skip
     assert evaluate.applicable("GraspClutter", grasped) == {
         "grasp_success": 0.9,
         "action_efficiency": 0.8,
         "cycles_per_sim_hour": None,
+        "collateral_per_action": 0.1,
     }
     assert evaluate.applicable("BuildAndBreak", grasped)["cycles_per_sim_hour"] == 0.0
 
