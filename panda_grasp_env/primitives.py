@@ -119,7 +119,7 @@ def record_collateral(cell: Workcell, result: PrimitiveResult) -> None:
     result.disturbed = sorted(map(cell.name_of, record.disturbed))
 
 
-def _body_ids(cell: Workcell, *bodies: int | None) -> set[int]:
+def _body_ids(*bodies: int | None) -> set[int]:
     return {int(b) for b in bodies if b is not None and b >= 0}
 
 
@@ -145,7 +145,7 @@ def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     cell.actuate_gripper(close=False, timeout=0.4)
     if not cell.transit(x, y, yaw).reached:
         cell.move_home()
-        return PrimitiveResult("grasp", False, "unreachable", targets=_body_ids(cell, aimed))
+        return PrimitiveResult("grasp", False, "unreachable", targets=_body_ids(aimed))
     body, reason = None, "ok"
     with cell.collateral.work():
         cell.move_to(above, yaw, tolerance=0.01)
@@ -171,7 +171,7 @@ def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     if reason != "ok":
         cell.actuate_gripper(close=False, timeout=0.4)
     return PrimitiveResult("grasp", reason == "ok", reason, object=cell.name_of(body),
-                           targets=_body_ids(cell, aimed if body is None else body))  # fmt: skip
+                           targets=_body_ids(aimed if body is None else body))  # fmt: skip
 
 
 @_timed

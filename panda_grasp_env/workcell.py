@@ -226,6 +226,19 @@ class Workcell:
         error = float(np.linalg.norm(self.robot.ee_position - goal))
         return MoveOutcome(reached=error < tolerance, error=error)
 
+    def tallest_top(self, exclude: int | None = None, near: tuple[float, float, float] | None = None) -> float:
+        """Highest top (world z, metres; 0 if none) of the objects on the table, leaving out ``exclude`` and,
+        with ``near`` = (x, y, radius), every object whose footprint stays further than radius from (x, y)."""
+        tops = [0.0]
+        for b in map(int, self.object_ids):
+            if b == exclude or self.is_parked(b):
+                continue
+            reach = self.model.geom_rbound[self.model.body_geomadr[b]]
+            if near is not None and np.hypot(*(self.data.xpos[b][:2] - near[:2])) >= near[2] + reach:
+                continue
+            tops.append(body_vertical_extent(self.model, self.data, b)[1])
+        return max(tops)
+
     def transit_height(self) -> float:
         """Grasp-site height (metres) at which the hand, and whatever it carries, clears every object on the
         table by ``TRANSIT_CLEARANCE``; at least ``TRANSIT_MIN_HEIGHT``, at most the workspace's top."""
@@ -233,25 +246,13 @@ class Workcell:
         hang = FINGERTIP_DEPTH
         if held is not None:
             hang = max(hang, self.robot.ee_position[2] - body_vertical_extent(self.model, self.data, held)[0])
-        tops = [
-            body_vertical_extent(self.model, self.data, int(b))[1]
-            for b in self.object_ids
-            if b != held and not self.is_parked(int(b))
-        ]
-        height = max(tops, default=0.0) + TRANSIT_CLEARANCE + hang
+        height = self.tallest_top(exclude=held) + TRANSIT_CLEARANCE + hang
         return float(min(max(height, TRANSIT_MIN_HEIGHT), WORKSPACE[2, 1]))
 
     def clear_height_near(self, x: float, y: float, radius: float = 0.12) -> float:
-        """Grasp-site height (metres) at which the hand over (x, y) clears, by ``TRANSIT_CLEARANCE``, every
+        """Grasp-site height (metres) at which the empty hand over (x, y) clears, by ``TRANSIT_CLEARANCE``, every
         object whose footprint comes within ``radius`` of (x, y) (the hand's half-span)."""
-        tops = [
-            body_vertical_extent(self.model, self.data, int(b))[1]
-            for b in self.object_ids
-            if not self.is_parked(int(b))
-            and np.hypot(*(self.data.xpos[b][:2] - [x, y]))
-            < radius + self.model.geom_rbound[self.model.body_geomadr[b]]
-        ]
-        return max(tops, default=0.0) + TRANSIT_CLEARANCE + FINGERTIP_DEPTH
+        return self.tallest_top(near=(x, y, radius)) + TRANSIT_CLEARANCE + FINGERTIP_DEPTH
 
     def rise(self, height: float | None = None) -> None:
         """Straight up to ``height`` (default: the transit height), if the grasp site is lower."""
