@@ -1,7 +1,6 @@
 """train.py, its configs, the heightmap Q-policy and loading shipped checkpoints."""
 
 import json
-import math
 from pathlib import Path
 
 import gymnasium as gym
@@ -22,6 +21,7 @@ from agents.heightmap_policy import (
     rotate,
 )
 from agents.training import OutcomeReward, PolicyAgent, TrainConfig, load_class, load_config
+from panda_grasp_env.actions import PixelActions
 from perception.heightmap import HeightmapGrid
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
@@ -260,8 +260,11 @@ def test_exploration_samples_only_allowed_actions():
             assert inside[row, col]
         else:
             near[row, col] = True
-    distances = [math.dist((r, c), (12, 25)) for r, c in zip(*np.nonzero(near))]
-    assert distances and max(distances) <= 3 + 3 * math.sqrt(2) + 0.5  # pushes start within a 3 cm square of it
+    near_cells = round(PixelActions.NEAR / 0.01)  # pushes start at most this many cells (either axis) from the blob
+    blob = np.argwhere(inside)
+    starts = np.argwhere(near)
+    gaps = np.abs(starts[:, None, :] - blob[None, :, :]).max(axis=2).min(axis=1)
+    assert len(starts) and gaps.max() <= near_cells
 
 
 @pytest.fixture(scope="module")
