@@ -53,6 +53,7 @@ class PandaRobot:
         self.body_ids = {
             i for i in range(model.nbody) if mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, i).startswith("panda0_")
         }
+        self.finger_body_ids = frozenset(model.body(n).id for n in FINGER_BODIES)
         self.pad_geom_ids = tuple(model.geom(f"{n}_pad").id for n in FINGER_BODIES)
         self.arm_lower = model.jnt_range[[model.joint(n).id for n in ARM_JOINTS], 0].copy()
         self.arm_upper = model.jnt_range[[model.joint(n).id for n in ARM_JOINTS], 1].copy()

@@ -7,7 +7,7 @@ reset layouts.  World frame, metres, radians throughout.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -51,27 +51,38 @@ class MoveOutcome:
     error: float
 
 
-def body_vertical_extent(model: mujoco.MjModel, data: mujoco.MjData, body_id: int) -> tuple[float, float]:
-    """Lowest and highest world z of a body's collision geoms, metres (exact for boxes, spheres, capsules,
-    cylinders; bounding spheres otherwise)."""
+def body_extent_along(
+    model: mujoco.MjModel, data: mujoco.MjData, body_id: int, axis: np.ndarray | Sequence[float]
+) -> tuple[float, float]:
+    """Lowest and highest coordinate of a body's collision geoms along the world unit vector ``axis``, metres
+    (exact for boxes, spheres, capsules, cylinders; bounding spheres otherwise)."""
+    axis = np.asarray(axis, dtype=float)
     lowest, highest = np.inf, -np.inf
     start, count = model.body_geomadr[body_id], model.body_geomnum[body_id]
     for g in range(start, start + count):
-        size, z_axis = model.geom_size[g], data.geom_xmat[g].reshape(3, 3)[2]
+        if not (model.geom_contype[g] or model.geom_conaffinity[g]):
+            continue  # visual only
+        size = model.geom_size[g]
+        local = data.geom_xmat[g].reshape(3, 3).T @ axis  # the axis in the geom's frame
         kind = int(model.geom_type[g])
         if kind == int(mujoco.mjtGeom.mjGEOM_BOX):
-            half = float(np.abs(z_axis) @ size)
+            half = float(np.abs(local) @ size)
         elif kind == int(mujoco.mjtGeom.mjGEOM_SPHERE):
             half = float(size[0])
         elif kind == int(mujoco.mjtGeom.mjGEOM_CAPSULE):
-            half = float(size[0] + abs(z_axis[2]) * size[1])
+            half = float(size[0] + abs(local[2]) * size[1])
         elif kind == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
-            half = float(abs(z_axis[2]) * size[1] + size[0] * np.sqrt(max(0.0, 1.0 - z_axis[2] ** 2)))
+            half = float(abs(local[2]) * size[1] + size[0] * np.sqrt(max(0.0, 1.0 - local[2] ** 2)))
         else:
             half = float(model.geom_rbound[g])
-        centre = float(data.geom_xpos[g][2])
+        centre = float(data.geom_xpos[g] @ axis)
         lowest, highest = min(lowest, centre - half), max(highest, centre + half)
     return lowest, highest
+
+
+def body_vertical_extent(model: mujoco.MjModel, data: mujoco.MjData, body_id: int) -> tuple[float, float]:
+    """Lowest and highest world z of a body's collision geoms, metres (see ``body_extent_along``)."""
+    return body_extent_along(model, data, body_id, (0.0, 0.0, 1.0))
 
 
 def body_bottom_height(model: mujoco.MjModel, data: mujoco.MjData, body_id: int) -> float:

@@ -129,6 +129,23 @@ def test_a_push_whose_line_misses_the_tower_leaves_it_standing():
     assert info["transit_contacts"] == 0 and info["disturbed"] == 0
 
 
+def test_a_push_beside_a_tower_stops_when_the_hand_meets_it(cell):
+    # The fingers' line passes 8 cm beside a 4-block tower: the ~20 cm-wide hand, above the fingers, would
+    # sweep the upper blocks off.  The stroke stops at that touch: a collision, the tower stands.
+    cell.clear()
+    for level in range(4):
+        cell.set_body_pose(cell.block_ids[level], [0.45, 0.0, 0.025 + level * 0.0501])
+    cell.settle(0.3)
+    tower = cell.block_positions().copy()
+    result = push(cell, 0.3, 0.08, 0.11, 0.0, 0.25)
+    assert result.reason == "collision" and not result.success
+    assert np.linalg.norm(cell.block_positions() - tower, axis=1).max() < 0.01
+    # The same push along the tower's own line strikes it with the fingers and breaks it.
+    result = push(cell, 0.3, 0.0, 0.11, 0.0, 0.25)
+    assert result.success and result.targets == {int(b) for b in cell.block_ids}
+    assert blocks_displaced(cell.block_positions(), tower[0, :2], cell.config.block_size) >= 3
+
+
 def test_push_past_everything_reports_no_contact(cell):
     cell.reset(np.random.default_rng(0), "tower")
     centre = cell.block_positions()[0, :2]
