@@ -6,10 +6,20 @@ from collections import Counter
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
+
+#: Mixed into the agent's seed so that its actions never replay the env's own draws for the same seed.
+ACTION_STREAM = 0x52414E44
 
 
 class RandomAgent:
-    """Samples the action space; the sequence restarts from ``seed`` at every ``reset``."""
+    """Samples the action space; the sequence restarts from ``seed`` at every ``reset``.
+
+    The episode's seed usually seeds the env too, and a Gymnasium space seeded with the same integer draws
+    the same uniform numbers as the env's scene generator: the first "random" push would start exactly
+    where the tower was placed.  The agent therefore samples from a stream derived from (``seed``,
+    ``ACTION_STREAM``), independent of the env's.
+    """
 
     name = "random"
 
@@ -18,7 +28,7 @@ class RandomAgent:
         self.failures: Counter[str] = Counter()
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
-        self.space.seed(self.seed)
+        self.space.seed(int(np.random.SeedSequence([self.seed, ACTION_STREAM]).generate_state(1)[0]))
         self.failures = Counter()
 
     def act(self, observation: Any, info: dict[str, Any]) -> Any:

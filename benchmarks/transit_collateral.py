@@ -4,7 +4,7 @@
 
 For each scene (TowerBuild, TowerBreak, BuildAndBreak, GraspClutter: ids with
 their default ``primitive`` action mode) it runs ``--actions`` random actions
-(episode e: ``reset(seed=SEED_BASE + e)``, ``action_space.seed(SEED_BASE + e)``)
+(episode e: ``reset(seed=SEED_BASE + e)``, the ``RandomAgent`` seeded with ``SEED_BASE + e``)
 and prints, from each step's ``info``:
 
 * the share of actions with ``transit_contacts == 0`` (the robot and its load
@@ -33,6 +33,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import gymnasium as gym
 import numpy as np
 
+from agents.random_agent import RandomAgent
 from benchmarks._common import Results, rate
 
 SCENES = ("PandaTowerBuild-v0", "PandaTowerBreak-v0", "PandaBuildAndBreak-v0", "PandaGraspClutter-v0")
@@ -47,11 +48,11 @@ def random_primitives(env_id: str, actions: int) -> dict:
     done = True
     while len(steps) < actions:
         if done:
-            seed = SEED_BASE + episodes
-            env.reset(seed=seed)
-            env.action_space.seed(seed)
+            agent = RandomAgent(env.action_space, seed=SEED_BASE + episodes)
+            observation, info = env.reset(seed=SEED_BASE + episodes)
+            agent.reset(observation, info)
             episodes += 1
-        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+        observation, _, terminated, truncated, info = env.step(agent.act(observation, info))
         done = terminated or truncated
         successes += bool(done and info["is_success"])
         steps.append(

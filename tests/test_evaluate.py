@@ -127,3 +127,29 @@ def test_grasp_success_interval_widens_when_an_episodes_grasps_fail_together():
     (low, high), (w_low, w_high) = together["ci95"], wilson(12, 16)
     assert low < w_low and high > w_high
     assert clustered_rate([5, 0], [5, 0])["ci95"] == wilson(5, 5)  # one episode with grasps: nothing to cluster
+
+
+def test_random_agent_does_not_replay_the_scene_draws():
+    # Seeded with the episode's seed, a bare action space draws the same uniforms as the env's scene
+    # generator: its pushes would start where the tower was placed.  The agent's stream is its own.
+    import gymnasium as gym
+    import numpy as np
+
+    from agents.random_agent import RandomAgent
+
+    env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
+    towers, bare, agent_actions = [], [], []
+    for seed in range(20):
+        observation, info = env.reset(seed=seed)
+        towers.append(env.unwrapped.cell.block_positions()[0, 0])
+        env.action_space.seed(seed)
+        bare.append(env.action_space.sample()[0])
+        agent = RandomAgent(env.action_space, seed=seed)
+        agent.reset(observation, info)
+        first = agent.act(observation, info)
+        agent.reset(observation, info)
+        assert np.array_equal(agent.act(observation, info), first)  # still seeded: same seed, same actions
+        agent_actions.append(first[0])
+    env.close()
+    assert np.corrcoef(towers, bare)[0, 1] > 0.9  # the trap this guards against
+    assert abs(np.corrcoef(towers, agent_actions)[0, 1]) < 0.5
