@@ -14,7 +14,12 @@ acting, exploring and the TD target.  A policy that uses ``place`` sees a
 fifth plane, whether the hand holds something (``holding_after``): places only
 on occupied cells and only when holding, grasps and pushes only with an empty
 hand (SPOT's masking for stacking).  Without it the policy assumes an empty
-hand (true for ``Grasp``, which sets the grasped object aside).
+hand (true for ``Grasp``, which sets the grasped object aside).  A task with a
+commanded heading (the directional TowerBreak) adds two planes, the command's
+cos and sin; for each rotation the network sees them as the command's
+direction *relative to that rotation's heading* (two constant planes after the
+map is rotated), so one set of weights learns "push where the command points"
+for every heading.
 
 ``HeightmapDQN`` trains only the rotation that was taken (one network pass per
 sample instead of R), as VPG does.
@@ -34,6 +39,7 @@ from stable_baselines3.dqn.policies import DQNPolicy
 from torch import nn
 
 from panda_grasp_env.actions import PixelActions
+from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
 #: Heights (metres) the uint8 height channel spans: one level per millimetre.
 HEIGHT_RANGE = 0.255
@@ -50,35 +56,59 @@ def holding_after(info: dict[str, Any]) -> bool:
     return info.get("primitive") == "grasp" and bool(info.get("primitive_success"))
 
 
-def encode_heightmap(heightmap: np.ndarray, holding: bool | None = None) -> np.ndarray:
+def command_heading(command: np.ndarray) -> float:
+    """World heading (radians) of a directional TowerBreak's one-hot ``command`` (``BREAK_DIRECTIONS`` order)."""
+    command = np.asarray(command)
+    if command.shape != (len(BREAK_DIRECTIONS),):
+        raise ValueError(f"expected a one-hot command of {len(BREAK_DIRECTIONS)} directions, got shape {command.shape}")
+    return float(list(BREAK_DIRECTIONS.values())[int(np.argmax(command))])
+
+
+def encode_heightmap(heightmap: np.ndarray, holding: bool | None = None, heading: float | None = None) -> np.ndarray:
     """Env heightmap (H, W, 4) float32 -- colour 0-1, height metres -- as (4, H, W) uint8 (height in mm);
-    with ``holding`` given, (5, H, W): the fifth plane is 255 when the hand holds something, else 0."""
+    with ``holding`` given, a plane that is 255 when the hand holds something, else 0; with a commanded
+    world ``heading`` (radians) given, two planes: its cos and sin, mapped from [-1, 1] to 0-254."""
     heightmap = np.asarray(heightmap)
     if heightmap.ndim != 3 or heightmap.shape[-1] != 4:
         raise ValueError(f"expected a (rows, cols, 4) heightmap observation, got shape {heightmap.shape}")
     scaled = heightmap.astype(np.float32)
     scaled[..., 3] = scaled[..., 3] / HEIGHT_RANGE
-    planes = np.round(np.clip(scaled, 0.0, 1.0) * 255).astype(np.uint8).transpose(2, 0, 1)
+    planes = [np.round(np.clip(scaled, 0.0, 1.0) * 255).astype(np.uint8).transpose(2, 0, 1)]
     if holding is not None:
-        planes = np.concatenate([planes, np.full((1, *planes.shape[1:]), 255 if holding else 0, dtype=np.uint8)])
-    return np.ascontiguousarray(planes)
+        planes.append(np.full((1, *heightmap.shape[:2]), 255 if holding else 0, dtype=np.uint8))
+    if heading is not None:
+        values = np.round((np.array([np.cos(heading), np.sin(heading)]) + 1.0) * 127.0).astype(np.uint8)
+        planes.append(np.broadcast_to(values[:, None, None], (2, *heightmap.shape[:2])))
+    return np.ascontiguousarray(np.concatenate(planes))
+
+
+def encode_observation(observation: Any, info: dict[str, Any], holding_plane: bool) -> np.ndarray:
+    """``encode_heightmap`` of an env observation: a bare heightmap, or a dict of ``heightmap`` and
+    ``command``; the holding plane (``holding_after`` the step that returned ``info``) if ``holding_plane``."""
+    holding = holding_after(info) if holding_plane else None
+    if isinstance(observation, dict):
+        return encode_heightmap(observation["heightmap"], holding, command_heading(observation["command"]))
+    return encode_heightmap(observation, holding)
 
 
 class EncodedHeightmap(gym.Wrapper):
-    """Gives the policy ``encode_heightmap`` of the env's ``heightmap`` observation (uint8: 4x smaller in
-    replay), with the holding plane (``holding_after`` the last step) if ``holding_plane``."""
+    """Gives the policy ``encode_observation`` of the env's ``heightmap`` observation (uint8: 4x smaller in
+    replay), with the holding plane if ``holding_plane`` and the command planes if the env commands one."""
 
     def __init__(self, env: gym.Env, holding_plane: bool = False) -> None:
         super().__init__(env)
         space = env.observation_space
-        if not isinstance(space, gym.spaces.Box) or space.shape[-1:] != (4,) or len(space.shape) != 3:
+        command = isinstance(space, gym.spaces.Dict) and set(space.spaces) == {"heightmap", "command"}
+        heightmap = space["heightmap"] if command else space
+        if not isinstance(heightmap, gym.spaces.Box) or heightmap.shape[-1:] != (4,) or len(heightmap.shape) != 3:
             raise ValueError(f"EncodedHeightmap needs obs_mode='heightmap' (rows, cols, 4); got {space}")
-        rows, cols, _ = space.shape
+        rows, cols, _ = heightmap.shape
         self.holding_plane = holding_plane
-        self.observation_space = gym.spaces.Box(0, 255, (5 if holding_plane else 4, rows, cols), dtype=np.uint8)
+        channels = 4 + int(holding_plane) + 2 * int(command)
+        self.observation_space = gym.spaces.Box(0, 255, (channels, rows, cols), dtype=np.uint8)
 
-    def _encode(self, observation: np.ndarray, info: dict[str, Any]) -> np.ndarray:
-        return encode_heightmap(observation, holding_after(info) if self.holding_plane else None)
+    def _encode(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
+        return encode_observation(observation, info, self.holding_plane)
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
         observation, info = self.env.reset(**kwargs)
@@ -108,7 +138,7 @@ def rotate(images: th.Tensor, angles: th.Tensor) -> th.Tensor:
 
 
 class HeightmapQNetwork(nn.Module):
-    """Q-values of every ``pixel`` action from an encoded heightmap (B, 4 or 5, H, W) uint8."""
+    """Q-values of every ``pixel`` action from an encoded heightmap (B, 4-7, H, W) uint8."""
 
     def __init__(
         self,
@@ -117,13 +147,17 @@ class HeightmapQNetwork(nn.Module):
         used: tuple[str, ...],
         width: int,
         near_cells: int,
-        channels: int = 4,
+        holding: bool = False,
+        command: bool = False,
         refine: bool = False,
     ) -> None:
         """``shape``: (primitives, rotations, rows, cols); ``near_cells``: push-mask radius in cells;
-        ``channels``: 4 (heightmap) or 5 (heightmap and the holding plane); ``refine``: add a half-resolution
-        correction of the quarter-resolution scores (see ``_scores``)."""
+        ``holding``: the input has the holding plane (after the heightmap's 4); ``command``: it ends with the
+        two command planes; ``refine``: add a half-resolution correction of the quarter-resolution scores
+        (see ``_scores``)."""
         super().__init__()
+        self.holding, self.command = holding, command
+        channels = 4 + int(holding) + 2 * int(command)
         self.n_primitives, self.rotations, self.rows, self.cols = shape
         self.primitives, self.used = primitives, used
         side = math.ceil(math.hypot(self.rows, self.cols) / 4) * 4  # rotations never cut the workspace off
@@ -158,9 +192,15 @@ class HeightmapQNetwork(nn.Module):
         self.near_cells = near_cells
 
     def _scores(self, heightmaps: th.Tensor, angles: th.Tensor) -> th.Tensor:
-        """(N, P, H, W) scores of heightmaps (N, 4, H, W) float 0-1, each at heading angle ``angles[n]``."""
-        padded = F.pad(heightmaps, self.pad)
-        half = self.net[:2](rotate(padded, angles))
+        """(N, P, H, W) scores of encoded heightmaps (N, C, H, W) float 0-1, each at heading angle ``angles[n]``."""
+        maps = heightmaps[:, :-2] if self.command else heightmaps
+        rotated = rotate(F.pad(maps, self.pad), angles)
+        if self.command:
+            cos_sin = heightmaps[:, -2:, 0, 0] * (255.0 / 127.0) - 1.0
+            relative = heading_in_image(th.atan2(cos_sin[:, 1], cos_sin[:, 0])) - angles
+            planes = th.stack([th.cos(relative), th.sin(relative)], 1)[:, :, None, None]
+            rotated = th.cat([rotated, planes.expand(-1, -1, self.side, self.side)], 1)
+        half = self.net[:2](rotated)
         features = self.net[2:-1](half)
         coarse = self.net[-1](features)
         if self.refine is not None:
@@ -199,7 +239,7 @@ class HeightmapQNetwork(nn.Module):
         occupied = height > PixelActions.OCCUPIED
         radius = self.near_cells
         near = F.max_pool2d(occupied.float(), 2 * radius + 1, stride=1, padding=radius) > 0
-        if observations.shape[1] == 5:
+        if self.holding:
             holding = observations[:, 4:5].amax((2, 3), keepdim=True) > 127
         else:
             holding = th.zeros_like(occupied[:, :, :1, :1])
@@ -262,6 +302,7 @@ class HeightmapQPolicy(DQNPolicy):
             the holding plane: ``EncodedHeightmap(env, holding_plane=True)``).
         width: channels of the network's inner layers.
         refine: score at half instead of quarter resolution (``HeightmapQNetwork``), for precise places.
+        command: the observations end with the two command planes (``encode_heightmap``'s ``heading``).
     """
 
     def __init__(
@@ -275,13 +316,18 @@ class HeightmapQPolicy(DQNPolicy):
         primitives_used: tuple[str, ...] | None = None,
         width: int = 48,
         refine: bool = False,
+        command: bool = False,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
     ) -> None:
         primitives = tuple(primitives)
-        if len(observation_space.shape) != 3 or observation_space.shape[0] not in (4, 5):
-            raise ValueError(f"HeightmapQPolicy needs encoded heightmaps (4 or 5, rows, cols), got {observation_space}")
-        sees_hand = observation_space.shape[0] == 5
+        planes = observation_space.shape[0] - (2 if command else 0) if len(observation_space.shape) == 3 else 0
+        if planes not in (4, 5):
+            expected = "6 or 7" if command else "4 or 5"
+            raise ValueError(
+                f"HeightmapQPolicy needs encoded heightmaps ({expected}, rows, cols), got {observation_space}"
+            )
+        sees_hand = planes == 5
         used = tuple(p for p in primitives if p != "place") if primitives_used is None else tuple(primitives_used)
         unknown = [p for p in used if p not in primitives or (p == "place" and not sees_hand)]
         if unknown or not used:
@@ -294,7 +340,8 @@ class HeightmapQPolicy(DQNPolicy):
         if not cell_size > 0:
             raise ValueError(f"cell_size must be a positive number of metres, got {cell_size!r}")
         self.network_args = {"primitives": primitives, "rotations": int(rotations), "cell_size": float(cell_size),
-                             "primitives_used": used, "width": int(width), "refine": bool(refine)}  # fmt: skip
+                             "primitives_used": used, "width": int(width), "refine": bool(refine),
+                             "command": bool(command)}  # fmt: skip
         self.shape = shape
         super().__init__(
             observation_space, action_space, lr_schedule, normalize_images=False,
@@ -306,7 +353,8 @@ class HeightmapQPolicy(DQNPolicy):
         near_cells = max(1, round(PixelActions.NEAR / args["cell_size"]))
         network = HeightmapQNetwork(
             self.shape, args["primitives"], args["primitives_used"], args["width"], near_cells,
-            channels=self.observation_space.shape[0], refine=args["refine"],
+            holding=self.observation_space.shape[0] - 2 * args["command"] == 5, command=args["command"],
+            refine=args["refine"],
         )  # fmt: skip
         return network.to(self.device)
 

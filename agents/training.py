@@ -208,11 +208,10 @@ def observation_transform(config: TrainConfig) -> Callable[[Any, dict[str, Any]]
     """What the policy sees of an env observation and the step's info (the same in training, evaluation and
     ``LearnedAgent``)."""
     if config.algo == "heightmap_dqn":
-        from agents.heightmap_policy import encode_heightmap, holding_after
+        from agents.heightmap_policy import encode_observation
 
-        if holding_plane(config):
-            return lambda observation, info: encode_heightmap(observation, holding_after(info))
-        return lambda observation, info: encode_heightmap(observation)
+        holding = holding_plane(config)
+        return lambda observation, info: encode_observation(observation, info, holding)
     return lambda observation, info: observation
 
 
@@ -344,6 +343,7 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
             "primitives": probe.unwrapped.task.primitives,
             "rotations": probe.unwrapped.actions.rotations,
             "cell_size": probe.unwrapped.actions.grid.resolution,
+            "command": "command" in getattr(probe.observation_space, "spaces", {}),
             **policy_kwargs,
         }
         probe.close()

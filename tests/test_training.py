@@ -13,6 +13,7 @@ import train
 from agents import learned
 from agents.heightmap_policy import (
     HEIGHT_RANGE,
+    EncodedHeightmap,
     HeightmapDQN,
     HeightmapQPolicy,
     encode_heightmap,
@@ -22,6 +23,7 @@ from agents.heightmap_policy import (
 )
 from agents.training import OutcomeReward, PolicyAgent, TrainConfig, load_class, load_config
 from panda_grasp_env.actions import PixelActions
+from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 from perception.heightmap import HeightmapGrid
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
@@ -186,6 +188,36 @@ def test_encoded_heightmap_keeps_millimetres():
     assert observation[3][inside][0] * HEIGHT_RANGE / 255 == pytest.approx(0.123, abs=5e-4)
     with pytest.raises(ValueError, match="heightmap"):
         encode_heightmap(np.zeros((40, 40, 3)))
+
+
+def test_directional_command_becomes_heading_planes_the_network_reads():
+    env = EncodedHeightmap(gym.make("panda_grasp_env:PandaTowerBreakDirectional-v0", obs_mode="heightmap",
+                                    action_mode="pixel", heightmap_resolution=0.008, rotations=4))  # fmt: skip
+    observation, info = env.reset(seed=0)
+    assert observation.shape == env.observation_space.shape and observation.shape[0] == 6
+    cos_sin = observation[4:, 0, 0] / 127.0 - 1.0
+    heading = BREAK_DIRECTIONS[info["direction"]]
+    assert cos_sin == pytest.approx([np.cos(heading), np.sin(heading)], abs=0.01)
+    assert (observation[4:] == observation[4:, :1, :1]).all()  # constant planes
+    env.close()
+    th.manual_seed(0)
+    space = gym.spaces.Box(0, 255, (6, 40, 40), dtype=np.uint8)
+    policy = HeightmapQPolicy(space, gym.spaces.Discrete(4 * 1600), lambda _: 1e-3, primitives=("push",), rotations=4,
+                              cell_size=0.01, command=True)  # fmt: skip
+    assert policy._get_constructor_parameters()["command"]
+    heightmap = np.zeros((40, 40, 4), dtype=np.float32)
+    heightmap[10:15, 20:25] = [0.8, 0.2, 0.2, 0.1]
+    east, north = (th.as_tensor(encode_heightmap(heightmap, heading=h))[None] for h in (0.0, np.pi / 2))
+    assert not th.allclose(policy.q_net(east), policy.q_net(north))  # the command changes the Q-values
+    # A command is seen relative to each rotation's heading: rotation 1 (north) under the north command
+    # scores what rotation 0 (east) scores under the east command, on a map turned by a quarter.
+    turned = np.rot90(heightmap, k=1, axes=(0, 1)).copy()  # rows run along -x, columns along -y
+    q_east = policy.q_net(east).view(4, 40, 40)[0]
+    q_north = policy.q_net(th.as_tensor(encode_heightmap(turned, heading=np.pi / 2))[None]).view(4, 40, 40)[1]
+    assert th.allclose(th.rot90(q_east, 1, (0, 1)), q_north, atol=1e-4)
+    with pytest.raises(ValueError, match="6 or 7"):
+        HeightmapQPolicy(gym.spaces.Box(0, 255, (4, 40, 40), dtype=np.uint8), gym.spaces.Discrete(4 * 1600),
+                         lambda _: 1e-3, primitives=("push",), rotations=4, cell_size=0.01, command=True)  # fmt: skip
 
 
 @pytest.mark.parametrize("refine", [False, True])
