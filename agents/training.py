@@ -742,11 +742,24 @@ def final_test(config: TrainConfig, run_dir: Path, steps: int, wall_seconds: flo
         "steps_to_90_percent": first_90["steps"] if first_90 else None,
         "minutes_to_90_percent": round(first_90["wall_seconds"] / 60, 1) if first_90 else None,
         "metrics": metrics,
+        "earlier": earlier_tests(run_dir, best["steps"], steps),
     }
     write_json(run_dir / "final.json", final)
     plot_curve(run_dir, f"{config.name}: {config.algo} on {config.env_id}")
     write_atomically(run_dir / "card.md", model_card(config, run_dir, final))
     return final
+
+
+def earlier_tests(run_dir: Path, best_steps: int, steps: int) -> list[dict[str, Any]]:
+    """The earlier final tests of the same policy (a retest keeps what it replaces, newest last): each its
+    commit and metrics.  Empty when there is none or the last one tested another policy."""
+    path = run_dir / "final.json"
+    if not path.is_file():
+        return []
+    previous = json.loads(path.read_text())
+    if (previous.get("best_steps"), previous.get("steps")) != (best_steps, steps):
+        return []
+    return [*previous.get("earlier", []), {"test_commit": previous.get("test_commit"), "metrics": previous["metrics"]}]
 
 
 def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str:
@@ -758,6 +771,23 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
         if r["n"] == 0:
             return "- (none attempted)"
         return describe_rate(r)
+
+    def results(m: dict[str, Any]) -> list[str]:
+        if low_level:  # one goal per episode: trial success says it all
+            return [f"- trial success: {pct(m['trial_success'])}"]
+        return [
+            f"- trial success: {pct(m['trial_success'])}",
+            f"- completion: {pct(m['completion'])}",
+            f"- grasp success: {pct(m['grasp_success'])}",
+            f"- action efficiency: {100 * m['action_efficiency']:.1f} %",
+            f"- failures: {json.dumps(m['failures'])}",
+        ]
+
+    earlier = []
+    for test in reversed(final.get("earlier", [])):
+        earlier += ["", f"At commit {test['test_commit']}:", "", *results(test["metrics"])]
+    if earlier:
+        earlier = ["", "### Earlier tests of this policy, same seeds (newest first)", *earlier]
 
     lines = [
         f"# {config.name}",
@@ -796,17 +826,8 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
             else f"The policy tested is the final one (step {final['steps']}): this run kept no validated best."
         ),  # fmt: skip
         "",
-        f"- trial success: {pct(m['trial_success'])}",
-        *(
-            []
-            if low_level  # one goal per episode: trial success says it all
-            else [
-                f"- completion: {pct(m['completion'])}",
-                f"- grasp success: {pct(m['grasp_success'])}",
-                f"- action efficiency: {100 * m['action_efficiency']:.1f} %",
-                f"- failures: {json.dumps(m['failures'])}",
-            ]
-        ),
+        *results(m),
+        *earlier,
         "",
         "![learning curve](curve.png)",
         "",

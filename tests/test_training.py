@@ -561,3 +561,6 @@ def test_retest_runs_on_a_shipped_checkpoint_too(finished_run, tmp_path, monkeyp
     assert after["metrics"] == before["metrics"] and after["steps"] == before["steps"] == 12
     assert not (shipped / "progress.json").exists()
     assert after["test_commit"]  # the code the test ran on, which a card names when it differs from training's
+    # The figures it replaces stay beside the new ones (final.json and the card), newest last.
+    assert after["earlier"][-1] == {"test_commit": before["test_commit"], "metrics": before["metrics"]}
+    assert "Earlier tests of this policy" in (shipped / "card.md").read_text()
