@@ -15,12 +15,23 @@ geom id (-1 for background).
 
 from __future__ import annotations
 
+import os
+import sys
+
 import mujoco
 import numpy as np
 
 PROFILES = ("fast", "pretty")
 MODALITIES = ("rgb", "depth", "segmentation")
 _GEOM_GROUPS = {"fast": (0, 2), "pretty": (0, 1)}
+
+
+def display_available() -> bool:
+    """Whether an on-screen window can open: on Linux an X11 or Wayland display must be named (without one,
+    MuJoCo's viewer ends the process from C, past any Python handler); other systems always have one."""
+    if sys.platform.startswith("linux"):
+        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return True
 
 
 class CameraRenderer:

@@ -277,3 +277,22 @@ def test_physics_divergence_truncates_and_reset_recovers():
     _, _, _, truncated, info = env.step(np.zeros(4))
     assert not truncated and not info["physics_error"]
     env.close()
+
+
+def test_render_check_passes_without_a_display(monkeypatch):
+    # Gymnasium's default check_env builds every advertised render mode; "human" would end the process
+    # from C (GLFW) on a server, so without a display it is neither advertised nor accepted.  (gym.make
+    # then wraps an rgb_array env in its own HumanRendering, which raises a Python error without pygame
+    # or a display.)
+    from panda_grasp_env import env as env_module
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(ValueError, match="needs a display"):
+        env_module.PandaEnv(task="TowerBreak", render_mode="human")
+    advertised = env_module.advertised_render_modes()
+    assert "human" not in advertised and "rgb_array" in advertised
+    monkeypatch.setitem(env_module.PandaEnv.metadata, "render_modes", advertised)  # as imported on a server
+    env = gym.make("panda_grasp_env:PandaTowerBreak-v0", render_mode="rgb_array", render_size=(64, 48))
+    gym_check_env(env.unwrapped)
+    env.close()
