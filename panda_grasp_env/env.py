@@ -51,6 +51,38 @@ COUNTERS = ("grasps_attempted", "grasps_succeeded", "places", "places_succeeded"
 RENDER_MODES = ("rgb_array", "depth_array", "human")
 
 
+#: Largest image or render side, pixels.
+MAX_IMAGE_SIDE = 2048
+#: A heightmap grid has this many cells per side, at least and at most.
+GRID_SIDES = (16, 1024)
+
+
+def checked_cameras(cameras: Any) -> tuple[str, ...]:
+    """``cameras`` (one name or a sequence of names) as a tuple; ``ValueError`` unless they are known and distinct."""
+    names = (cameras,) if isinstance(cameras, str) else tuple(cameras) if isinstance(cameras, (tuple, list)) else None
+    if not names or not all(isinstance(c, str) and c in CAMERA_NAMES for c in names) or len(set(names)) < len(names):
+        raise ValueError(f"cameras must be distinct names from {list(CAMERA_NAMES)}, got {cameras!r}")
+    return names
+
+
+def checked_grid(bounds: Any, resolution: Any) -> HeightmapGrid:
+    """The heightmap grid of ``heightmap_bounds`` (metres) and ``heightmap_resolution`` (metres per cell);
+    ``ValueError`` unless it has ``GRID_SIDES`` cells per side."""
+    if not (is_number(resolution) and resolution > 0):
+        raise ValueError(f"heightmap_resolution must be a positive number of metres, got {resolution!r}")
+    try:
+        grid = HeightmapGrid(tuple(map(tuple, bounds)), float(resolution))
+    except (TypeError, ValueError):
+        raise ValueError(f"heightmap_bounds must be ((x0, x1), (y0, y1), (z0, z1)) metres, got {bounds!r}") from None
+    low, high = GRID_SIDES
+    if not all(low <= side <= high for side in grid.shape):
+        raise ValueError(
+            f"heightmap_resolution={resolution!r} over heightmap_bounds={bounds!r} gives a {grid.shape} grid; "
+            f"each side must have {low}-{high} cells"
+        )
+    return grid
+
+
 def advertised_render_modes() -> list[str]:
     """``RENDER_MODES`` less "human" (a window) where none can open: checkers that build every advertised
     mode (Gymnasium's ``check_env``) then work on servers."""
@@ -130,15 +162,14 @@ class PandaEnv(gym.Env):
                              "use 'rgb_array' and save the frames, e.g. with gymnasium's RecordVideo")  # fmt: skip
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"unknown render_mode {render_mode!r}; valid: {self.metadata['render_modes']} or None")
-        cameras = (cameras,) if isinstance(cameras, str) else tuple(cameras)
-        unknown = [c for c in cameras if c not in CAMERA_NAMES]
-        if unknown or not cameras:
-            raise ValueError(f"unknown camera(s) {unknown or cameras}; valid: {list(CAMERA_NAMES)}")
+        cameras = checked_cameras(cameras)
         for name, size in (("image_size", image_size), ("render_size", render_size)):
-            if len(tuple(size)) != 2 or not all(
-                isinstance(v, (int, np.integer)) and is_number(v) and v > 0 for v in size
-            ):
-                raise ValueError(f"{name} must be (width, height) in positive ints, got {size!r}")
+            sides = tuple(size) if isinstance(size, (tuple, list, np.ndarray)) else ()
+            whole = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in sides)
+            if len(sides) != 2 or not whole or not all(1 <= v <= MAX_IMAGE_SIDE for v in sides):
+                raise ValueError(f"{name} must be (width, height) in ints from 1 to {MAX_IMAGE_SIDE}, got {size!r}")
+        if scene is not None and not isinstance(scene, SceneConfig):
+            raise ValueError(f"scene must be a panda_grasp_env.scene.SceneConfig or None, got {type(scene).__name__}")
         if block_gripper and action_mode != "ee_delta":
             raise ValueError(f"block_gripper=True needs action_mode='ee_delta', not {action_mode!r}")
         if not (is_number(push_distance) and 0 < push_distance <= 0.3):
@@ -170,7 +201,7 @@ class PandaEnv(gym.Env):
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if low_level else None
         self.cell = Workcell(scene_config, limits=limits)
         self.cell.step_hooks.append(self.task.on_control_step)
-        grid = HeightmapGrid(tuple(map(tuple, heightmap_bounds)), heightmap_resolution)
+        grid = checked_grid(heightmap_bounds, heightmap_resolution)
         self.sensors = Sensors(self.cell, tuple(image_size), grid)
         settings = PrimitiveSettings(
             self.task.primitives, primitive_z, push_distance, getattr(self.task, "impulse_magnitude", 0.06)
@@ -214,6 +245,8 @@ class PandaEnv(gym.Env):
     # --- the step loop -----------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         super().reset(seed=seed)
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"reset options must be a dict or None, got {type(options).__name__}")
         if options:
             raise ValueError(f"reset options are not supported, got {sorted(options)}")
         task_info = self.task.reset(self.cell, self.np_random)

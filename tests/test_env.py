@@ -228,7 +228,21 @@ def test_bad_pixel_actions_raise():
         ({"action_mode": "torque"}, "valid: \\['primitive', 'pixel', 'ee_delta', 'joint', 'grasp_pose'\\]"),
         ({"n_blocks": 7}, "n_blocks"),
         ({"colour": "red"}, "unknown option\\(s\\) \\['colour'\\] for task 'TowerBuild'; valid: \\['n_blocks'"),
-        ({"cameras": ("ceiling",)}, "valid: \\['overhead', 'front', 'wrist'\\]"),
+        ({"cameras": ("ceiling",)}, "cameras must be distinct names from \\['overhead', 'front', 'wrist'\\]"),
+        ({"cameras": 5}, "cameras must be"),
+        ({"cameras": ("overhead", "overhead")}, "cameras must be distinct"),
+        ({"cameras": ()}, "cameras must be"),
+        ({"image_size": (10000, 10000)}, "image_size must be .* from 1 to 2048"),
+        ({"image_size": 84}, "image_size"),
+        ({"render_size": (4096, 64)}, "render_size must be"),
+        ({"heightmap_resolution": 10.0}, "heightmap_resolution=10.0 .* each side must have 16-1024 cells"),
+        ({"heightmap_resolution": 1e-4}, "16-1024 cells"),
+        ({"heightmap_resolution": 1e-6}, "16-1024 cells"),
+        ({"heightmap_resolution": "fine"}, "heightmap_resolution must be a positive number"),
+        ({"heightmap_resolution": float("nan")}, "heightmap_resolution must be"),
+        ({"heightmap_bounds": ((0.0, 1.0),)}, "heightmap_bounds must be"),
+        ({"heightmap_bounds": 3}, "heightmap_bounds must be"),
+        ({"scene": "big"}, "scene must be a panda_grasp_env.scene.SceneConfig or None, got str"),
         ({"render_mode": "ascii"}, "render_mode"),
         ({"image_size": (0, 10)}, "image_size"),
         ({"image_size": (True, True)}, "image_size"),
@@ -248,6 +262,15 @@ def test_bad_pixel_actions_raise():
 def test_bad_options_raise_at_make(kwargs, message):
     with pytest.raises(ValueError, match=message):
         gym.make("panda_grasp_env:PandaTowerBuild-v0", **kwargs)
+
+
+def test_reset_options_must_be_a_mapping():
+    env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
+    with pytest.raises(ValueError, match="reset options must be a dict or None, got int"):
+        env.reset(seed=0, options=5)
+    with pytest.raises(ValueError, match="reset options are not supported, got \\['shuffle'\\]"):
+        env.reset(seed=0, options={"shuffle": True})
+    env.close()
 
 
 @pytest.mark.parametrize(
