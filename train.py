@@ -37,7 +37,13 @@ from agents.training import (  # noqa: E402
     start_run,
     train,
 )
-from panda_grasp_env.runs import check_resume_changes, interrupt_on_signals, record_resume, write_atomically  # noqa: E402
+from panda_grasp_env.runs import (  # noqa: E402
+    check_resume_changes,
+    forget_failed_resume,
+    interrupt_on_signals,
+    record_resume,
+    write_atomically,
+)
 from perception.dynamics_training import (  # noqa: E402
     FALL_RESUME_CHANGEABLE,
     fall_config,
@@ -120,6 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:  # a new run that could not start (an init_policy of another network) leaves no folder
         if args.resume is None and not any(run_dir.glob("latest.*")):
             shutil.rmtree(run_dir)
+        elif args.resume is not None:  # nor does a resumed session that could not start leave a record
+            forget_failed_resume(run_dir)
         print(f"error: {error}", file=sys.stderr)
         return 2
     if outcome["stopped_by"] == "max_minutes":

@@ -548,11 +548,14 @@ def save_best_policy(policy: Any, run_dir: Path, steps: int, chosen_by: str = "v
 def load_best_policy(run_dir: Path) -> tuple[Any, dict[str, Any]]:
     """The best validated policy of a run (or of a shipped checkpoint, where it is ``policy.zip``) and its
     facts (steps, class)."""
-    best = json.loads((run_dir / "best.json").read_text())
     path = run_dir / "best_policy.zip"
     if not path.is_file() and (run_dir / "policy.zip").is_file():
         path = run_dir / "policy.zip"
-    return load_class(best["policy_class"]).load(str(path), device="cpu"), best
+    try:
+        best = json.loads((run_dir / "best.json").read_text())
+        return load_class(best["policy_class"]).load(str(path), device="cpu"), best
+    except Exception as error:  # a truncated zip or json, a class that changed shape: say which files
+        raise ValueError(f"cannot load the best policy of {run_dir} (best.json, {path.name}): {error}") from error
 
 
 def save_checkpoint(model: Any, run_dir: Path, wall_seconds: float) -> None:
@@ -658,11 +661,14 @@ def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar
         if resume:
             algo_class = load_class(ALGORITHMS[config.algo][0])
             # The config's algo_kwargs replace the saved ones (a resumed run may change them: RESUME_CHANGEABLE).
-            model = algo_class.load(
-                run_dir / "latest.zip", env=env, tensorboard_log=str(run_dir / "tb"), **algo_arguments(config)
-            )
-            if will_learn and (run_dir / "replay.pkl").exists():  # a finished run resumed only to be re-tested
-                model.load_replay_buffer(run_dir / "replay.pkl")
+            try:
+                model = algo_class.load(
+                    run_dir / "latest.zip", env=env, tensorboard_log=str(run_dir / "tb"), **algo_arguments(config)
+                )
+                if will_learn and (run_dir / "replay.pkl").exists():  # a finished run resumed only to be re-tested
+                    model.load_replay_buffer(run_dir / "replay.pkl")
+            except Exception as error:  # a truncated checkpoint: say which files, do not train on
+                raise ValueError(f"cannot resume {run_dir} from latest.zip / replay.pkl: {error}") from error
         else:
             model = build_model(config, env, run_dir / "tb")
             if source is not None:

@@ -147,6 +147,16 @@ def record_resume(run_dir: Path, overrides: list[str]) -> None:
     write_json(run_dir / "meta.json", meta)
 
 
+def forget_failed_resume(run_dir: Path) -> None:
+    """Drop the last ``record_resume`` entry if the run made no progress since it (the session failed to start)."""
+    meta = json.loads((run_dir / "meta.json").read_text())
+    sessions, progress = meta.get("resumed", []), run_dir / "progress.json"
+    steps = json.loads(progress.read_text())["steps"] if progress.is_file() else None
+    if sessions and sessions[-1].get("after_steps") == steps:
+        sessions.pop()
+        write_json(run_dir / "meta.json", meta)
+
+
 def resume_summary(meta: dict[str, Any]) -> str | None:
     """One line for a card: each resumed session's start and overrides (``record_resume``), or None."""
     sessions = [

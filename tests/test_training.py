@@ -552,6 +552,31 @@ def test_retest_runs_the_final_test_again_without_training(finished_run, capsys)
     assert "final: success" in capsys.readouterr().out
 
 
+def test_retest_of_a_corrupt_policy_is_one_error_line(finished_run, tmp_path, capsys):
+    import shutil
+
+    broken = tmp_path / "broken"
+    shutil.copytree(finished_run, broken)
+    (broken / "best_policy.zip").write_bytes(b"not a zip")
+    assert train.main(["--retest", str(broken)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: cannot load the best policy of") and "best_policy.zip" in err
+    assert "Traceback" not in err
+
+
+def test_resume_from_a_corrupt_checkpoint_is_one_error_line_and_no_session(finished_run, tmp_path, capsys):
+    import shutil
+
+    broken = tmp_path / "broken"
+    shutil.copytree(finished_run, broken)
+    (broken / "latest.zip").write_bytes(b"not a zip")
+    sessions = json.loads((broken / "meta.json").read_text())["resumed"]
+    assert train.main(["--resume", str(broken), "total_steps=14", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: cannot resume") and "Traceback" not in err
+    assert json.loads((broken / "meta.json").read_text())["resumed"] == sessions  # the failed session left no record
+
+
 def test_retest_runs_on_a_shipped_checkpoint_too(finished_run, tmp_path, monkeypatch):
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path)
     shipped = learned.ship(finished_run, "tiny")  # policy.zip, no progress.json: the run's totals are in final.json
