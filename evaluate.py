@@ -10,7 +10,7 @@ Agents: random, planned (perception-based planned baselines), oracle (the same, 
 true poses), and every shipped learned checkpoint by name (agents/checkpoints/).
 Tasks: Grasp, GraspClutter, TowerBuild, TowerBreak, TowerBreakDirectional,
 BuildAndBreak (primitive actions), Push, Lift (low-level ee_delta).  An agent that does not apply to a
-task is skipped with the reason printed.
+task is skipped (one line lists them; the report gives each reason).
 Outputs (``--out``, default results/quick or results/full): results.json and
 results.csv (deterministic: same seeds give identical files), timing.json,
 report.md, success.png, failures.png and one MP4 per (agent, task).
@@ -484,8 +484,8 @@ def main(argv: list[str] | None = None) -> int:
         return demo(args)
     args.out.mkdir(parents=True, exist_ok=True)
     specs = episode_specs(args)
-    for pair, reason in args.skipped.items():
-        print(f"skipped {pair}: {reason}")
+    if args.skipped:  # the reasons are in the report
+        print(f"skipped {len(args.skipped)} agent/task pairs that do not apply: {', '.join(args.skipped)}")
     if not specs:
         print("nothing to run: no chosen agent applies to a chosen task", file=sys.stderr)
         return 2
