@@ -53,6 +53,8 @@ RENDER_MODES = ("rgb_array", "depth_array", "human")
 
 #: Largest image or render side, pixels.
 MAX_IMAGE_SIDE = 2048
+#: Most headings of the ``pixel`` action mode (VPG uses 16).
+MAX_ROTATIONS = 64
 #: A heightmap grid has this many cells per side, at least and at most.
 GRID_SIDES = (16, 1024)
 
@@ -170,11 +172,20 @@ class PandaEnv(gym.Env):
                 raise ValueError(f"{name} must be (width, height) in ints from 1 to {MAX_IMAGE_SIDE}, got {size!r}")
         if scene is not None and not isinstance(scene, SceneConfig):
             raise ValueError(f"scene must be a panda_grasp_env.scene.SceneConfig or None, got {type(scene).__name__}")
+        for name, flag in (("primitive_z", primitive_z), ("block_gripper", block_gripper)):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise ValueError(f"{name} must be a bool, got {flag!r}")
+        if not (isinstance(rotations, (int, np.integer)) and not isinstance(rotations, bool)
+                and 1 <= rotations <= MAX_ROTATIONS):  # fmt: skip
+            raise ValueError(f"rotations must be an int from 1 to {MAX_ROTATIONS}, got {rotations!r}")
+        if not isinstance(planner, str):
+            raise ValueError(f"planner must be an OMPL planner's name (a str), got {planner!r}")
         if block_gripper and action_mode != "ee_delta":
             raise ValueError(f"block_gripper=True needs action_mode='ee_delta', not {action_mode!r}")
         if not (is_number(push_distance) and 0 < push_distance <= 0.3):
             raise ValueError(f"push_distance must be in (0, 0.3] m, got {push_distance!r}")
         modalities = parse_obs_mode(obs_mode)
+        grid = checked_grid(heightmap_bounds, heightmap_resolution)
         requested = {"in_hand": start_in_hand, "above_object": start_above_object, "behind_object": start_behind_object}
         for state, value in requested.items():
             name = f"start_{state}"
@@ -201,7 +212,6 @@ class PandaEnv(gym.Env):
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if low_level else None
         self.cell = Workcell(scene_config, limits=limits)
         self.cell.step_hooks.append(self.task.on_control_step)
-        grid = checked_grid(heightmap_bounds, heightmap_resolution)
         self.sensors = Sensors(self.cell, tuple(image_size), grid)
         settings = PrimitiveSettings(
             self.task.primitives, primitive_z, push_distance, getattr(self.task, "impulse_magnitude", 0.06)

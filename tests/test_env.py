@@ -319,3 +319,39 @@ def test_render_check_passes_without_a_display(monkeypatch):
     env = gym.make("panda_grasp_env:PandaTowerBreak-v0", render_mode="rgb_array", render_size=(64, 48))
     gym_check_env(env.unwrapped)
     env.close()
+
+
+def test_fuzzed_env_options_raise_value_errors_naming_them():
+    # Every env option against values of the wrong type, size or range: a ValueError that names the option,
+    # raised before anything is allocated (the process's peak memory stays under 1 GB more).
+    import inspect
+    import resource
+
+    from panda_grasp_env.env import PandaEnv
+
+    values = [None, "x", 5, -1, 0, 1e9, float("nan"), float("inf"), True, [], {}, (1,), (1, 2, 3), object()]
+    five, zero, yes = values[2], values[4], values[8]
+    valid = [("rotations", five), ("primitive_z", yes), ("block_gripper", yes)] + [
+        (f"start_{s}", zero) for s in ("in_hand", "above_object", "behind_object")
+    ]
+    context = {"rotations": {"action_mode": "pixel"}, "block_gripper": {"task": "Push", "action_mode": "ee_delta"},
+               "planner": {"task": "Grasp", "action_mode": "grasp_pose"}}  # fmt: skip
+    defaults = {k: p.default for k, p in inspect.signature(PandaEnv.__init__).parameters.items()}
+    options = [k for k in defaults if k not in ("self", "task_options")]
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    cases, wrong = 0, []
+    for option in options:
+        for value in values:
+            if (value is None and defaults[option] is None) or any(option == o and value is v for o, v in valid):
+                continue
+            cases += 1
+            try:
+                PandaEnv(**{**context.get(option, {}), option: value}).close()
+                wrong.append((option, value, "accepted"))
+            except ValueError as error:
+                if option not in str(error):
+                    wrong.append((option, value, str(error)))
+            except Exception as error:  # noqa: BLE001  (any other kind is the failure this test looks for)
+                wrong.append((option, value, repr(error)))
+    assert cases >= 100 and not wrong, wrong
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak < 1024**2

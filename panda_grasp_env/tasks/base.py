@@ -140,7 +140,7 @@ def register_task(cls: type[Task]) -> type[Task]:
 
 def make_task(name: str, options: dict[str, Any]) -> Task:
     """Instantiate task ``name``; unknown names or options raise ``ValueError`` listing the valid ones."""
-    if name not in TASKS:
+    if not isinstance(name, str) or name not in TASKS:
         raise ValueError(f"unknown task {name!r}; valid: {sorted(TASKS)}")
     cls = TASKS[name]
     valid = [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
