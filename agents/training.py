@@ -413,7 +413,7 @@ class PolicyAgent:
     With ``avoid_failures`` a heightmap Q-policy also keeps a ``FailureMemory``: it does not choose again,
     anywhere within a few millimetres and at any heading, a primitive that failed there while the heights
     around it are unchanged.  Off by default: across three tower policies it changed held-out success by
-    +3, 0 and -12 points (``benchmarks/failure_memory.py``, README).
+    +3, 0 and -12 points (``benchmarks/failure_memory.py``, docs/learning.md).
     """
 
     def __init__(

@@ -13,7 +13,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 from panda_grasp_env import ENV_IDS
 
 ACTION_MODES = ("primitive", "pixel", "ee_delta", "joint")
-#: The mode combinations the README lists as supported, checked on every id.
+#: The mode combinations docs/environments.md lists as supported, checked on every id.
 OBS_MODES = ("state", "rgbd+segmentation+heightmap+state")
 SMALL = {"image_size": (32, 24), "heightmap_resolution": 0.008}  # keep the checks quick
 
