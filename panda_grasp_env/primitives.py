@@ -282,10 +282,14 @@ def push_line_targets(cell: Workcell, start: np.ndarray, end: np.ndarray) -> set
     lies between the start and the end plus the fingers' own depth."""
     along = (end - start)[:2] / np.linalg.norm((end - start)[:2])
     u, n = np.array([*along, 0.0]), np.array([-along[1], along[0], 0.0])
-    fingers = [body_extent_along(cell.model, cell.data, f, axis) for f in cell.robot.finger_body_ids for axis in (u, n)]
-    front = max(high for _, high in fingers[0::2]) - cell.robot.ee_position @ u
-    band = (min(low for low, _ in fingers[1::2]), max(high for _, high in fingers[1::2]))
-    band = (band[0] - cell.robot.ee_position @ n + start @ n, band[1] - cell.robot.ee_position @ n + start @ n)
+    shift = start - cell.robot.ee_position  # the fingers, measured where the hand is, brought to the start
+
+    def fingers_along(axis: np.ndarray) -> tuple[float, float]:
+        extents = [body_extent_along(cell.model, cell.data, f, axis) for f in cell.robot.finger_body_ids]
+        return min(low for low, _ in extents) + shift @ axis, max(high for _, high in extents) + shift @ axis
+
+    front = fingers_along(u)[1] - start @ u
+    band = fingers_along(n)
     swept = set()
     for body in cell.object_ids:
         if cell.is_parked(int(body)):
