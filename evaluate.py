@@ -27,6 +27,7 @@ import sys
 import time
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -424,17 +425,24 @@ def videos(specs: list[EpisodeSpec], out: Path) -> list[Path]:
     return written
 
 
+def chosen_checkpoints(args: argparse.Namespace) -> list[Any]:
+    """The shipped checkpoints among the chosen agents that play at least one chosen task."""
+    from agents.learned import Checkpoint
+
+    return [
+        Checkpoint(agent)
+        for agent in args.agents
+        if agent not in AGENTS and any(skip_reason(agent, task) is None for task in args.tasks)
+    ]
+
+
 def learning_curves(args: argparse.Namespace) -> list[str]:
     """Copy each evaluated checkpoint's learning curve next to the report; Markdown lines that show them."""
     import shutil
 
-    from agents.learned import Checkpoint
-
     lines = []
-    for agent in args.agents:
-        if agent in AGENTS or all(skip_reason(agent, task) is not None for task in args.tasks):
-            continue
-        checkpoint = Checkpoint(agent)
+    for checkpoint in chosen_checkpoints(args):
+        agent = checkpoint.name
         target = args.out / f"curve_{agent}.png"
         shutil.copyfile(checkpoint.path / "curve.png", target)
         lines += [
@@ -482,6 +490,12 @@ def main(argv: list[str] | None = None) -> int:
     interrupt_on_signals()
     if args.demo:
         return demo(args)
+    try:  # one that cannot load (or would need trust: agents.learned.Checkpoint) stops the run before any episode
+        for checkpoint in chosen_checkpoints(args):
+            checkpoint.load_policy()
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     args.out.mkdir(parents=True, exist_ok=True)
     specs = episode_specs(args)
     if args.skipped:  # the reasons are in the report

@@ -69,6 +69,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--ship", type=Path, default=None, help="copy this finished run to agents/checkpoints/--name")
     parser.add_argument("--name", default=None, help="checkpoint name for --ship")
     parser.add_argument("--retest", type=Path, default=None, help="test this run or checkpoint again")
+    parser.add_argument("--trust", action="store_true",
+                        help="with --resume: load latest.zip / replay.pkl (pickles) even if this user's job did not "
+                             "sign them in this folder (a run copied or moved here)")  # fmt: skip
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     chosen = sum(x is not None for x in (args.config, args.resume, args.ship, args.retest))
@@ -76,6 +79,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("give exactly one of --config, --resume, --ship or --retest")
     if args.ship is not None and not args.name:
         parser.error("--ship needs --name")
+    if args.trust and args.resume is None:
+        parser.error("--trust goes with --resume")
     return args
 
 
@@ -119,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if kind == "fall_dynamics":
             return report_fall(train_fall_model(config, run_dir, resume, progress), run_dir)
-        outcome = train(config, run_dir, resume=resume, progress_bar=progress)
+        outcome = train(config, run_dir, resume=resume, progress_bar=progress, trust=args.trust)
     except KeyboardInterrupt:
         print(f"\ninterrupted: checkpoint saved; continue with  python train.py --resume {run_dir}", file=sys.stderr)
         return 130

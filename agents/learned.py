@@ -3,11 +3,15 @@
 A checkpoint is a folder ``agents/checkpoints/<name>/`` written by
 ``python train.py --ship <run folder> --name <name>``::
 
-    policy.zip      the SB3 policy only (no optimiser, no replay buffer): the run's best on validation episodes
-    checkpoint.json policy class, env id, evaluation task, the step it was saved at
-    config.yaml     the training config
-    card.md         the model card: config, seed, steps, wall time, machine, metrics with 95 % CIs
-    curve.png       the learning curve; evaluations.jsonl, final.json, meta.json: its data
+    policy.safetensors  the policy's weights (no optimiser, no replay buffer): the run's best on validation
+    policy.json         its class and constructor arguments, as data (``agents.policy_files``)
+    checkpoint.json     env id, evaluation task, policy class, the step it was saved at
+    config.yaml         the training config
+    card.md             the model card: config, seed, steps, wall time, machine, metrics with 95 % CIs
+    curve.png           the learning curve; evaluations.jsonl, final.json, meta.json: its data
+
+Loading one unpickles nothing.  A folder laid out the same way with an SB3 ``policy.zip`` instead (a pickle:
+loading it runs any code it holds) loads only with ``trust=True``; ``Checkpoint.export_sb3`` writes that zip.
 """
 
 from __future__ import annotations
@@ -22,12 +26,14 @@ import gymnasium as gym
 import numpy as np
 
 from agents.evaluation import task_label
-from agents.training import PolicyAgent, TrainConfig, config_from_dict, load_class, observation_transform
+from agents.policy_files import export_sb3, load_policy, load_sb3, policy_paths
+from agents.training import PolicyAgent, TrainConfig, config_from_dict, observation_transform
 from panda_grasp_env.runs import write_json
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
 SHIPPED_FILES = (
-    "best_policy.zip",
+    "best_policy.json",
+    "best_policy.safetensors",
     "best.json",
     "config.yaml",
     "card.md",
@@ -48,7 +54,8 @@ def available_checkpoints() -> list[str]:
 class Checkpoint:
     """A shipped checkpoint folder (or any folder laid out the same way)."""
 
-    def __init__(self, name_or_path: str | Path) -> None:
+    def __init__(self, name_or_path: str | Path, trust: bool = False) -> None:
+        """``trust``: also load an SB3 ``policy.zip`` (a pickle) where the folder has no ``policy.json``."""
         path = Path(name_or_path)
         if not (path / "checkpoint.json").is_file():
             path = CHECKPOINTS / str(name_or_path)
@@ -60,28 +67,36 @@ class Checkpoint:
         import yaml
 
         self.config: TrainConfig = config_from_dict(yaml.safe_load((path / "config.yaml").read_text()), str(path))
-        missing = [f for f in ("policy.zip",) if not (path / f).is_file()]
-        if missing:
-            raise ValueError(f"checkpoint {self.name} is incomplete: {missing} missing in {path}")
+        self.trust = trust
+        if not policy_paths(path / "policy")[0].is_file() and not (path / "policy.zip").is_file():
+            raise ValueError(f"checkpoint {self.name} is incomplete: policy.json missing in {path}")
 
     @property
     def task(self) -> str:
         return self.meta["task"]
 
     def load_policy(self) -> Any:
-        policy_class = load_class(self.meta["policy_class"])
+        """The policy, from policy.json + policy.safetensors; from an SB3 policy.zip only if ``trust``."""
+        stem = self.path / "policy"
         try:
-            return policy_class.load(str(self.path / "policy.zip"), device="cpu")
-        except Exception as error:  # a truncated zip, a class that changed shape: say which file
-            raise ValueError(f"checkpoint {self.name}: cannot load {self.path / 'policy.zip'}: {error}") from error
+            if policy_paths(stem)[0].is_file():
+                return load_policy(stem)
+            return load_sb3(self.path / "policy.zip", self.meta.get("policy_class"), trust=self.trust)
+        except ValueError as error:
+            raise ValueError(f"checkpoint {self.name}: {error}") from None
+
+    def export_sb3(self, path: Path | str) -> Path:
+        """The policy as an SB3 ``.zip`` (``type(policy).load(path)`` reads it back), for SB3 users."""
+        return export_sb3(self.load_policy(), path)
 
     def provenance(self) -> dict[str, Any]:
         """Where this checkpoint's weights came from: its folder, the training step they were saved at and the
-        SHA-256 of policy.zip (a fine-tuning run records it: the name alone may be shipped again)."""
+        SHA-256 of its weights (a fine-tuning run records it: the name alone may be shipped again)."""
         from perception.falls import sha256
 
+        weights = policy_paths(self.path / "policy")[1]
         return {"path": str(self.path.resolve()), "steps": self.meta["steps"],
-                "policy_sha256": sha256(self.path / "policy.zip")}  # fmt: skip
+                "policy_sha256": sha256(weights if weights.is_file() else self.path / "policy.zip")}  # fmt: skip
 
     def make_env(self) -> gym.Env:
         """The env the policy was trained on (raw observations; the agent transforms them)."""
@@ -118,8 +133,11 @@ class LearnedAgent(PolicyAgent):
     """A shipped policy as an ``Agent``: deterministic actions from the observation (with ``avoid_failures``,
     and a heightmap policy's ``FailureMemory`` of the episode: see ``PolicyAgent``)."""
 
-    def __init__(self, checkpoint: str | Path, env: gym.Env | None = None, avoid_failures: bool = False) -> None:
-        self.checkpoint = Checkpoint(checkpoint)
+    def __init__(
+        self, checkpoint: str | Path, env: gym.Env | None = None, avoid_failures: bool = False, trust: bool = False
+    ) -> None:
+        """``trust``: the checkpoint may be an SB3 ``policy.zip`` (a pickle: see ``Checkpoint``)."""
+        self.checkpoint = Checkpoint(checkpoint, trust)
         policy = self.checkpoint.load_policy()
         super().__init__(policy, observation_transform(self.checkpoint.config), self.checkpoint.name, avoid_failures)
         if env is not None:
@@ -148,15 +166,15 @@ def ship(run_dir: Path, name: str) -> Path:
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     for f in SHIPPED_FILES:
-        shutil.copy2(run_dir / f, staging / ("policy.zip" if f == "best_policy.zip" else f))
-    size = (staging / "policy.zip").stat().st_size
+        shutil.copy2(run_dir / f, staging / f.replace("best_policy.", "policy."))
+    size = (staging / "policy.safetensors").stat().st_size
     if size > 20e6:
         shutil.rmtree(staging)
         raise ValueError(f"the policy of {run_dir} is {size / 1e6:.1f} MB; shipped checkpoints stay under 20 MB")
     write_json(
         staging / "checkpoint.json",
         {
-            "policy_class": best["policy_class"],
+            "policy_class": json.loads((staging / "policy.json").read_text())["policy_class"],
             "steps": best["steps"],
             "env_id": config.env_id,
             "task": task_label(config.env_id, config.env_kwargs),

@@ -31,13 +31,16 @@ import numpy as np
 import yaml
 
 from agents.evaluation import EpisodeSpec, aggregate, describe_rate, is_low_level, play_episode, task_label
+from agents.policy_files import class_name, load_policy, policy_paths, save_policy
 from panda_grasp_env.runs import (
     atomic_path,
     check_resume_changes,
+    check_run_files,
     commit,
     config_from_mapping,
     new_run_folder,
     resume_summary,
+    sign_run_files,
     write_atomically,
     write_json,
 )
@@ -149,6 +152,7 @@ def learning_rate(value: float | dict[str, float]) -> Any:
 
 
 def load_class(path: str) -> Any:
+    """A class of the ``ALGORITHMS`` table (``module:Class``); files never name what this imports."""
     import importlib
 
     module, name = path.split(":")
@@ -535,36 +539,43 @@ def validation_score(metrics: dict[str, Any]) -> tuple[float, ...]:
 
 
 def save_best_policy(policy: Any, run_dir: Path, steps: int, chosen_by: str = "validation") -> None:
-    """best_policy.zip (the policy alone) and best.json, each through a temporary file and a rename.
+    """best_policy.safetensors + best_policy.json (the policy alone, as data: ``policy_files``) and best.json.
 
     ``chosen_by``: ``validation`` (the best periodic evaluation so far) or ``final`` (no tracked best)."""
-    with atomic_path(run_dir / "best_policy.zip") as tmp:
-        policy.save(tmp)
-    policy_class = type(policy)
-    write_json(run_dir / "best.json", {"steps": steps, "chosen_by": chosen_by,
-                                       "policy_class": f"{policy_class.__module__}:{policy_class.__qualname__}"})  # fmt: skip
+    save_policy(policy, run_dir / "best_policy")
+    write_json(run_dir / "best.json", {"steps": steps, "chosen_by": chosen_by})
 
 
 def load_best_policy(run_dir: Path) -> tuple[Any, dict[str, Any]]:
-    """The best validated policy of a run (or of a shipped checkpoint, where it is ``policy.zip``) and its
-    facts (steps, class)."""
-    path = run_dir / "best_policy.zip"
-    if not path.is_file() and (run_dir / "policy.zip").is_file():
-        path = run_dir / "policy.zip"
+    """The best validated policy of a run (or of a shipped checkpoint, where it is ``policy.*``) and its
+    facts (steps, how it was chosen); nothing is unpickled."""
+    stem = run_dir / "best_policy"
+    if not policy_paths(stem)[0].is_file() and policy_paths(run_dir / "policy")[0].is_file():
+        stem = run_dir / "policy"
+    if not policy_paths(stem)[0].is_file():
+        raise ValueError(f"cannot load the best policy of {run_dir}: no best_policy.json (a run saved before "
+                         f"policies were stored as data keeps a pickled best_policy.zip, which is not loaded)")  # fmt: skip
     try:
         best = json.loads((run_dir / "best.json").read_text())
-        return load_class(best["policy_class"]).load(str(path), device="cpu"), best
-    except Exception as error:  # a truncated zip or json, a class that changed shape: say which files
-        raise ValueError(f"cannot load the best policy of {run_dir} (best.json, {path.name}): {error}") from error
+    except (OSError, json.JSONDecodeError) as error:
+        raise ValueError(f"cannot load the best policy of {run_dir} (best.json): {error}") from None
+    try:
+        return load_policy(stem), best
+    except ValueError as error:
+        raise ValueError(f"cannot load the best policy of {run_dir}: {error}") from None
 
 
 def save_checkpoint(model: Any, run_dir: Path, wall_seconds: float) -> None:
-    """latest.zip (+ replay.pkl) and progress.json, each through a temporary file and a rename."""
+    """latest.zip (+ replay.pkl), signed (``runs.sign_run_files``: SB3 writes both as pickles), and
+    progress.json, each through a temporary file and a rename."""
     with atomic_path(run_dir / "latest.zip") as tmp:
         model.save(tmp)
+    written = ["latest.zip"]
     if getattr(model, "replay_buffer", None) is not None:
         with atomic_path(run_dir / "replay.pkl") as tmp:
             model.save_replay_buffer(tmp)
+        written.append("replay.pkl")
+    sign_run_files(run_dir, written)
     write_json(run_dir / "progress.json", {"steps": int(model.num_timesteps), "wall_seconds": round(wall_seconds, 1)})
 
 
@@ -646,9 +657,14 @@ def load_run(run_dir: Path) -> TrainConfig:
     return config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()), source=str(run_dir / "config.yaml"))
 
 
-def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar: bool = True) -> dict[str, Any]:
+def train(
+    config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar: bool = True, trust: bool = False
+) -> dict[str, Any]:
     """Train (or continue) the run in ``run_dir`` to ``config.total_steps`` or until ``max_minutes`` of wall time
-    are spent, then evaluate it (``finish``); Ctrl-C checkpoints and re-raises."""
+    are spent, then evaluate it (``finish``); Ctrl-C checkpoints and re-raises.
+
+    A resumed run loads latest.zip and replay.pkl (SB3 pickles) only if this user's job signed them in this
+    folder (``runs.check_run_files``), or with ``trust=True``."""
     import torch
 
     torch.set_num_threads(config.torch_threads)
@@ -659,13 +675,16 @@ def train(config: TrainConfig, run_dir: Path, resume: bool = False, progress_bar
     env = make_vec_env(config)
     try:
         if resume:
+            replay = will_learn and (run_dir / "replay.pkl").exists()  # not for a finished run resumed to re-test
+            if not trust:
+                check_run_files(run_dir, ["latest.zip"] + (["replay.pkl"] if replay else []))
             algo_class = load_class(ALGORITHMS[config.algo][0])
             # The config's algo_kwargs replace the saved ones (a resumed run may change them: RESUME_CHANGEABLE).
             try:
                 model = algo_class.load(
                     run_dir / "latest.zip", env=env, tensorboard_log=str(run_dir / "tb"), **algo_arguments(config)
                 )
-                if will_learn and (run_dir / "replay.pkl").exists():  # a finished run resumed only to be re-tested
+                if replay:
                     model.load_replay_buffer(run_dir / "replay.pkl")
             except Exception as error:  # a truncated checkpoint: say which files, do not train on
                 raise ValueError(f"cannot resume {run_dir} from latest.zip / replay.pkl: {error}") from error
@@ -735,7 +754,7 @@ def final_test(config: TrainConfig, run_dir: Path, steps: int, wall_seconds: flo
         "steps": steps,
         "best_steps": best["steps"],
         "chosen_by": best.get("chosen_by", "validation"),
-        "policy_class": best["policy_class"],
+        "policy_class": class_name(type(policy)),
         "test_seeds": [
             config.eval_seed + TEST_SEED_OFFSET,
             config.eval_seed + TEST_SEED_OFFSET + config.final_eval_episodes - 1,

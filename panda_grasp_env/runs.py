@@ -5,6 +5,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import hashlib
+import hmac
 import json
 import os
 import platform
@@ -98,6 +100,56 @@ def interrupt_on_signals() -> None:
 
     signal.signal(signal.SIGTERM, interrupt)
     signal.signal(signal.SIGINT, interrupt)
+
+
+#: Where ``sign_run_files`` records its signatures, inside the run folder.
+SIGNATURES = "signatures.json"
+
+
+def run_key() -> bytes:
+    """This user's secret for signing run files: 32 random bytes in ``$XDG_STATE_HOME/panda_grasp_env/run_key``
+    (``~/.local/state/...``), made on first use, readable by the user alone."""
+    state = Path(os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state")
+    path = state / "panda_grasp_env" / "run_key"
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            with os.fdopen(descriptor, "wb") as key:
+                key.write(os.urandom(32))
+        except FileExistsError:  # another job made it first
+            pass
+    return path.read_bytes()
+
+
+def _signature(run_dir: Path, name: str) -> str:
+    digest = hashlib.sha256((run_dir / name).read_bytes()).hexdigest()
+    message = f"{run_dir.resolve()}\n{name}\n{digest}".encode()
+    return hmac.new(run_key(), message, hashlib.sha256).hexdigest()
+
+
+def sign_run_files(run_dir: Path, names: list[str]) -> None:
+    """Record, in the run's signatures.json, that this user's job wrote ``names`` in this folder as they are now.
+
+    Resume files that only a pickle can hold (SB3's model zip, its replay buffer) run code when loaded;
+    ``check_run_files`` loads them only if the signature matches, i.e. this user wrote them in this folder."""
+    path = run_dir / SIGNATURES
+    signatures = json.loads(path.read_text()) if path.is_file() else {}
+    signatures.update({name: _signature(run_dir, name) for name in names})
+    write_json(path, signatures)
+
+
+def check_run_files(run_dir: Path, names: list[str]) -> None:
+    """``ValueError`` naming the first of ``names`` that ``sign_run_files`` did not sign as it is now, here."""
+    path = run_dir / SIGNATURES
+    signatures = json.loads(path.read_text()) if path.is_file() else {}
+    for name in names:
+        signed = signatures.get(name)
+        if signed is None or not hmac.compare_digest(signed, _signature(run_dir, name)):
+            raise ValueError(
+                f"{run_dir / name} was not written by this user's job in this folder, or has changed since: it is "
+                "a pickle, and loading it would run any code it holds (pass --trust to load it anyway)"
+            )
 
 
 def config_from_mapping(cls: type[Config], raw: dict[str, Any], source: str) -> Config:

@@ -136,7 +136,7 @@ def load_fall_model(path: Path | str) -> tuple[FallPredictor, dict[str, Any]]:
     if not path.is_file():
         raise ValueError(f"fall-dynamics checkpoint {path} not found")
     try:
-        saved = torch.load(path, map_location="cpu", weights_only=False)
+        saved = torch.load(path, map_location="cpu", weights_only=True)  # tensors and plain data: nothing runs
     except Exception as error:
         raise ValueError(f"cannot load fall-dynamics checkpoint {path}: {error}") from error
     if saved.get("architecture") != ARCHITECTURE:
@@ -205,7 +205,10 @@ def train_fall_model(
     epoch, wall_before, best = 0, 0.0, -1.0
     unvalidated_loss = None  # the last epoch's training loss while its validation has not run
     if resume:
-        saved = torch.load(run_dir / "latest.pt", map_location="cpu", weights_only=False)
+        try:
+            saved = torch.load(run_dir / "latest.pt", map_location="cpu", weights_only=True)
+        except Exception as error:  # a truncated file, or one holding more than tensors and plain data
+            raise ValueError(f"cannot resume {run_dir} from latest.pt: {error}") from error
         model.load_state_dict(saved["model"])
         optimiser.load_state_dict(saved["optimiser"])
         torch.set_rng_state(saved["torch_rng"])

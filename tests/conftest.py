@@ -17,3 +17,9 @@ def cell() -> Workcell:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(1234)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def private_run_key(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Run files are signed with a key under ``$XDG_STATE_HOME``: one for the session, not the user's own."""
+    os.environ["XDG_STATE_HOME"] = str(tmp_path_factory.mktemp("state"))

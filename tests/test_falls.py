@@ -143,7 +143,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     (run / "broken.pt").write_bytes(b"x")
     with pytest.raises(ValueError, match="cannot load fall-dynamics checkpoint"):
         load_fall_model(run / "broken.pt")
-    older = {**torch.load(run / "best.pt", weights_only=False), "architecture": 1}
+    older = {**torch.load(run / "best.pt", weights_only=True), "architecture": 1}
     torch.save(older, run / "older.pt")
     with pytest.raises(ValueError, match="architecture 1; this code runs architecture"):
         load_fall_model(run / "older.pt")

@@ -21,7 +21,8 @@ from agents.heightmap_policy import (
     holding_after,
     rotate,
 )
-from agents.training import OutcomeReward, PolicyAgent, TrainConfig, load_class, load_config
+from agents.policy_files import load_policy
+from agents.training import OutcomeReward, PolicyAgent, TrainConfig, load_config
 from panda_grasp_env.actions import PixelActions
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 from perception.heightmap import HeightmapGrid
@@ -323,7 +324,7 @@ def test_a_run_folder_holds_everything_and_resumes(finished_run):
     assert meta["seed"] == 0 and "torch" in meta["versions"]
     final = json.loads((run / "final.json").read_text())
     assert final["test_seeds"][0] == final["metrics"]["seeds"][0] == 1_000_000 + 100_000  # held out from validation
-    assert final["best_steps"] in (0, 6, 12) and (run / "best_policy.zip").is_file()
+    assert final["best_steps"] in (0, 6, 12) and (run / "best_policy.safetensors").is_file()
     card = (run / "card.md").read_text()
     assert "95 % CI" in card and "environment steps | 12" in card
     assert not list(run.glob("*.tmp"))
@@ -335,7 +336,7 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path)
     path = learned.ship(finished_run, "tiny")
     assert learned.available_checkpoints() == ["tiny"]
-    assert (path / "policy.zip").stat().st_size < 20e6
+    assert (path / "policy.safetensors").stat().st_size < 20e6 and not (path / "policy.zip").exists()
     agent_env = learned.Checkpoint("tiny").make_env()
     agent = learned.LearnedAgent("tiny", agent_env)
     observation, info = agent_env.reset(seed=3)
@@ -348,8 +349,8 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
     coarse = gym.make("PandaGrasp-v0", obs_mode="heightmap", action_mode="pixel", heightmap_resolution=0.008)
     with pytest.raises(ValueError, match="expects observations"):
         learned.LearnedAgent("tiny", coarse)
-    (path / "policy.zip").write_bytes(b"truncated")
-    with pytest.raises(ValueError, match="cannot load .*policy.zip"):
+    (path / "policy.safetensors").write_bytes(b"truncated")
+    with pytest.raises(ValueError, match="policy.safetensors is missing or is not the weights"):
         learned.LearnedAgent("tiny")
 
 
@@ -383,7 +384,7 @@ def test_init_policy_starts_a_run_from_a_checkpoints_weights(finished_run, tmp_p
     cli = ["--config", str(CONFIGS / "grasp_clutter_dqn.yaml"), "--runs", str(runs), "--no-progress", *TINY_DQN]
     assert train.main([*cli, "init_policy=tiny", "total_steps=6", "algo_kwargs.learning_starts=100"]) == 0
     run = runs / "grasp_clutter_dqn-seed0"
-    trained = load_class(json.loads((run / "best.json").read_text())["policy_class"]).load(run / "best_policy.zip")
+    trained = load_policy(run / "best_policy")
     assert all(th.equal(v, trained.state_dict()[k]) for k, v in source.items())
     recorded = json.loads((run / "meta.json").read_text())["init_policy"]
     assert recorded["steps"] == learned.Checkpoint("tiny").meta["steps"] and len(recorded["policy_sha256"]) == 64
@@ -396,7 +397,7 @@ def test_init_policy_starts_a_run_from_a_checkpoints_weights(finished_run, tmp_p
 @pytest.mark.parametrize("name", learned.available_checkpoints())
 def test_every_shipped_checkpoint_loads_acts_and_has_its_card(name):
     checkpoint = learned.Checkpoint(name)
-    assert (checkpoint.path / "policy.zip").stat().st_size < 20e6
+    assert (checkpoint.path / "policy.safetensors").stat().st_size < 20e6
     card = (checkpoint.path / "card.md").read_text()
     assert "held-out seeds" in card and (checkpoint.path / "curve.png").stat().st_size > 0
     env = checkpoint.make_env()
@@ -557,10 +558,10 @@ def test_retest_of_a_corrupt_policy_is_one_error_line(finished_run, tmp_path, ca
 
     broken = tmp_path / "broken"
     shutil.copytree(finished_run, broken)
-    (broken / "best_policy.zip").write_bytes(b"not a zip")
+    (broken / "best_policy.safetensors").write_bytes(b"not weights")
     assert train.main(["--retest", str(broken)]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error: cannot load the best policy of") and "best_policy.zip" in err
+    assert err.startswith("error: cannot load the best policy of") and "best_policy.safetensors" in err
     assert "Traceback" not in err
 
 
@@ -571,7 +572,7 @@ def test_resume_from_a_corrupt_checkpoint_is_one_error_line_and_no_session(finis
     shutil.copytree(finished_run, broken)
     (broken / "latest.zip").write_bytes(b"not a zip")
     sessions = json.loads((broken / "meta.json").read_text())["resumed"]
-    assert train.main(["--resume", str(broken), "total_steps=14", "--no-progress"]) == 2
+    assert train.main(["--resume", str(broken), "total_steps=14", "--no-progress", "--trust"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: cannot resume") and "Traceback" not in err
     assert json.loads((broken / "meta.json").read_text())["resumed"] == sessions  # the failed session left no record

@@ -1,0 +1,204 @@
+"""Checkpoints are data: no file a checkpoint, run or model folder holds runs code when it is loaded.
+
+Each payload below is a pickle (or an importable module) that would create a marker file if it ran; every
+entry point that reads such a file must refuse it with a ``ValueError`` naming it, and the marker must not
+appear."""
+
+from __future__ import annotations
+
+import builtins
+import json
+import pickle
+import shutil
+import sys
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+
+import evaluate
+import train
+from agents import learned
+from agents.policy_files import (
+    export_sb3,
+    load_policy,
+    load_sb3,
+    policy_paths,
+    save_policy,
+    space_from_json,
+    space_to_json,
+)
+from panda_grasp_env.runs import sign_run_files
+
+
+class Payload:
+    """Unpickling this opens ``marker`` for writing (creating it): harmless, and visible."""
+
+    def __init__(self, marker) -> None:
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return builtins.open, (self.marker, "w")
+
+
+def write_payload(path, marker) -> None:
+    with open(path, "wb") as file:
+        pickle.dump(Payload(marker), file, protocol=2)
+
+
+@pytest.fixture
+def marker(tmp_path):
+    path = tmp_path / "payload-ran"
+    yield path
+    assert not path.exists(), "a payload ran"
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    from tests.test_training import CONFIGS, TINY_DQN
+
+    runs = tmp_path_factory.mktemp("runs")
+    config = str(CONFIGS / "grasp_clutter_dqn.yaml")
+    assert train.main(["--config", config, "--runs", str(runs), "--no-progress", *TINY_DQN, "total_steps=6"]) == 0
+    return runs / "grasp_clutter_dqn-seed0"
+
+
+@pytest.fixture
+def shipped(tiny_run, tmp_path, monkeypatch):
+    monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path / "checkpoints")
+    return learned.ship(tiny_run, "tiny")
+
+
+def pickled_checkpoint(shipped, marker):
+    """The shipped folder as an SB3-zip checkpoint whose policy.zip is a payload."""
+    for path in policy_paths(shipped / "policy"):
+        path.unlink()
+    write_payload(shipped / "policy.zip", marker)
+    return shipped
+
+
+def test_a_pickled_policy_zip_is_refused_unless_trusted(shipped, marker):
+    pickled_checkpoint(shipped, marker)
+    with pytest.raises(ValueError, match=r"policy.zip is an SB3 pickle .* trust=True"):
+        learned.LearnedAgent("tiny")
+    with pytest.raises(ValueError, match=r"policy.zip is an SB3 pickle"):
+        learned.Checkpoint(shipped).load_policy()
+
+
+def test_a_class_name_outside_the_allow_list_is_never_imported(shipped, tmp_path, marker, monkeypatch):
+    module = tmp_path / "payload_module.py"
+    module.write_text(f"open({str(marker)!r}, 'w')\nclass Evil: pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    facts = json.loads((shipped / "policy.json").read_text())
+    (shipped / "policy.json").write_text(json.dumps({**facts, "policy_class": "payload_module:Evil"}))
+    with pytest.raises(ValueError, match="policy class 'payload_module:Evil' is not one this project loads"):
+        learned.LearnedAgent("tiny")
+    # An argument class likewise.
+    facts["arguments"]["optimizer_class"] = {"__class__": "payload_module:Evil"}
+    (shipped / "policy.json").write_text(json.dumps(facts))
+    with pytest.raises(ValueError, match="argument class 'payload_module:Evil' is not one"):
+        load_policy(shipped / "policy")
+    # The same name in checkpoint.json, for an SB3 zip loaded with trust: refused before anything is read.
+    pickled_checkpoint(shipped, marker)
+    meta = json.loads((shipped / "checkpoint.json").read_text())
+    (shipped / "checkpoint.json").write_text(json.dumps({**meta, "policy_class": "payload_module:Evil"}))
+    with pytest.raises(ValueError, match="policy class 'payload_module:Evil' is not one"):
+        learned.LearnedAgent("tiny", trust=True)
+    assert "payload_module" not in sys.modules
+
+
+def test_evaluate_refuses_a_payload_checkpoint_with_one_error_line(shipped, tmp_path, marker, capsys):
+    pickled_checkpoint(shipped, marker)
+    argv = ["--agents", "tiny", "--tasks", "Grasp", "--seeds", "1", "--no-video", "--out", str(tmp_path / "out")]
+    assert evaluate.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and "policy.zip is an SB3 pickle" in err and "Traceback" not in err
+
+
+def test_init_policy_refuses_a_payload_checkpoint(shipped, tmp_path, marker, capsys):
+    from tests.test_training import CONFIGS, TINY_DQN
+
+    pickled_checkpoint(shipped, marker)
+    runs = tmp_path / "runs"
+    cli = ["--config", str(CONFIGS / "grasp_clutter_dqn.yaml"), "--runs", str(runs), "--no-progress", *TINY_DQN]
+    assert train.main([*cli, "init_policy=tiny"]) == 2
+    assert "policy.zip is an SB3 pickle" in capsys.readouterr().err
+    assert not runs.exists() or not any(runs.iterdir())
+
+
+def test_retest_refuses_a_run_whose_best_policy_is_a_pickle(tiny_run, tmp_path, marker, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    for path in policy_paths(run / "best_policy"):
+        path.unlink()
+    write_payload(run / "best_policy.zip", marker)
+    (run / "best.json").write_text(json.dumps({"steps": 6, "policy_class": "builtins:eval"}))
+    assert train.main(["--retest", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: cannot load the best policy of") and "best_policy.json" in err
+
+
+@pytest.mark.parametrize("name", ["replay.pkl", "latest.zip"])
+def test_resume_loads_only_the_pickles_this_users_job_signed_in_that_folder(tiny_run, tmp_path, marker, capsys, name):
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    # A copied or moved run is not the folder that wrote it: refused until the user says --trust.
+    assert train.main(["--resume", str(run), "total_steps=8", "--no-progress"]) == 2
+    assert "latest.zip was not written by this user's job in this folder" in capsys.readouterr().err
+    # Signed here, then one file swapped for a payload: refused, naming it.
+    sign_run_files(run, ["latest.zip", "replay.pkl"])
+    write_payload(run / name, marker)
+    assert train.main(["--resume", str(run), "total_steps=8", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"{name} was not written by this user's job" in err and "--trust" in err
+    assert json.loads((run / "progress.json").read_text())["steps"] == 6  # nothing trained
+
+
+def test_the_fall_model_loader_refuses_a_payload(tmp_path, marker):
+    from perception.dynamics_training import load_fall_model
+
+    write_payload(tmp_path / "model.pt", marker)
+    with pytest.raises(ValueError, match=f"cannot load fall-dynamics checkpoint {tmp_path / 'model.pt'}"):
+        load_fall_model(tmp_path / "model.pt")
+
+
+def test_policy_files_round_trip_with_identical_actions(shipped, tmp_path):
+    policy = learned.Checkpoint("tiny").load_policy()
+    save_policy(policy, tmp_path / "again")
+    again = load_policy(tmp_path / "again")
+    observations = np.random.default_rng(0).integers(0, 256, (8, *policy.observation_space.shape), np.uint8)
+    assert np.array_equal(policy.predict(observations)[0], again.predict(observations)[0])
+    # The SB3 export reads back, with trust, to the same weights.
+    exported = export_sb3(policy, tmp_path / "policy.zip")
+    with pytest.raises(ValueError, match="SB3 pickle"):
+        load_sb3(exported, "agents.heightmap_policy:HeightmapQPolicy")
+    trusted = load_sb3(exported, "agents.heightmap_policy:HeightmapQPolicy", trust=True)
+    assert all(th.equal(v, trusted.state_dict()[k]) for k, v in policy.state_dict().items())
+    # Weights that are not the ones the JSON records are refused.
+    weights = policy_paths(tmp_path / "again")[1]
+    weights.write_bytes(policy_paths(shipped / "policy")[1].read_bytes()[:-4] + b"\0\0\0\0")
+    with pytest.raises(ValueError, match="is not the weights"):
+        load_policy(tmp_path / "again")
+
+
+@pytest.mark.parametrize(
+    "space",
+    [
+        gym.spaces.Box(0, 255, (4, 8, 8), np.uint8),
+        gym.spaces.Box(np.array([-1.0, 0.0]), np.array([1.0, np.inf]), dtype=np.float64),
+        gym.spaces.Discrete(7, start=2),
+        gym.spaces.MultiDiscrete([3, 16, 8, 8]),
+        gym.spaces.MultiBinary(5),
+        gym.spaces.Dict({"a": gym.spaces.Box(-1, 1, (3,), np.float32), "b": gym.spaces.Discrete(2)}),
+    ],
+)
+def test_spaces_round_trip_through_json(space):
+    assert space_from_json(json.loads(json.dumps(space_to_json(space)))) == space
+
+
+def test_unknown_space_descriptions_are_refused():
+    with pytest.raises(ValueError, match="unknown space kind 'Graph'"):
+        space_from_json({"Graph": {}})
+    with pytest.raises(ValueError, match="malformed Box"):
+        space_from_json({"Box": {"low": 0}})
