@@ -20,6 +20,7 @@ from panda_grasp_env.actions import (
     LOW_LEVEL_BOUNDS,
     ActionMode,
     EEDeltaActions,
+    FactoredPixelActions,
     GraspPoseActions,
     JointActions,
     PixelActions,
@@ -48,7 +49,7 @@ READY_MIN_HEIGHT = 0.15
 HOLD_START_DRIFT = 0.015
 COUNTERS = ("grasps_attempted", "grasps_succeeded", "places", "places_succeeded", "pushes", "impulses")
 #: Every render mode the env knows.
-RENDER_MODES = ("rgb_array", "depth_array", "human")
+RENDER_MODES = ("rgb_array", "rgb_array_list", "depth_array", "human")
 
 
 #: Largest image or render side, pixels.
@@ -97,8 +98,11 @@ class PandaEnv(gym.Env):
     Args:
         task: task name (``TowerBuild``, ``TowerBreak``, ``BuildAndBreak``, ``Grasp``, ``Push``).
         obs_mode: ``state``, ``rgb``, ``depth``, ``segmentation``, ``heightmap`` or a ``+`` combination.
-        action_mode: ``primitive``, ``pixel``, ``ee_delta``, ``joint`` or ``grasp_pose`` (default: the task's).
-        render_mode: ``rgb_array`` / ``depth_array`` (front camera) or ``human`` (MuJoCo viewer).
+        action_mode: ``primitive``, ``pixel``, ``pixel_factored``, ``ee_delta``, ``joint`` or ``grasp_pose``
+            (default: the task's).
+        render_mode: ``rgb_array`` / ``depth_array`` (front camera), ``rgb_array_list`` (the frames since the
+            last ``reset``/``render``, taken at ``metadata["render_fps"]`` of simulated time, inside
+            primitives too: ``video.RecordMotionVideo``) or ``human`` (MuJoCo viewer).
         cameras: cameras for image observations (``overhead``, ``front``, ``wrist``).
         image_size: (width, height) of image observations, pixels.
         heightmap_resolution: metres per heightmap cell (``heightmap`` obs and ``pixel`` actions).
@@ -219,8 +223,9 @@ class PandaEnv(gym.Env):
         self.actions: ActionMode
         if action_mode == "primitive":
             self.actions = PrimitiveActions(settings)
-        elif action_mode == "pixel":
-            self.actions = PixelActions(settings, grid, rotations, lambda: self.sensors.heightmap()[0])
+        elif action_mode in ("pixel", "pixel_factored"):
+            pixels = PixelActions if action_mode == "pixel" else FactoredPixelActions
+            self.actions = pixels(settings, grid, rotations, lambda: self.sensors.heightmap()[0])
         elif action_mode == "grasp_pose":
             from panda_grasp_env.motion_stack import MotionStack  # OMPL loads only when this mode is used
 
@@ -249,6 +254,10 @@ class PandaEnv(gym.Env):
         self.render_size = tuple(render_size)
         self._render_renderer: CameraRenderer | None = None
         self._viewer = None
+        self._motion_frames: list[np.ndarray] = []
+        self._next_frame_time = 0.0
+        if render_mode == "rgb_array_list":
+            self.cell.step_hooks.append(self._capture_motion_frame)
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0
 
@@ -292,6 +301,9 @@ class PandaEnv(gym.Env):
             info["start"] = start
         if self.render_mode == "human":
             self.render()
+        if self.render_mode == "rgb_array_list":  # the list starts at the reset state, not during the settling
+            self._motion_frames = [self._rgb_frame()]
+            self._next_frame_time = self.cell.sim_time + 1.0 / self.metadata["render_fps"]
         return self._observe(), info
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
@@ -340,7 +352,7 @@ class PandaEnv(gym.Env):
             }
         elif isinstance(self.actions, PixelActions):
             facts["action_layout"] = {
-                "mode": "pixel",
+                "mode": self.actions.name,
                 "primitives": list(self.actions.settings.primitives),
                 "shape": list(self.actions.shape),  # (primitive, rotation, row, column): the index's layout
                 "heightmap_bounds": [list(map(float, b)) for b in self.actions.grid.bounds],
@@ -465,9 +477,10 @@ class PandaEnv(gym.Env):
 
     # --- public extras --------------------------------------------------------------
     def action_masks(self) -> np.ndarray:
-        """Allowed actions of the ``pixel`` mode (for sb3-contrib's MaskablePPO)."""
+        """Allowed actions of the ``pixel`` mode, or of each dimension of ``pixel_factored`` (for sb3-contrib's
+        MaskablePPO)."""
         if not isinstance(self.actions, PixelActions):
-            raise ValueError(f"action_masks is defined for action_mode='pixel' only, not {self.action_mode!r}")
+            raise ValueError(f"action_masks is defined for the pixel action modes only, not {self.action_mode!r}")
         return self.actions.action_masks(holding=self.cell.robot.body_between_pads() is not None)
 
     def camera_model(
@@ -490,12 +503,26 @@ class PandaEnv(gym.Env):
                 self._viewer = mujoco.viewer.launch_passive(self.cell.model, self.cell.data)
             self._viewer.sync()
             return None
-        width, height = self.render_size
         if self.render_mode == "depth_array":
-            return self.sensors.rgbd("front", width, height)[1]
+            return self.sensors.rgbd("front", *self.render_size)[1]
+        if self.render_mode == "rgb_array_list":
+            frames, self._motion_frames = self._motion_frames, []
+            return frames
+        return self._rgb_frame()
+
+    def _rgb_frame(self) -> np.ndarray:
+        """(height, width, 3) uint8 from the front camera."""
         if self._render_renderer is None:
-            self._render_renderer = CameraRenderer(self.cell.model, width, height, "pretty")
+            self._render_renderer = CameraRenderer(self.cell.model, *self.render_size, "pretty")
         return self._render_renderer.render(self.cell.data, "front", "rgb")
+
+    def _capture_motion_frame(self, cell: Workcell) -> None:
+        """A control-step hook of ``rgb_array_list``: a frame each time simulated time passes the next one."""
+        if cell.sim_time + 1e-9 < self._next_frame_time:
+            return
+        self._motion_frames.append(self._rgb_frame())
+        while self._next_frame_time <= cell.sim_time + 1e-9:
+            self._next_frame_time += 1.0 / self.metadata["render_fps"]
 
     def close(self) -> None:
         self.sensors.close()

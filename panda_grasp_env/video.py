@@ -1,4 +1,5 @@
-"""Record a workcell's motion to MP4 from one camera, with a caption drawn on each frame."""
+"""Record motion to MP4: a workcell from one camera with a caption (``VideoRecorder``), or an env through
+Gymnasium's ``RecordVideo`` with the frames inside primitives (``RecordMotionVideo``)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import os
 from pathlib import Path
 
 import cv2
+import gymnasium as gym
 import imageio.v2 as imageio
 import numpy as np
 
@@ -62,3 +64,20 @@ class VideoRecorder:
         self.frames.clear()
         self.renderer.close()
         return path
+
+
+class RecordMotionVideo(gym.wrappers.RecordVideo):
+    """Gymnasium's ``RecordVideo`` that keeps every frame an ``rgb_array_list`` env returns.
+
+    ``RecordVideo`` keeps only the last frame of a list, so a primitive -- seconds of motion in one
+    ``step`` -- would be one still.  Made with ``render_mode="rgb_array_list"``, ``PandaEnv`` renders at
+    ``metadata["render_fps"]`` of simulated time inside primitives too, and this wrapper writes them all: the
+    video plays in real time.  Arguments are ``RecordVideo``'s.
+    """
+
+    def _capture_frame(self) -> None:
+        frames = self.env.render()
+        if not isinstance(frames, list):
+            raise ValueError(f"RecordMotionVideo needs render_mode='rgb_array_list', not {self.env.render_mode!r}")
+        self.render_history += frames
+        self.recorded_frames += frames

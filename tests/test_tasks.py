@@ -333,6 +333,33 @@ def test_render_modes():
     env.close()
 
 
+def test_rgb_array_list_renders_the_motion_inside_a_primitive(tmp_path):
+    # RecordVideo keeps one frame per step; a primitive is seconds of motion.  With rgb_array_list the env
+    # renders at render_fps of simulated time inside primitives, and RecordMotionVideo writes every frame.
+    import imageio.v3 as iio
+
+    from panda_grasp_env.video import RecordMotionVideo
+
+    env = make("PandaTowerBreak-v0", render_mode="rgb_array_list", render_size=(64, 48))
+    fps = env.metadata["render_fps"]
+    env.reset(seed=0)
+    first = env.render()
+    assert len(first) == 1 and first[0].shape == (48, 64, 3) and env.render() == []  # render() empties the list
+    video = RecordMotionVideo(env, str(tmp_path / "videos"), episode_trigger=lambda episode: True, disable_logger=True)
+    video.reset(seed=0)
+    video.action_space.seed(0)
+    for _ in range(5):  # primitives: seconds of motion each
+        _, _, terminated, truncated, info = video.step(video.action_space.sample())
+        if info["sim_time"] > 1.0 or terminated or truncated:
+            break
+    video.close()
+    frames = iio.imread(next((tmp_path / "videos").glob("*.mp4"))).shape[0]
+    assert info["sim_time"] > 1.0 and frames >= info["sim_time"] / 0.1  # at least one frame per 0.1 s
+    assert abs(frames - (1 + info["sim_time"] * fps)) <= 2  # the reset frame, then one per 1/render_fps
+    with pytest.raises(ValueError, match="needs render_mode='rgb_array_list'"):
+        RecordMotionVideo(make("PandaPush-v0", render_mode="rgb_array"), str(tmp_path / "x")).reset(seed=0)
+
+
 def test_grasp_reset_leaves_the_arm_at_home_at_rest():
     from panda_grasp_env.robot import HOME_QPOS
 
