@@ -5,6 +5,8 @@
   heading ``yaw``;
 * ``pixel`` -- ``Discrete``: VPG's layout, primitive x rotation x heightmap
   cell, with ``action_masks()`` for MaskablePPO;
+* ``pixel_factored`` -- ``MultiDiscrete``: the same as (primitive, rotation,
+  row, column), with per-dimension masks, for off-the-shelf clients;
 * ``ee_delta`` -- ``Box(4)``: end-effector displacement and gripper at 25 Hz
   (Fetch / panda-gym style);
 * ``joint`` -- ``Box(8)``: arm joint-position deltas and gripper at 25 Hz.
@@ -264,6 +266,40 @@ class PixelActions(ActionMode):
         return masks.ravel()
 
 
+class FactoredPixelActions(PixelActions):
+    """``MultiDiscrete([P, R, H, W])``: the ``pixel`` action as (primitive, rotation, row, column).
+
+    For off-the-shelf clients that handle neither a 10^5-10^6-way ``Discrete`` nor VPG's dense Q-maps
+    (SB3's PPO and A2C, MaskablePPO): the same cells and headings, one small categorical per dimension.
+    ``action_masks`` is per dimension, concatenated (MaskablePPO's ``MultiDiscrete`` layout): a value is
+    allowed where some allowed ``pixel`` action has it, so a combination of allowed values may still be one
+    the joint mask forbids (a grasp on an empty cell): it runs, and fails as it would in ``pixel`` mode.
+    """
+
+    name = "pixel_factored"
+
+    def __init__(
+        self, settings: PrimitiveSettings, grid: HeightmapGrid, rotations: int, heightmap: Callable[[], np.ndarray]
+    ) -> None:
+        super().__init__(settings, grid, rotations, heightmap)
+        self.space = gym.spaces.MultiDiscrete(self.shape)
+
+    def validate(self, action: Any) -> tuple[int, int]:
+        array = np.asarray(action)
+        if array.shape != (4,) or array.dtype.kind not in "iu":
+            raise ValueError(f"pixel_factored action must be 4 integers (primitive, rotation, row, column), "
+                             f"got {action!r} (dtype {array.dtype})")  # fmt: skip
+        if np.any(array < 0) or np.any(array >= self.space.nvec):
+            raise ValueError(f"pixel_factored action {array.tolist()} outside [0, {self.space.nvec.tolist()})")
+        return int(np.ravel_multi_index(tuple(int(v) for v in array), self.shape)), 0
+
+    def action_masks(self, holding: bool) -> np.ndarray:
+        """Boolean masks of each dimension, concatenated (``sum(shape)`` entries; True = allowed)."""
+        joint = super().action_masks(holding).reshape(self.shape)
+        axes = range(joint.ndim)
+        return np.concatenate([joint.any(axis=tuple(a for a in axes if a != axis)) for axis in axes])
+
+
 class EEDeltaActions(ActionMode):
     """``Box(4)`` in [-1, 1]: grasp-site displacement (dx, dy, dz) x ``EE_STEP`` metres, and gripper.
 
@@ -367,4 +403,4 @@ def encode_grasp_pose(position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     return np.array([*scaled, *quaternion], dtype=np.float32)
 
 
-ACTION_MODES = ("primitive", "pixel", "ee_delta", "joint", "grasp_pose")
+ACTION_MODES = ("primitive", "pixel", "pixel_factored", "ee_delta", "joint", "grasp_pose")

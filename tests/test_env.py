@@ -212,6 +212,34 @@ def test_pixel_mode_publishes_its_action_layout():
     env.close()
 
 
+def test_factored_pixel_mode_is_the_pixel_mode_per_dimension():
+    pixel = make("PandaTowerBreak-v0", action_mode="pixel", rotations=8)
+    factored = make("PandaTowerBreak-v0", action_mode="pixel_factored", rotations=8)
+    _, info = factored.reset(seed=0)
+    pixel.reset(seed=0)
+    shape = info["action_layout"]["shape"]
+    assert info["action_layout"]["mode"] == "pixel_factored" and list(factored.action_space.nvec) == shape
+    action = np.array([0, 3, 40, 17])
+    flat, _ = factored.unwrapped.actions.validate(action)
+    assert factored.unwrapped.actions.decode(flat) == pixel.unwrapped.actions.decode(
+        int(np.ravel_multi_index(action, shape))
+    )
+    joint = pixel.unwrapped.action_masks().reshape(shape)
+    masks = np.split(factored.unwrapped.action_masks(), np.cumsum(shape)[:-1])
+    assert [m.tolist() for m in masks] == [
+        joint.any(axis=tuple(a for a in range(4) if a != d)).tolist() for d in range(4)
+    ]
+    assert masks[2].sum() < shape[2]  # rows far from the tower are masked
+    for bad, message in ((np.array([0, 3, 40]), "4 integers"), (np.array([0, 8, 0, 0]), "outside"),
+                         (np.array([0.0, 1, 2, 3]), "4 integers")):  # fmt: skip
+        with pytest.raises(ValueError, match=message):
+            factored.step(bad)
+    _, _, _, _, info = factored.step(action)
+    assert info["primitive"] == "push"
+    pixel.close()
+    factored.close()
+
+
 def test_bad_pixel_actions_raise():
     env = make("PandaTowerBreak-v0", action_mode="pixel")
     env.reset(seed=0)
@@ -225,7 +253,10 @@ def test_bad_pixel_actions_raise():
     "kwargs, message",
     [
         ({"obs_mode": "lidar"}, "valid: \\['state', 'rgb'"),
-        ({"action_mode": "torque"}, "valid: \\['primitive', 'pixel', 'ee_delta', 'joint', 'grasp_pose'\\]"),
+        (
+            {"action_mode": "torque"},
+            "valid: \\['primitive', 'pixel', 'pixel_factored', 'ee_delta', 'joint', 'grasp_pose'\\]",
+        ),
         ({"n_blocks": 7}, "n_blocks"),
         ({"colour": "red"}, "unknown option\\(s\\) \\['colour'\\] for task 'TowerBuild'; valid: \\['n_blocks'"),
         ({"cameras": ("ceiling",)}, "cameras must be distinct names from \\['overhead', 'front', 'wrist'\\]"),
