@@ -70,7 +70,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--name", default=None, help="checkpoint name for --ship")
     parser.add_argument("--retest", type=Path, default=None, help="test this run or checkpoint again")
     parser.add_argument("--trust", action="store_true",
-                        help="with --resume: load latest.zip / replay.pkl (pickles) even if this user's job did not "
+                        help="with --resume: load latest.zip / replay.pkl / latest.pt even if this user's job did not "
                              "sign them in this folder (a run copied or moved here)")  # fmt: skip
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     resume, progress = args.resume is not None, not args.no_progress
     try:
         if kind == "fall_dynamics":
-            return report_fall(train_fall_model(config, run_dir, resume, progress), run_dir)
+            return report_fall(train_fall_model(config, run_dir, resume, progress, args.trust), run_dir)
         outcome = train(config, run_dir, resume=resume, progress_bar=progress, trust=args.trust)
     except KeyboardInterrupt:
         print(f"\ninterrupted: checkpoint saved; continue with  python train.py --resume {run_dir}", file=sys.stderr)

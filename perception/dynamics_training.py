@@ -34,9 +34,11 @@ import yaml
 
 from panda_grasp_env.runs import (
     atomic_path,
+    check_run_files,
     config_from_mapping,
     new_run_folder,
     resume_summary,
+    sign_run_files,
     write_atomically,
     write_json,
 )
@@ -184,9 +186,11 @@ def start_fall_run(config: FallConfig, runs_dir: Path) -> Path:
 
 
 def train_fall_model(
-    config: FallConfig, run_dir: Path, resume: bool = False, progress_bar: bool = True
+    config: FallConfig, run_dir: Path, resume: bool = False, progress_bar: bool = True, trust: bool = False
 ) -> dict[str, Any]:
-    """Train (or continue) to ``config.epochs``; Ctrl-C saves latest.pt and re-raises."""
+    """Train (or continue) to ``config.epochs``; Ctrl-C saves latest.pt and re-raises.  A resume loads
+    latest.pt only as tensors and plain data, and only if this user's job signed it in this folder
+    (``runs.check_run_files``) or with ``trust=True``."""
     from torch.utils.tensorboard import SummaryWriter
     from tqdm import tqdm
 
@@ -205,6 +209,8 @@ def train_fall_model(
     epoch, wall_before, best = 0, 0.0, -1.0
     unvalidated_loss = None  # the last epoch's training loss while its validation has not run
     if resume:
+        if not trust:
+            check_run_files(run_dir, ["latest.pt"])
         try:
             saved = torch.load(run_dir / "latest.pt", map_location="cpu", weights_only=True)
         except Exception as error:  # a truncated file, or one holding more than tensors and plain data
@@ -234,6 +240,7 @@ def train_fall_model(
                         "numpy_rng": rng.bit_generator.state, "epoch": epoch, "wall_seconds": wall(), "best": best,
                         "unvalidated_loss": unvalidated_loss,
                         "frame_interval": train.frame_interval, "label_source": config.label_source}, tmp)  # fmt: skip
+        sign_run_files(run_dir, [path.name])
 
     bar = tqdm(total=config.epochs * batches, initial=epoch * batches, unit="batch", disable=not progress_bar,
                desc=config.name, mininterval=5.0)  # fmt: skip

@@ -147,6 +147,10 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     torch.save(older, run / "older.pt")
     with pytest.raises(ValueError, match="architecture 1; this code runs architecture"):
         load_fall_model(run / "older.pt")
+    # A latest.pt changed since this user's job wrote it is not resumed from (nor one of a copied run).
+    torch.save({**torch.load(run / "latest.pt", weights_only=True), "epoch": 0}, run / "latest.pt")
+    assert train.main(["--resume", str(run), "epochs=3", "--no-progress"]) == 2
+    assert "latest.pt was not written by this user's job in this folder" in capsys.readouterr().err
 
 
 def test_untrained_model_moves_each_block_by_its_own_velocity_and_displacement_targets_agree():
