@@ -333,7 +333,8 @@ def test_physics_divergence_truncates_and_reset_recovers():
     env.close()
 
 
-def test_render_check_passes_without_a_display(monkeypatch):
+@pytest.mark.parametrize("env_id", sorted(ENV_IDS))
+def test_render_check_passes_without_a_display(monkeypatch, env_id):
     # Gymnasium's default check_env builds every advertised render mode; "human" would end the process
     # from C (GLFW) on a server, so without a display it is neither advertised nor accepted.  (gym.make
     # then wraps an rgb_array env in its own HumanRendering, which raises a Python error without pygame
@@ -347,8 +348,8 @@ def test_render_check_passes_without_a_display(monkeypatch):
     advertised = env_module.advertised_render_modes()
     assert "human" not in advertised and "rgb_array" in advertised
     monkeypatch.setitem(env_module.PandaEnv.metadata, "render_modes", advertised)  # as imported on a server
-    env = gym.make("panda_grasp_env:PandaTowerBreak-v0", render_mode="rgb_array", render_size=(64, 48))
-    gym_check_env(env.unwrapped)
+    env = gym.make(f"panda_grasp_env:{env_id}", render_mode="rgb_array", render_size=(64, 48))
+    gym_check_env(env.unwrapped)  # also builds and renders every advertised mode
     env.close()
 
 
