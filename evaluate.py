@@ -32,8 +32,7 @@ from typing import Any
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
-
-from agents.evaluation import (  # noqa: E402
+from panda_grasp_env.agents.evaluation import (  # noqa: E402
     AGENTS,
     TASKS,
     EpisodeSpec,
@@ -43,7 +42,8 @@ from agents.evaluation import (  # noqa: E402
     run_episode,
     skip_reason,
 )
-from agents.oracle_tower import build_tower, push_tower  # noqa: E402
+from panda_grasp_env.agents.oracle_tower import build_tower, push_tower  # noqa: E402
+
 from panda_grasp_env.runs import commit, interrupt_on_signals, versions, write_atomically  # noqa: E402
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
 from panda_grasp_env.video import VideoRecorder  # noqa: E402
@@ -198,8 +198,7 @@ def _ray_records(specs: list[EpisodeSpec], address: str):
     """Episodes as Ray tasks, yielded as they finish (results are the same as local ones: episodes are
     determined by their spec alone)."""
     import ray
-
-    from agents.evaluation import run_episode as run
+    from panda_grasp_env.agents.evaluation import run_episode as run
 
     ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False)
     remote = ray.remote(lambda spec: {"key": spec.key, **run(spec)})
@@ -427,7 +426,7 @@ def videos(specs: list[EpisodeSpec], out: Path) -> list[Path]:
 
 def chosen_checkpoints(args: argparse.Namespace) -> list[Any]:
     """The shipped checkpoints among the chosen agents that play at least one chosen task."""
-    from agents.learned import Checkpoint
+    from panda_grasp_env.agents.learned import Checkpoint
 
     return [
         Checkpoint(agent)
@@ -490,7 +489,7 @@ def main(argv: list[str] | None = None) -> int:
     interrupt_on_signals()
     if args.demo:
         return demo(args)
-    try:  # one that cannot load (or would need trust: agents.learned.Checkpoint) stops the run before any episode
+    try:  # one that cannot load (or would need trust: panda_grasp_env.agents.learned.Checkpoint) stops the run before any episode
         for checkpoint in chosen_checkpoints(args):
             checkpoint.load_policy()
     except ValueError as error:

@@ -8,7 +8,7 @@ Overrides use dotted keys into mappings (``algo_kwargs.learning_rate=3e-4``,
 folder under ``--runs`` (see ``agents/training.py``); Ctrl-C checkpoints it, and
 ``--resume <run folder>`` continues it.  ``--ship <run folder> --name N`` copies
 a finished run's model, card and curve to ``agents/checkpoints/N`` where
-``agents.learned.LearnedAgent`` and ``evaluate.py`` find it (fall-dynamics runs:
+``panda_grasp_env.agents.learned.LearnedAgent`` and ``evaluate.py`` find it (fall-dynamics runs:
 ``perception/checkpoints/N``).  ``--retest <run or checkpoint folder>`` runs a policy's final
 held-out test again (final.json, card.md), e.g. after the evaluation protocol or the physics changed.
 """
@@ -27,8 +27,7 @@ import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import yaml  # noqa: E402
-
-from agents.training import (  # noqa: E402
+from panda_grasp_env.agents.training import (  # noqa: E402
     check_policy_resume,
     config_from_dict,
     load_run,
@@ -37,18 +36,19 @@ from agents.training import (  # noqa: E402
     start_run,
     train,
 )
+from panda_grasp_env.perception.dynamics_training import (  # noqa: E402
+    FALL_RESUME_CHANGEABLE,
+    fall_config,
+    start_fall_run,
+    train_fall_model,
+)
+
 from panda_grasp_env.runs import (  # noqa: E402
     check_resume_changes,
     forget_failed_resume,
     interrupt_on_signals,
     record_resume,
     write_atomically,
-)
-from perception.dynamics_training import (  # noqa: E402
-    FALL_RESUME_CHANGEABLE,
-    fall_config,
-    start_fall_run,
-    train_fall_model,
 )
 
 
@@ -90,9 +90,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.ship is not None:
             if (args.ship / "best.pt").exists():
-                from perception.dynamics_training import ship_fall_run as ship
+                from panda_grasp_env.perception.dynamics_training import ship_fall_run as ship
             else:
-                from agents.learned import ship
+                from panda_grasp_env.agents.learned import ship
             print(f"shipped to {ship(args.ship, args.name)}")
             return 0
         if args.retest is not None:

@@ -29,7 +29,7 @@ TASKS: dict[str, tuple[str, dict[str, Any]]] = {
     "Push": ("PandaPush-v0", {}),
     "Lift": ("PandaGrasp-v0", {"action_mode": "ee_delta"}),
 }
-#: The built-in agents; every shipped checkpoint (``agents.learned.available_checkpoints``) is an agent too.
+#: The built-in agents; every shipped checkpoint (``panda_grasp_env.agents.learned.available_checkpoints``) is an agent too.
 AGENTS = ("random", "planned", "oracle")
 
 
@@ -65,7 +65,7 @@ def task_label(env_id: str, env_kwargs: dict[str, Any]) -> str:
 
 def all_agents() -> tuple[str, ...]:
     """Built-in agents, then the shipped learned checkpoints by name."""
-    from agents.learned import available_checkpoints
+    from panda_grasp_env.agents.learned import available_checkpoints
 
     return (*AGENTS, *available_checkpoints())
 
@@ -78,7 +78,7 @@ def skip_reason(agent: str, task: str) -> str | None:
         if is_low_level(*TASKS[task]):
             return f"the {agent} baselines act through motion primitives; {task} is a low-level ee_delta task"
         return None
-    from agents.learned import Checkpoint
+    from panda_grasp_env.agents.learned import Checkpoint
 
     checkpoint = Checkpoint(agent)
     if checkpoint.task != task:
@@ -102,7 +102,7 @@ class EpisodeSpec:
 
 def make_env(spec: EpisodeSpec) -> gym.Env:
     if spec.agent not in AGENTS:  # a learned checkpoint: the env it was trained on
-        from agents.learned import Checkpoint
+        from panda_grasp_env.agents.learned import Checkpoint
 
         return Checkpoint(spec.agent).make_env()
     env_id, options = TASKS[spec.task]
@@ -113,14 +113,20 @@ def make_env(spec: EpisodeSpec) -> gym.Env:
 
 
 def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
-    from agents.grasping import OracleGraspAgent, PlannedGraspAgent
-    from agents.random_agent import RandomAgent
-    from agents.towers import BuildAndBreakAgent, CameraBlocks, OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
+    from panda_grasp_env.agents.grasping import OracleGraspAgent, PlannedGraspAgent
+    from panda_grasp_env.agents.random_agent import RandomAgent
+    from panda_grasp_env.agents.towers import (
+        BuildAndBreakAgent,
+        CameraBlocks,
+        OracleBlocks,
+        TowerBreakerAgent,
+        TowerBuilderAgent,
+    )
 
     if spec.agent == "random":
         return RandomAgent(env.action_space, seed=spec.seed)
     if spec.agent not in AGENTS:
-        from agents.learned import LearnedAgent
+        from panda_grasp_env.agents.learned import LearnedAgent
 
         return LearnedAgent(spec.agent, env)
     oracle = spec.agent == "oracle"

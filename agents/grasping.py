@@ -4,7 +4,7 @@ retry with the next candidate.
 Stages of the source study's loop and where they happen here: the robot waits
 at home (the env's primitives end there); the camera captures RGB-D (the
 observation); grasps are proposed from the depth image without object models
-(``perception.grasps``); the best untried one is selected; the env's grasp
+(``panda_grasp_env.perception.grasps``); the best untried one is selected; the env's grasp
 primitive moves, closes, lifts and verifies (finger gap, then lift without
 dropping); on failure the arm has retreated home and the loop repeats with the
 next candidate.
@@ -18,10 +18,10 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure
+from panda_grasp_env.perception.grasps import GraspCandidate, detect_grasps_rgbd, top_down_rotation
 
-from agents.base import CameraViews, PrimitiveActionWriter, record_failure
 from panda_grasp_env.actions import encode_grasp_pose
-from perception.grasps import GraspCandidate, detect_grasps_rgbd, top_down_rotation
 
 #: A candidate this close (metres, radians) to a failed attempt is not tried again.
 RETRY_DISTANCE = 0.01

@@ -4,7 +4,7 @@ A checkpoint is a folder ``agents/checkpoints/<name>/`` written by
 ``python train.py --ship <run folder> --name <name>``::
 
     policy.safetensors  the policy's weights (no optimiser, no replay buffer): the run's best on validation
-    policy.json         its class and constructor arguments, as data (``agents.policy_files``)
+    policy.json         its class and constructor arguments, as data (``panda_grasp_env.agents.policy_files``)
     checkpoint.json     env id, evaluation task, policy class, the step it was saved at
     config.yaml         the training config
     card.md             the model card: config, seed, steps, wall time, machine, metrics with 95 % CIs
@@ -24,10 +24,10 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from panda_grasp_env.agents.evaluation import task_label
+from panda_grasp_env.agents.policy_files import export_sb3, load_policy, load_sb3, policy_paths
+from panda_grasp_env.agents.training import PolicyAgent, TrainConfig, config_from_dict, observation_transform
 
-from agents.evaluation import task_label
-from agents.policy_files import export_sb3, load_policy, load_sb3, policy_paths
-from agents.training import PolicyAgent, TrainConfig, config_from_dict, observation_transform
 from panda_grasp_env.runs import write_json
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
@@ -92,7 +92,7 @@ class Checkpoint:
     def provenance(self) -> dict[str, Any]:
         """Where this checkpoint's weights came from: its folder, the training step they were saved at and the
         SHA-256 of its weights (a fine-tuning run records it: the name alone may be shipped again)."""
-        from perception.falls import sha256
+        from panda_grasp_env.perception.falls import sha256
 
         weights = policy_paths(self.path / "policy")[1]
         return {"path": str(self.path.resolve()), "steps": self.meta["steps"],
@@ -100,7 +100,7 @@ class Checkpoint:
 
     def make_env(self) -> gym.Env:
         """The env the policy was trained on (raw observations; the agent transforms them)."""
-        from agents.training import make_env
+        from panda_grasp_env.agents.training import make_env
 
         return make_env(self.config)
 
@@ -158,7 +158,7 @@ def ship(run_dir: Path, name: str) -> Path:
         raise ValueError(f"{run_dir} is not a finished run: {missing} missing (train it until it stops first)")
     if not name.replace("-", "").replace("_", "").isalnum():
         raise ValueError(f"checkpoint name {name!r}: letters, digits, - and _ only")
-    from agents.training import load_run
+    from panda_grasp_env.agents.training import load_run
 
     config = load_run(run_dir)
     best = json.loads((run_dir / "best.json").read_text())

@@ -1,6 +1,6 @@
 """Planned tower agents: build a tower from perceived block poses, and break it with a push.
 
-Both perceive blocks from the env's RGB-D images (``perception.pose``) -- or,
+Both perceive blocks from the env's RGB-D images (``panda_grasp_env.perception.pose``) -- or,
 in the ``Oracle*`` variants, read the simulator's true block poses -- and act
 through the env's ``primitive`` action mode.  World frame, metres, radians.
 """
@@ -13,10 +13,10 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
+from panda_grasp_env.perception.pose import detect_towers, estimate_block_poses, wrap_quarter
 
-from agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
-from perception.pose import detect_towers, estimate_block_poses, wrap_quarter
 
 #: Where a push starts: this far from the tower's axis (half a block plus a finger's clearance).
 PUSH_START = 0.065

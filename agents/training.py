@@ -29,9 +29,16 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import yaml
+from panda_grasp_env.agents.evaluation import (
+    EpisodeSpec,
+    aggregate,
+    describe_rate,
+    is_low_level,
+    play_episode,
+    task_label,
+)
+from panda_grasp_env.agents.policy_files import class_name, load_policy, policy_paths, save_policy
 
-from agents.evaluation import EpisodeSpec, aggregate, describe_rate, is_low_level, play_episode, task_label
-from agents.policy_files import class_name, load_policy, policy_paths, save_policy
 from panda_grasp_env.runs import (
     atomic_path,
     check_resume_changes,
@@ -48,7 +55,10 @@ from panda_grasp_env.tasks.base import is_number
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
 ALGORITHMS: dict[str, tuple[str, str]] = {
-    "heightmap_dqn": ("agents.heightmap_policy:HeightmapDQN", "agents.heightmap_policy:HeightmapQPolicy"),
+    "heightmap_dqn": (
+        "panda_grasp_env.agents.heightmap_policy:HeightmapDQN",
+        "panda_grasp_env.agents.heightmap_policy:HeightmapQPolicy",
+    ),
     "sac": ("stable_baselines3:SAC", "MultiInputPolicy"),
     "tqc": ("sb3_contrib:TQC", "MultiInputPolicy"),
     "ppo": ("stable_baselines3:PPO", "MultiInputPolicy"),
@@ -212,7 +222,7 @@ def observation_transform(config: TrainConfig) -> Callable[[Any, dict[str, Any]]
     """What the policy sees of an env observation and the step's info (the same in training, evaluation and
     ``LearnedAgent``)."""
     if config.algo == "heightmap_dqn":
-        from agents.heightmap_policy import encode_observation
+        from panda_grasp_env.agents.heightmap_policy import encode_observation
 
         holding = holding_plane(config)
         return lambda observation, info: encode_observation(observation, info, holding)
@@ -281,7 +291,7 @@ def _wrapped_env(config: TrainConfig) -> gym.Env:
     if config.reward == "outcome":
         env = OutcomeReward(env)
     if config.algo == "heightmap_dqn":
-        from agents.heightmap_policy import EncodedHeightmap
+        from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap
 
         env = EncodedHeightmap(env, holding_plane(config))
     return env
@@ -373,10 +383,10 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
 
 
 def initial_policy_source(config: TrainConfig) -> Any:
-    """The checkpoint (``agents.learned.Checkpoint``) that ``config.init_policy`` names, checked against the run
+    """The checkpoint (``panda_grasp_env.agents.learned.Checkpoint``) that ``config.init_policy`` names, checked against the run
     before anything is written: ``ValueError`` if it is unknown, was trained with another algorithm, or acts on
     other observation or action spaces than the run's training env."""
-    from agents.learned import Checkpoint
+    from panda_grasp_env.agents.learned import Checkpoint
 
     name = config.init_policy
     try:
@@ -423,7 +433,7 @@ class PolicyAgent:
     def __init__(
         self, model: Any, transform: Callable[[Any, dict[str, Any]], Any], name: str, avoid_failures: bool = False
     ) -> None:
-        from agents.heightmap_policy import FailureMemory, HeightmapQPolicy
+        from panda_grasp_env.agents.heightmap_policy import FailureMemory, HeightmapQPolicy
 
         self.model, self.transform, self.name = model, transform, name
         self.policy = getattr(model, "policy", model)  # an SB3 model's policy, or the policy itself
@@ -457,7 +467,7 @@ def evaluate_policy(
     first_seed: int | None = None,
     avoid_failures: bool = False,
 ) -> dict[str, Any]:
-    """Task metrics (``agents.evaluation.aggregate``) of ``model`` (an SB3 model or policy) acting as a
+    """Task metrics (``panda_grasp_env.agents.evaluation.aggregate``) of ``model`` (an SB3 model or policy) acting as a
     ``PolicyAgent`` over ``episodes`` episodes seeded ``first_seed``, ``first_seed + 1``, ... (default: the
     validation seeds, ``eval_seed``...)."""
     import torch

@@ -26,8 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first mujoco import
 
 import numpy as np  # noqa: E402
+from panda_grasp_env.agents.oracle_tower import PUSH_DIRECTIONS, build_tower, push_tower  # noqa: E402
 
-from agents.oracle_tower import PUSH_DIRECTIONS, build_tower, push_tower  # noqa: E402
 from benchmarks._common import Results, rate  # noqa: E402
 from panda_grasp_env.primitives import grasp  # noqa: E402
 from panda_grasp_env.scene import SceneConfig  # noqa: E402

@@ -22,8 +22,15 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from agents.evaluation import describe_rate
-from agents.training import TEST_SEED_OFFSET, evaluate_policy, load_best_policy, load_run, validation_score
+from panda_grasp_env.agents.evaluation import describe_rate
+from panda_grasp_env.agents.training import (
+    TEST_SEED_OFFSET,
+    evaluate_policy,
+    load_best_policy,
+    load_run,
+    validation_score,
+)
+
 from benchmarks._common import Results, policy_figures
 
 #: Selection seeds start this far above the validation seeds (runs validate on far fewer episodes).

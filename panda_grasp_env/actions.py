@@ -29,10 +29,10 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.controller import JacobianServo
+from panda_grasp_env.perception.heightmap import HeightmapGrid
 from panda_grasp_env.primitives import MIN_GRASP_HEIGHT, PrimitiveResult, run_primitive
 from panda_grasp_env.robot import FINGER_OPEN, HOME_YAW
 from panda_grasp_env.workcell import WORKSPACE, Workcell
-from perception.heightmap import HeightmapGrid
 
 #: Where a grasp closes below the top surface it aims at, metres.
 GRASP_DEPTH = 0.02

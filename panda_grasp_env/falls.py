@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.perception.falls import SHARD_ARRAYS, sha256, split_of
 from panda_grasp_env.runs import atomic_path, interrupt_on_signals, write_atomically
-from perception.falls import SHARD_ARRAYS, sha256, split_of
 
 #: Block speed (m/s) above which the fall has begun.
 MOTION_SPEED = 0.01
@@ -100,7 +100,7 @@ class FrameGrabber:
             self.grab(cell)
 
     def grab(self, cell: Any) -> None:
-        from perception.segmentation import colour_masks
+        from panda_grasp_env.perception.segmentation import colour_masks
 
         sensors = self.env.unwrapped.sensors
         sensors.invalidate()

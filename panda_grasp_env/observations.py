@@ -26,10 +26,10 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from panda_grasp_env.perception.camera import CameraModel
+from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_from_rgbd
 from panda_grasp_env.rendering import CameraRenderer
 from panda_grasp_env.workcell import Workcell
-from perception.camera import CameraModel
-from perception.heightmap import HeightmapGrid, heightmap_from_rgbd
 
 MODALITIES = ("state", "rgb", "depth", "segmentation", "heightmap")
 IMAGE_MODALITIES = ("rgb", "depth", "segmentation")

@@ -31,6 +31,18 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 import yaml
+from panda_grasp_env.perception.dynamics import (
+    ARCHITECTURE,
+    FallPredictor,
+    block_displacements,
+    check_compatible,
+    evaluate,
+    heights,
+    model_inputs,
+    one_hot,
+    predict_batch,
+)
+from panda_grasp_env.perception.falls import load_split, read_metadata
 
 from panda_grasp_env.runs import (
     atomic_path,
@@ -42,18 +54,6 @@ from panda_grasp_env.runs import (
     write_atomically,
     write_json,
 )
-from perception.dynamics import (
-    ARCHITECTURE,
-    FallPredictor,
-    block_displacements,
-    check_compatible,
-    evaluate,
-    heights,
-    model_inputs,
-    one_hot,
-    predict_batch,
-)
-from perception.falls import load_split, read_metadata
 
 #: Colours of the class maps in strips: background, then the blocks in the scene's order.
 PALETTE = np.array([[235, 235, 230], [220, 40, 40], [40, 170, 60], [50, 90, 220], [230, 200, 30]], dtype=np.uint8)

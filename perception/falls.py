@@ -10,7 +10,7 @@ array              shape, dtype                meaning
 ``rgb``            (N, T, S, S, 3) uint8       overhead camera colour
 ``depth``          (N, T, S, S) float16        depth along the optical axis, metres
 ``labels``         (N, T, S, S) uint8          true segmentation: 0 background (table, robot), 1 + block
-``colour_labels``  (N, T, S, S) uint8          the same classes from ``perception.segmentation.colour_masks``
+``colour_labels``  (N, T, S, S) uint8          the same classes from ``panda_grasp_env.perception.segmentation.colour_masks``
 ``poses``          (N, T, B, 7) float32        block position (m) and quaternion (w, x, y, z), world frame
 ``seeds``          (N,) int64                  env reset seed of each sequence
 ``breaker``        (N,) uint8                  0 impulse, 1 push

@@ -26,13 +26,12 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from panda_grasp_env.perception.camera import CameraModel
+from panda_grasp_env.perception.images import check_depth, check_points
+from panda_grasp_env.perception.segmentation import Plane, fit_plane_ransac
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
-
-from perception.camera import CameraModel
-from perception.images import check_depth, check_points
-from perception.segmentation import Plane, fit_plane_ransac
 
 #: Where grasps are looked for (world metres): the table in front of the robot, up to 30 cm high.
 #: It keeps the robot's own body (at home, above and behind it) out of the cloud.

@@ -11,9 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from perception.camera import CameraModel
-from perception.images import check_depth, check_pair, check_points
+from panda_grasp_env.perception.camera import CameraModel
+from panda_grasp_env.perception.images import check_depth, check_pair, check_points
 
 #: VPG's workspace: a 0.448 m square in front of the robot (224 x 224 cells at 2 mm).
 DEFAULT_BOUNDS = ((0.276, 0.724), (-0.224, 0.224), (0.0, 0.3))

@@ -13,8 +13,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-
-from perception.images import check_points, check_rgb
+from panda_grasp_env.perception.images import check_points, check_rgb
 
 #: Hue half-window (OpenCV units, 0-179) around each colour's hue.
 HUE_WINDOW = 10

@@ -3,9 +3,8 @@
 import gymnasium as gym
 import numpy as np
 import pytest
-
-from agents.grasping import OracleGraspAgent, PlannedGraspAgent
-from agents.towers import OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
+from panda_grasp_env.agents.grasping import OracleGraspAgent, PlannedGraspAgent
+from panda_grasp_env.agents.towers import OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
 
 RGBD = {"obs_mode": "rgbd", "image_size": (640, 480)}
 

@@ -16,11 +16,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
-
-import evaluate
-import train
-from agents import learned
-from agents.policy_files import (
+from panda_grasp_env.agents import learned
+from panda_grasp_env.agents.policy_files import (
     export_sb3,
     load_policy,
     load_sb3,
@@ -29,6 +26,9 @@ from agents.policy_files import (
     space_from_json,
     space_to_json,
 )
+
+import evaluate
+import train
 from panda_grasp_env.runs import sign_run_files
 
 
@@ -156,7 +156,7 @@ def test_resume_loads_only_the_pickles_this_users_job_signed_in_that_folder(tiny
 
 
 def test_the_fall_model_loader_refuses_a_payload(tmp_path, marker):
-    from perception.dynamics_training import load_fall_model
+    from panda_grasp_env.perception.dynamics_training import load_fall_model
 
     write_payload(tmp_path / "model.pt", marker)
     with pytest.raises(ValueError, match=f"cannot load fall-dynamics checkpoint {tmp_path / 'model.pt'}"):
@@ -172,8 +172,8 @@ def test_policy_files_round_trip_with_identical_actions(shipped, tmp_path):
     # The SB3 export reads back, with trust, to the same weights.
     exported = export_sb3(policy, tmp_path / "policy.zip")
     with pytest.raises(ValueError, match="SB3 pickle"):
-        load_sb3(exported, "agents.heightmap_policy:HeightmapQPolicy")
-    trusted = load_sb3(exported, "agents.heightmap_policy:HeightmapQPolicy", trust=True)
+        load_sb3(exported, "panda_grasp_env.agents.heightmap_policy:HeightmapQPolicy")
+    trusted = load_sb3(exported, "panda_grasp_env.agents.heightmap_policy:HeightmapQPolicy", trust=True)
     assert all(th.equal(v, trusted.state_dict()[k]) for k, v in policy.state_dict().items())
     # Weights that are not the ones the JSON records are refused.
     weights = policy_paths(tmp_path / "again")[1]

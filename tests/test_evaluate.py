@@ -89,9 +89,8 @@ def test_figures_that_do_not_apply_are_left_blank():
 def test_a_diverged_step_keeps_the_cycles_the_episode_completed():
     import gymnasium as gym
     import numpy as np
-
-    from agents.evaluation import EpisodeSpec, play_episode
-    from agents.random_agent import RandomAgent
+    from panda_grasp_env.agents.evaluation import EpisodeSpec, play_episode
+    from panda_grasp_env.agents.random_agent import RandomAgent
 
     class CycleThenDiverge(gym.Wrapper):  # a cycle done from the first step; the physics diverges at the second
         def step(self, action):
@@ -118,7 +117,7 @@ def test_a_fresh_run_keeps_the_previous_runs_episodes(tmp_path):
 
 
 def test_grasp_success_interval_widens_when_an_episodes_grasps_fail_together():
-    from agents.evaluation import clustered_rate, wilson
+    from panda_grasp_env.agents.evaluation import clustered_rate, wilson
 
     spread = clustered_rate([3, 3, 3, 3], [4, 4, 4, 4])  # every episode 3 of 4: no sign of clustering
     assert spread["ci95"] == wilson(12, 16) and spread["design_effect"] == 1.0
@@ -134,8 +133,7 @@ def test_random_agent_does_not_replay_the_scene_draws():
     # generator: its pushes would start where the tower was placed.  The agent's stream is its own.
     import gymnasium as gym
     import numpy as np
-
-    from agents.random_agent import RandomAgent
+    from panda_grasp_env.agents.random_agent import RandomAgent
 
     env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
     towers, bare, agent_actions = [], [], []

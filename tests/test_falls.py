@@ -5,13 +5,13 @@ import json
 import numpy as np
 import pytest
 import torch
+from panda_grasp_env.perception import dynamics_training
+from panda_grasp_env.perception.dynamics import Confusion, FallPredictor, constant_velocity, copy_last, evaluate
+from panda_grasp_env.perception.dynamics_training import load_fall_model
+from panda_grasp_env.perception.falls import load_split, split_of
 
 import train
 from panda_grasp_env.falls import RecorderSettings, main, record_dataset
-from perception import dynamics_training
-from perception.dynamics import Confusion, FallPredictor, constant_velocity, copy_last, evaluate
-from perception.dynamics_training import load_fall_model
-from perception.falls import load_split, split_of
 
 SETTINGS = RecorderSettings(frames=10, shard_size=2, seed=7)
 
@@ -154,7 +154,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
 
 
 def test_untrained_model_moves_each_block_by_its_own_velocity_and_displacement_targets_agree():
-    from perception.dynamics import FallPredictor, block_displacements, one_hot
+    from panda_grasp_env.perception.dynamics import FallPredictor, block_displacements, one_hot
 
     labels = torch.zeros(1, 3, 32, 32, dtype=torch.long)
     for t in range(3):
@@ -172,7 +172,7 @@ def test_untrained_model_moves_each_block_by_its_own_velocity_and_displacement_t
 
 
 def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
-    from perception.dynamics import model_inputs
+    from panda_grasp_env.perception.dynamics import model_inputs
 
     labels = np.zeros((1, 3, 32, 32), dtype=np.uint8)
     depth = np.full((1, 3, 32, 32), 1.0, dtype=np.float16)  # the table, 1 m below the camera

@@ -1,8 +1,8 @@
 import gymnasium as gym
 import numpy as np
 import pytest
+from panda_grasp_env.agents.oracle_tower import PUSH_DIRECTIONS, build_tower, push_tower
 
-from agents.oracle_tower import PUSH_DIRECTIONS, build_tower, push_tower
 from panda_grasp_env.primitives import REASONS, grasp, place, push, run_primitive
 from panda_grasp_env.robot import HOME_QPOS
 from panda_grasp_env.stacking import blocks_displaced, wrap_quarter_turn

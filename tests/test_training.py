@@ -8,10 +8,8 @@ import numpy as np
 import pytest
 import torch as th
 import yaml
-
-import train
-from agents import learned
-from agents.heightmap_policy import (
+from panda_grasp_env.agents import learned
+from panda_grasp_env.agents.heightmap_policy import (
     HEIGHT_RANGE,
     EncodedHeightmap,
     HeightmapDQN,
@@ -21,11 +19,13 @@ from agents.heightmap_policy import (
     holding_after,
     rotate,
 )
-from agents.policy_files import load_policy
-from agents.training import OutcomeReward, PolicyAgent, TrainConfig, load_config
+from panda_grasp_env.agents.policy_files import load_policy
+from panda_grasp_env.agents.training import OutcomeReward, PolicyAgent, TrainConfig, load_config
+from panda_grasp_env.perception.heightmap import HeightmapGrid
+
+import train
 from panda_grasp_env.actions import PixelActions
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
-from perception.heightmap import HeightmapGrid
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 #: A pixel-mode DQN small enough to train for a few steps in seconds.
@@ -355,7 +355,7 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
 
 
 def test_init_policy_starts_a_run_from_a_checkpoints_weights(finished_run, tmp_path, monkeypatch):
-    from agents.training import build_model, initial_policy_source, load_initial_policy, make_vec_env
+    from panda_grasp_env.agents.training import build_model, initial_policy_source, load_initial_policy, make_vec_env
 
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path / "checkpoints")
     learned.ship(finished_run, "tiny")
@@ -421,7 +421,7 @@ def test_her_pipeline_runs_with_vectorised_envs(tmp_path):
 
 
 def test_train_env_kwargs_reach_the_training_envs_only():
-    from agents.training import make_env, make_vec_env
+    from panda_grasp_env.agents.training import make_env, make_vec_env
 
     config = load_config(CONFIGS / "lift_sac_her.yaml", ["n_envs=2", "train_env_kwargs={start_in_hand: 0.5}"])
     training = make_vec_env(config)
@@ -510,7 +510,7 @@ def test_evaluate_runs_a_shipped_checkpoint_by_name_and_skips_other_tasks(finish
 
 def test_evaluation_plays_the_seeds_it_is_given():
     """Validation and the held-out test must be different episodes: evaluate_policy seeds from first_seed."""
-    from agents.training import evaluate_policy
+    from panda_grasp_env.agents.training import evaluate_policy
 
     class Still:  # a stand-in policy: do nothing
         def predict(self, observation, deterministic=True):

@@ -7,11 +7,11 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.objects import SHAPES, ObjectShape, sample_shape, validate_shape_options
+from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, register_task, with_scene
 from panda_grasp_env.workcell import SPAWN_REGION, Workcell, body_bottom_height, yaw_quaternion
-from perception.heightmap import DEFAULT_BOUNDS
 
 #: VPG drops its clutter into the middle of the workspace; a 0.2 m square here.
 CLUTTER_REGION = np.array([[0.4, 0.6], [-0.1, 0.1]])
