@@ -32,6 +32,7 @@ from typing import Any
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
+
 from panda_grasp_env.agents.evaluation import (  # noqa: E402
     AGENTS,
     TASKS,
@@ -43,7 +44,6 @@ from panda_grasp_env.agents.evaluation import (  # noqa: E402
     skip_reason,
 )
 from panda_grasp_env.agents.oracle_tower import build_tower, push_tower  # noqa: E402
-
 from panda_grasp_env.runs import commit, interrupt_on_signals, versions, write_atomically  # noqa: E402
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
 from panda_grasp_env.video import VideoRecorder  # noqa: E402
@@ -198,6 +198,7 @@ def _ray_records(specs: list[EpisodeSpec], address: str):
     """Episodes as Ray tasks, yielded as they finish (results are the same as local ones: episodes are
     determined by their spec alone)."""
     import ray
+
     from panda_grasp_env.agents.evaluation import run_episode as run
 
     ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False)

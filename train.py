@@ -27,6 +27,7 @@ import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import yaml  # noqa: E402
+
 from panda_grasp_env.agents.training import (  # noqa: E402
     check_policy_resume,
     config_from_dict,
@@ -42,7 +43,6 @@ from panda_grasp_env.perception.dynamics_training import (  # noqa: E402
     start_fall_run,
     train_fall_model,
 )
-
 from panda_grasp_env.runs import (  # noqa: E402
     check_resume_changes,
     forget_failed_resume,

@@ -13,10 +13,10 @@ from collections import Counter
 from typing import Any, Protocol
 
 import numpy as np
-from panda_grasp_env.perception.noise import DepthNoise, RGBNoise
-from panda_grasp_env.perception.pose import View
 
 from panda_grasp_env.actions import encode_primitive
+from panda_grasp_env.perception.noise import DepthNoise, RGBNoise
+from panda_grasp_env.perception.pose import View
 
 #: Failure categories agents report (``Agent.failures``), on top of the env's primitive reasons.
 FAILURES = (

@@ -18,10 +18,11 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure
-from panda_grasp_env.perception.grasps import GraspCandidate, detect_grasps_rgbd, top_down_rotation
 
 from panda_grasp_env.actions import encode_grasp_pose
+from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure
+from panda_grasp_env.geometry import top_down_rotation
+from panda_grasp_env.perception.grasps import GraspCandidate, detect_grasps_rgbd
 
 #: A candidate this close (metres, radians) to a failed attempt is not tried again.
 RETRY_DISTANCE = 0.01

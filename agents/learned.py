@@ -24,10 +24,10 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+
 from panda_grasp_env.agents.evaluation import task_label
 from panda_grasp_env.agents.policy_files import export_sb3, load_policy, load_sb3, policy_paths
 from panda_grasp_env.agents.training import PolicyAgent, TrainConfig, config_from_dict, observation_transform
-
 from panda_grasp_env.runs import write_json
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"

@@ -13,12 +13,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from panda_grasp_env.primitives import PrimitiveResult, grasp, place, push
-from panda_grasp_env.stacking import tower_footprint_centre, tower_is_built, wrap_quarter_turn
+from panda_grasp_env.stacking import clearest_grasp_heading, tower_footprint_centre, tower_is_built, wrap_quarter_turn
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 from panda_grasp_env.workcell import Workcell
-
-#: The four push directions of the source study, as headings about world z (radians).
-PUSH_DIRECTIONS = BREAK_DIRECTIONS
 
 
 @dataclass
@@ -31,24 +28,6 @@ class TowerOutcome:
     max_yaw_error_deg: float = float("nan")
 
 
-def clearest_grasp_yaw(cell: Workcell, index: int) -> float:
-    """Of a cube's two grasp headings, the one whose fingers point least towards the other blocks.
-
-    The open hand is ~20 cm wide along its closing axis; aiming it along the
-    line to a nearby tower knocks the tower over.
-    """
-    positions = cell.block_positions()[:, :2]
-    yaw = float(cell.block_yaws()[index])
-    offsets = np.delete(positions - positions[index], index, axis=0)
-    distances = np.linalg.norm(offsets, axis=1)
-    directions = offsets / distances[:, None]
-
-    def crowding(heading: float) -> float:
-        return float(np.sum(np.abs(directions @ [np.cos(heading), np.sin(heading)]) / distances))
-
-    return min((yaw, yaw + np.pi / 2), key=crowding)
-
-
 def build_tower(cell: Workcell) -> TowerOutcome:
     """Stack every block on the one nearest the workspace centre, yaw-aligned to it."""
     positions = cell.block_positions()
@@ -58,7 +37,9 @@ def build_tower(cell: Workcell) -> TowerOutcome:
     stacked = [base]
     for index in (i for i in range(len(positions)) if i != base):
         position = cell.block_positions()[index]
-        result = grasp(cell, *position, clearest_grasp_yaw(cell, index))
+        result = grasp(
+            cell, *position, clearest_grasp_heading(cell.block_positions(), index, float(cell.block_yaws()[index]))
+        )
         outcome.steps.append(result)
         if not result.success:
             return outcome
@@ -76,11 +57,11 @@ def build_tower(cell: Workcell) -> TowerOutcome:
 
 
 def push_tower(cell: Workcell, direction: str, distance: float = 0.16) -> PrimitiveResult:
-    """Push the standing tower with the closed gripper at mid-height, towards ``direction`` (one of PUSH_DIRECTIONS)."""
-    if direction not in PUSH_DIRECTIONS:
-        raise ValueError(f"unknown push direction {direction!r}; valid: {list(PUSH_DIRECTIONS)}")
+    """Push the standing tower with the closed gripper at mid-height, towards ``direction`` (one of BREAK_DIRECTIONS)."""
+    if direction not in BREAK_DIRECTIONS:
+        raise ValueError(f"unknown push direction {direction!r}; valid: {list(BREAK_DIRECTIONS)}")
     centre = tower_footprint_centre(cell.block_positions())
-    heading = PUSH_DIRECTIONS[direction]
+    heading = BREAK_DIRECTIONS[direction]
     unit = np.array([np.cos(heading), np.sin(heading)])
     start = centre - unit * (cell.config.block_size / 2 + 0.04)
     height = min(cell.block_positions()[:, 2].max() / 2 + 0.01, 0.12)

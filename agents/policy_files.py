@@ -37,9 +37,10 @@ def class_name(cls: type) -> str:
 def policy_classes() -> dict[str, type]:
     """The policy classes a policy file may name: the heightmap Q-policy and every SB3 policy alias
     (``MlpPolicy``, ``MultiInputPolicy``, ...) of the algorithms ``train.py`` runs."""
-    from panda_grasp_env.agents.heightmap_policy import HeightmapQPolicy
     from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC
+
+    from panda_grasp_env.agents.heightmap_policy import HeightmapQPolicy
 
     classes = [HeightmapQPolicy]
     for algo in (SAC, TQC, PPO):

@@ -13,9 +13,10 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+
 from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
 from panda_grasp_env.perception.pose import detect_towers, estimate_block_poses, wrap_quarter
-
+from panda_grasp_env.stacking import clearest_grasp_heading
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
 #: Where a push starts: this far from the tower's axis (half a block plus a finger's clearance).
@@ -26,24 +27,6 @@ PUSH_START = 0.065
 class SeenBlock:
     position: np.ndarray
     yaw: float
-
-
-def clearest_grasp_heading(positions: np.ndarray, index: int, yaw: float) -> float:
-    """Of a cube's two grasp headings (``yaw``, ``yaw`` + 90 deg), the one pointing least at the other blocks.
-
-    The open hand is ~20 cm wide along its closing axis; aiming it at a nearby
-    tower knocks the tower over.
-    """
-    offsets = np.delete(positions[:, :2] - positions[index, :2], index, axis=0)
-    if len(offsets) == 0:
-        return yaw
-    distances = np.maximum(np.linalg.norm(offsets, axis=1), 1e-6)
-    directions = offsets / distances[:, None]
-
-    def crowding(heading: float) -> float:
-        return float(np.sum(np.abs(directions @ [np.cos(heading), np.sin(heading)]) / distances))
-
-    return min((yaw, yaw + np.pi / 2), key=crowding)
 
 
 class CameraBlocks:

@@ -29,6 +29,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import yaml
+
 from panda_grasp_env.agents.evaluation import (
     EpisodeSpec,
     aggregate,
@@ -38,7 +39,7 @@ from panda_grasp_env.agents.evaluation import (
     task_label,
 )
 from panda_grasp_env.agents.policy_files import class_name, load_policy, policy_paths, save_policy
-
+from panda_grasp_env.geometry import is_number
 from panda_grasp_env.runs import (
     atomic_path,
     check_resume_changes,
@@ -51,7 +52,6 @@ from panda_grasp_env.runs import (
     write_atomically,
     write_json,
 )
-from panda_grasp_env.tasks.base import is_number
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
 ALGORITHMS: dict[str, tuple[str, str]] = {

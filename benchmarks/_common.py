@@ -14,7 +14,6 @@ from typing import Any
 
 from panda_grasp_env.agents.evaluation import clustered_rate, describe_rate, rate, wilson  # noqa: F401  (one implementation each)
 from panda_grasp_env.agents.learned import Checkpoint, available_checkpoints
-
 from panda_grasp_env.runs import machine as machine_name
 from panda_grasp_env.runs import write_atomically
 

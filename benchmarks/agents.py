@@ -30,10 +30,10 @@ for _threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_threads, "1")
 
 import gymnasium as gym
-from panda_grasp_env.agents.grasping import PlannedGraspAgent
-from panda_grasp_env.agents.towers import OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
 
 from benchmarks._common import Results, clustered_rate, describe_rate, rate
+from panda_grasp_env.agents.grasping import PlannedGraspAgent
+from panda_grasp_env.agents.towers import OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
 
 RGBD = {"obs_mode": "rgbd", "image_size": (640, 480)}
 

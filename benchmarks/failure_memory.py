@@ -19,10 +19,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from benchmarks._common import Results, policy_figures, shipped_checkpoints
 from panda_grasp_env.agents.learned import Checkpoint
 from panda_grasp_env.agents.training import TEST_SEED_OFFSET, evaluate_policy
-
-from benchmarks._common import Results, policy_figures, shipped_checkpoints
 
 
 def measure(name: str, episodes: int | None, avoid_failures: bool) -> dict:

@@ -34,14 +34,14 @@ for _threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import gymnasium as gym
 import numpy as np
+
+from benchmarks._common import Results, rate
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.grasps import detect_grasps_rgbd
 from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_from_rgbd
 from panda_grasp_env.perception.noise import DepthNoise, RGBNoise
 from panda_grasp_env.perception.pose import View, detect_towers, estimate_block_poses, wrap_quarter
 from panda_grasp_env.perception.segmentation import colour_masks
-
-from benchmarks._common import Results, rate
 from panda_grasp_env.rendering import CameraRenderer
 from panda_grasp_env.workcell import Workcell
 

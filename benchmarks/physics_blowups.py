@@ -24,10 +24,10 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import mujoco
 import numpy as np
-from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent
-from panda_grasp_env.agents.training import TEST_SEED_OFFSET
 
 from benchmarks._common import Results, rate, shipped_checkpoints
+from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent
+from panda_grasp_env.agents.training import TEST_SEED_OFFSET
 from panda_grasp_env.robot import FINGER_OPEN
 from panda_grasp_env.workcell import Workcell
 

@@ -26,12 +26,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first mujoco import
 
 import numpy as np  # noqa: E402
-from panda_grasp_env.agents.oracle_tower import PUSH_DIRECTIONS, build_tower, push_tower  # noqa: E402
 
 from benchmarks._common import Results, rate  # noqa: E402
+from panda_grasp_env.agents.oracle_tower import build_tower, push_tower
 from panda_grasp_env.primitives import grasp  # noqa: E402
 from panda_grasp_env.scene import SceneConfig  # noqa: E402
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
+from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS  # noqa: E402
 from panda_grasp_env.workcell import Workcell  # noqa: E402
 
 
@@ -80,7 +81,7 @@ def oracle_towers(trials: int) -> dict:
 def pushes(trials: int) -> dict:
     cell = Workcell()
     figures = {}
-    for offset, direction in enumerate(PUSH_DIRECTIONS):
+    for offset, direction in enumerate(BREAK_DIRECTIONS):
         knocked, displaced_counts = 0, []
         for seed in range(trials):
             cell.reset(np.random.default_rng(10_000 * (offset + 1) + seed), "tower")

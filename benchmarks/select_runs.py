@@ -22,6 +22,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from benchmarks._common import Results, policy_figures
 from panda_grasp_env.agents.evaluation import describe_rate
 from panda_grasp_env.agents.training import (
     TEST_SEED_OFFSET,
@@ -30,8 +31,6 @@ from panda_grasp_env.agents.training import (
     load_run,
     validation_score,
 )
-
-from benchmarks._common import Results, policy_figures
 
 #: Selection seeds start this far above the validation seeds (runs validate on far fewer episodes).
 SELECTION_SEED_OFFSET = 1_000

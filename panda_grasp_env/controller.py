@@ -22,7 +22,8 @@ import mink
 import mujoco
 import numpy as np
 
-from panda_grasp_env.robot import HOME_QPOS, top_down_rotation
+from panda_grasp_env.geometry import top_down_rotation
+from panda_grasp_env.robot import HOME_QPOS
 from panda_grasp_env.scene import ARM_JOINTS, GRASP_SITE, SceneConfig, build_spec
 
 #: Joint speed (rad/s) below which the IK solution counts as converged for a fixed reference.

@@ -28,6 +28,7 @@ from panda_grasp_env.actions import (
     PrimitiveSettings,
 )
 from panda_grasp_env.controller import ControllerLimits
+from panda_grasp_env.geometry import is_number
 from panda_grasp_env.observations import ObservationBuilder, Sensors, parse_obs_mode
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
@@ -36,7 +37,6 @@ from panda_grasp_env.rendering import CameraRenderer, display_available
 from panda_grasp_env.robot import FINGER_CLOSED, FINGER_OPEN, HOME_YAW
 from panda_grasp_env.scene import CAMERA_NAMES, SceneConfig
 from panda_grasp_env.tasks import TaskStep, make_task
-from panda_grasp_env.tasks.base import is_number
 from panda_grasp_env.workcell import PhysicsError, Workcell
 
 #: Low-level modes start each episode with the hand here (x, y metres), pointing down, this high above

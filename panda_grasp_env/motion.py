@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import mink
 import numpy as np
 
+from panda_grasp_env.geometry import rotation_about
 from panda_grasp_env.robot import HOME_QPOS
 from panda_grasp_env.scene import ARM_JOINTS, GRASP_SITE, SceneConfig, build_spec
 
@@ -102,13 +103,6 @@ class PoseIK:
             if position_error < self.position_tolerance and angle_error < self.angle_tolerance:
                 return IKResult(qpos, np.asarray(rotation), position_error, angle_error, iterations)
         return None
-
-
-def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
-    """Rotation matrix by ``angle`` radians about unit ``axis`` (Rodrigues)."""
-    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
 
 
 @dataclass(frozen=True)

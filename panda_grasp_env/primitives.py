@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from panda_grasp_env.geometry import is_number
 from panda_grasp_env.workcell import WORKSPACE, PhysicsError, Workcell, body_bottom_height, body_extent_along
 
 #: Lowest grasp-site height: the fingertips reach 15 mm below the site.
@@ -73,10 +74,8 @@ class PrimitiveResult:
 
 
 def _check_number(primitive: str, name: str, value: float) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{primitive}: argument {name!r} must be a real number, got {type(value).__name__}")
-    if not np.isfinite(value):
-        raise ValueError(f"{primitive}: argument {name!r} must be finite, got {value}")
+    if not is_number(value):
+        raise ValueError(f"{primitive}: argument {name!r} must be a finite real number, got {value!r}")
     return float(value)
 
 

@@ -31,12 +31,6 @@ FINGER_OPEN = 0.04
 FINGER_CLOSED = 0.0
 
 
-def top_down_rotation(yaw: float) -> np.ndarray:
-    """Rotation matrix of a gripper pointing straight down whose closing axis has heading ``yaw``."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])
-
-
 class PandaRobot:
     """Typed view of the Panda inside a workcell ``MjModel``/``MjData`` pair."""
 

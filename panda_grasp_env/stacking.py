@@ -63,3 +63,21 @@ def blocks_displaced(positions: np.ndarray, footprint_centre: np.ndarray, block_
     """Number of blocks whose centre is at least one block size (horizontally) from the footprint centre."""
     offsets = np.linalg.norm(positions[:, :2] - footprint_centre, axis=1)
     return int(np.sum(offsets >= block_size))
+
+
+def clearest_grasp_heading(positions: np.ndarray, index: int, yaw: float) -> float:
+    """Of a cube's two grasp headings (``yaw``, ``yaw`` + 90 deg), the one pointing least at the other blocks.
+
+    The open hand is ~20 cm wide along its closing axis; aiming it at a nearby
+    tower knocks the tower over.
+    """
+    offsets = np.delete(positions[:, :2] - positions[index, :2], index, axis=0)
+    if len(offsets) == 0:
+        return yaw
+    distances = np.maximum(np.linalg.norm(offsets, axis=1), 1e-6)
+    directions = offsets / distances[:, None]
+
+    def crowding(heading: float) -> float:
+        return float(np.sum(np.abs(directions @ [np.cos(heading), np.sin(heading)]) / distances))
+
+    return min((yaw, yaw + np.pi / 2), key=crowding)

@@ -15,6 +15,7 @@ import numpy as np
 
 from panda_grasp_env.collateral import CollateralMonitor
 from panda_grasp_env.controller import CartesianController, ControllerLimits
+from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.objects import ObjectShape, apply_shape
 from panda_grasp_env.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
 from panda_grasp_env.scene import SceneConfig, build_spec
@@ -426,11 +427,6 @@ class Workcell:
         self.clear()
         self.place_blocks(rng, layout)
         self.settle(settle)
-
-
-def yaw_quaternion(yaw: float) -> np.ndarray:
-    """Quaternion (w, x, y, z) of a rotation by ``yaw`` radians about world z."""
-    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
 
 
 def scattered_layout(

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 import yaml
+
 from panda_grasp_env.perception.dynamics import (
     ARCHITECTURE,
     FallPredictor,
@@ -43,7 +44,6 @@ from panda_grasp_env.perception.dynamics import (
     predict_batch,
 )
 from panda_grasp_env.perception.falls import load_split, read_metadata
-
 from panda_grasp_env.runs import (
     atomic_path,
     check_run_files,

@@ -26,12 +26,14 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from panda_grasp_env.perception.camera import CameraModel
-from panda_grasp_env.perception.images import check_depth, check_points
-from panda_grasp_env.perception.segmentation import Plane, fit_plane_ransac
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+
+from panda_grasp_env.geometry import top_down_rotation
+from panda_grasp_env.perception.camera import CameraModel
+from panda_grasp_env.perception.images import check_depth, check_points
+from panda_grasp_env.perception.segmentation import Plane, fit_plane_ransac
 
 #: Where grasps are looked for (world metres): the table in front of the robot, up to 30 cm high.
 #: It keeps the robot's own body (at home, above and behind it) out of the cloud.
@@ -77,12 +79,6 @@ class GraspCandidate:
     yaw: float
     #: Index of the object (point cluster) it grasps.
     object_index: int
-
-
-def top_down_rotation(yaw: float) -> np.ndarray:
-    """Rotation of a hand pointing straight down whose closing axis has heading ``yaw``."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])
 
 
 def prepare_cloud(

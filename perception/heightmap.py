@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.images import check_depth, check_pair, check_points
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from panda_grasp_env.perception.images import check_depth, check_rgb
 
 

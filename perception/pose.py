@@ -18,10 +18,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.optimize import least_squares
+
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.images import check_pair
 from panda_grasp_env.perception.segmentation import colour_masks
-from scipy.optimize import least_squares
 
 #: Fewest points a block needs to be reported.
 MIN_POINTS = 30

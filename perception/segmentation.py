@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
 from panda_grasp_env.perception.images import check_points, check_rgb
 
 #: Hue half-window (OpenCV units, 0-179) around each colour's hue.

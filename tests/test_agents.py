@@ -3,6 +3,7 @@
 import gymnasium as gym
 import numpy as np
 import pytest
+
 from panda_grasp_env.agents.grasping import OracleGraspAgent, PlannedGraspAgent
 from panda_grasp_env.agents.towers import OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
 

@@ -16,6 +16,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+
+import evaluate
+import train
 from panda_grasp_env.agents import learned
 from panda_grasp_env.agents.policy_files import (
     export_sb3,
@@ -26,9 +29,6 @@ from panda_grasp_env.agents.policy_files import (
     space_from_json,
     space_to_json,
 )
-
-import evaluate
-import train
 from panda_grasp_env.runs import sign_run_files
 
 

@@ -89,6 +89,7 @@ def test_figures_that_do_not_apply_are_left_blank():
 def test_a_diverged_step_keeps_the_cycles_the_episode_completed():
     import gymnasium as gym
     import numpy as np
+
     from panda_grasp_env.agents.evaluation import EpisodeSpec, play_episode
     from panda_grasp_env.agents.random_agent import RandomAgent
 
@@ -133,6 +134,7 @@ def test_random_agent_does_not_replay_the_scene_draws():
     # generator: its pushes would start where the tower was placed.  The agent's stream is its own.
     import gymnasium as gym
     import numpy as np
+
     from panda_grasp_env.agents.random_agent import RandomAgent
 
     env = gym.make("panda_grasp_env:PandaTowerBreak-v0")

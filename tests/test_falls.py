@@ -5,13 +5,13 @@ import json
 import numpy as np
 import pytest
 import torch
+
+import train
+from panda_grasp_env.falls import RecorderSettings, main, record_dataset
 from panda_grasp_env.perception import dynamics_training
 from panda_grasp_env.perception.dynamics import Confusion, FallPredictor, constant_velocity, copy_last, evaluate
 from panda_grasp_env.perception.dynamics_training import load_fall_model
 from panda_grasp_env.perception.falls import load_split, split_of
-
-import train
-from panda_grasp_env.falls import RecorderSettings, main, record_dataset
 
 SETTINGS = RecorderSettings(frames=10, shard_size=2, seed=7)
 

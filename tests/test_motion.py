@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from panda_grasp_env.motion import PoseIK, ToleranceSampler, rotation_about
-from panda_grasp_env.robot import HOME_QPOS, top_down_rotation
+from panda_grasp_env.geometry import rotation_about, top_down_rotation
+from panda_grasp_env.motion import PoseIK, ToleranceSampler
+from panda_grasp_env.robot import HOME_QPOS
 
 
 @pytest.fixture(scope="module")

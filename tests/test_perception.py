@@ -2,12 +2,12 @@
 
 import numpy as np
 import pytest
+
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_from_points, heightmap_from_rgbd
 from panda_grasp_env.perception.noise import DepthNoise, RGBNoise
 from panda_grasp_env.perception.pose import View, detect_towers, estimate_block_poses, wrap_quarter
 from panda_grasp_env.perception.segmentation import colour_masks, fit_plane_ransac, foreground_mask
-
 from panda_grasp_env.rendering import CameraRenderer
 from panda_grasp_env.workcell import Workcell
 
@@ -150,6 +150,7 @@ def test_bad_clouds_and_heightmap_images_raise():
 @pytest.mark.parametrize("shape", ["cube", "cylinder", "capsule"])
 def test_top_grasp_candidate_picks_the_object_up(shape):
     import gymnasium as gym
+
     from panda_grasp_env.perception.grasps import detect_grasps_rgbd
 
     env = gym.make("panda_grasp_env:PandaGrasp-v0", shapes=(shape,), primitive_z=True)

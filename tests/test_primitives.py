@@ -1,11 +1,12 @@
 import gymnasium as gym
 import numpy as np
 import pytest
-from panda_grasp_env.agents.oracle_tower import PUSH_DIRECTIONS, build_tower, push_tower
 
+from panda_grasp_env.agents.oracle_tower import build_tower, push_tower
 from panda_grasp_env.primitives import REASONS, grasp, place, push, run_primitive
 from panda_grasp_env.robot import HOME_QPOS
 from panda_grasp_env.stacking import blocks_displaced, wrap_quarter_turn
+from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
 
 def _isolated_cube(cell, seed):
@@ -56,7 +57,7 @@ def test_oracle_builds_a_tower(cell):
     assert outcome.max_yaw_error_deg < 3.0
 
 
-@pytest.mark.parametrize("direction", list(PUSH_DIRECTIONS))
+@pytest.mark.parametrize("direction", list(BREAK_DIRECTIONS))
 def test_push_knocks_the_tower_over(cell, direction):
     cell.reset(np.random.default_rng(9), "tower")
     centre = cell.block_positions()[0, :2].copy()

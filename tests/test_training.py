@@ -8,6 +8,9 @@ import numpy as np
 import pytest
 import torch as th
 import yaml
+
+import train
+from panda_grasp_env.actions import PixelActions
 from panda_grasp_env.agents import learned
 from panda_grasp_env.agents.heightmap_policy import (
     HEIGHT_RANGE,
@@ -22,9 +25,6 @@ from panda_grasp_env.agents.heightmap_policy import (
 from panda_grasp_env.agents.policy_files import load_policy
 from panda_grasp_env.agents.training import OutcomeReward, PolicyAgent, TrainConfig, load_config
 from panda_grasp_env.perception.heightmap import HeightmapGrid
-
-import train
-from panda_grasp_env.actions import PixelActions
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"

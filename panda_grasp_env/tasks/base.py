@@ -25,6 +25,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from panda_grasp_env.geometry import is_number
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.workcell import Workcell
@@ -153,15 +154,6 @@ def make_task(name: str, options: dict[str, Any]) -> Task:
 def with_scene(base: SceneConfig, **changes: Any) -> SceneConfig:
     """``base`` with some fields replaced (validated by SceneConfig)."""
     return replace(base, **changes)
-
-
-def is_number(value: Any) -> bool:
-    """Whether ``value`` is a finite real number (an int or float, not a bool): test it before comparing."""
-    return (
-        isinstance(value, (int, float, np.integer, np.floating))
-        and not isinstance(value, bool)
-        and bool(np.isfinite(value))
-    )
 
 
 def is_interval(value: Any) -> bool:

@@ -6,12 +6,13 @@ from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.geometry import lying_quaternion, yaw_quaternion
 from panda_grasp_env.objects import SHAPES, ObjectShape, sample_shape, validate_shape_options
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, register_task, with_scene
-from panda_grasp_env.workcell import SPAWN_REGION, Workcell, body_bottom_height, yaw_quaternion
+from panda_grasp_env.workcell import SPAWN_REGION, Workcell, body_bottom_height
 
 #: VPG drops its clutter into the middle of the workspace; a 0.2 m square here.
 CLUTTER_REGION = np.array([[0.4, 0.6], [-0.1, 0.1]])
@@ -30,21 +31,8 @@ HAND_FIT_WIDTH = 0.06
 
 
 def spawn_quaternion(shape: ObjectShape, yaw: float) -> np.ndarray:
-    """Resting orientation: upright, except capsules, which lie on their side (axis horizontal)."""
-    q = yaw_quaternion(yaw)
-    if shape.kind != "capsule":
-        return q
-    lie = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0])  # quarter turn about x
-    w1, x1, y1, z1 = q
-    w2, x2, y2, z2 = lie
-    return np.array(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ]
-    )
+    """Resting orientation (w, x, y, z): upright, except capsules, which lie on their side (axis horizontal)."""
+    return lying_quaternion(yaw) if shape.kind == "capsule" else yaw_quaternion(yaw)
 
 
 def fitting_yaw(shape: ObjectShape, yaw: float, hand_yaw: float, rng: np.random.Generator) -> float:

@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.scene import GOAL_MARKER, SceneConfig
 from panda_grasp_env.tasks.base import (
@@ -17,7 +18,7 @@ from panda_grasp_env.tasks.base import (
     register_task,
     with_scene,
 )
-from panda_grasp_env.workcell import SPAWN_REGION, Workcell, yaw_quaternion
+from panda_grasp_env.workcell import SPAWN_REGION, Workcell
 
 
 @register_task

@@ -6,9 +6,10 @@ from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.geometry import is_number
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.scene import SceneConfig
-from panda_grasp_env.tasks.base import Task, TaskStep, check_option, is_number, register_task, with_scene
+from panda_grasp_env.tasks.base import Task, TaskStep, check_option, register_task, with_scene
 from panda_grasp_env.workcell import Workcell
 
 #: The source study's four push directions, as headings about world z (radians).
