@@ -17,18 +17,15 @@ loading it runs any code it holds) loads only with ``trust=True``; ``Checkpoint.
 from __future__ import annotations
 
 import json
-import os
-import shutil
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from panda_grasp_env.agents.evaluation import task_label
+from panda_grasp_env.agents.config import TrainConfig, config_from_dict, make_env, observation_transform
+from panda_grasp_env.agents.policy_agent import PolicyAgent
 from panda_grasp_env.agents.policy_files import export_sb3, load_policy, load_sb3, policy_paths
-from panda_grasp_env.agents.training import PolicyAgent, TrainConfig, config_from_dict, observation_transform
-from panda_grasp_env.runs import write_json
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
 SHIPPED_FILES = (
@@ -100,8 +97,6 @@ class Checkpoint:
 
     def make_env(self) -> gym.Env:
         """The env the policy was trained on (raw observations; the agent transforms them)."""
-        from panda_grasp_env.agents.training import make_env
-
         return make_env(self.config)
 
 
@@ -148,46 +143,3 @@ class LearnedAgent(PolicyAgent):
         mismatch = observation_mismatch(self.model.observation_space, self.transform(observation, info))
         if mismatch:
             raise ValueError(f"checkpoint {self.name} cannot act here: it {mismatch}")
-
-
-def ship(run_dir: Path, name: str) -> Path:
-    """Copy a finished run (policy, card, curve, config) to ``agents/checkpoints/<name>`` (atomically)."""
-    run_dir = Path(run_dir)
-    missing = [f for f in SHIPPED_FILES if not (run_dir / f).is_file()]
-    if missing:
-        raise ValueError(f"{run_dir} is not a finished run: {missing} missing (train it until it stops first)")
-    if not name.replace("-", "").replace("_", "").isalnum():
-        raise ValueError(f"checkpoint name {name!r}: letters, digits, - and _ only")
-    from panda_grasp_env.agents.training import load_run
-
-    config = load_run(run_dir)
-    best = json.loads((run_dir / "best.json").read_text())
-    staging = CHECKPOINTS / f".{name}.tmp"
-    shutil.rmtree(staging, ignore_errors=True)
-    staging.mkdir(parents=True)
-    for f in SHIPPED_FILES:
-        shutil.copy2(run_dir / f, staging / f.replace("best_policy.", "policy."))
-    size = (staging / "policy.safetensors").stat().st_size
-    if size > 20e6:
-        shutil.rmtree(staging)
-        raise ValueError(f"the policy of {run_dir} is {size / 1e6:.1f} MB; shipped checkpoints stay under 20 MB")
-    write_json(
-        staging / "checkpoint.json",
-        {
-            "policy_class": json.loads((staging / "policy.json").read_text())["policy_class"],
-            "steps": best["steps"],
-            "env_id": config.env_id,
-            "task": task_label(config.env_id, config.env_kwargs),
-            "algo": config.algo,
-        },
-    )
-    target = CHECKPOINTS / name
-    if target.exists():
-        old = CHECKPOINTS / f".{name}.old"
-        shutil.rmtree(old, ignore_errors=True)
-        os.replace(target, old)
-        os.replace(staging, target)
-        shutil.rmtree(old)
-    else:
-        os.replace(staging, target)
-    return target

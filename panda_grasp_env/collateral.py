@@ -18,16 +18,15 @@ Metres, radians, world frame.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
+import mujoco
 import numpy as np
 
-if TYPE_CHECKING:
-    from collections.abc import Iterator
-
-    from panda_grasp_env.workcell import Workcell
+from panda_grasp_env.robot import PandaRobot
 
 #: An object moved if its centre travelled further than this, metres.
 MOVE_LIMIT = 0.01
@@ -48,10 +47,19 @@ class Collateral:
     disturbed: set[int] = field(default_factory=set)
 
 
+class MonitoredCell(Protocol):
+    """What the monitor reads of a workcell (``Workcell`` is one; it owns the monitor, so no import of it)."""
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    robot: PandaRobot
+    object_ids: np.ndarray
+
+
 class CollateralMonitor:
     """Watches one workcell's contacts and object poses, segment by segment, for one primitive at a time."""
 
-    def __init__(self, cell: Workcell) -> None:
+    def __init__(self, cell: MonitoredCell) -> None:
         self.cell = cell
         model = cell.model
         self._is_robot = np.zeros(model.nbody, dtype=bool)

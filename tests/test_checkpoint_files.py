@@ -29,6 +29,7 @@ from panda_grasp_env.agents.policy_files import (
     space_from_json,
     space_to_json,
 )
+from panda_grasp_env.agents.training import ship
 from panda_grasp_env.runs import sign_run_files
 
 
@@ -67,7 +68,7 @@ def tiny_run(tmp_path_factory):
 @pytest.fixture
 def shipped(tiny_run, tmp_path, monkeypatch):
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path / "checkpoints")
-    return learned.ship(tiny_run, "tiny")
+    return ship(tiny_run, "tiny")
 
 
 def pickled_checkpoint(shipped, marker):

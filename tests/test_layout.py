@@ -36,6 +36,71 @@ def test_no_module_imports_a_generic_top_level_name():
     assert offenders == []
 
 
+#: Layers, bottom first: a module may import its own layer and those below, never one above.
+FOUNDATION = ("panda_grasp_env.geometry", "panda_grasp_env.runs")
+LAYERS = ("foundation", "perception", "env", "agents")
+
+
+def module_files() -> dict[str, Path]:
+    """Our modules by installed name."""
+    modules = {}
+    for folder, package in (("panda_grasp_env", "panda_grasp_env"), ("agents", "panda_grasp_env.agents"),
+                            ("perception", "panda_grasp_env.perception")):  # fmt: skip
+        for path in (ROOT / folder).rglob("*.py"):
+            parts = [p for p in path.relative_to(ROOT / folder).with_suffix("").parts if p != "__init__"]
+            modules[".".join([package, *parts])] = path
+    return modules
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module -> our modules it imports anywhere in its body (functions and ``TYPE_CHECKING`` blocks too)."""
+    modules = module_files()
+    graph: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        imported = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                imported |= {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+            elif isinstance(node, ast.Import):
+                imported |= {a.name for a in node.names}
+        graph[name] = {m for m in imported if m in modules and m != name}
+    return graph
+
+
+def layer(module: str) -> str:
+    if module in FOUNDATION:
+        return "foundation"
+    for package in ("agents", "perception"):
+        if module.startswith(f"panda_grasp_env.{package}"):
+            return package
+    return "env"
+
+
+def test_no_import_cycles():
+    graph, state, cycles = import_graph(), {}, []
+
+    def visit(module: str, path: list[str]) -> None:
+        state[module] = "open"
+        for target in sorted(graph[module]):
+            if state.get(target) == "open":
+                cycles.append(path[path.index(target) :] + [target] if target in path else [module, target])
+            elif target not in state:
+                visit(target, [*path, target])
+        state[module] = "done"
+
+    for module in sorted(graph):
+        if module not in state:
+            visit(module, [module])
+    assert cycles == []
+
+
+def test_no_module_imports_a_layer_above_its_own():
+    rank = {name: i for i, name in enumerate(LAYERS)}
+    upward = [f"{m} ({layer(m)}) -> {t} ({layer(t)})" for m, targets in import_graph().items() for t in targets
+              if rank[layer(t)] > rank[layer(m)]]  # fmt: skip
+    assert upward == []
+
+
 def test_every_source_package_is_installed_under_panda_grasp_env():
     tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
     config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]

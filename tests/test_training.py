@@ -12,6 +12,7 @@ import yaml
 import train
 from panda_grasp_env.actions import PixelActions
 from panda_grasp_env.agents import learned
+from panda_grasp_env.agents.config import OutcomeReward, TrainConfig, load_config
 from panda_grasp_env.agents.heightmap_policy import (
     HEIGHT_RANGE,
     EncodedHeightmap,
@@ -22,8 +23,9 @@ from panda_grasp_env.agents.heightmap_policy import (
     holding_after,
     rotate,
 )
+from panda_grasp_env.agents.policy_agent import PolicyAgent
 from panda_grasp_env.agents.policy_files import load_policy
-from panda_grasp_env.agents.training import OutcomeReward, PolicyAgent, TrainConfig, load_config
+from panda_grasp_env.agents.training import ship
 from panda_grasp_env.perception.heightmap import HeightmapGrid
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
@@ -334,7 +336,7 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
     import gymnasium as gym
 
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path)
-    path = learned.ship(finished_run, "tiny")
+    path = ship(finished_run, "tiny")
     assert learned.available_checkpoints() == ["tiny"]
     assert (path / "policy.safetensors").stat().st_size < 20e6 and not (path / "policy.zip").exists()
     agent_env = learned.Checkpoint("tiny").make_env()
@@ -355,10 +357,11 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
 
 
 def test_init_policy_starts_a_run_from_a_checkpoints_weights(finished_run, tmp_path, monkeypatch):
-    from panda_grasp_env.agents.training import build_model, initial_policy_source, load_initial_policy, make_vec_env
+    from panda_grasp_env.agents.config import make_vec_env
+    from panda_grasp_env.agents.training import build_model, initial_policy_source, load_initial_policy
 
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path / "checkpoints")
-    learned.ship(finished_run, "tiny")
+    ship(finished_run, "tiny")
     source = learned.Checkpoint("tiny").load_policy().state_dict()
     config = load_config(CONFIGS / "grasp_clutter_dqn.yaml", [*TINY_DQN, "init_policy=tiny"])
     env = make_vec_env(config)
@@ -421,7 +424,7 @@ def test_her_pipeline_runs_with_vectorised_envs(tmp_path):
 
 
 def test_train_env_kwargs_reach_the_training_envs_only():
-    from panda_grasp_env.agents.training import make_env, make_vec_env
+    from panda_grasp_env.agents.config import make_env, make_vec_env
 
     config = load_config(CONFIGS / "lift_sac_her.yaml", ["n_envs=2", "train_env_kwargs={start_in_hand: 0.5}"])
     training = make_vec_env(config)
@@ -495,7 +498,7 @@ def test_evaluate_runs_a_shipped_checkpoint_by_name_and_skips_other_tasks(finish
     import evaluate
 
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path / "checkpoints")
-    learned.ship(finished_run, "tiny")
+    ship(finished_run, "tiny")
     out = tmp_path / "results"
     args = ["--agents", "tiny,random", "--tasks", "Grasp,Push", "--seeds", "1", "--no-video", "--out", str(out)]
     assert evaluate.main(args) == 0
@@ -580,7 +583,7 @@ def test_resume_from_a_corrupt_checkpoint_is_one_error_line_and_no_session(finis
 
 def test_retest_runs_on_a_shipped_checkpoint_too(finished_run, tmp_path, monkeypatch):
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path)
-    shipped = learned.ship(finished_run, "tiny")  # policy.zip, no progress.json: the run's totals are in final.json
+    shipped = ship(finished_run, "tiny")  # policy.zip, no progress.json: the run's totals are in final.json
     before = json.loads((shipped / "final.json").read_text())
     assert train.main(["--retest", str(shipped)]) == 0
     after = json.loads((shipped / "final.json").read_text())

@@ -1,0 +1,303 @@
+"""Training configs and the envs they describe: a checked ``TrainConfig`` (YAML + ``key=value`` overrides), the
+algorithm table, the policy's view of an observation, the training and evaluation envs, and what a resumed
+run may change.  ``train.py`` and ``panda_grasp_env.agents.training`` build runs from these."""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import yaml
+
+from panda_grasp_env.geometry import is_number
+from panda_grasp_env.runs import check_resume_changes, config_from_mapping
+
+#: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
+ALGORITHMS: dict[str, tuple[str, str]] = {
+    "heightmap_dqn": (
+        "panda_grasp_env.agents.heightmap_policy:HeightmapDQN",
+        "panda_grasp_env.agents.heightmap_policy:HeightmapQPolicy",
+    ),
+    "sac": ("stable_baselines3:SAC", "MultiInputPolicy"),
+    "tqc": ("sb3_contrib:TQC", "MultiInputPolicy"),
+    "ppo": ("stable_baselines3:PPO", "MultiInputPolicy"),
+}
+#: Training rewards: ``task`` is the env's own; ``outcome`` pays each primitive for what it achieved (``OutcomeReward``).
+REWARDS = ("task", "outcome")
+
+
+@dataclass
+class TrainConfig:
+    """One training run.  Steps are environment steps (summed over ``n_envs``)."""
+
+    name: str
+    env_id: str
+    algo: str
+    total_steps: int
+    env_kwargs: dict[str, Any] = field(default_factory=dict)  # options for gymnasium.make
+    # Added to env_kwargs in the training envs only (curricula such as start_in_hand); evaluation, the final
+    # test and LearnedAgent use env_kwargs alone.
+    train_env_kwargs: dict[str, Any] = field(default_factory=dict)
+    max_episode_steps: int | None = None  # None: the id's own limit
+    algo_kwargs: dict[str, Any] = field(default_factory=dict)  # SB3 constructor arguments
+    policy_kwargs: dict[str, Any] = field(default_factory=dict)
+    her: dict[str, Any] | None = None  # HerReplayBuffer arguments; None = no HER
+    reward: str = "task"  # what the learner is paid: one of REWARDS (evaluation always uses the task's metrics)
+    n_envs: int = 1
+    vec_env: str = "dummy"  # dummy | subproc (spawn)
+    seed: int = 0
+    eval_every: int = 5000  # steps between evaluations
+    eval_episodes: int = 20
+    eval_seed: int = 1_000_000  # validation episodes: seeds eval_seed, eval_seed + 1, ...; the final test:
+    # eval_seed + TEST_SEED_OFFSET, ... (training episodes draw other seeds; see TrainConfig docs)
+    final_eval_episodes: int = 100
+    checkpoint_every: int = 5000
+    max_minutes: float | None = None  # stop (and checkpoint) after this much wall time in total
+    torch_threads: int = 1
+    # A shipped checkpoint (name in agents/checkpoints, or folder) whose policy weights -- actor and critics --
+    # start the run instead of random ones: fine-tuning after the task changed.  Same algorithm, spaces and
+    # network; the optimisers, the entropy coefficient (set algo_kwargs.ent_coef) and the replay buffer start
+    # afresh.  None: random weights.
+    init_policy: str | None = None
+
+    @classmethod
+    def keys(cls) -> list[str]:
+        return [f.name for f in dataclasses.fields(cls)]
+
+    def validate(self) -> None:
+        from panda_grasp_env.registration import ENV_IDS
+
+        def check(ok: bool, key: str, expected: str) -> None:
+            if not ok:
+                raise ValueError(f"config {key}={getattr(self, key)!r}: expected {expected}")
+
+        check(isinstance(self.name, str) and self.name.replace("-", "").replace("_", "").isalnum(), "name",
+              "letters, digits, - and _")  # fmt: skip
+        check(self.env_id in ENV_IDS, "env_id", f"one of {sorted(ENV_IDS)}")
+        check(self.algo in ALGORITHMS, "algo", f"one of {sorted(ALGORITHMS)}")
+        for key in ("total_steps", "n_envs", "eval_every", "eval_episodes", "final_eval_episodes", "checkpoint_every",
+                    "torch_threads"):  # fmt: skip
+            value = getattr(self, key)
+            check(isinstance(value, int) and not isinstance(value, bool) and value >= 1, key, "an int >= 1")
+        check(isinstance(self.seed, int) and self.seed >= 0, "seed", "an int >= 0")
+        check(isinstance(self.eval_seed, int) and self.eval_seed >= 0, "eval_seed", "an int >= 0")
+        check(self.vec_env in ("dummy", "subproc"), "vec_env", "'dummy' or 'subproc'")
+        check(self.max_minutes is None or (isinstance(self.max_minutes, (int, float)) and self.max_minutes > 0),
+              "max_minutes", "a positive number or null")  # fmt: skip
+        check(self.max_episode_steps is None or (isinstance(self.max_episode_steps, int) and self.max_episode_steps > 0),
+              "max_episode_steps", "a positive int or null")  # fmt: skip
+        for key in ("env_kwargs", "train_env_kwargs", "algo_kwargs", "policy_kwargs"):
+            check(isinstance(getattr(self, key), dict), key, "a mapping")
+        check(self.her is None or isinstance(self.her, dict), "her", "a mapping or null")
+        check(self.her is None or self.algo in ("sac", "tqc"), "her", "null unless algo is sac or tqc")
+        check(self.reward in REWARDS, "reward", f"one of {list(REWARDS)}")
+        check(self.reward == "task" or ENV_IDS[self.env_id][0].get("task") == "TowerBuild", "reward",
+              "'task' unless env_id is a TowerBuild id (the outcome reward reads the stack height)")  # fmt: skip
+        check(self.init_policy is None or isinstance(self.init_policy, str), "init_policy",
+              "a checkpoint name or folder, or null")  # fmt: skip
+        rate = self.algo_kwargs.get("learning_rate", 1.0)
+        if isinstance(rate, dict):
+            ok = sorted(rate) == ["end", "start"] and all(is_number(v) and v >= 0 for v in rate.values())
+            check(ok and rate["start"] > 0, "algo_kwargs",
+                  "learning_rate as a positive number or {start: > 0, end: >= 0} (linear over total_steps)")  # fmt: skip
+        algo_class = load_class(ALGORITHMS[self.algo][0])
+        valid = [p for p in inspect.signature(algo_class.__init__).parameters if p not in ("self", "policy", "env")]
+        unknown = [k for k in self.algo_kwargs if k not in valid or k in ("seed", "policy_kwargs", "tensorboard_log")]
+        if unknown:
+            raise ValueError(f"unknown algo_kwargs {unknown} for {self.algo}; valid: {sorted(valid)}")
+
+
+def learning_rate(value: float | dict[str, float]) -> Any:
+    """SB3's ``learning_rate`` from a config's: a number, or ``{start, end}`` for a linear decay from ``start``
+    to ``end`` over the run's ``total_steps`` (SB3's progress is measured against them, also when resumed)."""
+    from stable_baselines3.common.utils import LinearSchedule
+
+    if isinstance(value, dict):
+        return LinearSchedule(float(value["start"]), float(value["end"]), 1.0)
+    return value
+
+
+def load_class(path: str) -> Any:
+    """A class of the ``ALGORITHMS`` table (``module:Class``); files never name what this imports."""
+    import importlib
+
+    module, name = path.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def _parse_override(text: str) -> tuple[list[str], Any]:
+    if "=" not in text:
+        raise ValueError(f"override {text!r} must look like key=value (dotted keys reach into mappings)")
+    key, value = text.split("=", 1)
+    parsed = yaml.safe_load(value)
+    if isinstance(parsed, str):  # YAML 1.1 reads 3e-4 as a string
+        try:
+            parsed = float(parsed)
+        except ValueError:
+            pass
+    return key.strip().split("."), parsed
+
+
+def read_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> dict[str, Any]:
+    """A YAML config as a mapping, with ``key=value`` overrides applied (dotted keys reach into mappings)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"config file {path} not found")
+    raw = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(raw, dict):
+        raise ValueError(f"config {path} must be a mapping of keys to values")
+    for text in overrides:
+        keys, value = _parse_override(text)
+        target = raw
+        for key in keys[:-1]:
+            target = target.setdefault(key, {})
+            if not isinstance(target, dict):
+                raise ValueError(f"override {text!r}: {key!r} is not a mapping")
+        target[keys[-1]] = value
+    return raw
+
+
+def load_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> TrainConfig:
+    """Read a YAML training config and apply overrides (``algo_kwargs.learning_rate=3e-4``); checked."""
+    return config_from_dict(read_config(path, overrides), source=str(path))
+
+
+def config_from_dict(raw: dict[str, Any], source: str = "config") -> TrainConfig:
+    return config_from_mapping(TrainConfig, raw, source)
+
+
+# --- envs -------------------------------------------------------------------------------
+
+
+def holding_plane(config: TrainConfig) -> bool:
+    """Whether a heightmap policy sees the holding plane: it does when it may ``place``."""
+    return config.algo == "heightmap_dqn" and "place" in config.policy_kwargs.get("primitives_used", ())
+
+
+def observation_transform(config: TrainConfig) -> Callable[[Any, dict[str, Any]], Any]:
+    """What the policy sees of an env observation and the step's info (the same in training, evaluation and
+    ``LearnedAgent``)."""
+    if config.algo == "heightmap_dqn":
+        from panda_grasp_env.agents.heightmap_policy import encode_observation
+
+        holding = holding_plane(config)
+        return lambda observation, info: encode_observation(observation, info, holding)
+    return lambda observation, info: observation
+
+
+def make_env(config: TrainConfig, render_mode: str | None = None, training: bool = False) -> gym.Env:
+    """One env as the policy is evaluated on it, or with ``training`` as it is trained on it (with
+    ``train_env_kwargs``); raw observations (see ``observation_transform``)."""
+    import panda_grasp_env  # noqa: F401  (registers the ids)
+
+    options = {**config.env_kwargs, **(config.train_env_kwargs if training else {})}
+    if config.max_episode_steps is not None:
+        options["max_episode_steps"] = config.max_episode_steps
+    return gym.make(config.env_id, render_mode=render_mode, **options)
+
+
+class OutcomeReward(gym.Wrapper):
+    """Pays each tower-building primitive for what it achieved (VPG/SPOT style), for ``pixel`` actions on
+    ``heightmap`` observations.
+
+    A grasp earns 1 when it holds a block that lay on the table (the heightmap at the grasped cell under 1.5
+    block sizes) other than the base; any step also earns the tower's change in height (levels, negative
+    when it loses blocks) and 1 on success.  The task's own reward pays a block's grasp only once an
+    episode, which a myopic learner (``gamma: 0``) that cannot see which blocks it grasped before reads as
+    noise.  Paying every grasp needs the table rule: without it a policy learned to set a block on a loose
+    one and grasp it back, +1 every other step.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        space = env.observation_space
+        if not isinstance(env.action_space, gym.spaces.Discrete) or not (
+            isinstance(space, gym.spaces.Box) and len(space.shape) == 3 and space.shape[-1] == 4
+        ):
+            raise ValueError(f"OutcomeReward needs action_mode='pixel' and obs_mode='heightmap'; got {space}")
+        self._cells = space.shape[:2]
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        observation, info = self.env.reset(**kwargs)
+        if not {"stack_height", "base", "block_size"} <= set(info):
+            raise ValueError("OutcomeReward needs a task that reports stack_height, base and block_size (TowerBuild)")
+        self._levels, self._base, self._block = int(info["stack_height"]), info["base"], float(info["block_size"])
+        self._heightmap = observation
+        return observation, info
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        row, col = np.unravel_index(int(action) % (self._cells[0] * self._cells[1]), self._cells)
+        from_table = self._heightmap[row, col, 3] < 1.5 * self._block
+        observation, _, terminated, truncated, info = self.env.step(action)
+        levels = int(info["stack_height"])
+        reward = float(levels - self._levels) + float(bool(info["is_success"]))
+        held = info.get("primitive") == "grasp" and info.get("primitive_success")
+        if held and from_table and info.get("primitive_object") != self._base:
+            reward += 1.0
+        self._levels, self._heightmap = levels, observation
+        return observation, reward, terminated, truncated, info
+
+
+def training_env(config: TrainConfig) -> gym.Env:
+    """The training env: ``make_env`` plus the training reward and the policy's observation wrapper."""
+    import torch
+
+    torch.set_num_threads(config.torch_threads)  # worker processes: never oversubscribe the cores
+    env = make_env(config, training=True)
+    if config.reward == "outcome":
+        env = OutcomeReward(env)
+    if config.algo == "heightmap_dqn":
+        from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap
+
+        env = EncodedHeightmap(env, holding_plane(config))
+    return env
+
+
+def make_vec_env(config: TrainConfig) -> Any:
+    """``n_envs`` training envs with SB3's ``Monitor``: in this process, or spawned workers (``vec_env: subproc``)."""
+    from functools import partial
+
+    from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    factories = [partial(lambda c: Monitor(training_env(c), info_keywords=("is_success",)), config)] * config.n_envs
+    if config.vec_env == "subproc" and config.n_envs > 1:
+        return SubprocVecEnv(factories, start_method="spawn")
+    return DummyVecEnv(factories)
+
+
+# --- model --------------------------------------------------------------------------------
+
+
+#: What ``--resume`` may change: budgets, evaluation cadence and the learner's settings (``algo_kwargs``,
+#: applied when SB3 loads the model).  Every other key built the saved networks, replay buffer or seeds.
+RESUME_CHANGEABLE = (
+    "total_steps",
+    "max_minutes",
+    "eval_every",
+    "eval_episodes",
+    "final_eval_episodes",
+    "checkpoint_every",
+    "torch_threads",
+    "algo_kwargs",
+)
+
+
+def check_policy_resume(saved: TrainConfig, resumed: TrainConfig) -> None:
+    """``ValueError`` naming the keys a resumed run changed that it cannot (see ``RESUME_CHANGEABLE``)."""
+    buffer_changed = saved.algo_kwargs.get("buffer_size") != resumed.algo_kwargs.get("buffer_size")  # saved buffer
+    check_resume_changes(saved, resumed, RESUME_CHANGEABLE, ["algo_kwargs.buffer_size"] if buffer_changed else [])
+
+
+def algo_arguments(config: TrainConfig) -> dict[str, Any]:
+    """The SB3 algorithm's keyword arguments from ``algo_kwargs`` (a ``{start, end}`` rate made a schedule)."""
+    kwargs = dict(config.algo_kwargs)
+    if "learning_rate" in kwargs:
+        kwargs["learning_rate"] = learning_rate(kwargs["learning_rate"])
+    return kwargs
