@@ -3,6 +3,9 @@
     python evaluate.py                      # quick benchmark (<= 10 minutes on 2 cores)
     python evaluate.py --full               # the publication protocol (30 clutter runs, 100 tower trials, ...)
     python evaluate.py --agents planned,random --tasks TowerBuild --seeds 20 --workers 2
+    python evaluate.py --tasks GraspClutter --seed-list 5000,5001,5002 --task-options n_objects=1
+                                            # any seeds, any env/task options (a held-out protocol)
+    python evaluate.py --config protocol.yaml   # the same from one file (agents, tasks, seeds, options)
     python evaluate.py --resume             # finish an interrupted run without redoing episodes
     python evaluate.py --demo [--seed 0]    # the simulation-core demo: an oracle builds and breaks a tower
 
@@ -113,13 +116,68 @@ FULL_SEEDS = {
 }
 
 
+#: ``--config`` file keys and the flags they stand for: a protocol (who plays what, on which seeds, with which
+#: options) in one YAML file.
+PROTOCOL_KEYS = {"agents": "--agents", "tasks": "--tasks", "full": "--full", "seeds": "--seeds",
+                 "seed_start": "--seed-start", "seed_list": "--seed-list", "task_options": "--task-options"}  # fmt: skip
+
+
+def protocol_argv(path: Path) -> list[str]:
+    """The flags a ``--config`` protocol file stands for; ``ValueError`` naming a bad key or value."""
+    import yaml
+
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as error:
+        raise ValueError(f"cannot read protocol file {path}: {error}") from None
+    if not isinstance(raw, dict):
+        raise ValueError(f"protocol file {path} must be a mapping of {list(PROTOCOL_KEYS)}")
+    unknown = [k for k in raw if k not in PROTOCOL_KEYS]
+    if unknown:
+        raise ValueError(f"unknown key(s) {unknown} in {path}; valid: {list(PROTOCOL_KEYS)}")
+    argv: list[str] = []
+    for key, value in raw.items():
+        flag = PROTOCOL_KEYS[key]
+        if key == "full":
+            if not isinstance(value, bool):
+                raise ValueError(f"{path}: full must be true or false, got {value!r}")
+            argv += [flag] if value else []
+        elif key == "task_options":
+            if not isinstance(value, dict) or not value:
+                raise ValueError(f"{path}: task_options must be a non-empty mapping, got {value!r}")
+            argv += [flag, *(f"{k}={json.dumps(v)}" for k, v in value.items())]  # JSON is YAML
+        elif isinstance(value, list):
+            argv += [flag, ",".join(map(str, value))]
+        else:
+            argv += [flag, str(value)]
+    return argv
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if "--config" in argv:  # the file's flags first: flags given on the command line after it win
+        at = argv.index("--config")
+        try:
+            if at + 1 == len(argv):
+                raise ValueError("--config needs a protocol file")
+            argv = protocol_argv(Path(argv[at + 1])) + argv[:at] + argv[at + 2 :]
+        except ValueError as error:
+            print(f"error: {error}", file=sys.stderr)
+            raise SystemExit(2) from None
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", type=Path, default=None,
+                        help=f"a YAML protocol file with keys {list(PROTOCOL_KEYS)} (command-line flags win)")  # fmt: skip
     parser.add_argument("--full", action="store_true", help="the publication protocol instead of the quick one")
     agents = all_agents()
     parser.add_argument("--agents", default=",".join(agents), help=f"comma-separated, from {list(agents)}")
     parser.add_argument("--tasks", default=",".join(TASKS), help=f"comma-separated, from {list(TASKS)}")
-    parser.add_argument("--seeds", type=int, default=None, help="episodes per (agent, task), seeds 0..N-1")
+    parser.add_argument("--seeds", type=int, default=None,
+                        help="episodes per (agent, task): seeds --seed-start .. --seed-start + N - 1")  # fmt: skip
+    parser.add_argument("--seed-start", type=int, default=0, help="the first seed (default 0)")
+    parser.add_argument("--seed-list", default=None, help="comma-separated seeds, instead of --seeds / --seed-start")
+    parser.add_argument("--task-options", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="gymnasium.make options for every chosen task, values in YAML (n_objects=1, "
+                             "scene options, obs/action modes for learned agents ...)")  # fmt: skip
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes")
     parser.add_argument(
         "--ray", default=None, help="run episodes as Ray tasks: a cluster address, 'auto', or 'local' to start one here"
@@ -137,8 +195,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         if unknown or not chosen:
             parser.error(f"unknown {name} {unknown or chosen}; valid: {list(valid)}")
         setattr(args, name, chosen)
-    if args.workers < 1 or (args.seeds is not None and args.seeds < 1):
-        parser.error("--workers and --seeds must be positive")
+    if args.workers < 1 or (args.seeds is not None and args.seeds < 1) or args.seed_start < 0:
+        parser.error("--workers and --seeds must be positive, --seed-start >= 0")
+    args.seed_list = parse_seed_list(parser, args)
+    args.task_options = parse_task_options(parser, args.task_options, args.tasks)
     if args.ray is not None:
         try:
             import ray  # noqa: F401
@@ -150,9 +210,65 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
+def parse_seed_list(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[int] | None:
+    """``--seed-list`` as distinct non-negative ints (None without it); it excludes ``--seeds``/``--seed-start``."""
+    if args.seed_list is None:
+        return None
+    if args.seeds is not None or args.seed_start:
+        parser.error("--seed-list replaces --seeds and --seed-start: give one or the other")
+    try:
+        seeds = [int(s) for s in args.seed_list.split(",") if s.strip()]
+    except ValueError:
+        parser.error(f"--seed-list must be comma-separated integers, got {args.seed_list!r}")
+    if not seeds or min(seeds) < 0 or len(set(seeds)) < len(seeds):
+        parser.error(f"--seed-list must hold distinct seeds >= 0, got {args.seed_list!r}")
+    return seeds
+
+
+def _hashable(value: Any) -> Any:
+    """YAML lists as tuples (an episode's options are part of its hashable spec)."""
+    if isinstance(value, list):
+        return tuple(_hashable(v) for v in value)
+    if isinstance(value, dict):
+        raise ValueError("mappings are not supported as option values")
+    return value
+
+
+def parse_task_options(parser: argparse.ArgumentParser, pairs: list[str], tasks: list[str]) -> dict[str, Any]:
+    """``--task-options KEY=VALUE ...`` as a mapping (YAML values), checked by making each chosen task's env."""
+    import gymnasium as gym
+    import yaml
+
+    options: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, text = pair.partition("=")
+        if not sep or not key.strip():
+            parser.error(f"--task-options: {pair!r} is not KEY=VALUE")
+        try:
+            options[key.strip()] = _hashable(yaml.safe_load(text))
+        except (yaml.YAMLError, ValueError) as error:
+            parser.error(f"--task-options {key}: {error}")
+    for task in tasks if options else ():
+        env_id, task_defaults = TASKS[task]
+        try:
+            gym.make(f"panda_grasp_env:{env_id}", **task_defaults, **options).close()
+        except (ValueError, TypeError) as error:
+            parser.error(f"--task-options on {task} ({env_id}): {error}")
+    return options
+
+
+def chosen_seeds(args: argparse.Namespace, task: str) -> list[int]:
+    """The seeds each (agent, ``task``) pair plays: ``--seed-list``, else ``--seeds`` (or the protocol's count)
+    from ``--seed-start``."""
+    if args.seed_list is not None:
+        return list(args.seed_list)
+    count = args.seeds or (FULL_SEEDS if args.full else QUICK_SEEDS)[task]
+    return list(range(args.seed_start, args.seed_start + count))
+
+
 def episode_specs(args: argparse.Namespace) -> list[EpisodeSpec]:
     """The episodes to run; (agent, task) pairs that do not apply are reported and left out."""
-    seeds = FULL_SEEDS if args.full else QUICK_SEEDS
+    options = tuple(sorted(args.task_options.items()))
     specs = []
     for task in args.tasks:
         for agent in args.agents:
@@ -160,7 +276,7 @@ def episode_specs(args: argparse.Namespace) -> list[EpisodeSpec]:
             if reason is not None:
                 args.skipped[f"{agent}/{task}"] = reason
                 continue
-            specs.extend(EpisodeSpec(agent, task, seed) for seed in range(args.seeds or seeds[task]))
+            specs.extend(EpisodeSpec(agent, task, seed, options) for seed in chosen_seeds(args, task))
     return specs
 
 
@@ -283,6 +399,8 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
         "tasks": args.tasks,
         "full": args.full,
         "env_ids": {t: TASKS[t][0] for t in args.tasks},
+        "seeds": {t: chosen_seeds(args, t) for t in args.tasks},
+        "task_options": args.task_options,
     }
     payload = {
         "protocol": protocol,
@@ -454,8 +572,14 @@ def learning_curves(args: argparse.Namespace) -> list[str]:
     return lines
 
 
+def describe_seeds(seeds: list[int]) -> str:
+    """``"a..b"`` for a run of consecutive seeds, else the list."""
+    if seeds == list(range(seeds[0], seeds[0] + len(seeds))):
+        return f"{seeds[0]}..{seeds[-1]} ({len(seeds)})"
+    return ",".join(map(str, seeds))
+
+
 def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: list[Path]) -> None:
-    seeds = FULL_SEEDS if args.full else QUICK_SEEDS
     lines = [
         f"# {'Full' if args.full else 'Quick'} benchmark",
         "",
@@ -476,7 +600,8 @@ def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: 
         "",
         "## Protocol",
         "",
-        f"- seeds per (agent, task): { ({t: args.seeds or seeds[t] for t in args.tasks}) } (seeds 0..N-1)",
+        f"- seeds per (agent, task): {json.dumps({t: describe_seeds(chosen_seeds(args, t)) for t in args.tasks})}",
+        f"- options on top of each task's (--task-options): {json.dumps(args.task_options) if args.task_options else 'none'}",
         f"- env ids and options: {json.dumps({t: TASKS[t] for t in args.tasks})}",
         f"- commit {commit()}; versions: {', '.join(f'{k} {v}' for k, v in versions().items())}",
         f"- workers: {args.workers}",

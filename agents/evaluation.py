@@ -8,6 +8,7 @@ bit for bit, in any process, in any order.
 
 from __future__ import annotations
 
+import json
 import time
 from collections import Counter
 from dataclasses import asdict, dataclass
@@ -94,22 +95,25 @@ class EpisodeSpec:
     agent: str
     task: str
     seed: int
+    #: ``gymnasium.make`` options on top of the task's (``evaluate.py --task-options``): sorted (key, value) pairs.
+    options: tuple[tuple[str, Any], ...] = ()
 
     @property
     def key(self) -> str:
-        return f"{self.agent}/{self.task}/{self.seed}"
+        key = f"{self.agent}/{self.task}/{self.seed}"
+        return f"{key}/{json.dumps(dict(self.options), sort_keys=True)}" if self.options else key
 
 
 def make_env(spec: EpisodeSpec) -> gym.Env:
     if spec.agent not in AGENTS:  # a learned checkpoint: the env it was trained on
         from panda_grasp_env.agents.learned import Checkpoint
 
-        return Checkpoint(spec.agent).make_env()
+        return Checkpoint(spec.agent).make_env(**dict(spec.options))
     env_id, options = TASKS[spec.task]
     options = dict(options)
     if spec.agent != "random":
         options |= PERCEPTION
-    return gym.make(f"panda_grasp_env:{env_id}", **options)
+    return gym.make(f"panda_grasp_env:{env_id}", **options, **dict(spec.options))
 
 
 def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:

@@ -346,8 +346,11 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
     assert agent_env.action_space.contains(agent.act(observation, info))
     with pytest.raises(ValueError, match=r"unknown checkpoint 'nope'; available: \['tiny'\]"):
         learned.LearnedAgent("nope")
-    with pytest.raises(ValueError, match="trained on PandaGrasp-v0, not PandaPush-v0"):
+    with pytest.raises(ValueError, match="checkpoint tiny expects observations"):
         learned.LearnedAgent("tiny", gym.make("PandaPush-v0"))
+    # Another id with the same spaces is fine: the check is on spaces, not on the id.
+    kwargs = learned.Checkpoint("tiny").config.env_kwargs
+    assert learned.LearnedAgent("tiny", gym.make("PandaGraspClutter-v0", **kwargs, n_objects=2)).name == "tiny"
     coarse = gym.make("PandaGrasp-v0", obs_mode="heightmap", action_mode="pixel", heightmap_resolution=0.008)
     with pytest.raises(ValueError, match="expects observations"):
         learned.LearnedAgent("tiny", coarse)
