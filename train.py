@@ -10,7 +10,9 @@ folder under ``--runs`` (see ``agents/training.py``); Ctrl-C checkpoints it, and
 a finished run's model, card and curve to ``agents/checkpoints/N`` where
 ``panda_grasp_env.agents.learned.LearnedAgent`` and ``evaluate.py`` find it (fall-dynamics runs:
 ``perception/checkpoints/N``).  ``--retest <run or checkpoint folder>`` runs a policy's final
-held-out test again (final.json, card.md), e.g. after the evaluation protocol or the physics changed.
+held-out test again (final.json, card.md), e.g. after the evaluation protocol or the physics changed;
+on a fall-dynamics run or checkpoint it scores the model against the baselines on a recorded dataset's
+test split (``dataset=PATH``, default its own; retest.json).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from panda_grasp_env.perception.dynamics_training import (  # noqa: E402
     FALL_RESUME_CHANGEABLE,
     fall_config,
     start_fall_run,
+    test_fall_model,
     train_fall_model,
 )
 from panda_grasp_env.runs import (  # noqa: E402
@@ -89,6 +92,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"shipped to {ship(args.ship, args.name)}")
             return 0
         if args.retest is not None:
+            if (args.retest / "best.pt").is_file() or (args.retest / "model.pt").is_file():
+                return retest_fall(args.retest, args.overrides)
+            if args.overrides:
+                raise ValueError(f"--retest of a policy takes no overrides, got {args.overrides}")
             return report(retest(args.retest), args.retest)
         if args.resume is not None:
             run_dir = args.resume
@@ -147,14 +154,30 @@ def report(outcome: dict, run_dir: Path) -> int:
     return 0
 
 
-def report_fall(outcome: dict, run_dir: Path) -> int:
-    if outcome["stopped_by"] == "max_minutes":
-        print(f"time budget spent; more with  python train.py --resume {run_dir} max_minutes=M")
-    for name, by_horizon in outcome["metrics"].items():
+def print_fall_metrics(metrics: dict) -> None:
+    for name, by_horizon in metrics.items():
         for horizon, m in by_horizon.items():
             print(f"{name:18s} {horizon}: mean block IoU {m['mean_block_iou']:.4f}, foreground accuracy "
                   f"{m['foreground_accuracy']:.4f}, pixel accuracy {m['pixel_accuracy']:.4f} ({m['frames']} frames)")  # fmt: skip
+
+
+def report_fall(outcome: dict, run_dir: Path) -> int:
+    if outcome["stopped_by"] == "max_minutes":
+        print(f"time budget spent; more with  python train.py --resume {run_dir} max_minutes=M")
+    print_fall_metrics(outcome["metrics"])
     print(f"card: {run_dir / 'card.md'}")
+    return 0
+
+
+def retest_fall(folder: Path, overrides: list[str]) -> int:
+    """``--retest`` of a fall model: its test split, or another recorded dataset's with ``dataset=PATH``."""
+    unknown = [o for o in overrides if not o.startswith("dataset=")]
+    if unknown or len(overrides) > 1:
+        raise ValueError(f"--retest of a fall model takes at most dataset=PATH, got {overrides}")
+    result = test_fall_model(folder, overrides[0].partition("=")[2] if overrides else None)
+    print(f"test split of {result['dataset']}: {result['test_sequences']} sequences")
+    print_fall_metrics(result["metrics"])
+    print(f"results: {folder / 'retest.json'}")
     return 0
 
 

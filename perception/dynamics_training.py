@@ -47,6 +47,7 @@ from panda_grasp_env.perception.falls import load_split, read_metadata
 from panda_grasp_env.runs import (
     atomic_path,
     check_run_files,
+    commit,
     config_from_mapping,
     new_run_folder,
     resume_summary,
@@ -339,6 +340,34 @@ def finish_fall_run(
     write_json(run_dir / "final.json", final)
     write_atomically(run_dir / "card.md", fall_card(config, run_dir, final))
     return final
+
+
+def test_fall_model(folder: Path | str, dataset: str | None = None) -> dict[str, Any]:
+    """Score the model of a fall run (``best.pt``) or shipped checkpoint (``model.pt``) against the baselines on
+    the test split of ``dataset`` (default: the dataset it was trained on).  Adds the result to the folder's
+    retest.json, keyed by dataset; ``ValueError`` if the dataset's images or classes do not fit the model."""
+    folder = Path(folder)
+    weights = folder / ("best.pt" if (folder / "best.pt").is_file() else "model.pt")
+    if not weights.is_file() or not (folder / "config.yaml").is_file():
+        raise ValueError(f"{folder} is not a fall-dynamics run or checkpoint (best.pt or model.pt, config.yaml)")
+    config = fall_config(yaml.safe_load((folder / "config.yaml").read_text()), str(folder / "config.yaml"))
+    model, saved = load_fall_model(weights)
+    path = dataset or config.dataset
+    test = load_split(path, "test", saved.get("label_source", config.label_source), depth=model.use_depth)
+    check_compatible(model, test.labels, test.classes, test.depth)
+    began = time.perf_counter()
+    result = {
+        "dataset": str(path),
+        "weights": weights.name,
+        "test_sequences": int(len(test.labels)),
+        "test_commit": commit(),
+        "metrics": evaluate(model, test.labels, test.classes, model.context, depth=test.depth),
+    }
+    result["evaluation_seconds"] = round(time.perf_counter() - began, 1)
+    record = folder / "retest.json"
+    results = json.loads(record.read_text()) if record.is_file() else {}
+    write_json(record, {**results, str(path): result})
+    return result
 
 
 def plot_fall_curve(run_dir: Path) -> None:

@@ -147,6 +147,13 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     torch.save(older, run / "older.pt")
     with pytest.raises(ValueError, match="architecture 1; this code runs architecture"):
         load_fall_model(run / "older.pt")
+    # Any fall model scores on any recorded dataset's test split: a run, and the shipped copy, on this one.
+    assert train.main(["--retest", str(run)]) == 0 and train.main(["--retest", str(tmp_path / "shipped" / "tiny")]) == 0
+    assert "constant_velocity" in capsys.readouterr().out
+    retests = json.loads((run / "retest.json").read_text())
+    assert retests[str(dataset)]["metrics"]["model"] == final["metrics"]["model"]  # the final test, again
+    assert train.main(["--retest", str(run), "dataset=/nowhere"]) == 2
+    assert train.main(["--retest", str(run), "epochs=3"]) == 2
     # A latest.pt changed since this user's job wrote it is not resumed from (nor one of a copied run).
     torch.save({**torch.load(run / "latest.pt", weights_only=True), "epoch": 0}, run / "latest.pt")
     assert train.main(["--resume", str(run), "epochs=3", "--no-progress"]) == 2
