@@ -38,5 +38,10 @@ def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
 
 def lying_quaternion(yaw: float) -> np.ndarray:
     """Quaternion (w, x, y, z) of an object turned a quarter about its x axis (a capsule or cylinder on its
-    side, its axis horizontal), then by ``yaw`` about world z."""
-    return (Rotation.from_euler("z", yaw) * Rotation.from_euler("x", np.pi / 2)).as_quat(scalar_first=True)
+    side, its axis horizontal), then by ``yaw`` about world z: Rz(yaw) Rx(pi/2).
+
+    Written out: ``Rotation``'s product differs in the last bit for a third of the yaws, and a heap of
+    objects dropped from poses one bit apart settles differently (every clutter figure was measured on these)."""
+    half_c, half_s = np.cos(yaw / 2), np.sin(yaw / 2)
+    quarter_c, quarter_s = np.cos(np.pi / 4), np.sin(np.pi / 4)
+    return np.array([half_c * quarter_c, half_c * quarter_s, half_s * quarter_s, half_s * quarter_c])
