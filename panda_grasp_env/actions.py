@@ -156,8 +156,13 @@ class ActionMode(ABC):
         """Checked action and the number of clipped components."""
         return validate_box_action(action, self.space)
 
-    def reset(self, cell: Workcell) -> None:  # noqa: B027 (an optional hook)
-        """Called at every env reset, after the task laid out the scene."""
+    def reset(self, cell: Workcell, rng: np.random.Generator) -> None:  # noqa: B027 (an optional hook)
+        """Called at every env reset, after the task laid out the scene; ``rng`` is the env's own generator."""
+
+    def layout(self) -> dict[str, Any] | None:
+        """What an agent needs to write this mode's actions (``info["action_layout"]``), or None if the space
+        says it all."""
+        return None
 
     @abstractmethod
     def execute(self, cell: Workcell, action: Any) -> PrimitiveResult | None:
@@ -173,6 +178,10 @@ class PrimitiveActions(ActionMode):
     """
 
     name = "primitive"
+
+    def layout(self) -> dict[str, Any]:
+        return {"mode": self.name, "primitives": list(self.settings.primitives), "primitive_z": self.settings.with_z}
+
     low_level = False
 
     def __init__(self, settings: PrimitiveSettings) -> None:
@@ -215,6 +224,16 @@ class PixelActions(ActionMode):
     """
 
     name = "pixel"
+
+    def layout(self) -> dict[str, Any]:
+        return {
+            "mode": self.name,
+            "primitives": list(self.settings.primitives),
+            "shape": list(self.shape),  # (primitive, rotation, row, column): the index's layout
+            "heightmap_bounds": [list(map(float, b)) for b in self.grid.bounds],
+            "heightmap_resolution": self.grid.resolution,
+        }
+
     low_level = False
     OCCUPIED = 0.01  # metres: a heightmap cell above this holds an object
     NEAR = 0.05  # metres: pushes may start this far from an object (the closed hand is ~6 cm thick along a push)
@@ -320,7 +339,7 @@ class EEDeltaActions(ActionMode):
         self.servo = JacobianServo(cell.model, cell.data)
         self.target = np.zeros(3)
 
-    def reset(self, cell: Workcell) -> None:  # noqa: B027 (an optional hook)
+    def reset(self, cell: Workcell, rng: np.random.Generator) -> None:
         self.target = cell.robot.ee_position
 
     def execute(self, cell: Workcell, action: np.ndarray) -> None:
@@ -364,6 +383,12 @@ class GraspPoseActions(ActionMode):
 
     name = "grasp_pose"
     low_level = False
+
+    def layout(self) -> dict[str, Any]:
+        return {"mode": self.name}
+
+    def reset(self, cell: Workcell, rng: np.random.Generator) -> None:
+        self.stack.reseed(int(rng.integers(2**31)))  # the planner's samples follow the episode seed
 
     def __init__(self, stack: Any) -> None:
         self.stack = stack

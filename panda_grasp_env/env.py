@@ -269,8 +269,6 @@ class PandaEnv(gym.Env):
         if options:
             raise ValueError(f"reset options are not supported, got {sorted(options)}")
         task_info = self.task.reset(self.cell, self.np_random)
-        if isinstance(self.actions, GraspPoseActions):
-            self.actions.stack.reseed(int(self.np_random.integers(2**31)))
         start = "ready"
         if self.actions.low_level:
             tallest = max((float(body_top) for body_top in self._object_tops()), default=0.0)
@@ -285,7 +283,7 @@ class PandaEnv(gym.Env):
                         start = state if starts[state](body, ready) else "ready"
                         break
                     draw -= probability
-        self.actions.reset(self.cell)
+        self.actions.reset(self.cell, self.np_random)
         self.sensors.invalidate()
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0
@@ -344,22 +342,9 @@ class PandaEnv(gym.Env):
             "block_size": self.cell.config.block_size,
             "block_colours": dict(zip(self.cell.block_names, self.cell.config.colours.values())),
         }
-        if isinstance(self.actions, PrimitiveActions):
-            facts["action_layout"] = {
-                "mode": "primitive",
-                "primitives": list(self.actions.settings.primitives),
-                "primitive_z": self.actions.settings.with_z,
-            }
-        elif isinstance(self.actions, PixelActions):
-            facts["action_layout"] = {
-                "mode": self.actions.name,
-                "primitives": list(self.actions.settings.primitives),
-                "shape": list(self.actions.shape),  # (primitive, rotation, row, column): the index's layout
-                "heightmap_bounds": [list(map(float, b)) for b in self.actions.grid.bounds],
-                "heightmap_resolution": self.actions.grid.resolution,
-            }
-        elif isinstance(self.actions, GraspPoseActions):
-            facts["action_layout"] = {"mode": "grasp_pose"}
+        layout = self.actions.layout()
+        if layout is not None:
+            facts["action_layout"] = layout
         return facts
 
     def _start_holding(self, body: int, ready: np.ndarray) -> bool:
@@ -479,7 +464,7 @@ class PandaEnv(gym.Env):
     def action_masks(self) -> np.ndarray:
         """Allowed actions of the ``pixel`` mode, or of each dimension of ``pixel_factored`` (for sb3-contrib's
         MaskablePPO)."""
-        if not isinstance(self.actions, PixelActions):
+        if not hasattr(self.actions, "action_masks"):
             raise ValueError(f"action_masks is defined for the pixel action modes only, not {self.action_mode!r}")
         return self.actions.action_masks(holding=self.cell.robot.body_between_pads() is not None)
 
