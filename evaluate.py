@@ -46,7 +46,7 @@ from panda_grasp_env.agents.evaluation import (  # noqa: E402
     run_episode,
     skip_reason,
 )
-from panda_grasp_env.agents.oracle_tower import build_tower, push_tower  # noqa: E402
+from panda_grasp_env.agents.towers import build_tower, push_tower  # noqa: E402
 from panda_grasp_env.runs import commit, interrupt_on_signals, versions, write_atomically  # noqa: E402
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
 from panda_grasp_env.video import VideoRecorder  # noqa: E402

@@ -1,14 +1,16 @@
-"""Planned tower agents: build a tower from perceived block poses, and break it with a push.
+"""Tower agents and scripts: build a tower, and break it with a push.
 
-Both perceive blocks from the env's RGB-D images (``panda_grasp_env.perception.pose``) -- or,
-in the ``Oracle*`` variants, read the simulator's true block poses -- and act
-through the env's ``primitive`` action mode.  World frame, metres, radians.
+The agents perceive blocks from the env's RGB-D images (``panda_grasp_env.perception.pose``) -- or,
+in the ``Oracle*`` variants, read the simulator's true block poses -- and act through the env's
+``primitive`` action mode.  ``build_tower`` and ``push_tower`` are the same skills as scripts on a bare
+``Workcell`` (true poses: the demo of the simulation core and the primitive benchmarks), whose failures
+are the primitives' own.  World frame, metres, radians.
 """
 
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
@@ -16,8 +18,10 @@ import numpy as np
 
 from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
 from panda_grasp_env.perception.pose import detect_towers, estimate_block_poses, wrap_quarter
-from panda_grasp_env.stacking import clearest_grasp_heading
+from panda_grasp_env.primitives import PrimitiveResult, grasp, place, push
+from panda_grasp_env.stacking import clearest_grasp_heading, tower_footprint_centre, tower_is_built, wrap_quarter_turn
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
+from panda_grasp_env.workcell import Workcell
 
 #: Where a push starts: this far from the tower's axis (half a block plus a finger's clearance).
 PUSH_START = 0.065
@@ -192,3 +196,56 @@ class BuildAndBreakAgent:
             self.builder.observe(info)  # the builder must know its last place or grasp landed
             return self.breaker.act(observation, info)
         return self.builder.act(observation, info)
+
+
+# --- scripts on a bare workcell (true poses) ---------------------------------------------------
+
+
+@dataclass
+class TowerOutcome:
+    success: bool
+    base: str
+    #: Primitive results in order (3 grasps + 3 places for an ideal 4-block build).
+    steps: list[PrimitiveResult] = field(default_factory=list)
+    #: Worst yaw misalignment of a block against the base, degrees (modulo 90).
+    max_yaw_error_deg: float = float("nan")
+
+
+def build_tower(cell: Workcell) -> TowerOutcome:
+    """Stack every block on the one nearest the workspace centre, yaw-aligned to it."""
+    positions = cell.block_positions()
+    base = int(np.argmin(np.linalg.norm(positions[:, :2] - [0.5, 0.0], axis=1)))
+    base_xy, base_yaw = positions[base, :2].copy(), float(cell.block_yaws()[base])
+    outcome = TowerOutcome(success=False, base=cell.block_names[base])
+    stacked = [base]
+    for index in (i for i in range(len(positions)) if i != base):
+        position = cell.block_positions()[index]
+        result = grasp(
+            cell, *position, clearest_grasp_heading(cell.block_positions(), index, float(cell.block_yaws()[index]))
+        )
+        outcome.steps.append(result)
+        if not result.success:
+            return outcome
+        # Turn the hand so the held block's yaw matches the base's (modulo 90 degrees).
+        held_relative_yaw = float(wrap_quarter_turn(cell.block_yaws()[index] - cell.robot.ee_yaw))
+        top = cell.block_positions()[stacked, 2].max() + cell.config.block_size / 2
+        result = place(cell, base_xy[0], base_xy[1], top, base_yaw - held_relative_yaw)
+        outcome.steps.append(result)
+        if not result.success:
+            return outcome
+        stacked.append(index)
+    outcome.max_yaw_error_deg = float(np.degrees(np.abs(wrap_quarter_turn(cell.block_yaws() - base_yaw))).max())
+    outcome.success = tower_is_built(cell.block_positions(), base, cell.config.block_size)
+    return outcome
+
+
+def push_tower(cell: Workcell, direction: str, distance: float = 0.16) -> PrimitiveResult:
+    """Push the standing tower with the closed gripper at mid-height, towards ``direction`` (one of BREAK_DIRECTIONS)."""
+    if direction not in BREAK_DIRECTIONS:
+        raise ValueError(f"unknown push direction {direction!r}; valid: {list(BREAK_DIRECTIONS)}")
+    centre = tower_footprint_centre(cell.block_positions())
+    heading = BREAK_DIRECTIONS[direction]
+    unit = np.array([np.cos(heading), np.sin(heading)])
+    start = centre - unit * (cell.config.block_size / 2 + 0.04)
+    height = min(cell.block_positions()[:, 2].max() / 2 + 0.01, 0.12)
+    return push(cell, start[0], start[1], height, heading, distance)

@@ -28,7 +28,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede th
 import numpy as np  # noqa: E402
 
 from benchmarks._common import Results, rate  # noqa: E402
-from panda_grasp_env.agents.oracle_tower import build_tower, push_tower
+from panda_grasp_env.agents.towers import build_tower, push_tower
 from panda_grasp_env.primitives import grasp  # noqa: E402
 from panda_grasp_env.scene import SceneConfig  # noqa: E402
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402

@@ -2,7 +2,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from panda_grasp_env.agents.oracle_tower import build_tower, push_tower
+from panda_grasp_env.agents.towers import build_tower, push_tower
 from panda_grasp_env.primitives import REASONS, grasp, place, push, run_primitive
 from panda_grasp_env.robot import HOME_QPOS
 from panda_grasp_env.stacking import blocks_displaced, wrap_quarter_turn
