@@ -1,4 +1,5 @@
-"""MkDocs hook: a source tree laid out as the package installs, for the API reference.
+"""MkDocs hooks: a source tree laid out as the package installs (for the API reference), and one page per
+registered id generated from the env itself.
 
 ``agents/`` and ``perception/`` install as ``panda_grasp_env.agents`` and ``panda_grasp_env.perception``
 (pyproject's package-dir); griffe reads sources by path, so it is given ``build/api-src/panda_grasp_env``:
@@ -21,3 +22,66 @@ def on_startup(**kwargs: object) -> None:
             (TREE / entry.name).symlink_to(entry)
     for folder in ("agents", "perception"):
         (TREE / folder).symlink_to(ROOT / folder)
+
+
+def env_page(env_id: str) -> str:
+    """A reference page for one registered id, read from the env itself: its defaults, the spaces of its
+    default modes, its task's options and the ``info`` keys a reset and a step report."""
+    import inspect
+
+    import gymnasium as gym
+
+    from panda_grasp_env.registration import ENV_IDS
+    from panda_grasp_env.tasks.base import TASKS
+
+    defaults, max_steps = ENV_IDS[env_id]
+    env = gym.make(f"panda_grasp_env:{env_id}")
+    try:
+        _, reset_info = env.reset(seed=0)
+        env.action_space.seed(0)
+        step_info = env.step(env.action_space.sample())[4]
+    finally:
+        env.close()
+    task = TASKS[defaults["task"]]
+    options = [p for p in inspect.signature(task.__init__).parameters.values() if p.name not in ("self", "kwargs")]
+    lines = [
+        f"# {env_id}",
+        "",
+        (inspect.getdoc(task) or "").split("\n\n")[0],
+        "",
+        "```python",
+        f'env = gym.make("panda_grasp_env:{env_id}")',
+        "```",
+        "",
+        "| | |",
+        "|---|---|",
+        f"| task | `{defaults['task']}` (`{task.__module__}`) |",
+        f"| registered options | `{ {k: v for k, v in defaults.items() if k != 'task'} }` |",
+        f"| max_episode_steps | {max_steps} |",
+        f"| default action space | `{env.action_space}` |",
+        f"| default observation space | `{env.observation_space}` |",
+        "",
+        "## Task options (`gym.make` keyword arguments)",
+        "",
+        *[f"- `{p.name}` (default `{p.default!r}`)" for p in options],
+        "",
+        "Env options (modes, cameras, sizes, scene) are the same for every id: see [Environments](../environments.md).",
+        "",
+        "## `info` keys",
+        "",
+        f"- after `reset`: {', '.join(f'`{k}`' for k in sorted(reset_info))}",
+        f"- after `step`: {', '.join(f'`{k}`' for k in sorted(step_info))}",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def on_files(files, config, **kwargs):  # MkDocs hook: the signature is MkDocs'
+    """One generated page per registered id under ``ids/``."""
+    from mkdocs.structure.files import File
+
+    from panda_grasp_env.registration import ENV_IDS
+
+    for env_id in ENV_IDS:
+        files.append(File.generated(config, f"ids/{env_id}.md", content=env_page(env_id)))
+    return files
