@@ -27,6 +27,7 @@ import numpy as np
 from panda_grasp_env.agents.config import TrainConfig, config_from_dict, make_env, observation_transform
 from panda_grasp_env.agents.policy_agent import PolicyAgent
 from panda_grasp_env.agents.policy_files import export_sb3, load_policy, load_sb3, policy_paths
+from panda_grasp_env.runs import sha256
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
 SHIPPED_FILES = (
@@ -90,8 +91,6 @@ class Checkpoint:
     def provenance(self) -> dict[str, Any]:
         """Where this checkpoint's weights came from: its folder, the training step they were saved at and the
         SHA-256 of its weights (a fine-tuning run records it: the name alone may be shipped again)."""
-        from panda_grasp_env.perception.falls import sha256
-
         weights = policy_paths(self.path / "policy")[1]
         return {"path": str(self.path.resolve()), "steps": self.meta["steps"],
                 "policy_sha256": sha256(weights if weights.is_file() else self.path / "policy.zip")}  # fmt: skip

@@ -13,7 +13,6 @@ one for SB3 users; ``load_sb3`` reads one only with ``trust=True``.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from functools import cache
 from pathlib import Path
@@ -22,7 +21,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from panda_grasp_env.runs import atomic_path, write_json
+from panda_grasp_env.runs import atomic_path, sha256, write_json
 
 #: The file format written by ``save_policy``; ``load_policy`` refuses others.
 FORMAT = 1
@@ -156,10 +155,6 @@ def _decode(value: Any, source: Path) -> Any:
 # --- files ----------------------------------------------------------------------------------------------
 
 
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
 def policy_paths(stem: Path | str) -> tuple[Path, Path]:
     """(``<stem>.json``, ``<stem>.safetensors``)."""
     stem = Path(stem)
@@ -180,7 +175,7 @@ def save_policy(policy: Any, stem: Path | str) -> None:
     with atomic_path(weights) as tmp:
         save_model(policy, str(tmp))
     write_json(description, {"format": FORMAT, "policy_class": name, "arguments": encoded,
-                             "weights_sha256": _sha256(weights)})  # fmt: skip
+                             "weights_sha256": sha256(weights)})  # fmt: skip
 
 
 def load_policy(stem: Path | str) -> Any:
@@ -197,7 +192,7 @@ def load_policy(stem: Path | str) -> Any:
     if not isinstance(facts, dict) or facts.get("format") != FORMAT:
         raise ValueError(f"{description} is not a policy file of format {FORMAT}")
     policy_class = _allowed(facts.get("policy_class"), policy_classes(), "policy class", description)
-    if not weights.is_file() or _sha256(weights) != facts.get("weights_sha256"):
+    if not weights.is_file() or sha256(weights) != facts.get("weights_sha256"):
         raise ValueError(f"{weights} is missing or is not the weights {description} records (SHA-256 differs)")
     arguments = _decode(facts.get("arguments"), description)
     if not isinstance(arguments, dict):

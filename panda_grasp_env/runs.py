@@ -38,6 +38,15 @@ def write_atomically(path: Path, text: str) -> None:
         tmp.write_text(text)
 
 
+def sha256(path: Path) -> str:
+    """Hex SHA-256 of a file, read in 1 MiB blocks (replay buffers and datasets can be large)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def write_json(path: Path, payload: Any) -> None:
     write_atomically(path, json.dumps(payload, indent=2, sort_keys=True))
 
@@ -123,8 +132,7 @@ def run_key() -> bytes:
 
 
 def _signature(run_dir: Path, name: str) -> str:
-    digest = hashlib.sha256((run_dir / name).read_bytes()).hexdigest()
-    message = f"{run_dir.resolve()}\n{name}\n{digest}".encode()
+    message = f"{run_dir.resolve()}\n{name}\n{sha256(run_dir / name)}".encode()
     return hmac.new(run_key(), message, hashlib.sha256).hexdigest()
 
 

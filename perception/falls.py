@@ -29,13 +29,14 @@ Splits are by sequence: seed % 10 in 0-7 train, 8 validation, 9 test.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from panda_grasp_env.runs import sha256
 
 SHARD_ARRAYS = ("rgb", "depth", "labels", "colour_labels", "poses", "seeds", "breaker", "strike", "crop_origin")
 SPLITS = ("train", "val", "test")
@@ -44,14 +45,6 @@ SPLITS = ("train", "val", "test")
 def split_of(seed: int) -> str:
     """The split a sequence belongs to, from its seed."""
     return "train" if seed % 10 < 8 else "val" if seed % 10 == 8 else "test"
-
-
-def sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 @dataclass
