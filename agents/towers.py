@@ -219,10 +219,9 @@ def build_tower(cell: Workcell) -> TowerOutcome:
     outcome = TowerOutcome(success=False, base=cell.block_names[base])
     stacked = [base]
     for index in (i for i in range(len(positions)) if i != base):
-        position = cell.block_positions()[index]
-        result = grasp(
-            cell, *position, clearest_grasp_heading(cell.block_positions(), index, float(cell.block_yaws()[index]))
-        )
+        current = cell.block_positions()
+        heading = clearest_grasp_heading(current, index, float(cell.block_yaws()[index]))
+        result = grasp(cell, *current[index], heading)
         outcome.steps.append(result)
         if not result.success:
             return outcome

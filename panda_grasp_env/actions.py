@@ -178,10 +178,6 @@ class PrimitiveActions(ActionMode):
     """
 
     name = "primitive"
-
-    def layout(self) -> dict[str, Any]:
-        return {"mode": self.name, "primitives": list(self.settings.primitives), "primitive_z": self.settings.with_z}
-
     low_level = False
 
     def __init__(self, settings: PrimitiveSettings) -> None:
@@ -193,6 +189,9 @@ class PrimitiveActions(ActionMode):
     @staticmethod
     def _scale(value: float, low: float, high: float) -> float:  # [-1, 1] -> [low, high]
         return low + (value + 1.0) / 2.0 * (high - low)
+
+    def layout(self) -> dict[str, Any]:
+        return {"mode": self.name, "primitives": list(self.settings.primitives), "primitive_z": self.settings.with_z}
 
     def decode(self, action: np.ndarray) -> tuple[str, float, float, float | None, float]:
         """(primitive, x, y, z or None, yaw) in world units from a validated action."""
@@ -224,16 +223,6 @@ class PixelActions(ActionMode):
     """
 
     name = "pixel"
-
-    def layout(self) -> dict[str, Any]:
-        return {
-            "mode": self.name,
-            "primitives": list(self.settings.primitives),
-            "shape": list(self.shape),  # (primitive, rotation, row, column): the index's layout
-            "heightmap_bounds": [list(map(float, b)) for b in self.grid.bounds],
-            "heightmap_resolution": self.grid.resolution,
-        }
-
     low_level = False
     OCCUPIED = 0.01  # metres: a heightmap cell above this holds an object
     NEAR = 0.05  # metres: pushes may start this far from an object (the closed hand is ~6 cm thick along a push)
@@ -247,6 +236,15 @@ class PixelActions(ActionMode):
         self.heightmap = heightmap
         self.shape = (len(settings.primitives), rotations, *grid.shape)
         self.space = gym.spaces.Discrete(int(np.prod(self.shape)))
+
+    def layout(self) -> dict[str, Any]:
+        return {
+            "mode": self.name,
+            "primitives": list(self.settings.primitives),
+            "shape": list(self.shape),  # (primitive, rotation, row, column): the index's layout
+            "heightmap_bounds": [list(map(float, b)) for b in self.grid.bounds],
+            "heightmap_resolution": self.grid.resolution,
+        }
 
     def validate(self, action: Any) -> tuple[int, int]:
         array = np.asarray(action)
@@ -384,15 +382,15 @@ class GraspPoseActions(ActionMode):
     name = "grasp_pose"
     low_level = False
 
+    def __init__(self, stack: Any) -> None:
+        self.stack = stack
+        self.space = gym.spaces.Box(-1.0, 1.0, (7,), dtype=np.float32)
+
     def layout(self) -> dict[str, Any]:
         return {"mode": self.name}
 
     def reset(self, cell: Workcell, rng: np.random.Generator) -> None:
         self.stack.reseed(int(rng.integers(2**31)))  # the planner's samples follow the episode seed
-
-    def __init__(self, stack: Any) -> None:
-        self.stack = stack
-        self.space = gym.spaces.Box(-1.0, 1.0, (7,), dtype=np.float32)
 
     def validate(self, action: Any) -> tuple[np.ndarray, int]:
         array, clipped = validate_box_action(action, self.space)

@@ -255,7 +255,7 @@ class PandaEnv(gym.Env):
         self._render_renderer: CameraRenderer | None = None
         self._viewer = None
         self._motion_frames: list[np.ndarray] = []
-        self._next_frame_time = 0.0
+        self._next_frame_time = np.inf  # set at each reset
         if render_mode == "rgb_array_list":
             self.cell.step_hooks.append(self._capture_motion_frame)
         self._counters = dict.fromkeys(COUNTERS, 0)
@@ -268,6 +268,7 @@ class PandaEnv(gym.Env):
             raise ValueError(f"reset options must be a dict or None, got {type(options).__name__}")
         if options:
             raise ValueError(f"reset options are not supported, got {sorted(options)}")
+        self._next_frame_time = np.inf  # rgb_array_list: no frames of the scene being laid out and settled
         task_info = self.task.reset(self.cell, self.np_random)
         start = "ready"
         if self.actions.low_level:
@@ -299,7 +300,7 @@ class PandaEnv(gym.Env):
             info["start"] = start
         if self.render_mode == "human":
             self.render()
-        if self.render_mode == "rgb_array_list":  # the list starts at the reset state, not during the settling
+        if self.render_mode == "rgb_array_list":  # the list starts at the reset state
             self._motion_frames = [self._rgb_frame()]
             self._next_frame_time = self.cell.sim_time + 1.0 / self.metadata["render_fps"]
         return self._observe(), info
