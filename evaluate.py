@@ -11,9 +11,10 @@
 
 Agents: random, planned (perception-based planned baselines), oracle (the same, on
 true poses), and every shipped learned checkpoint by name (agents/checkpoints/).
-Tasks: Grasp, GraspClutter, TowerBuild, TowerBreak, TowerBreakDirectional,
-BuildAndBreak (primitive actions), Push, Lift (low-level ee_delta).  An agent that does not apply to a
-task is skipped (one line lists them; the report gives each reason).
+Tasks: the benchmarks the task modules register (``panda_grasp_env.registration.BENCHMARKS``): Grasp,
+GraspClutter, TowerBuild, TowerBreak, TowerBreakDirectional, BuildAndBreak (primitive actions),
+Push, Lift (low-level ee_delta).  An agent that does not apply to a task is skipped (one line lists them;
+the report gives each reason).
 Outputs (``--out``, default results/quick or results/full): results.json and
 results.csv (deterministic: same seeds give identical files), timing.json,
 report.md, success.png, failures.png and one MP4 per (agent, task).
@@ -38,7 +39,6 @@ import numpy as np  # noqa: E402
 
 from panda_grasp_env.agents.evaluation import (  # noqa: E402
     AGENTS,
-    TASKS,
     EpisodeSpec,
     aggregate,
     all_agents,
@@ -47,6 +47,7 @@ from panda_grasp_env.agents.evaluation import (  # noqa: E402
     skip_reason,
 )
 from panda_grasp_env.agents.towers import build_tower, push_tower  # noqa: E402
+from panda_grasp_env.registration import BENCHMARKS  # noqa: E402
 from panda_grasp_env.runs import commit, interrupt_on_signals, versions, write_atomically  # noqa: E402
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
 from panda_grasp_env.video import VideoRecorder  # noqa: E402
@@ -170,7 +171,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--full", action="store_true", help="the publication protocol instead of the quick one")
     agents = all_agents()
     parser.add_argument("--agents", default=",".join(agents), help=f"comma-separated, from {list(agents)}")
-    parser.add_argument("--tasks", default=",".join(TASKS), help=f"comma-separated, from {list(TASKS)}")
+    parser.add_argument("--tasks", default=",".join(BENCHMARKS), help=f"comma-separated, from {list(BENCHMARKS)}")
     parser.add_argument("--seeds", type=int, default=None,
                         help="episodes per (agent, task): seeds --seed-start .. --seed-start + N - 1")  # fmt: skip
     parser.add_argument("--seed-start", type=int, default=0, help="the first seed (default 0)")
@@ -189,7 +190,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0, help="(demo) seed of the block layout")
     parser.add_argument("--push", default="+y", choices=["+x", "+y", "-x", "-y"], help="(demo) push direction")
     args = parser.parse_args(argv)
-    for name, valid in (("agents", agents), ("tasks", TASKS)):
+    for name, valid in (("agents", agents), ("tasks", BENCHMARKS)):
         chosen = [v for v in getattr(args, name).split(",") if v]
         unknown = [v for v in chosen if v not in valid]
         if unknown or not chosen:
@@ -249,7 +250,7 @@ def parse_task_options(parser: argparse.ArgumentParser, pairs: list[str], tasks:
         except (yaml.YAMLError, ValueError) as error:
             parser.error(f"--task-options {key}: {error}")
     for task in tasks if options else ():
-        env_id, task_defaults = TASKS[task]
+        env_id, task_defaults = BENCHMARKS[task]
         try:
             gym.make(f"panda_grasp_env:{env_id}", **task_defaults, **options).close()
         except (ValueError, TypeError) as error:
@@ -383,9 +384,9 @@ def applicable(task: str, metrics: dict) -> dict[str, float | None]:
     grasps = metrics["grasp_success"]
     return {
         "grasp_success": grasps["rate"] if grasps["n"] else None,
-        "action_efficiency": None if is_low_level(*TASKS[task]) else metrics["action_efficiency"],
+        "action_efficiency": None if is_low_level(*BENCHMARKS[task]) else metrics["action_efficiency"],
         "cycles_per_sim_hour": metrics["cycles_per_sim_hour"] if task == "BuildAndBreak" else None,
-        "collateral_per_action": None if is_low_level(*TASKS[task]) else metrics["collateral_per_action"],
+        "collateral_per_action": None if is_low_level(*BENCHMARKS[task]) else metrics["collateral_per_action"],
     }
 
 
@@ -398,7 +399,7 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
         "agents": args.agents,
         "tasks": args.tasks,
         "full": args.full,
-        "env_ids": {t: TASKS[t][0] for t in args.tasks},
+        "env_ids": {t: BENCHMARKS[t][0] for t in args.tasks},
         "seeds": {t: chosen_seeds(args, t) for t in args.tasks},
         "task_options": args.task_options,
     }
@@ -602,7 +603,7 @@ def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: 
         "",
         f"- seeds per (agent, task): {json.dumps({t: describe_seeds(chosen_seeds(args, t)) for t in args.tasks})}",
         f"- options on top of each task's (--task-options): {json.dumps(args.task_options) if args.task_options else 'none'}",
-        f"- env ids and options: {json.dumps({t: TASKS[t] for t in args.tasks})}",
+        f"- env ids and options: {json.dumps({t: BENCHMARKS[t] for t in args.tasks})}",
         f"- commit {commit()}; versions: {', '.join(f'{k} {v}' for k, v in versions().items())}",
         f"- workers: {args.workers}",
         *(f"- skipped {pair}: {reason}" for pair, reason in args.skipped.items()),

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -18,33 +19,26 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-#: Task name -> (env id, extra env options).  Perception agents get RGB-D from both cameras at 640 x 480.
-TASKS: dict[str, tuple[str, dict[str, Any]]] = {
-    "Grasp": ("PandaGrasp-v0", {"primitive_z": True}),
-    "GraspClutter": ("PandaGraspClutter-v0", {"primitive_z": True}),
-    "TowerBuild": ("PandaTowerBuild-v0", {}),
-    "TowerBreak": ("PandaTowerBreak-v0", {}),
-    "TowerBreakDirectional": ("PandaTowerBreakDirectional-v0", {}),
-    "BuildAndBreak": ("PandaBuildAndBreak-v0", {"max_episode_steps": 30}),
-    # Low-level goal tasks (ee_delta, 50 steps of 40 ms): for learned HER policies and the random baseline.
-    "Push": ("PandaPush-v0", {}),
-    "Lift": ("PandaGrasp-v0", {"action_mode": "ee_delta"}),
-}
+from panda_grasp_env.agents.grasping import OracleGraspAgent, PlannedGraspAgent
+from panda_grasp_env.agents.random_agent import RandomAgent
+from panda_grasp_env.agents.towers import (
+    BuildAndBreakAgent,
+    CameraBlocks,
+    OracleBlocks,
+    TowerBreakerAgent,
+    TowerBuilderAgent,
+)
+from panda_grasp_env.registration import BENCHMARKS, ENV_IDS, TASKS
+
+#: Perception agents get RGB-D from both cameras at 640 x 480 (``PERCEPTION``).
 #: The built-in agents; every shipped checkpoint (``panda_grasp_env.agents.learned.available_checkpoints``) is an agent too.
 AGENTS = ("random", "planned", "oracle")
 
 
 def action_mode_of(env_id: str, options: dict[str, Any]) -> str:
     """The action mode ``gymnasium.make(env_id, **options)`` gets (an explicit option, else the id's task default)."""
-    from panda_grasp_env.registration import ENV_IDS
-    from panda_grasp_env.tasks.base import TASKS as TASK_CLASSES
-
     registered = ENV_IDS[env_id][0]
-    return (
-        options.get("action_mode")
-        or registered.get("action_mode")
-        or TASK_CLASSES[registered["task"]].default_action_mode
-    )
+    return options.get("action_mode") or registered.get("action_mode") or TASKS[registered["task"]].default_action_mode
 
 
 def is_low_level(env_id: str, options: dict[str, Any]) -> bool:
@@ -58,7 +52,7 @@ def is_low_level(env_id: str, options: dict[str, Any]) -> bool:
 def task_label(env_id: str, env_kwargs: dict[str, Any]) -> str:
     """The ``evaluate.py`` task whose env (id, low-level or not) a policy trained on ``env_id`` plays, else ``env_id``."""
     low_level = is_low_level(env_id, env_kwargs)
-    for task, (task_env_id, options) in TASKS.items():
+    for task, (task_env_id, options) in BENCHMARKS.items():
         if task_env_id == env_id and is_low_level(task_env_id, options) == low_level:
             return task
     return env_id
@@ -76,8 +70,10 @@ def skip_reason(agent: str, task: str) -> str | None:
     if agent == "random":
         return None
     if agent in AGENTS:
-        if is_low_level(*TASKS[task]):
+        if is_low_level(*BENCHMARKS[task]):
             return f"the {agent} baselines act through motion primitives; {task} is a low-level ee_delta task"
+        if task not in BASELINES:
+            return f"no {agent} agent is written for {task}"
         return None
     from panda_grasp_env.agents.learned import Checkpoint
 
@@ -109,41 +105,46 @@ def make_env(spec: EpisodeSpec) -> gym.Env:
         from panda_grasp_env.agents.learned import Checkpoint
 
         return Checkpoint(spec.agent).make_env(**dict(spec.options))
-    env_id, options = TASKS[spec.task]
+    env_id, options = BENCHMARKS[spec.task]
     options = dict(options)
     if spec.agent != "random":
         options |= PERCEPTION
     return gym.make(f"panda_grasp_env:{env_id}", **options, **dict(spec.options))
 
 
-def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
-    from panda_grasp_env.agents.grasping import OracleGraspAgent, PlannedGraspAgent
-    from panda_grasp_env.agents.random_agent import RandomAgent
-    from panda_grasp_env.agents.towers import (
-        BuildAndBreakAgent,
-        CameraBlocks,
-        OracleBlocks,
-        TowerBreakerAgent,
-        TowerBuilderAgent,
-    )
+def grasp_baseline(env: gym.Env, seed: int, oracle: bool) -> Any:
+    """The planned grasping agent (RGB-D grasp detection, noise and restarts seeded), or the oracle."""
+    return OracleGraspAgent(env, seed=seed) if oracle else PlannedGraspAgent(noise_seed=seed, seed=seed)
 
+
+def block_baseline(agent: Callable[[CameraBlocks | OracleBlocks], Any]) -> Callable[[gym.Env, int, bool], Any]:
+    """Makes ``agent`` over block poses from RGB-D (noise seeded), or with ``oracle`` the true poses."""
+
+    def make(env: gym.Env, seed: int, oracle: bool) -> Any:
+        return agent(OracleBlocks(env) if oracle else CameraBlocks(noise_seed=seed))
+
+    return make
+
+
+#: Benchmark task -> its planned agent, or oracle variant: ``BASELINES[task](env, seed, oracle)``.
+BASELINES: dict[str, Callable[[gym.Env, int, bool], Any]] = {
+    "Grasp": grasp_baseline,
+    "GraspClutter": grasp_baseline,
+    "TowerBuild": block_baseline(TowerBuilderAgent),
+    "TowerBreak": block_baseline(TowerBreakerAgent),
+    "TowerBreakDirectional": block_baseline(TowerBreakerAgent),
+    "BuildAndBreak": block_baseline(BuildAndBreakAgent),
+}
+
+
+def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
     if spec.agent == "random":
         return RandomAgent(env.action_space, seed=spec.seed)
     if spec.agent not in AGENTS:
         from panda_grasp_env.agents.learned import LearnedAgent
 
         return LearnedAgent(spec.agent, env)
-    oracle = spec.agent == "oracle"
-    if spec.task.startswith("Grasp"):
-        return (
-            OracleGraspAgent(env, seed=spec.seed) if oracle else PlannedGraspAgent(noise_seed=spec.seed, seed=spec.seed)
-        )
-    blocks = OracleBlocks(env) if oracle else CameraBlocks(noise_seed=spec.seed)
-    if spec.task == "TowerBuild":
-        return TowerBuilderAgent(blocks)
-    if spec.task.startswith("TowerBreak"):
-        return TowerBreakerAgent(blocks)
-    return BuildAndBreakAgent(blocks)
+    return BASELINES[spec.task](env, spec.seed, spec.agent == "oracle")
 
 
 def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:

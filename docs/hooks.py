@@ -31,8 +31,7 @@ def env_page(env_id: str) -> str:
 
     import gymnasium as gym
 
-    from panda_grasp_env.registration import ENV_IDS
-    from panda_grasp_env.tasks.base import TASKS
+    from panda_grasp_env.registration import ENV_IDS, TASKS
 
     defaults, max_steps = ENV_IDS[env_id]
     env = gym.make(f"panda_grasp_env:{env_id}")

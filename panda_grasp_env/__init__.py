@@ -1,6 +1,7 @@
 """panda_grasp_env: a MuJoCo Franka Panda workcell for tower building, tower breaking and grasping.
 
-Importing the package registers its Gymnasium ids (see ``registration.py``).
+Importing the package imports every task module, which registers the task's Gymnasium ids
+(see ``registration.py``).
 """
 
 import os
@@ -10,9 +11,8 @@ import os
 if "DISPLAY" not in os.environ:
     os.environ.setdefault("MUJOCO_GL", "egl")
 
-from panda_grasp_env.registration import ENV_IDS, register_envs  # noqa: E402
-
-register_envs()
+import panda_grasp_env.tasks  # noqa: E402, F401  (registers the tasks and their ids)
+from panda_grasp_env.registration import BENCHMARKS, ENV_IDS, TASKS  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["ENV_IDS", "register_envs"]
+__all__ = ["BENCHMARKS", "ENV_IDS", "TASKS"]

@@ -9,9 +9,12 @@ each), action modes in ``actions.py``, observations in ``observations.py``.
 from __future__ import annotations
 
 import inspect
+from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 
 from panda_grasp_env.actions import (
@@ -33,10 +36,11 @@ from panda_grasp_env.observations import ObservationBuilder, Sensors, parse_obs_
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
 from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.registration import make_task
 from panda_grasp_env.rendering import CameraRenderer, display_available
 from panda_grasp_env.robot import FINGER_CLOSED, FINGER_OPEN, HOME_YAW
 from panda_grasp_env.scene import CAMERA_NAMES, SceneConfig
-from panda_grasp_env.tasks import TaskStep, make_task
+from panda_grasp_env.tasks import TaskStep
 from panda_grasp_env.workcell import PhysicsError, Workcell
 
 #: Low-level modes start each episode with the hand here (x, y metres), pointing down, this high above
@@ -212,6 +216,7 @@ class PandaEnv(gym.Env):
         # Low-level modes: no noslip pass by default.  It stops a held block creeping in the fingers
         # during long primitive carries (place accuracy); at 25 Hz control it costs ~10 % of the rate.
         scene_config = self.task.scene_config(scene or SceneConfig(noslip_iterations=0 if low_level else 3))
+        scene_config = replace(scene_config, fixtures=self._scene_fixtures(scene_config.fixtures))
         # Low-level modes let the reference move EE_STEP per control step; primitives keep their own speeds.
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if low_level else None
         self.cell = Workcell(scene_config, limits=limits)
@@ -260,6 +265,17 @@ class PandaEnv(gym.Env):
             self.cell.step_hooks.append(self._capture_motion_frame)
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0
+
+    def _scene_fixtures(self, given: Callable[[mujoco.MjSpec], None] | None) -> Callable[[mujoco.MjSpec], None]:
+        """The task's fixtures, after those of a ``scene`` given to ``make`` (if any)."""
+        if given is None:
+            return self.task.add_fixtures
+
+        def both(spec: mujoco.MjSpec) -> None:
+            given(spec)
+            self.task.add_fixtures(spec)
+
+        return both
 
     # --- the step loop -----------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:

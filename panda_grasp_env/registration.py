@@ -1,34 +1,91 @@
-"""Versioned Gymnasium ids, registered when ``panda_grasp_env`` is imported.
+"""The one registry: tasks by name, their Gymnasium ids and the benchmark tasks ``evaluate.py`` plays on them.
 
-``gymnasium.make("panda_grasp_env:PandaTowerBuild-v0", obs_mode=..., action_mode=...)``
-works in a fresh interpreter: Gymnasium imports this package first.  Any env or
-task option can be passed to ``make``; ``max_episode_steps`` suits the id's
-default action mode and can be overridden the usual way.
+A task module registers everything about itself with ``@register_task`` on its ``Task`` subclass: the
+class (the env's ``task=``), every id in its ``env_ids`` (with Gymnasium, at once) and every benchmark
+entry of those ids.  ``panda_grasp_env.tasks`` imports each module in its folder, so a new task file
+needs no other edit; a task outside the package registers when its module is imported.
+
+``gymnasium.make("panda_grasp_env:PandaTowerBuild-v0", obs_mode=..., action_mode=...)`` works in a
+fresh interpreter: Gymnasium imports this package first.  Any env or task option can be passed to
+``make``; ``max_episode_steps`` suits the id's default action mode and can be overridden the usual way.
 """
 
 from __future__ import annotations
+
+import inspect
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
 
 import gymnasium as gym
 
 ENTRY_POINT = "panda_grasp_env.env:PandaEnv"
 
-#: id -> (default keyword arguments, max_episode_steps)
-ENV_IDS: dict[str, tuple[dict, int]] = {
-    # Primitive tasks: steps are motion primitives (~4 s simulated each).
-    "PandaTowerBuild-v0": ({"task": "TowerBuild"}, 30),
-    "PandaTowerBreak-v0": ({"task": "TowerBreak"}, 5),
-    "PandaTowerBreakDirectional-v0": ({"task": "TowerBreak", "directional": True}, 5),
-    "PandaBuildAndBreak-v0": ({"task": "BuildAndBreak"}, 100),
-    "PandaGraspClutter-v0": ({"task": "Grasp", "clutter": True}, 60),
-    # Goal-conditioned in the low-level modes (the default for Push and Stack; Grasp defaults to primitives, and
-    # ee_delta makes it the lift task): 50 steps of 40 ms, or 50 primitives.
-    "PandaGrasp-v0": ({"task": "Grasp"}, 50),
-    "PandaPush-v0": ({"task": "Push"}, 50),
-    "PandaStack-v0": ({"task": "TowerBuild", "n_blocks": 2, "action_mode": "ee_delta"}, 100),
-}
+
+@dataclass(frozen=True)
+class EnvId:
+    """One Gymnasium id of a task (declared in the task's ``env_ids``, keyed by the id)."""
+
+    #: Gymnasium's ``TimeLimit``: env steps (primitives or 40 ms control steps) before ``truncated``.
+    max_episode_steps: int
+    #: ``make`` defaults of the id, on top of ``task=<the task's name>``.
+    options: Mapping[str, Any] = field(default_factory=dict)
+    #: Benchmark tasks of ``evaluate.py`` played on this id: benchmark name -> extra ``make`` options.
+    benchmarks: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
 
-def register_envs() -> None:
-    for env_id, (kwargs, max_steps) in ENV_IDS.items():
+#: Task name -> task class (``panda_grasp_env.tasks.base.Task`` subclasses).
+TASKS: dict[str, type] = {}
+#: Gymnasium id -> (default ``make`` keyword arguments, max_episode_steps).
+ENV_IDS: dict[str, tuple[dict[str, Any], int]] = {}
+#: Benchmark task of ``evaluate.py`` -> (Gymnasium id, extra ``make`` options).
+BENCHMARKS: dict[str, tuple[str, dict[str, Any]]] = {}
+
+TaskClass = TypeVar("TaskClass", bound=type)
+
+
+def register_task(cls: TaskClass) -> TaskClass:
+    """Class decorator: make a task available as ``task=cls.name`` and register its ``env_ids`` (with
+    Gymnasium too) and their benchmarks.  Every name must be new: ``ValueError`` names a clash."""
+    env_ids: Mapping[str, EnvId] = cls.env_ids
+    clashes = [n for n in (cls.name,) if not n or n in TASKS]
+    clashes += [i for i in env_ids if i in ENV_IDS]
+    clashes += [b for spec in env_ids.values() for b in spec.benchmarks if b in BENCHMARKS]
+    if clashes:
+        raise ValueError(f"task {cls.__name__}: name(s) {clashes} are empty or already registered")
+    TASKS[cls.name] = cls
+    for env_id, spec in env_ids.items():
+        kwargs = {"task": cls.name, **spec.options}
+        ENV_IDS[env_id] = (kwargs, spec.max_episode_steps)
         if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=ENTRY_POINT, kwargs=kwargs, max_episode_steps=max_steps)
+            gym.register(id=env_id, entry_point=ENTRY_POINT, kwargs=kwargs, max_episode_steps=spec.max_episode_steps)
+        for benchmark, options in spec.benchmarks.items():
+            BENCHMARKS[benchmark] = (env_id, dict(options))
+    return cls
+
+
+def make_task(name: str, options: dict[str, Any]) -> Any:
+    """Instantiate task ``name``; unknown names or options raise ``ValueError`` listing the valid ones."""
+    if not isinstance(name, str) or name not in TASKS:
+        raise ValueError(f"unknown task {name!r}; valid: {sorted(TASKS)}")
+    cls = TASKS[name]
+    valid = task_options(cls)
+    unknown = sorted(set(options) - set(valid))
+    if unknown:
+        raise ValueError(f"unknown option(s) {unknown} for task {name!r}; valid: {valid}")
+    return cls(**options)
+
+
+def task_options(cls: type) -> list[str]:
+    """The options a task class takes: its ``__init__``'s named parameters, and, where that passes
+    ``**kwargs`` on, those of the base classes it passes them to."""
+    names: list[str] = []
+    for klass in cls.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        parameters = inspect.signature(klass.__init__).parameters.values()
+        named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+        names += [p.name for p in parameters if p.kind in named and p.name != "self" and p.name not in names]
+        if not any(p.kind == inspect.Parameter.VAR_KEYWORD for p in parameters):
+            break
+    return names

@@ -13,6 +13,7 @@ World frame: origin at the robot base on the table top, +x away from the robot,
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -77,6 +78,8 @@ class SceneConfig:
             "wrist": CameraConfig(320, 240, 60.0),
         }
     )
+    #: Adds static fixtures (a bin, walls) to the spec after the table: a task's ``add_fixtures``.
+    fixtures: Callable[[mujoco.MjSpec], None] | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.n_blocks, int) or not 0 <= self.n_blocks <= len(self.colours):
@@ -98,6 +101,8 @@ class SceneConfig:
         unknown = set(self.cameras) - set(CAMERA_NAMES)
         if unknown:
             raise ValueError(f"unknown camera(s) {sorted(unknown)}; valid: {list(CAMERA_NAMES)}")
+        if self.fixtures is not None and not callable(self.fixtures):
+            raise ValueError(f"fixtures must be a function of the MjSpec or None, got {self.fixtures!r}")
 
     @property
     def block_names(self) -> list[str]:
@@ -316,6 +321,8 @@ def _add_environment(spec: mujoco.MjSpec, config: SceneConfig) -> None:
     floor.size = [3.0, 3.0, 0.1]
     floor.pos = [0.0, 0.0, -0.75]
     floor.material = "floor_mat"
+    if config.fixtures is not None:
+        config.fixtures(spec)
 
     for name, colour in zip(config.block_names, config.colours.values()):
         geom = _add_free_cube(world, name, config, list(config.block_friction), condim=3)

@@ -52,32 +52,38 @@ class MoveOutcome:
     error: float
 
 
+def geom_extent_along(model: mujoco.MjModel, data: mujoco.MjData, geom: int, axis: np.ndarray) -> tuple[float, float]:
+    """Lowest and highest coordinate of a geom along the world unit vector ``axis``, metres (exact for boxes,
+    spheres, capsules, cylinders; bounding spheres otherwise)."""
+    size = model.geom_size[geom]
+    local = data.geom_xmat[geom].reshape(3, 3).T @ axis  # the axis in the geom's frame
+    kind = int(model.geom_type[geom])
+    if kind == int(mujoco.mjtGeom.mjGEOM_BOX):
+        half = float(np.abs(local) @ size)
+    elif kind == int(mujoco.mjtGeom.mjGEOM_SPHERE):
+        half = float(size[0])
+    elif kind == int(mujoco.mjtGeom.mjGEOM_CAPSULE):
+        half = float(size[0] + abs(local[2]) * size[1])
+    elif kind == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
+        half = float(abs(local[2]) * size[1] + size[0] * np.sqrt(max(0.0, 1.0 - local[2] ** 2)))
+    else:
+        half = float(model.geom_rbound[geom])
+    centre = float(data.geom_xpos[geom] @ axis)
+    return centre - half, centre + half
+
+
 def body_extent_along(
     model: mujoco.MjModel, data: mujoco.MjData, body_id: int, axis: np.ndarray | Sequence[float]
 ) -> tuple[float, float]:
     """Lowest and highest coordinate of a body's collision geoms along the world unit vector ``axis``, metres
-    (exact for boxes, spheres, capsules, cylinders; bounding spheres otherwise)."""
+    (see ``geom_extent_along``)."""
     axis = np.asarray(axis, dtype=float)
     lowest, highest = np.inf, -np.inf
     start, count = model.body_geomadr[body_id], model.body_geomnum[body_id]
     for g in range(start, start + count):
-        if not (model.geom_contype[g] or model.geom_conaffinity[g]):
-            continue  # visual only
-        size = model.geom_size[g]
-        local = data.geom_xmat[g].reshape(3, 3).T @ axis  # the axis in the geom's frame
-        kind = int(model.geom_type[g])
-        if kind == int(mujoco.mjtGeom.mjGEOM_BOX):
-            half = float(np.abs(local) @ size)
-        elif kind == int(mujoco.mjtGeom.mjGEOM_SPHERE):
-            half = float(size[0])
-        elif kind == int(mujoco.mjtGeom.mjGEOM_CAPSULE):
-            half = float(size[0] + abs(local[2]) * size[1])
-        elif kind == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
-            half = float(abs(local[2]) * size[1] + size[0] * np.sqrt(max(0.0, 1.0 - local[2] ** 2)))
-        else:
-            half = float(model.geom_rbound[g])
-        centre = float(data.geom_xpos[g] @ axis)
-        lowest, highest = min(lowest, centre - half), max(highest, centre + half)
+        if model.geom_contype[g] or model.geom_conaffinity[g]:  # else visual only
+            low, high = geom_extent_along(model, data, g, axis)
+            lowest, highest = min(lowest, low), max(highest, high)
     return lowest, highest
 
 
@@ -129,6 +135,9 @@ class Workcell:
         self.collateral = CollateralMonitor(self)
         self._scratch = mujoco.MjData(self.model)  # kinematics checks that must not touch the live state
         self.reset_robot()
+        #: Static collision geoms standing on the table (a task's fixtures: a bin, walls), as (x, y, reach,
+        #: top) in metres: transit heights clear them as they clear objects.
+        self.fixture_tops = self._fixture_tops()
 
     # --- state -------------------------------------------------------------
     @property
@@ -238,10 +247,29 @@ class Workcell:
         error = float(np.linalg.norm(self.robot.ee_position - goal))
         return MoveOutcome(reached=error < tolerance, error=error)
 
+    def _fixture_tops(self) -> list[tuple[float, float, float, float]]:
+        model, data = self.model, self.data
+        robot = set(self.robot.body_ids)
+        fixtures = []
+        for g in range(model.ngeom):
+            body = int(model.geom_bodyid[g])
+            static = model.body_weldid[body] == 0 and body not in robot
+            if static and (model.geom_contype[g] or model.geom_conaffinity[g]):
+                top = geom_extent_along(model, data, g, np.array([0.0, 0.0, 1.0]))[1]
+                if top > 1e-6:  # the table's top is the zero of heights
+                    fixtures.append((*map(float, data.geom_xpos[g][:2]), float(model.geom_rbound[g]), top))
+        return fixtures
+
     def tallest_top(self, exclude: int | None = None, near: tuple[float, float, float] | None = None) -> float:
-        """Highest top (world z, metres; 0 if none) of the objects on the table, leaving out ``exclude`` and,
-        with ``near`` = (x, y, radius), every object whose footprint stays further than radius from (x, y)."""
-        tops = [0.0]
+        """Highest top (world z, metres; 0 if none) of the objects on the table and the fixtures, leaving out
+        ``exclude`` and, with ``near`` = (x, y, radius), everything whose footprint stays further than radius
+        from (x, y)."""
+        tops = [
+            top
+            for x, y, reach, top in self.fixture_tops
+            if near is None or np.hypot(x - near[0], y - near[1]) < near[2] + reach
+        ]
+        tops.append(0.0)
         for b in map(int, self.object_ids):
             if b == exclude or self.is_parked(b):
                 continue

@@ -420,3 +420,45 @@ def test_directional_break_observes_its_command_and_checks_where_the_tower_fell(
     _, _, terminated, _, info = push_tower_through_env(env, heading + np.pi)  # knocked over the other way
     assert terminated and not info["is_success"] and info["wrong_direction"]
     env.close()
+
+
+@pytest.fixture
+def registered_outside_the_package():
+    """A task a user writes in their own module: a TowerBreak behind a wall, with one option of its own
+    and the rest passed on through ``**kwargs``; unregistered afterwards."""
+    import mujoco
+
+    from panda_grasp_env.registration import ENV_IDS, TASKS, EnvId, register_task
+    from panda_grasp_env.tasks.tower_break import TowerBreak
+
+    @register_task
+    class WalledTowerBreak(TowerBreak):
+        name = "WalledTowerBreak"
+        env_ids = {"TestWalledTowerBreak-v0": EnvId(3, {"n_blocks": 2})}
+
+        def __init__(self, wall_x: float = 0.8, **kwargs) -> None:
+            super().__init__(**kwargs)
+            self.wall_x = wall_x
+
+        def add_fixtures(self, spec: mujoco.MjSpec) -> None:
+            wall = spec.worldbody.add_geom()
+            wall.name, wall.type = "wall", mujoco.mjtGeom.mjGEOM_BOX
+            wall.size, wall.pos = [0.01, 0.3, 0.1], [self.wall_x, 0.0, 0.1]
+
+    yield WalledTowerBreak
+    del TASKS["WalledTowerBreak"], ENV_IDS["TestWalledTowerBreak-v0"], gym.registry["TestWalledTowerBreak-v0"]
+
+
+def test_a_task_outside_the_package_registers_its_id_fixtures_and_options(registered_outside_the_package):
+    from panda_grasp_env.registration import register_task
+
+    env = gym.make("TestWalledTowerBreak-v0", wall_x=0.75, k=1)
+    task, cell = env.unwrapped.task, env.unwrapped.cell
+    assert (task.wall_x, task.n_blocks, task.k) == (0.75, 2, 1)  # its own option and its base class's
+    assert env.spec.max_episode_steps == 3
+    assert cell.data.geom_xpos[cell.model.geom("wall").id][0] == pytest.approx(0.75)
+    assert cell.tallest_top() == pytest.approx(0.2)  # transit clears the wall
+    with pytest.raises(ValueError, match="directional2"):
+        gym.make("TestWalledTowerBreak-v0", directional2=True)
+    with pytest.raises(ValueError, match="already registered"):
+        register_task(registered_outside_the_package)

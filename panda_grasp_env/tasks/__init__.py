@@ -1,6 +1,12 @@
-"""Tasks: one module each, registered by name for the env's ``task=`` argument."""
+"""Tasks: one module each.  Importing this package imports every module in its folder, whose
+``@register_task`` classes then register themselves (``panda_grasp_env.registration``)."""
 
-from panda_grasp_env.tasks import build_and_break, grasp, push, tower_break, tower_build  # noqa: F401  (registration)
-from panda_grasp_env.tasks.base import TASKS, Task, TaskStep, make_task, register_task
+import importlib
+import pkgutil
 
-__all__ = ["TASKS", "Task", "TaskStep", "make_task", "register_task"]
+from panda_grasp_env.tasks.base import Task, TaskStep
+
+for _module in pkgutil.iter_modules(__path__):
+    importlib.import_module(f"{__name__}.{_module.name}")
+
+__all__ = ["Task", "TaskStep"]

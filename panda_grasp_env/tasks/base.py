@@ -1,9 +1,11 @@
 """The Task protocol: what a task decides, and nothing else.
 
-A task owns its reset distribution (which objects, where), its reward, its
-success test and its termination rule.  The env owns the step loop, the
-actions and the observations.  A new task is one small module with a
-``Task`` subclass decorated with ``@register_task``; the env never changes.
+A task owns its scene (which objects, and fixtures such as a bin through
+``add_fixtures``), its reset distribution, its reward, its success test, its
+termination rule and its Gymnasium ids (``env_ids``).  The env owns the step
+loop, the actions and the observations.  A new task is one module in
+``panda_grasp_env/tasks`` with a ``Task`` subclass decorated with
+``@register_task`` (``panda_grasp_env.registration``); nothing else changes.
 
 Two kinds of step reach a task:
 
@@ -18,15 +20,17 @@ Two kinds of step reach a task:
 
 from __future__ import annotations
 
-import inspect
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
+import mujoco
 import numpy as np
 
 from panda_grasp_env.geometry import is_number
 from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.registration import EnvId
 from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.workcell import Workcell
 
@@ -52,6 +56,8 @@ class Task(ABC):
 
     #: Registry name (``task=`` of the env).
     name: ClassVar[str] = ""
+    #: The task's Gymnasium ids (registered by ``@register_task``).
+    env_ids: ClassVar[Mapping[str, EnvId]] = {}
     #: Primitives a primitive-mode action may choose from, in action-layout order.
     primitives: ClassVar[tuple[str, ...]] = ("grasp", "push", "place")
     #: Whether the task publishes goals for the low-level action modes.
@@ -73,6 +79,11 @@ class Task(ABC):
     def scene_config(self, base: SceneConfig) -> SceneConfig:
         """The scene this task needs, derived from the env's ``base`` scene (blocks, object slots)."""
         return base
+
+    def add_fixtures(self, spec: mujoco.MjSpec) -> None:  # noqa: B027 (an optional hook)
+        """Add the task's static fixtures (a bin, a wall, a shelf) to the scene's ``spec``: world frame,
+        metres, geoms in group 0 (seen by cameras and ray casts).  Called on every model of the scene (the
+        simulation's and the motion planner's), so collision checks and transit heights see them."""
 
     @abstractmethod
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
@@ -126,29 +137,6 @@ def goals_reached(achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.nda
     desired = np.asarray(desired_goal, dtype=float)
     distances = np.linalg.norm((achieved - desired).reshape(*achieved.shape[:-1], -1, 3), axis=-1)
     return np.all(distances < GOAL_THRESHOLD, axis=-1)
-
-
-TASKS: dict[str, type[Task]] = {}
-
-
-def register_task(cls: type[Task]) -> type[Task]:
-    """Class decorator: make a task available to the env as ``task=cls.name``."""
-    if not cls.name or cls.name in TASKS:
-        raise ValueError(f"task name {cls.name!r} is empty or already registered")
-    TASKS[cls.name] = cls
-    return cls
-
-
-def make_task(name: str, options: dict[str, Any]) -> Task:
-    """Instantiate task ``name``; unknown names or options raise ``ValueError`` listing the valid ones."""
-    if not isinstance(name, str) or name not in TASKS:
-        raise ValueError(f"unknown task {name!r}; valid: {sorted(TASKS)}")
-    cls = TASKS[name]
-    valid = [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
-    unknown = sorted(set(options) - set(valid))
-    if unknown:
-        raise ValueError(f"unknown option(s) {unknown} for task {name!r}; valid: {valid}")
-    return cls(**options)
 
 
 def with_scene(base: SceneConfig, **changes: Any) -> SceneConfig:

@@ -7,8 +7,9 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.scene import SceneConfig
-from panda_grasp_env.tasks.base import Task, TaskStep, register_task
+from panda_grasp_env.tasks.base import Task, TaskStep
 from panda_grasp_env.tasks.tower_break import TowerBreak
 from panda_grasp_env.tasks.tower_build import TowerBuild
 from panda_grasp_env.workcell import Workcell
@@ -30,6 +31,7 @@ class BuildAndBreak(Task):
     """
 
     name = "BuildAndBreak"
+    env_ids = {"PandaBuildAndBreak-v0": EnvId(100, benchmarks={"BuildAndBreak": {"max_episode_steps": 30}})}
     primitives = ("grasp", "place", "push")
 
     def __init__(self, n_blocks: int = 4) -> None:

@@ -10,8 +10,9 @@ from panda_grasp_env.geometry import lying_quaternion, yaw_quaternion
 from panda_grasp_env.objects import SHAPES, ObjectShape, sample_shape, validate_shape_options
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
 from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.scene import SceneConfig
-from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, register_task, with_scene
+from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, with_scene
 from panda_grasp_env.workcell import SPAWN_REGION, Workcell, body_bottom_height
 
 #: VPG drops its clutter into the middle of the workspace; a 0.2 m square here.
@@ -71,6 +72,11 @@ class Grasp(Task):
     """
 
     name = "Grasp"
+    # Primitive steps by default; with action_mode="ee_delta" PandaGrasp-v0 is the goal-conditioned lift task.
+    env_ids = {
+        "PandaGrasp-v0": EnvId(50, benchmarks={"Grasp": {"primitive_z": True}, "Lift": {"action_mode": "ee_delta"}}),
+        "PandaGraspClutter-v0": EnvId(60, {"clutter": True}, benchmarks={"GraspClutter": {"primitive_z": True}}),
+    }
     primitives = ("grasp", "push")
     goal_conditioned = True
     start_states = ("in_hand", "above_object")

@@ -8,6 +8,7 @@ import numpy as np
 
 from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.scene import GOAL_MARKER, SceneConfig
 from panda_grasp_env.tasks.base import (
     GOAL_THRESHOLD,
@@ -15,7 +16,6 @@ from panda_grasp_env.tasks.base import (
     TaskStep,
     check_option,
     is_interval,
-    register_task,
     with_scene,
 )
 from panda_grasp_env.workcell import SPAWN_REGION, Workcell
@@ -33,6 +33,7 @@ class Push(Task):
     """
 
     name = "Push"
+    env_ids = {"PandaPush-v0": EnvId(50, benchmarks={"Push": {}})}  # 50 steps of 40 ms
     primitives = ("push",)
     goal_conditioned = True
     default_action_mode = "ee_delta"

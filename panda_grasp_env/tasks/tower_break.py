@@ -8,8 +8,9 @@ import numpy as np
 
 from panda_grasp_env.geometry import is_number
 from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.scene import SceneConfig
-from panda_grasp_env.tasks.base import Task, TaskStep, check_option, register_task, with_scene
+from panda_grasp_env.tasks.base import Task, TaskStep, check_option, with_scene
 from panda_grasp_env.workcell import Workcell
 
 #: The source study's four push directions, as headings about world z (radians).
@@ -41,6 +42,10 @@ class TowerBreak(Task):
     """
 
     name = "TowerBreak"
+    env_ids = {
+        "PandaTowerBreak-v0": EnvId(5, benchmarks={"TowerBreak": {}}),
+        "PandaTowerBreakDirectional-v0": EnvId(5, {"directional": True}, benchmarks={"TowerBreakDirectional": {}}),
+    }
     primitives = ("push",)
 
     def __init__(

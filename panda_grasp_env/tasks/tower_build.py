@@ -7,9 +7,10 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.stacking import stack_column
-from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, register_task, with_scene
+from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, with_scene
 from panda_grasp_env.workcell import Workcell
 
 #: A tower must stand still this long, with the gripper released, to count as built (seconds).
@@ -45,6 +46,11 @@ class TowerBuild(Task):
     """
 
     name = "TowerBuild"
+    env_ids = {
+        "PandaTowerBuild-v0": EnvId(30, benchmarks={"TowerBuild": {}}),
+        # Two blocks, goal-conditioned at 25 Hz: panda-gym's Stack.
+        "PandaStack-v0": EnvId(100, {"n_blocks": 2, "action_mode": "ee_delta"}),
+    }
     primitives = ("grasp", "place", "push")
     goal_conditioned = True
     start_states = ("in_hand", "above_object")
