@@ -12,7 +12,7 @@
 Agents: random, planned (perception-based planned baselines), oracle (the same, on
 true poses), and every shipped learned checkpoint by name (agents/checkpoints/).
 Tasks: the benchmarks the task modules register (``panda_grasp_env.registration.BENCHMARKS``): Grasp,
-GraspClutter, TowerBuild, TowerBreak, TowerBreakDirectional, BuildAndBreak (primitive actions),
+GraspClutter, TowerBuild, TowerBreak, TowerBreakDirectional, BuildAndBreak, PutInBin (primitive actions),
 Push, Lift (low-level ee_delta).  An agent that does not apply to a task is skipped (one line lists them;
 the report gives each reason).
 Outputs (``--out``, default results/quick or results/full): results.json and

@@ -20,6 +20,7 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.agents.grasping import OracleGraspAgent, PlannedGraspAgent
+from panda_grasp_env.agents.put_in_bin import PutInBinAgent
 from panda_grasp_env.agents.random_agent import RandomAgent
 from panda_grasp_env.agents.towers import (
     BuildAndBreakAgent,
@@ -134,6 +135,7 @@ BASELINES: dict[str, Callable[[gym.Env, int, bool], Any]] = {
     "TowerBreak": block_baseline(TowerBreakerAgent),
     "TowerBreakDirectional": block_baseline(TowerBreakerAgent),
     "BuildAndBreak": block_baseline(BuildAndBreakAgent),
+    "PutInBin": block_baseline(PutInBinAgent),
 }
 
 
