@@ -1,5 +1,5 @@
-"""MkDocs hooks: a source tree laid out as the package installs (for the API reference), and one page per
-registered id generated from the env itself.
+"""MkDocs hooks: a source tree laid out as the package installs (for the API reference), one page per
+registered id generated from the env itself, and one page per checkpoint card (with its figures).
 
 ``agents/`` and ``perception/`` install as ``panda_grasp_env.agents`` and ``panda_grasp_env.perception``
 (pyproject's package-dir); griffe reads sources by path, so it is given ``build/api-src/panda_grasp_env``:
@@ -12,6 +12,16 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TREE = ROOT / "build" / "api-src" / "panda_grasp_env"
+#: Nav sections (titles in mkdocs.yml) whose pages ``on_config`` lists.
+ENV_IDS_SECTION = "Env ids (generated from the envs themselves)"
+CARDS_SECTION = "Checkpoint cards"
+
+
+def checkpoint_folders() -> list[Path]:
+    """Every shipped checkpoint's folder (learned policies, then fall-dynamics models)."""
+    return sorted((ROOT / "agents" / "checkpoints").glob("*/card.md")) + sorted(
+        (ROOT / "perception" / "checkpoints").glob("*/card.md")
+    )
 
 
 def on_startup(**kwargs: object) -> None:
@@ -75,12 +85,34 @@ def env_page(env_id: str) -> str:
     return "\n".join(lines)
 
 
+def on_config(config, **kwargs):  # MkDocs hook: the signature is MkDocs'
+    """List the generated pages in the nav: every registered id, every checkpoint card."""
+    from panda_grasp_env.registration import ENV_IDS
+
+    pages = {
+        ENV_IDS_SECTION: [{env_id: f"ids/{env_id}.md"} for env_id in ENV_IDS],
+        CARDS_SECTION: [{card.parent.name: f"checkpoints/{card.parent.name}/index.md"} for card in checkpoint_folders()],
+    }
+    for item in config["nav"]:
+        for title in pages:
+            if isinstance(item, dict) and title in item:
+                item[title] = pages[title]
+    return config
+
+
 def on_files(files, config, **kwargs):  # MkDocs hook: the signature is MkDocs'
-    """One generated page per registered id under ``ids/``."""
+    """One generated page per registered id under ``ids/``; each checkpoint's card and figures under
+    ``checkpoints/<name>/``."""
     from mkdocs.structure.files import File
 
     from panda_grasp_env.registration import ENV_IDS
 
     for env_id in ENV_IDS:
         files.append(File.generated(config, f"ids/{env_id}.md", content=env_page(env_id)))
+    for card in checkpoint_folders():
+        folder = f"checkpoints/{card.parent.name}"
+        files.append(File.generated(config, f"{folder}/index.md", content=card.read_text()))
+        for figure in sorted(card.parent.rglob("*.png")):
+            path = f"{folder}/{figure.relative_to(card.parent).as_posix()}"
+            files.append(File.generated(config, path, abs_src_path=str(figure)))
     return files
