@@ -251,7 +251,7 @@ class PandaEnv(gym.Env):
             cameras,
             self.sensors,
             self.task.goal_size if self.goal_conditioned else None,
-            self.task.goal_size if self._goal_in_state else 0,
+            self.task.properties_size + (self.task.goal_size if self._goal_in_state else 0),
             self.task.command_size,
         )
         self.action_space = self.actions.space
@@ -469,7 +469,8 @@ class PandaEnv(gym.Env):
         return self.task.achieved_goal(self.cell), self.task.desired_goal()
 
     def _observe(self, sanitise: bool = False) -> Any:
-        extra = self.task.desired_goal() if self._goal_in_state else None
+        extra = [self.task.properties(), self.task.desired_goal() if self._goal_in_state else np.zeros(0)]
+        extra = np.concatenate(extra) if self.observations.extra_size else None
         observation = self.observations.observe(self._goals(), extra, self.task.command())
         if sanitise:  # after a divergence the state may hold NaN: never hand that to a learner
             if isinstance(observation, dict):

@@ -45,3 +45,22 @@ def lying_quaternion(yaw: float) -> np.ndarray:
     half_c, half_s = np.cos(yaw / 2), np.sin(yaw / 2)
     quarter_c, quarter_s = np.cos(np.pi / 4), np.sin(np.pi / 4)
     return np.array([half_c * quarter_c, half_c * quarter_s, half_s * quarter_s, half_s * quarter_c])
+
+
+#: Shapes ``half_extent_along`` knows exactly (MuJoCo geom types by name).
+EXACT_SHAPES = ("box", "sphere", "capsule", "cylinder")
+
+
+def half_extent_along(kind: str, size: np.ndarray, rotation: np.ndarray, axis: np.ndarray) -> float:
+    """Half the extent (metres) along the world unit vector ``axis`` of a shape of MuJoCo geom ``size``
+    (half-extents; radius; radius and half-height) rotated by ``rotation`` (3, 3), for ``EXACT_SHAPES``."""
+    local = rotation.T @ axis  # the axis in the shape's frame
+    if kind == "box":
+        return float(np.abs(local) @ size)
+    if kind == "sphere":
+        return float(size[0])
+    if kind == "capsule":
+        return float(size[0] + abs(local[2]) * size[1])
+    if kind == "cylinder":
+        return float(abs(local[2]) * size[1] + size[0] * np.sqrt(max(0.0, 1.0 - local[2] ** 2)))
+    raise ValueError(f"unknown shape {kind!r}; valid: {list(EXACT_SHAPES)}")

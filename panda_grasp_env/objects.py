@@ -10,10 +10,15 @@ spheres -- metres.  The shape's own z axis is "up" when it rests as spawned.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any
 
 import mujoco
 import numpy as np
+from scipy.spatial.transform import Rotation
+
+from panda_grasp_env.geometry import half_extent_along, is_number, lying_quaternion, yaw_quaternion
 
 SHAPES = ("cube", "box", "cylinder", "sphere", "capsule")
 #: Density of every object, kg/m^3 (hard wood): a 5 cm cube weighs 0.1 kg.
@@ -47,13 +52,35 @@ _GEOM_TYPES = {
 }
 
 
+#: Resting poses: ``standing`` (the shape's own z axis up) or ``lying`` (its z axis horizontal: a cylinder or
+#: capsule on its side, a box on a side face); ``random`` draws one per episode; ``default``: capsules lie,
+#: every other shape stands.
+POSES = ("default", "standing", "lying", "random")
+#: Object masses (kg) and sliding friction coefficients ``ObjectSpec`` accepts.
+MASS_RANGE, FRICTION_RANGE = (0.005, 2.0), (0.05, 2.0)
+#: Largest size component (metres) ``ObjectSpec`` accepts: what the 73 mm hand opening can still hold.
+MAX_SIZE = 0.07
+
+
 @dataclass(frozen=True)
 class ObjectShape:
-    """One object: ``kind`` in ``SHAPES``, MuJoCo geom ``size`` (metres) and colour (r, g, b in 0-1)."""
+    """One object as drawn for an episode: ``kind`` in ``SHAPES``, MuJoCo geom ``size`` (metres), colour
+    (r, g, b in 0-1), and the physics ``ObjectSpec`` may set (None: the defaults)."""
 
     kind: str
     size: tuple[float, ...]
     rgb: tuple[float, float, float] = (0.7, 0.7, 0.7)
+    #: kg; None: ``DENSITY`` times the volume.
+    mass: float | None = None
+    #: Sliding friction in effect against the table, the fingers and fixtures; None: the scene's (a contact
+    #: takes the larger coefficient of its two geoms: the table's 1.0, the finger pads' 1.5).
+    friction: float | None = None
+    #: Rests on its side (own z axis horizontal); None: capsules lie, every other shape stands.
+    lying: bool | None = None
+
+    @property
+    def is_lying(self) -> bool:
+        return self.kind == "capsule" if self.lying is None else self.lying
 
     @property
     def geom_size(self) -> np.ndarray:
@@ -64,16 +91,22 @@ class ObjectShape:
         padded[: len(self.size)] = self.size
         return padded
 
+    def resting_quaternion(self, yaw: float) -> np.ndarray:
+        """Orientation (w, x, y, z) resting on the table at heading ``yaw`` (radians): standing, or lying --
+        turned a quarter about its own x axis first (its y axis then points up)."""
+        return lying_quaternion(yaw) if self.is_lying else yaw_quaternion(yaw)
+
     @property
     def resting_half_height(self) -> float:
         """Height of the centre above the table when resting as spawned, metres."""
+        size = self.geom_size
         if self.kind in ("cube", "sphere"):
-            return self.size[0]
-        if self.kind == "box":
-            return self.size[2]
-        if self.kind == "cylinder":
-            return self.size[1]
-        return self.size[0]  # capsule lies on its side
+            return float(size[0])
+        if self.is_lying:
+            return float(size[1] if self.kind == "box" else size[0])  # box on a side face; round side down
+        if self.kind == "capsule":
+            return float(size[0] + size[1])
+        return float(size[2] if self.kind == "box" else size[1])
 
     @property
     def bounding_radius(self) -> float:
@@ -88,19 +121,14 @@ class ObjectShape:
         return float(size[0])
 
     def width_across(self, yaw: float, direction: float) -> float:
-        """Horizontal width (metres) of the shape resting as spawned at ``yaw`` (radians, world; see
-        ``tasks.grasp.spawn_quaternion``), measured along the horizontal world direction ``direction`` (radians)."""
-        angle = direction - yaw  # the direction in the shape's own frame
-        along_x, along_y = abs(np.cos(angle)), abs(np.sin(angle))
-        size = self.geom_size
-        if self.kind in ("cube", "box"):
-            return float(2 * (along_x * size[0] + along_y * size[1]))
-        if self.kind == "capsule":  # lies with its axis along its own y
-            return float(2 * (size[0] + along_y * size[1]))
-        return float(2 * size[0])  # sphere; cylinder standing
+        """Horizontal width (metres) of the shape resting as spawned at ``yaw`` (radians, world), measured
+        along the horizontal world direction ``direction`` (radians)."""
+        rotation = Rotation.from_quat(self.resting_quaternion(yaw), scalar_first=True).as_matrix()
+        axis = np.array([np.cos(direction), np.sin(direction), 0.0])
+        return 2 * half_extent_along("box" if self.kind == "cube" else self.kind, self.geom_size, rotation, axis)
 
     def mass_and_inertia(self) -> tuple[float, np.ndarray]:
-        """Mass (kg) and principal moments of inertia (kg m^2) about the shape's own axes."""
+        """Mass (kg) and principal moments of inertia (kg m^2) about the shape's own axes (uniform density)."""
         size = self.geom_size
         if self.kind in ("cube", "box"):
             mass = DENSITY * 8 * np.prod(size)
@@ -127,37 +155,117 @@ class ObjectShape:
             side = body_mass * (3 * radius**2 + (2 * half) ** 2) / 12 + 2 * cap_side
             axial = 0.5 * body_mass * radius**2 + 2 * 0.4 * cap_mass * radius**2
             inertia = np.array([side, side, axial])
+        if self.mass is not None:  # the same shape at another density
+            inertia = inertia * (self.mass / mass)
+            mass = self.mass
         return float(mass), inertia
 
 
-def sample_shape(
-    rng: np.random.Generator,
-    kinds: tuple[str, ...] = SHAPES,
-    size_ranges: dict[str, tuple[tuple[float, float], ...]] | None = None,
-    rgb: tuple[float, float, float] | None = None,
-) -> ObjectShape:
-    """A random shape: kind uniformly from ``kinds``, each size uniformly in its range."""
-    ranges = DEFAULT_SIZE_RANGES | (size_ranges or {})
-    kind = str(kinds[rng.integers(len(kinds))])
-    size = tuple(float(rng.uniform(low, high)) for low, high in ranges[kind])
-    colour = rgb if rgb is not None else PALETTE[int(rng.integers(len(PALETTE)))]
-    return ObjectShape(kind, size, colour)
+#: A value fixed, or a ``(low, high)`` range drawn uniformly per episode.
+Value = float | tuple[float, float]
 
 
-def validate_shape_options(kinds: tuple[str, ...], size_ranges: dict | None) -> None:
-    """Raise ``ValueError`` for unknown shape kinds or malformed size ranges."""
-    unknown = [k for k in kinds if k not in SHAPES]
-    if unknown or not kinds:
-        raise ValueError(f"unknown object shape(s) {unknown or kinds}; valid: {list(SHAPES)}")
-    for kind, ranges in (size_ranges or {}).items():
-        if kind not in SHAPES:
-            raise ValueError(f"size_ranges: unknown shape {kind!r}; valid: {list(SHAPES)}")
-        expected = len(DEFAULT_SIZE_RANGES[kind])
-        if len(ranges) != expected or not all(len(r) == 2 and 0.005 <= r[0] <= r[1] <= 0.07 for r in ranges):
-            raise ValueError(
-                f"size_ranges[{kind!r}] must be {expected} (low, high) pairs with 0.005 <= low <= high <= 0.07 m, "
-                f"got {ranges!r}"
-            )
+def _checked_value(value: Any, low: float, high: float, name: str) -> Value:
+    """``value`` as a float or an ordered (low, high) pair within [low, high]; ``ValueError`` naming it."""
+    pair = tuple(value) if isinstance(value, (tuple, list)) else (value, value)
+    valid = len(pair) == 2 and all(map(is_number, pair)) and low <= pair[0] <= pair[1] <= high
+    if not valid:
+        raise ValueError(f"{name} must be a number or a (low, high) range within [{low}, {high}], got {value!r}")
+    return (float(pair[0]), float(pair[1])) if isinstance(value, (tuple, list)) else float(pair[0])
+
+
+def _draw(rng: np.random.Generator, value: Value) -> float:
+    return float(rng.uniform(*value)) if isinstance(value, tuple) else value
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """How to draw one object at each reset.  Every number is fixed, or a ``(low, high)`` range drawn
+    uniformly per episode from the env's seeded generator.  Also accepted as a plain dict of these fields
+    (``gym.make(..., objects=[{"shape": "cube", "mass": 0.4}])``).
+
+    Fields: ``shape``: a kind from ``SHAPES`` or several, drawn uniformly; ``size``: the MuJoCo geom size
+    (metres; half-extents, radius and half-height, ...) as one value or range per component -- for one
+    kind, or a mapping kind -> components; None: ``DEFAULT_SIZE_RANGES``; ``mass`` (kg; None: 800 kg/m^3);
+    ``friction``: the sliding coefficient in effect against the table, the fingers and fixtures (None: the
+    scene's); ``rgb`` (three values or ranges in 0-1; None: a ``PALETTE`` colour); ``pose`` (``POSES``);
+    ``yaw``: heading on the table, radians (spread-out objects; a clutter heap drops them at any yaw).
+    """
+
+    shape: str | tuple[str, ...] = SHAPES
+    size: tuple[Value, ...] | Mapping[str, tuple[Value, ...]] | None = None
+    mass: Value | None = None
+    friction: Value | None = None
+    rgb: tuple[Value, Value, Value] | None = None
+    pose: str = "default"
+    yaw: Value = (-np.pi / 4, np.pi / 4)
+
+    def __post_init__(self) -> None:
+        kinds = (self.shape,) if isinstance(self.shape, str) else tuple(self.shape)
+        if not kinds or not all(isinstance(k, str) and k in SHAPES for k in kinds):
+            raise ValueError(f"shape must be one or more of {list(SHAPES)}, got {self.shape!r}")
+        object.__setattr__(self, "shape", kinds)
+        size = self.size
+        if size is not None and not isinstance(size, Mapping):
+            if len(kinds) != 1:
+                raise ValueError(f"size as components needs one shape, not {list(kinds)}: give a mapping shape -> size")
+            size = {kinds[0]: size}
+        if size is not None:
+            unknown = [k for k in size if k not in SHAPES]
+            if unknown:
+                raise ValueError(f"size: unknown shape(s) {unknown}; valid: {list(SHAPES)}")
+            checked = {}
+            for kind, components in size.items():
+                expected = len(DEFAULT_SIZE_RANGES[kind])
+                if not isinstance(components, (tuple, list)) or len(components) != expected:
+                    raise ValueError(f"size[{kind!r}] must have {expected} component(s), got {components!r}")
+                checked[kind] = tuple(
+                    _checked_value(c, 0.005, MAX_SIZE, f"size[{kind!r}][{i}]") for i, c in enumerate(components)
+                )
+            size = checked
+        object.__setattr__(self, "size", size)
+        for name, (low, high) in (("mass", MASS_RANGE), ("friction", FRICTION_RANGE)):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, _checked_value(getattr(self, name), low, high, name))
+        if self.rgb is not None:
+            if not isinstance(self.rgb, (tuple, list)) or len(self.rgb) != 3:
+                raise ValueError(f"rgb must be three values or ranges in [0, 1], got {self.rgb!r}")
+            object.__setattr__(self, "rgb", tuple(_checked_value(c, 0.0, 1.0, "rgb") for c in self.rgb))
+        if self.pose not in POSES:
+            raise ValueError(f"pose must be one of {list(POSES)}, got {self.pose!r}")
+        object.__setattr__(self, "yaw", _checked_value(self.yaw, -np.pi, np.pi, "yaw"))
+
+    @classmethod
+    def of(cls, value: ObjectSpec | Mapping[str, Any]) -> ObjectSpec:
+        """``value`` as a spec: a spec, or a dict of its fields (``ValueError`` naming unknown keys)."""
+        if isinstance(value, ObjectSpec):
+            return value
+        if not isinstance(value, Mapping):
+            raise ValueError(f"an object spec must be an ObjectSpec or a dict of its fields, got {value!r}")
+        unknown = sorted(set(value) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ValueError(f"unknown object spec key(s) {unknown}; valid: {[f.name for f in fields(cls)]}")
+        return cls(**value)
+
+    def sample(self, rng: np.random.Generator) -> ObjectShape:
+        """Draw an object: kind, size, colour, then mass, friction and pose where they are ranges or random."""
+        kind = str(self.shape[rng.integers(len(self.shape))])
+        ranges = DEFAULT_SIZE_RANGES | (self.size or {})
+        size = tuple(_draw(rng, component) for component in ranges[kind])
+        if self.rgb is None:
+            rgb = PALETTE[int(rng.integers(len(PALETTE)))]
+        else:
+            rgb = tuple(_draw(rng, component) for component in self.rgb)
+        mass = None if self.mass is None else _draw(rng, self.mass)
+        friction = None if self.friction is None else _draw(rng, self.friction)
+        lying = {"default": None, "standing": False, "lying": True}.get(self.pose)
+        if self.pose == "random":
+            lying = bool(rng.random() < 0.5)
+        return ObjectShape(kind, size, rgb, mass, friction, lying)
+
+    def sample_yaw(self, rng: np.random.Generator) -> float:
+        """A resting heading, radians."""
+        return float(rng.uniform(*self.yaw)) if isinstance(self.yaw, tuple) else self.yaw
 
 
 def apply_shape(model: mujoco.MjModel, body_id: int, shape: ObjectShape) -> None:

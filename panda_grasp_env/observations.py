@@ -3,7 +3,8 @@
 ``obs_mode`` is one modality or several joined with ``+`` (``"rgb+depth"``,
 ``"state+heightmap"``; ``"rgbd"`` means ``"rgb+depth"``):
 
-* ``state`` -- float32 vector (see ``state_layout``): robot, then every object slot;
+* ``state`` -- float32 vector (see ``state_layout``): robot, then every object slot, then the task's
+  ``properties`` (if any) and, in primitive modes of goal tasks, the goal;
 * ``rgb`` -- (H, W, 3) uint8; ``depth`` -- (H, W, 1) float32 metres along the
   optical axis; ``segmentation`` -- (H, W, 1) uint8 labels: 0 background
   (table, floor), 1 robot, 2 + i object slot i (blocks first);
@@ -162,6 +163,8 @@ class ObservationBuilder:
         self.cell, self.modalities, self.cameras, self.sensors = cell, modalities, cameras, sensors
         self.goal_size = goal_size  # None: not goal-conditioned
         self.n_objects = len(cell.object_ids)
+        #: State entries after the objects: the task's properties, then the goal of a primitive-mode goal task.
+        self.extra_size = extra_state
         self.state_size = ROBOT_STATE_SIZE + OBJECT_STATE_SIZE * self.n_objects + extra_state
         self._free_qvel = np.array(
             [cell.model.jnt_dofadr[cell.model.body_jntadr[b]] for b in cell.object_ids], dtype=int

@@ -34,6 +34,12 @@ GRASP_SITE_OFFSET = 0.2454
 PAD_PROTRUSION = 0.0035
 #: Maximum distance between the finger pads when fully open (each finger slides 0-0.04 m).
 MAX_FINGER_GAP = 0.08 - 2 * PAD_PROTRUSION
+#: Contact softness of the finger pads (time constant s, damping ratio; impedance): stiffer and harder than
+#: MuJoCo's defaults, which let a held block creep.  An object with its own friction takes these too.
+PAD_SOLREF = (0.004, 1.0)
+PAD_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)
+#: Geom priorities: a contact takes the friction, solref and solimp of its higher-priority geom.
+PAD_PRIORITY, OWN_FRICTION_PRIORITY = 1, 2
 CAMERA_NAMES = ("overhead", "front", "wrist")
 MAX_OBJECTS = 30
 
@@ -254,12 +260,12 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
         pad.conaffinity = 0
         pad.rgba = [0.2, 0.2, 0.2, 1.0]
         pad.mass = 0.0
-        pad.priority = 1
+        pad.priority = PAD_PRIORITY
         # Stiffer and harder than the asset's finger class (solimp 0.8-0.9 let a
         # held block creep several mm during fast moves); no contact margin.
         pad.margin = 0.0
-        pad.solref = [0.004, 1.0]
-        pad.solimp = [0.95, 0.99, 0.001, 0.5, 2.0]
+        pad.solref = list(PAD_SOLREF)
+        pad.solimp = list(PAD_SOLIMP)
 
     # Wrist camera looking along the approach direction, image up = hand +x.
     wrist = hand.add_camera()

@@ -15,10 +15,10 @@ import numpy as np
 
 from panda_grasp_env.collateral import CollateralMonitor
 from panda_grasp_env.controller import CartesianController, ControllerLimits
-from panda_grasp_env.geometry import yaw_quaternion
+from panda_grasp_env.geometry import half_extent_along, yaw_quaternion
 from panda_grasp_env.objects import ObjectShape, apply_shape
 from panda_grasp_env.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
-from panda_grasp_env.scene import SceneConfig, build_spec
+from panda_grasp_env.scene import OWN_FRICTION_PRIORITY, PAD_SOLIMP, PAD_SOLREF, SceneConfig, build_spec
 
 #: Reachable region for primitive targets: x, y, z bounds of the grasp site, metres.
 WORKSPACE = np.array([[0.25, 0.75], [-0.35, 0.35], [0.0, 0.45]])
@@ -52,22 +52,23 @@ class MoveOutcome:
     error: float
 
 
+#: MuJoCo geom types ``half_extent_along`` knows exactly, by its names.
+_EXACT_TYPES = {
+    int(mujoco.mjtGeom.mjGEOM_BOX): "box",
+    int(mujoco.mjtGeom.mjGEOM_SPHERE): "sphere",
+    int(mujoco.mjtGeom.mjGEOM_CAPSULE): "capsule",
+    int(mujoco.mjtGeom.mjGEOM_CYLINDER): "cylinder",
+}
+
+
 def geom_extent_along(model: mujoco.MjModel, data: mujoco.MjData, geom: int, axis: np.ndarray) -> tuple[float, float]:
     """Lowest and highest coordinate of a geom along the world unit vector ``axis``, metres (exact for boxes,
     spheres, capsules, cylinders; bounding spheres otherwise)."""
-    size = model.geom_size[geom]
-    local = data.geom_xmat[geom].reshape(3, 3).T @ axis  # the axis in the geom's frame
-    kind = int(model.geom_type[geom])
-    if kind == int(mujoco.mjtGeom.mjGEOM_BOX):
-        half = float(np.abs(local) @ size)
-    elif kind == int(mujoco.mjtGeom.mjGEOM_SPHERE):
-        half = float(size[0])
-    elif kind == int(mujoco.mjtGeom.mjGEOM_CAPSULE):
-        half = float(size[0] + abs(local[2]) * size[1])
-    elif kind == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
-        half = float(abs(local[2]) * size[1] + size[0] * np.sqrt(max(0.0, 1.0 - local[2] ** 2)))
-    else:
+    kind = _EXACT_TYPES.get(int(model.geom_type[geom]))
+    if kind is None:
         half = float(model.geom_rbound[geom])
+    else:
+        half = half_extent_along(kind, model.geom_size[geom], data.geom_xmat[geom].reshape(3, 3), axis)
     centre = float(data.geom_xpos[geom] @ axis)
     return centre - half, centre + half
 
@@ -126,6 +127,18 @@ class Workcell:
         self.object_names = self.block_names + self.config.object_names
         self.object_ids = np.array([self.model.body(n).id for n in self.object_names], dtype=int)
         self._qpos_adr = {b: self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.object_ids}
+        #: Object slot geom -> its compiled (friction, solref, solimp, priority), restored for shapes without
+        #: their own friction.
+        model = self.model
+        self._slot_contacts = {
+            int(g): (
+                model.geom_friction[g].copy(),
+                model.geom_solref[g].copy(),
+                model.geom_solimp[g].copy(),
+                int(model.geom_priority[g]),
+            )  # fmt: skip
+            for g in model.body_geomadr[self.object_ids]
+        }
         self._dof_adr = {b: self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.object_ids}
         self.physics_steps = 0
         self._teleport_solutions: dict[tuple, np.ndarray] = {}
@@ -402,9 +415,21 @@ class Workcell:
         mujoco.mj_kinematics(self.model, self.data)  # positions read right after parking are current
 
     def set_object_shapes(self, shapes: dict[int, ObjectShape]) -> None:
-        """Give object slots (body id -> shape) new shapes; the model's derived constants are recomputed."""
+        """Give object slots (body id -> shape) new shapes; the model's derived constants are recomputed.
+
+        A shape with its own ``friction`` gets the highest geom priority, so its coefficient is the one in
+        effect against the table, the finger pads and fixtures (a contact otherwise takes the larger of its two
+        geoms' coefficients), and the pads' contact softness, which the priority also decides against them."""
+        model = self.model
         for body_id, shape in shapes.items():
-            apply_shape(self.model, body_id, shape)
+            apply_shape(model, body_id, shape)
+            geom = model.body_geomadr[body_id]
+            friction, solref, solimp, priority = self._slot_contacts[geom]
+            if shape.friction is not None:
+                friction = np.array([shape.friction, *friction[1:]])
+                solref, solimp, priority = PAD_SOLREF, PAD_SOLIMP, OWN_FRICTION_PRIORITY
+            model.geom_friction[geom], model.geom_solref[geom], model.geom_solimp[geom] = friction, solref, solimp
+            model.geom_priority[geom] = priority
         # mj_setConst uses the data as scratch space and leaves it at qpos0: keep the state.
         state = self.data.qpos.copy(), self.data.qvel.copy(), self.data.ctrl.copy()
         mujoco.mj_setConst(self.model, self.data)

@@ -72,6 +72,10 @@ class Task(ABC):
     #: ``command`` entry; 0 for tasks without one.
     command_size: int = 0
 
+    #: Length of ``properties()``: what the episode drew that the state vector ends with (before a goal);
+    #: 0 for tasks that add nothing.
+    properties_size: int = 0
+
     #: Set by the env: the hand's heading (radians, world) in the ``ee_delta`` action mode, which cannot turn
     #: it; None where actions choose the heading.  Tasks whose objects must fit between the fingers read it.
     fixed_hand_yaw: float | None = None
@@ -102,6 +106,10 @@ class Task(ABC):
 
     def command(self) -> np.ndarray:
         """The episode's command (``command_size`` float32 entries), drawn at reset."""
+        return np.zeros(0, dtype=np.float32)
+
+    def properties(self) -> np.ndarray:
+        """What the episode drew that the state vector shows (``properties_size`` float32 entries)."""
         return np.zeros(0, dtype=np.float32)
 
     @property

@@ -6,8 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.geometry import lying_quaternion, yaw_quaternion
-from panda_grasp_env.objects import SHAPES, ObjectShape, sample_shape, validate_shape_options
+from panda_grasp_env.objects import SHAPES, ObjectShape, ObjectSpec
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
 from panda_grasp_env.primitives import PrimitiveResult
 from panda_grasp_env.registration import EnvId, register_task
@@ -31,9 +30,22 @@ LIFT_GOAL_HEIGHT = (0.05, 0.15)
 HAND_FIT_WIDTH = 0.06
 
 
-def spawn_quaternion(shape: ObjectShape, yaw: float) -> np.ndarray:
-    """Resting orientation (w, x, y, z): upright, except capsules, which lie on their side (axis horizontal)."""
-    return lying_quaternion(yaw) if shape.kind == "capsule" else yaw_quaternion(yaw)
+#: ``properties`` entries per object: kind one-hot, geom size (3), mass, friction, lying.
+OBJECT_PROPERTIES = len(SHAPES) + 6
+#: The table's sliding friction: in effect against objects without their own (it equals theirs).
+TABLE_FRICTION = 1.0
+
+
+def shorthand_spec(shapes: tuple[str, ...] | str | None, size_ranges: dict | None) -> ObjectSpec:
+    """The object spec of the ``shapes`` and ``size_ranges`` task options (``ValueError`` naming the option)."""
+    try:
+        ObjectSpec(shape=SHAPES if shapes is None else shapes)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"task option shapes: {error}") from None
+    try:
+        return ObjectSpec(shape=SHAPES if shapes is None else shapes, size=size_ranges)
+    except (TypeError, ValueError, AttributeError) as error:
+        raise ValueError(f"task option size_ranges: {error}") from None
 
 
 def fitting_yaw(shape: ObjectShape, yaw: float, hand_yaw: float, rng: np.random.Generator) -> float:
@@ -57,7 +69,15 @@ class Grasp(Task):
     capsule); ``size_ranges``: per-kind size ranges overriding
     ``objects.DEFAULT_SIZE_RANGES``; ``clutter``: drop the objects into a
     0.2 m square heap as VPG does (default: spread apart); ``max_failures``:
-    consecutive failed attempts that end the episode (VPG's rule, default 10).
+    consecutive failed attempts that end the episode (VPG's rule, default 10);
+    ``objects``: a list of ``objects.ObjectSpec`` (or dicts of its fields), one
+    per object -- shape, size, mass, friction, colour, resting pose and yaw,
+    each fixed or a range drawn per episode -- instead of the ``shapes`` /
+    ``size_ranges`` shorthands (one spec repeats for ``n_objects``).  The reset
+    ``info["objects"]`` gives what was drawn; with ``objects`` the state vector
+    also ends with it per object (``properties``: kind one-hot in ``SHAPES``
+    order, geom size, mass kg, sliding friction in effect against the table,
+    lying 0/1).
     A successful grasp sets the object aside (off the table).  Objects in play
     are those on the table inside ``PLAY_REGION`` (VPG's workspace; one pushed
     or rolled out of it is lost); one that lands outside it in the reset drop
@@ -84,19 +104,39 @@ class Grasp(Task):
     def __init__(
         self,
         n_objects: int | None = None,
-        shapes: tuple[str, ...] = SHAPES,
+        shapes: tuple[str, ...] | None = None,
         size_ranges: dict | None = None,
         clutter: bool = False,
         max_failures: int = 10,
+        objects: list[ObjectSpec | dict] | None = None,
     ) -> None:
         check_option("clutter", clutter, isinstance(clutter, bool), "a bool")
-        n_objects = (10 if clutter else 1) if n_objects is None else n_objects
-        check_option("n_objects", n_objects, isinstance(n_objects, int) and 1 <= n_objects <= 30, "an int in [1, 30]")
         check_option("max_failures", max_failures, isinstance(max_failures, int) and max_failures >= 1, "an int >= 1")
-        shapes = (shapes,) if isinstance(shapes, str) else tuple(shapes)
-        validate_shape_options(shapes, size_ranges)
-        self.n_objects, self.shapes, self.size_ranges = n_objects, shapes, size_ranges
-        self.clutter, self.max_failures = clutter, max_failures
+        if objects is None:
+            specs = [shorthand_spec(shapes, size_ranges)]
+        else:
+            check_option("objects", objects, isinstance(objects, (list, tuple)) and len(objects) > 0,
+                         "a non-empty list of object specs")  # fmt: skip
+            if shapes is not None or size_ranges is not None:
+                raise ValueError(
+                    "task options shapes and size_ranges are shorthands for objects: give one or the other"
+                )
+            specs = []
+            for index, value in enumerate(objects):
+                try:
+                    specs.append(ObjectSpec.of(value))
+                except (TypeError, ValueError) as error:
+                    raise ValueError(f"task option objects[{index}]: {error}") from None
+        default = len(specs) if len(specs) > 1 else (10 if clutter else 1)
+        n_objects = default if n_objects is None else n_objects
+        check_option("n_objects", n_objects, isinstance(n_objects, int) and 1 <= n_objects <= 30, "an int in [1, 30]")
+        if len(specs) not in (1, n_objects):
+            raise ValueError(f"task option n_objects={n_objects} does not match the {len(specs)} object specs")
+        self.specs = specs * n_objects if len(specs) == 1 else specs
+        self.n_objects, self.clutter, self.max_failures = n_objects, clutter, max_failures
+        #: State-vector entries per object when specs are given (see ``properties``).
+        self.properties_size = 0 if objects is None else n_objects * OBJECT_PROPERTIES
+        self.drawn: list[ObjectShape] = []
         self.grasped = 0
         self.consecutive_failures = 0
         self._goal = np.zeros(3)
@@ -113,27 +153,27 @@ class Grasp(Task):
 
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
         cell.clear()
-        shapes = [sample_shape(rng, self.shapes, self.size_ranges) for _ in range(self.n_objects)]
+        shapes = self.drawn = [spec.sample(rng) for spec in self.specs]
         cell.set_object_shapes(dict(zip(cell.object_ids.tolist(), shapes)))
         if self.clutter:
             for level, (body, shape) in enumerate(zip(cell.object_ids, shapes)):
                 xy = [rng.uniform(*CLUTTER_REGION[0]), rng.uniform(*CLUTTER_REGION[1])]
                 height = shape.bounding_radius + 0.01 + 0.06 * level  # staggered, so they fall onto each other
-                cell.set_body_pose(body, [*xy, height], spawn_quaternion(shape, rng.uniform(-np.pi, np.pi)))
+                cell.set_body_pose(body, [*xy, height], shape.resting_quaternion(rng.uniform(-np.pi, np.pi)))
             cell.settle(1.5)
         else:
             placed: list[tuple[np.ndarray, float]] = []
-            for body, shape in zip(cell.object_ids, shapes):
+            for body, shape, spec in zip(cell.object_ids, shapes, self.specs):
                 for _ in range(1000):  # rejection sampling; the region holds 30 small objects easily
                     xy = np.array([rng.uniform(*SPAWN_REGION[0]), rng.uniform(*SPAWN_REGION[1])])
                     if all(np.linalg.norm(xy - p) >= shape.bounding_radius + r + 0.04 for p, r in placed):
                         break
                 placed.append((xy, shape.bounding_radius))
-                yaw = rng.uniform(-np.pi / 4, np.pi / 4)
+                yaw = spec.sample_yaw(rng)
                 if self.fixed_hand_yaw is not None:  # a hand that cannot turn must fit around the object
                     yaw = fitting_yaw(shape, yaw, self.fixed_hand_yaw, rng)
                 position = [*xy, shape.resting_half_height + 0.001]
-                cell.set_body_pose(body, position, spawn_quaternion(shape, yaw))
+                cell.set_body_pose(body, position, shape.resting_quaternion(yaw))
             cell.settle(0.3)
         # Objects that rolled out of the play region or off the table in the drop are removed from the
         # scene, and so are the rare ones a heap pressed into the table top (soft contacts; they could never
@@ -154,7 +194,35 @@ class Grasp(Task):
         # Low-level modes lift the first object still on the table.
         self._goal_body = on_table[0] if on_table else int(cell.object_ids[0])
         self._goal = cell.data.xpos[self._goal_body] + [0.0, 0.0, rng.uniform(*LIFT_GOAL_HEIGHT)]
-        return {"shapes": [s.kind for s in shapes], **self._info(cell)}
+        objects = [
+            {
+                "shape": o.kind,
+                "size": o.size,
+                "mass": o.mass_and_inertia()[0],
+                "friction": o.friction,
+                "rgb": tuple(o.rgb),
+                "lying": o.is_lying,
+            }  # fmt: skip
+            for o in shapes
+        ]
+        return {"shapes": [o.kind for o in shapes], "objects": objects, **self._info(cell)}
+
+    def properties(self) -> np.ndarray:
+        """Per object, as drawn (with ``objects`` specs only): kind one-hot (``SHAPES`` order), geom size (m),
+        mass (kg), sliding friction in effect against the table, lying (0/1)."""
+        if not self.properties_size:
+            return np.zeros(0, dtype=np.float32)
+        rows = [
+            [
+                *(float(o.kind == k) for k in SHAPES),
+                *o.geom_size,
+                o.mass_and_inertia()[0],
+                TABLE_FRICTION if o.friction is None else o.friction,
+                float(o.is_lying),
+            ]  # fmt: skip
+            for o in self.drawn
+        ]
+        return np.asarray(rows, dtype=np.float32).ravel()
 
     def start_object(self, cell: Workcell) -> int:
         """The object to lift."""
