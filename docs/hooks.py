@@ -91,7 +91,9 @@ def on_config(config, **kwargs):  # MkDocs hook: the signature is MkDocs'
 
     pages = {
         ENV_IDS_SECTION: [{env_id: f"ids/{env_id}.md"} for env_id in ENV_IDS],
-        CARDS_SECTION: [{card.parent.name: f"checkpoints/{card.parent.name}/index.md"} for card in checkpoint_folders()],
+        CARDS_SECTION: [
+            {card.parent.name: f"checkpoints/{card.parent.name}/index.md"} for card in checkpoint_folders()
+        ],
     }
     for item in config["nav"]:
         for title in pages:
