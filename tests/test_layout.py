@@ -122,3 +122,15 @@ def test_outside_the_repository_only_panda_grasp_env_is_importable(tmp_path):
     if '"agents": true' in found:  # CI installs openai-agents beside the project in a later step
         pytest.skip("another package provides 'agents' here")
     assert found == '{"agents": false, "perception": false}'
+
+
+def test_the_docs_snippet_directives_are_intact_and_name_files():
+    """The task page shows a task's source through ``--8<-- "path"``; a formatter once rewrote that as Python."""
+    import re
+
+    directives = [line for page in (ROOT / "docs").rglob("*.md") for line in page.read_text().splitlines()
+                  if "8<" in line or "8 <" in line]  # fmt: skip
+    assert directives
+    for line in directives:
+        match = re.fullmatch(r'--8<-- "([^"]+)"', line.strip())
+        assert match and (ROOT / match.group(1)).is_file(), line
