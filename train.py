@@ -30,8 +30,8 @@ from pathlib import Path  # noqa: E402
 
 import yaml  # noqa: E402
 
-from panda_grasp_env.agents.config import check_policy_resume, config_from_dict, read_config  # noqa: E402
-from panda_grasp_env.agents.training import load_run, retest, start_run, train  # noqa: E402
+from panda_grasp_env.agents.config import check_policy_resume, config_from_dict, load_run, read_config  # noqa: E402
+from panda_grasp_env.agents.training import retest, start_run, train  # noqa: E402
 from panda_grasp_env.perception.dynamics_training import (  # noqa: E402
     FALL_RESUME_CHANGEABLE,
     fall_config,
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
             if (args.ship / "best.pt").exists():
                 from panda_grasp_env.perception.dynamics_training import ship_fall_run as ship
             else:
-                from panda_grasp_env.agents.training import ship
+                from panda_grasp_env.agents.records import ship
             print(f"shipped to {ship(args.ship, args.name)}")
             return 0
         if args.retest is not None:

@@ -301,3 +301,10 @@ def algo_arguments(config: TrainConfig) -> dict[str, Any]:
     if "learning_rate" in kwargs:
         kwargs["learning_rate"] = learning_rate(kwargs["learning_rate"])
     return kwargs
+
+
+def load_run(run_dir: Path) -> TrainConfig:
+    """The resolved config of a run folder (its config.yaml); ``ValueError`` if it is not one."""
+    if not (run_dir / "config.yaml").is_file():
+        raise ValueError(f"{run_dir} is not a run folder (no config.yaml)")
+    return config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()), source=str(run_dir / "config.yaml"))

@@ -23,14 +23,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from benchmarks._common import Results, policy_figures
+from panda_grasp_env.agents.config import load_run
 from panda_grasp_env.agents.evaluation import describe_rate
-from panda_grasp_env.agents.training import (
-    TEST_SEED_OFFSET,
-    evaluate_policy,
-    load_best_policy,
-    load_run,
-    validation_score,
-)
+from panda_grasp_env.agents.records import load_best_policy
+from panda_grasp_env.agents.training import TEST_SEED_OFFSET, evaluate_policy, validation_score
 
 #: Selection seeds start this far above the validation seeds (runs validate on far fewer episodes).
 SELECTION_SEED_OFFSET = 1_000

@@ -29,7 +29,7 @@ from panda_grasp_env.agents.policy_files import (
     space_from_json,
     space_to_json,
 )
-from panda_grasp_env.agents.training import ship
+from panda_grasp_env.agents.records import ship
 from panda_grasp_env.runs import sign_run_files
 
 

@@ -25,7 +25,7 @@ from panda_grasp_env.agents.heightmap_policy import (
 )
 from panda_grasp_env.agents.policy_agent import PolicyAgent
 from panda_grasp_env.agents.policy_files import load_policy
-from panda_grasp_env.agents.training import ship
+from panda_grasp_env.agents.records import ship
 from panda_grasp_env.perception.heightmap import HeightmapGrid
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 

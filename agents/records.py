@@ -1,0 +1,221 @@
+"""What a training run leaves behind, and how it ships: the evaluation log, the learning curve, the best
+policy (as data: ``policy_files``), the model card, and the shipped checkpoint folder."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from panda_grasp_env.agents import learned
+from panda_grasp_env.agents.config import TrainConfig, load_run
+from panda_grasp_env.agents.evaluation import describe_rate, is_low_level, task_label
+from panda_grasp_env.agents.learned import SHIPPED_FILES
+from panda_grasp_env.agents.policy_files import load_policy, policy_paths, save_policy
+from panda_grasp_env.runs import atomic_path, resume_summary, write_json
+
+
+def read_evaluations(run_dir: Path) -> list[dict[str, Any]]:
+    path = run_dir / "evaluations.jsonl"
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def plot_curve(run_dir: Path, title: str) -> None:
+    """curve.png: evaluation success (95 % CI band) against environment steps and against wall time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = read_evaluations(run_dir)
+    if not rows:
+        return
+    steps = [r["steps"] for r in rows]
+    minutes = [r["wall_seconds"] / 60 for r in rows]
+    figure, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
+    for axis, x, label in ((axes[0], steps, "environment steps"), (axes[1], minutes, "wall time, minutes")):
+        success = [r["metrics"]["trial_success"]["rate"] for r in rows]
+        low = [r["metrics"]["trial_success"]["ci95"][0] for r in rows]
+        high = [r["metrics"]["trial_success"]["ci95"][1] for r in rows]
+        axis.plot(x, success, marker="o", label="trial success")
+        axis.fill_between(x, low, high, alpha=0.2)
+        if any(r["metrics"]["grasp_success"]["n"] for r in rows):
+            axis.plot(x, [r["metrics"]["grasp_success"]["rate"] for r in rows], marker="s", label="grasp success")
+            axis.plot(x, [r["metrics"]["action_efficiency"] for r in rows], marker="^", label="action efficiency")
+        axis.set_xlabel(label)
+        axis.set_ylim(-0.02, 1.02)
+        axis.grid(alpha=0.3)
+    axes[0].set_ylabel("rate")
+    axes[0].legend(loc="lower right")
+    figure.suptitle(title)
+    figure.tight_layout()
+    with atomic_path(run_dir / "curve.png") as tmp:
+        figure.savefig(tmp, dpi=100, format="png")
+    plt.close(figure)
+
+
+def save_best_policy(policy: Any, run_dir: Path, steps: int, chosen_by: str = "validation") -> None:
+    """best_policy.safetensors + best_policy.json (the policy alone, as data: ``policy_files``) and best.json.
+
+    ``chosen_by``: ``validation`` (the best periodic evaluation so far) or ``final`` (no tracked best)."""
+    save_policy(policy, run_dir / "best_policy")
+    write_json(run_dir / "best.json", {"steps": steps, "chosen_by": chosen_by})
+
+
+def load_best_policy(run_dir: Path) -> tuple[Any, dict[str, Any]]:
+    """The best validated policy of a run (or of a shipped checkpoint, where it is ``policy.*``) and its
+    facts (steps, how it was chosen); nothing is unpickled."""
+    stem = run_dir / "best_policy"
+    if not policy_paths(stem)[0].is_file() and policy_paths(run_dir / "policy")[0].is_file():
+        stem = run_dir / "policy"
+    if not policy_paths(stem)[0].is_file():
+        raise ValueError(f"cannot load the best policy of {run_dir}: no best_policy.json (a run saved before "
+                         f"policies were stored as data keeps a pickled best_policy.zip, which is not loaded)")  # fmt: skip
+    try:
+        best = json.loads((run_dir / "best.json").read_text())
+    except (OSError, json.JSONDecodeError) as error:
+        raise ValueError(f"cannot load the best policy of {run_dir} (best.json): {error}") from None
+    try:
+        return load_policy(stem), best
+    except ValueError as error:
+        raise ValueError(f"cannot load the best policy of {run_dir}: {error}") from None
+
+
+def earlier_tests(run_dir: Path, best_steps: int, steps: int) -> list[dict[str, Any]]:
+    """The earlier final tests of the same policy (a retest keeps what it replaces, newest last): each its
+    commit and metrics.  Empty when there is none or the last one tested another policy."""
+    path = run_dir / "final.json"
+    if not path.is_file():
+        return []
+    previous = json.loads(path.read_text())
+    if (previous.get("best_steps"), previous.get("steps")) != (best_steps, steps):
+        return []
+    return [*previous.get("earlier", []), {"test_commit": previous.get("test_commit"), "metrics": previous["metrics"]}]
+
+
+def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str:
+    meta = json.loads((run_dir / "meta.json").read_text())
+    m = final["metrics"]
+    low_level = is_low_level(config.env_id, config.env_kwargs)
+
+    def pct(r: dict[str, Any]) -> str:
+        if r["n"] == 0:
+            return "- (none attempted)"
+        return describe_rate(r)
+
+    def results(m: dict[str, Any]) -> list[str]:
+        if low_level:  # one goal per episode: trial success says it all
+            return [f"- trial success: {pct(m['trial_success'])}"]
+        return [
+            f"- trial success: {pct(m['trial_success'])}",
+            f"- completion: {pct(m['completion'])}",
+            f"- grasp success: {pct(m['grasp_success'])}",
+            f"- action efficiency: {100 * m['action_efficiency']:.1f} %",
+            f"- failures: {json.dumps(m['failures'])}",
+        ]
+
+    earlier = []
+    for test in reversed(final.get("earlier", [])):
+        earlier += ["", f"At commit {test['test_commit']}:", "", *results(test["metrics"])]
+    if earlier:
+        earlier = ["", "### Earlier tests of this policy, same seeds (newest first)", *earlier]
+
+    lines = [
+        f"# {config.name}",
+        "",
+        f"`{config.algo}` on `{config.env_id}` ({json.dumps(config.env_kwargs)}"
+        + (f"; training envs also {json.dumps(config.train_env_kwargs)}" if config.train_env_kwargs else "")
+        + "), trained by this repository's `train.py` with the resolved config below.",
+        "",
+        "| | |",
+        "|---|---|",
+        f"| seed | {config.seed} |",
+        f"| environment steps | {final['steps']} |",
+        *([f"| sessions | {resumed} |"] if (resumed := resume_summary(meta)) else []),
+        f"| wall time | {final['wall_seconds'] / 60:.1f} min ({final['steps_per_second']} steps/s, evaluations included) |",
+        f"| machine | {meta['machine']} |",
+        f"| commit | {meta['commit']} |",
+        *(
+            [f"| final test at commit | {tested} |"]
+            if (tested := final.get("test_commit", meta["commit"])) != meta["commit"]
+            else []
+        ),
+        f"| versions | {', '.join(f'{k} {v}' for k, v in meta['versions'].items())} |",
+        "| steps to 90 % validation success | "
+        + (
+            "not reached |"
+            if final["steps_to_90_percent"] is None
+            else f"{final['steps_to_90_percent']} ({final['minutes_to_90_percent']} min) |"
+        ),
+        "",
+        f"## Final test: {m['episodes']} episodes on held-out seeds {final['test_seeds'][0]}-{final['test_seeds'][1]}",
+        "",
+        (
+            f"The policy tested is the best of the periodic validation evaluations (seeds {config.eval_seed}-"
+            f"{config.eval_seed + config.eval_episodes - 1}), from step {final['best_steps']} of {final['steps']}."
+            if final["chosen_by"] == "validation"
+            else f"The policy tested is the final one (step {final['steps']}): this run kept no validated best."
+        ),  # fmt: skip
+        "",
+        *results(m),
+        *earlier,
+        "",
+        "![learning curve](curve.png)",
+        "",
+        "## Config" + (" (as of the last session)" if meta.get("resumed") else ""),
+        "",
+        "```yaml",
+        yaml.safe_dump(dataclasses.asdict(config), sort_keys=False).rstrip(),
+        "```",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def ship(run_dir: Path, name: str) -> Path:
+    """Copy a finished run (policy, card, curve, config) to ``agents/checkpoints/<name>`` (``learned.CHECKPOINTS``),
+    atomically."""
+    run_dir = Path(run_dir)
+    missing = [f for f in SHIPPED_FILES if not (run_dir / f).is_file()]
+    if missing:
+        raise ValueError(f"{run_dir} is not a finished run: {missing} missing (train it until it stops first)")
+    if not name.replace("-", "").replace("_", "").isalnum():
+        raise ValueError(f"checkpoint name {name!r}: letters, digits, - and _ only")
+    config = load_run(run_dir)
+    best = json.loads((run_dir / "best.json").read_text())
+    staging = learned.CHECKPOINTS / f".{name}.tmp"
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    for f in SHIPPED_FILES:
+        shutil.copy2(run_dir / f, staging / f.replace("best_policy.", "policy."))
+    size = (staging / "policy.safetensors").stat().st_size
+    if size > 20e6:
+        shutil.rmtree(staging)
+        raise ValueError(f"the policy of {run_dir} is {size / 1e6:.1f} MB; shipped checkpoints stay under 20 MB")
+    write_json(
+        staging / "checkpoint.json",
+        {
+            "policy_class": json.loads((staging / "policy.json").read_text())["policy_class"],
+            "steps": best["steps"],
+            "env_id": config.env_id,
+            "task": task_label(config.env_id, config.env_kwargs),
+            "algo": config.algo,
+        },
+    )
+    target = learned.CHECKPOINTS / name
+    if target.exists():
+        old = learned.CHECKPOINTS / f".{name}.old"
+        shutil.rmtree(old, ignore_errors=True)
+        os.replace(target, old)
+        os.replace(staging, target)
+        shutil.rmtree(old)
+    else:
+        os.replace(staging, target)
+    return target
