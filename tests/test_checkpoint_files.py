@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 import torch as th
 
-import evaluate
-import train
+from panda_grasp_env.commands import evaluate
+from panda_grasp_env.commands import train
 from panda_grasp_env.agents import learned
 from panda_grasp_env.agents.policy_files import (
     export_sb3,

@@ -3,7 +3,7 @@ import json
 import imageio.v2 as imageio
 import numpy as np
 
-import evaluate
+from panda_grasp_env.commands import evaluate
 from panda_grasp_env.video import VideoRecorder
 from panda_grasp_env.workcell import Workcell
 

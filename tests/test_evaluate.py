@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-import evaluate
+from panda_grasp_env.commands import evaluate
 
 ARGS = ["--agents", "random,oracle", "--tasks", "TowerBreak", "--seeds", "2", "--no-video"]
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-import train
+from panda_grasp_env.commands import train
 from panda_grasp_env.falls import RecorderSettings, main, record_dataset
 from panda_grasp_env.perception import dynamics_training
 from panda_grasp_env.perception.dynamics import Confusion, FallPredictor, constant_velocity, copy_last, evaluate

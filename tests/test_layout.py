@@ -38,7 +38,7 @@ def test_no_module_imports_a_generic_top_level_name():
 
 #: Layers, bottom first: a module may import its own layer and those below, never one above.
 FOUNDATION = ("panda_grasp_env.geometry", "panda_grasp_env.runs")
-LAYERS = ("foundation", "perception", "env", "agents")
+LAYERS = ("foundation", "perception", "env", "agents", "commands")
 
 
 def module_files() -> dict[str, Path]:
@@ -70,6 +70,8 @@ def import_graph() -> dict[str, set[str]]:
 def layer(module: str) -> str:
     if module in FOUNDATION:
         return "foundation"
+    if module.startswith("panda_grasp_env.commands"):
+        return "commands"
     for package in ("agents", "perception"):
         if module.startswith(f"panda_grasp_env.{package}"):
             return package

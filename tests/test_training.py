@@ -9,7 +9,7 @@ import pytest
 import torch as th
 import yaml
 
-import train
+from panda_grasp_env.commands import train
 from panda_grasp_env.actions import PixelActions
 from panda_grasp_env.agents import learned
 from panda_grasp_env.agents.config import OutcomeReward, TrainConfig, load_config
@@ -498,7 +498,7 @@ def test_smoke_training_learns_to_grasp(tmp_path):
 
 
 def test_evaluate_runs_a_shipped_checkpoint_by_name_and_skips_other_tasks(finished_run, tmp_path, monkeypatch):
-    import evaluate
+    from panda_grasp_env.commands import evaluate
 
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path / "checkpoints")
     ship(finished_run, "tiny")

@@ -1,0 +1,181 @@
+"""Train from a config:  python train.py --config configs/<name>.yaml [key=value ...]
+
+Policies (SB3: ``heightmap_dqn``, ``sac``, ``tqc``, ``ppo``; ``agents/training.py``) or, with
+``kind: fall_dynamics``, the falling-tower ConvLSTM (``perception/dynamics_training.py``).
+
+Overrides use dotted keys into mappings (``algo_kwargs.learning_rate=3e-4``,
+``env_kwargs.rotations=8``); values are read as YAML.  Every run writes one
+folder under ``--runs`` (see ``agents/training.py``); Ctrl-C checkpoints it, and
+``--resume <run folder>`` continues it.  ``--ship <run folder> --name N`` copies
+a finished run's model, card and curve to ``agents/checkpoints/N`` where
+``panda_grasp_env.agents.learned.LearnedAgent`` and ``evaluate.py`` find it (fall-dynamics runs:
+``perception/checkpoints/N``).  ``--retest <run or checkpoint folder>`` runs a policy's final
+held-out test again (final.json, card.md), e.g. after the evaluation protocol or the physics changed;
+on a fall-dynamics run or checkpoint it scores the model against the baselines on a recorded dataset's
+test split (``dataset=PATH``, default its own; retest.json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import yaml
+
+from panda_grasp_env.agents.config import check_policy_resume, config_from_dict, load_run, read_config
+from panda_grasp_env.agents.training import retest, start_run, train
+from panda_grasp_env.perception.dynamics_training import (
+    FALL_RESUME_CHANGEABLE,
+    fall_config,
+    start_fall_run,
+    test_fall_model,
+    train_fall_model,
+)
+from panda_grasp_env.runs import (
+    check_resume_changes,
+    forget_failed_resume,
+    interrupt_on_signals,
+    record_resume,
+    write_atomically,
+)
+
+
+def load_any(path: Path, overrides: list[str], source: str):
+    """(config, kind) from a YAML file with overrides: a policy run or a fall-dynamics run."""
+    raw = read_config(path, overrides)
+    if raw.get("kind") == "fall_dynamics":
+        return fall_config(raw, source), "fall_dynamics"
+    return config_from_dict(raw, source), "policy"
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", type=Path, help="YAML training config (configs/)")
+    parser.add_argument("overrides", nargs="*", help="key=value overrides of the config")
+    parser.add_argument("--runs", type=Path, default=Path("runs"), help="folder that holds run folders")
+    parser.add_argument("--resume", type=Path, default=None, help="continue this run folder")
+    parser.add_argument("--ship", type=Path, default=None, help="copy this finished run to agents/checkpoints/--name")
+    parser.add_argument("--name", default=None, help="checkpoint name for --ship")
+    parser.add_argument("--retest", type=Path, default=None, help="test this run or checkpoint again")
+    parser.add_argument("--trust", action="store_true",
+                        help="with --resume: load latest.zip / replay.pkl / latest.pt even if this user's job did not "
+                             "sign them in this folder (a run copied or moved here)")  # fmt: skip
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+    chosen = sum(x is not None for x in (args.config, args.resume, args.ship, args.retest))
+    if chosen != 1:
+        parser.error("give exactly one of --config, --resume, --ship or --retest")
+    if args.ship is not None and not args.name:
+        parser.error("--ship needs --name")
+    if args.trust and args.resume is None:
+        parser.error("--trust goes with --resume")
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    interrupt_on_signals()
+    try:
+        if args.ship is not None:
+            if (args.ship / "best.pt").exists():
+                from panda_grasp_env.perception.dynamics_training import ship_fall_run as ship
+            else:
+                from panda_grasp_env.agents.records import ship
+            print(f"shipped to {ship(args.ship, args.name)}")
+            return 0
+        if args.retest is not None:
+            if (args.retest / "best.pt").is_file() or (args.retest / "model.pt").is_file():
+                return retest_fall(args.retest, args.overrides)
+            if args.overrides:
+                raise ValueError(f"--retest of a policy takes no overrides, got {args.overrides}")
+            return report(retest(args.retest), args.retest)
+        if args.resume is not None:
+            run_dir = args.resume
+            if not (run_dir / "config.yaml").is_file():
+                raise ValueError(f"{run_dir} is not a run folder (no config.yaml)")
+            config, kind = load_any(run_dir / "config.yaml", args.overrides, str(run_dir / "config.yaml"))
+            if kind == "policy":
+                check_policy_resume(load_run(run_dir), config)
+            else:
+                saved, _ = load_any(run_dir / "config.yaml", [], str(run_dir / "config.yaml"))
+                check_resume_changes(saved, config, FALL_RESUME_CHANGEABLE)
+            if args.overrides:  # the run folder keeps the config it actually ran with
+                write_atomically(run_dir / "config.yaml", yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
+            latest = "latest.pt" if kind == "fall_dynamics" else "latest.zip"
+            if not (run_dir / latest).exists():
+                raise ValueError(f"{run_dir} has no checkpoint ({latest}) to resume from")
+            record_resume(run_dir, args.overrides)
+        else:
+            config, kind = load_any(args.config, args.overrides, str(args.config))
+            run_dir = start_fall_run(config, args.runs) if kind == "fall_dynamics" else start_run(config, args.runs)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(f"run folder: {run_dir}")
+    resume, progress = args.resume is not None, not args.no_progress
+    try:
+        if kind == "fall_dynamics":
+            return report_fall(train_fall_model(config, run_dir, resume, progress, args.trust), run_dir)
+        outcome = train(config, run_dir, resume=resume, progress_bar=progress, trust=args.trust)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: checkpoint saved; continue with  python train.py --resume {run_dir}", file=sys.stderr)
+        return 130
+    except ValueError as error:  # a new run that could not start (an init_policy of another network) leaves no folder
+        if args.resume is None and not any(run_dir.glob("latest.*")):
+            shutil.rmtree(run_dir)
+        elif args.resume is not None:  # nor does a resumed session that could not start leave a record
+            forget_failed_resume(run_dir)
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    if outcome["stopped_by"] == "max_minutes":
+        print(
+            f"time budget spent at {outcome['steps']} steps; more with  python train.py --resume {run_dir} max_minutes=M"
+        )
+    return report(outcome, run_dir)
+
+
+def report(outcome: dict, run_dir: Path) -> int:
+    print(json.dumps({k: v for k, v in outcome.items() if k != "metrics"}, indent=2))
+    metrics = outcome["metrics"]
+    grasps = metrics["grasp_success"]  # none attempted in low-level (ee_delta) or tower-break episodes
+    print(
+        f"final: success {metrics['trial_success']['rate']:.3f} {metrics['trial_success']['ci95']}, "
+        + (f"grasp success {grasps['rate']:.3f}, " if grasps["n"] else "")
+        + f"efficiency {metrics['action_efficiency']:.3f} (N={metrics['episodes']}); card: {run_dir / 'card.md'}"
+    )
+    return 0
+
+
+def print_fall_metrics(metrics: dict) -> None:
+    for name, by_horizon in metrics.items():
+        for horizon, m in by_horizon.items():
+            print(f"{name:18s} {horizon}: mean block IoU {m['mean_block_iou']:.4f}, foreground accuracy "
+                  f"{m['foreground_accuracy']:.4f}, pixel accuracy {m['pixel_accuracy']:.4f} ({m['frames']} frames)")  # fmt: skip
+
+
+def report_fall(outcome: dict, run_dir: Path) -> int:
+    if outcome["stopped_by"] == "max_minutes":
+        print(f"time budget spent; more with  python train.py --resume {run_dir} max_minutes=M")
+    print_fall_metrics(outcome["metrics"])
+    print(f"card: {run_dir / 'card.md'}")
+    return 0
+
+
+def retest_fall(folder: Path, overrides: list[str]) -> int:
+    """``--retest`` of a fall model: its test split, or another recorded dataset's with ``dataset=PATH``."""
+    unknown = [o for o in overrides if not o.startswith("dataset=")]
+    if unknown or len(overrides) > 1:
+        raise ValueError(f"--retest of a fall model takes at most dataset=PATH, got {overrides}")
+    result = test_fall_model(folder, overrides[0].partition("=")[2] if overrides else None)
+    print(f"test split of {result['dataset']}: {result['test_sequences']} sequences")
+    print_fall_metrics(result["metrics"])
+    print(f"results: {folder / 'retest.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
