@@ -20,7 +20,7 @@ CARDS_SECTION = "Checkpoint cards"
 def checkpoint_folders() -> list[Path]:
     """Every shipped checkpoint's folder (learned policies, then fall-dynamics models)."""
     return sorted((ROOT / "agents" / "checkpoints").glob("*/card.md")) + sorted(
-        (ROOT / "perception" / "checkpoints").glob("*/card.md")
+        (ROOT / "panda_grasp_env" / "falls" / "checkpoints").glob("*/card.md")
     )
 
 

@@ -89,7 +89,7 @@ def commit() -> str:
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
         changes = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no", "--",
-                                  ".", ":(exclude)agents/checkpoints", ":(exclude)perception/checkpoints"],
+                                  ".", ":(exclude)agents/checkpoints", ":(exclude)panda_grasp_env/falls/checkpoints"],
                                  capture_output=True, text=True)  # fmt: skip
     except OSError:
         return "unknown"

@@ -17,8 +17,6 @@ import numpy as np
 import pytest
 import torch as th
 
-from panda_grasp_env.commands import evaluate
-from panda_grasp_env.commands import train
 from panda_grasp_env.agents import learned
 from panda_grasp_env.agents.policy_files import (
     export_sb3,
@@ -30,6 +28,7 @@ from panda_grasp_env.agents.policy_files import (
     space_to_json,
 )
 from panda_grasp_env.agents.records import ship
+from panda_grasp_env.commands import evaluate, train
 from panda_grasp_env.runs import sign_run_files
 
 
@@ -157,7 +156,7 @@ def test_resume_loads_only_the_pickles_this_users_job_signed_in_that_folder(tiny
 
 
 def test_the_fall_model_loader_refuses_a_payload(tmp_path, marker):
-    from panda_grasp_env.perception.dynamics_training import load_fall_model
+    from panda_grasp_env.falls.training import load_fall_model
 
     write_payload(tmp_path / "model.pt", marker)
     with pytest.raises(ValueError, match=f"cannot load fall-dynamics checkpoint {tmp_path / 'model.pt'}"):

@@ -7,11 +7,11 @@ import pytest
 import torch
 
 from panda_grasp_env.commands import train
-from panda_grasp_env.falls import RecorderSettings, main, record_dataset
-from panda_grasp_env.perception import dynamics_training
-from panda_grasp_env.perception.dynamics import Confusion, FallPredictor, constant_velocity, copy_last, evaluate
-from panda_grasp_env.perception.dynamics_training import load_fall_model
-from panda_grasp_env.perception.falls import load_split, split_of
+from panda_grasp_env.falls import training as fall_training
+from panda_grasp_env.falls.dataset import load_split, split_of
+from panda_grasp_env.falls.model import Confusion, FallPredictor, constant_velocity, copy_last, evaluate
+from panda_grasp_env.falls.recorder import RecorderSettings, main, record_dataset
+from panda_grasp_env.falls.training import load_fall_model
 
 SETTINGS = RecorderSettings(frames=10, shard_size=2, seed=7)
 
@@ -134,7 +134,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     model, saved = load_fall_model(run / "best.pt")
     assert model.context == 3 and model.use_depth and saved["classes"][0] == "background"
     assert load_split(dataset, "val", depth=True).depth.dtype == np.float16
-    monkeypatch.setattr(dynamics_training, "FALL_CHECKPOINTS", tmp_path / "shipped")
+    monkeypatch.setattr(fall_training, "FALL_CHECKPOINTS", tmp_path / "shipped")
     assert train.main(["--ship", str(run), "--name", "tiny"]) == 0
     shipped, _ = load_fall_model(tmp_path / "shipped" / "tiny" / "model.pt")
     assert shipped.describe() == model.describe() and (tmp_path / "shipped" / "tiny" / "card.md").exists()
@@ -161,7 +161,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
 
 
 def test_untrained_model_moves_each_block_by_its_own_velocity_and_displacement_targets_agree():
-    from panda_grasp_env.perception.dynamics import FallPredictor, block_displacements, one_hot
+    from panda_grasp_env.falls.model import FallPredictor, block_displacements, one_hot
 
     labels = torch.zeros(1, 3, 32, 32, dtype=torch.long)
     for t in range(3):
@@ -179,7 +179,7 @@ def test_untrained_model_moves_each_block_by_its_own_velocity_and_displacement_t
 
 
 def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
-    from panda_grasp_env.perception.dynamics import model_inputs
+    from panda_grasp_env.falls.model import model_inputs
 
     labels = np.zeros((1, 3, 32, 32), dtype=np.uint8)
     depth = np.full((1, 3, 32, 32), 1.0, dtype=np.float16)  # the table, 1 m below the camera
@@ -214,7 +214,7 @@ def test_labels_only_model_trains_without_depth(dataset, tmp_path):
 
 
 def test_the_shipped_fall_model_loads_and_matches_its_card():
-    path = dynamics_training.FALL_CHECKPOINTS / "fall_convlstm"
+    path = fall_training.FALL_CHECKPOINTS / "fall_convlstm"
     model, saved = load_fall_model(path / "model.pt")
     final = json.loads((path / "final.json").read_text())
     assert saved["classes"][0] == "background" and model.n_classes == len(saved["classes"])
@@ -224,16 +224,16 @@ def test_the_shipped_fall_model_loads_and_matches_its_card():
 def test_an_epoch_interrupted_during_its_validation_is_validated_on_resume(dataset, tmp_path, monkeypatch):
     config = "configs/fall_convlstm.yaml"
     tiny = [f"dataset={dataset}", "hidden=8", "batch_size=4", "torch_threads=1", "context=3", "rollout=3", "epochs=1"]
-    scoring = dynamics_training.evaluate
+    scoring = fall_training.evaluate
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(dynamics_training, "evaluate", interrupted)
+    monkeypatch.setattr(fall_training, "evaluate", interrupted)
     assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *tiny]) == 130
     run = tmp_path / "fall_convlstm-seed0"
     assert not (run / "evaluations.jsonl").exists() and not (run / "best.pt").exists()
-    monkeypatch.setattr(dynamics_training, "evaluate", scoring)
+    monkeypatch.setattr(fall_training, "evaluate", scoring)
     assert train.main(["--resume", str(run), "--no-progress"]) == 0
     rows = [json.loads(line) for line in (run / "evaluations.jsonl").read_text().splitlines()]
     assert [row["epoch"] for row in rows] == [1] and (run / "best.pt").exists()

@@ -9,7 +9,6 @@ import pytest
 import torch as th
 import yaml
 
-from panda_grasp_env.commands import train
 from panda_grasp_env.actions import PixelActions
 from panda_grasp_env.agents import learned
 from panda_grasp_env.agents.config import OutcomeReward, TrainConfig, load_config
@@ -26,6 +25,7 @@ from panda_grasp_env.agents.heightmap_policy import (
 from panda_grasp_env.agents.policy_agent import PolicyAgent
 from panda_grasp_env.agents.policy_files import load_policy
 from panda_grasp_env.agents.records import ship
+from panda_grasp_env.commands import train
 from panda_grasp_env.perception.heightmap import HeightmapGrid
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 

@@ -1,7 +1,7 @@
 """Train from a config:  python train.py --config configs/<name>.yaml [key=value ...]
 
 Policies (SB3: ``heightmap_dqn``, ``sac``, ``tqc``, ``ppo``; ``agents/training.py``) or, with
-``kind: fall_dynamics``, the falling-tower ConvLSTM (``perception/dynamics_training.py``).
+``kind: fall_dynamics``, the falling-tower ConvLSTM (``panda_grasp_env/falls/training.py``).
 
 Overrides use dotted keys into mappings (``algo_kwargs.learning_rate=3e-4``,
 ``env_kwargs.rotations=8``); values are read as YAML.  Every run writes one
@@ -9,7 +9,7 @@ folder under ``--runs`` (see ``agents/training.py``); Ctrl-C checkpoints it, and
 ``--resume <run folder>`` continues it.  ``--ship <run folder> --name N`` copies
 a finished run's model, card and curve to ``agents/checkpoints/N`` where
 ``panda_grasp_env.agents.learned.LearnedAgent`` and ``evaluate.py`` find it (fall-dynamics runs:
-``perception/checkpoints/N``).  ``--retest <run or checkpoint folder>`` runs a policy's final
+``panda_grasp_env/falls/checkpoints/N``).  ``--retest <run or checkpoint folder>`` runs a policy's final
 held-out test again (final.json, card.md), e.g. after the evaluation protocol or the physics changed;
 on a fall-dynamics run or checkpoint it scores the model against the baselines on a recorded dataset's
 test split (``dataset=PATH``, default its own; retest.json).
@@ -28,7 +28,7 @@ import yaml
 
 from panda_grasp_env.agents.config import check_policy_resume, config_from_dict, load_run, read_config
 from panda_grasp_env.agents.training import retest, start_run, train
-from panda_grasp_env.perception.dynamics_training import (
+from panda_grasp_env.falls.training import (
     FALL_RESUME_CHANGEABLE,
     fall_config,
     start_fall_run,
@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.ship is not None:
             if (args.ship / "best.pt").exists():
-                from panda_grasp_env.perception.dynamics_training import ship_fall_run as ship
+                from panda_grasp_env.falls.training import ship_fall_run as ship
             else:
                 from panda_grasp_env.agents.records import ship
             print(f"shipped to {ship(args.ship, args.name)}")

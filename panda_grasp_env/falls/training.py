@@ -32,7 +32,8 @@ import torch
 import torch.nn.functional as F
 import yaml
 
-from panda_grasp_env.perception.dynamics import (
+from panda_grasp_env.falls.dataset import load_split, read_metadata
+from panda_grasp_env.falls.model import (
     ARCHITECTURE,
     FallPredictor,
     block_displacements,
@@ -43,7 +44,6 @@ from panda_grasp_env.perception.dynamics import (
     one_hot,
     predict_batch,
 )
-from panda_grasp_env.perception.falls import load_split, read_metadata
 from panda_grasp_env.runs import (
     atomic_path,
     check_run_files,
@@ -76,7 +76,7 @@ class FallConfig:
     learning_rate: float = 0.002
     motion_loss_weight: float = 1.0
     next_frame_loss_weight: float = 0.0  # extra weight of the t+1 prediction's loss (the headline metric)
-    use_depth: bool = False  # also read the depth images (height maps; see perception/dynamics.py)
+    use_depth: bool = False  # also read the depth images (height maps; see panda_grasp_env/falls/model.py)
     height_loss_weight: float = 1.0
     seed: int = 0
     max_minutes: float | None = None
@@ -415,7 +415,7 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
             f"# {config.name}",
             "",
             "ConvLSTM encoder-decoder predicting the next segmentation frames of a falling 4-block tower "
-            "(`perception/dynamics.py`"
+            "(`panda_grasp_env/falls/model.py`"
             + (", reading depth as well as labels" if config.use_depth else "")
             + "), trained by this repository's `train.py` with the resolved config below on "
             f"`{config.dataset}` ({meta['dataset']['sequences']} sequences, splits {meta['dataset']['splits']}).",
@@ -448,7 +448,7 @@ FALL_CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
 
 def ship_fall_run(run_dir: Path, name: str, strips: int = 5) -> Path:
     """Copy a finished fall run's best model (weights only), card, curve, results and a few strips to
-    ``perception/checkpoints/<name>`` (staged, then renamed into place)."""
+    ``panda_grasp_env/falls/checkpoints/<name>`` (staged, then renamed into place)."""
     import shutil
 
     run_dir = Path(run_dir)

@@ -7,7 +7,7 @@ horizontal impulse on a random block (the source study's protocol) or a push
 sampled every ``frame_interval`` seconds of simulated time: RGB, depth, the
 simulator's segmentation and ``perception``'s colour segmentation, cropped to
 a square around the tower, plus every block's pose.  The format and the loader
-are in ``perception/falls.py``.
+are in ``panda_grasp_env/falls/dataset.py``.
 
 Shards are written atomically by parallel workers; a rerun with the same
 arguments keeps the finished shards (checked by size and SHA-256) and records
@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.perception.falls import SHARD_ARRAYS, split_of
+from panda_grasp_env.falls.dataset import SHARD_ARRAYS, split_of
 from panda_grasp_env.runs import atomic_path, interrupt_on_signals, sha256, write_atomically
 
 #: Block speed (m/s) above which the fall has begun.
@@ -324,7 +324,11 @@ def describe(out: Path, settings: RecorderSettings, sequences: int, shards: list
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m panda_grasp_env.falls",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--out", type=Path, default=Path("data/falls"))
     parser.add_argument("--sequences", type=int, default=2000)
     parser.add_argument("--workers", type=int, default=2)
