@@ -19,6 +19,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from panda_grasp_env.agents.experts import LiftExpert, PushExpert, StackExpert
 from panda_grasp_env.agents.grasping import OracleGraspAgent, PlannedGraspAgent
 from panda_grasp_env.agents.put_in_bin import PutInBinAgent
 from panda_grasp_env.agents.random_agent import RandomAgent
@@ -33,7 +34,7 @@ from panda_grasp_env.registration import BENCHMARKS, ENV_IDS, TASKS
 
 #: Perception agents get RGB-D from both cameras at 640 x 480 (``PERCEPTION``).
 #: The built-in agents; every shipped checkpoint (``panda_grasp_env.agents.learned.available_checkpoints``) is an agent too.
-AGENTS = ("random", "planned", "oracle")
+AGENTS = ("random", "planned", "oracle", "expert")
 
 
 def action_mode_of(env_id: str, options: dict[str, Any]) -> str:
@@ -70,6 +71,8 @@ def skip_reason(agent: str, task: str) -> str | None:
     """Why ``agent`` does not apply to ``task`` (None if it does)."""
     if agent == "random":
         return None
+    if agent == "expert":
+        return None if task in EXPERTS else f"no scripted low-level expert is written for {task}"
     if agent in AGENTS:
         if is_low_level(*BENCHMARKS[task]):
             return f"the {agent} baselines act through motion primitives; {task} is a low-level ee_delta task"
@@ -108,7 +111,7 @@ def make_env(spec: EpisodeSpec) -> gym.Env:
         return Checkpoint(spec.agent).make_env(**dict(spec.options))
     env_id, options = BENCHMARKS[spec.task]
     options = dict(options)
-    if spec.agent != "random":
+    if spec.agent in ("planned", "oracle"):  # they see the scene through cameras
         options |= PERCEPTION
     return gym.make(f"panda_grasp_env:{env_id}", **options, **dict(spec.options))
 
@@ -127,6 +130,9 @@ def block_baseline(agent: Callable[[CameraBlocks | OracleBlocks], Any]) -> Calla
     return make
 
 
+#: Low-level benchmark task -> its scripted expert (agent ``expert``: ee_delta actions from the observation).
+EXPERTS: dict[str, Callable[[], Any]] = {"Lift": LiftExpert, "Push": PushExpert, "Stack": StackExpert}
+
 #: Benchmark task -> its planned agent, or oracle variant: ``BASELINES[task](env, seed, oracle)``.
 BASELINES: dict[str, Callable[[gym.Env, int, bool], Any]] = {
     "Grasp": grasp_baseline,
@@ -142,6 +148,8 @@ BASELINES: dict[str, Callable[[gym.Env, int, bool], Any]] = {
 def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
     if spec.agent == "random":
         return RandomAgent(env.action_space, seed=spec.seed)
+    if spec.agent == "expert":
+        return EXPERTS[spec.task]()
     if spec.agent not in AGENTS:
         from panda_grasp_env.agents.learned import LearnedAgent
 

@@ -10,10 +10,11 @@
     python evaluate.py --demo [--seed 0]    # the simulation-core demo: an oracle builds and breaks a tower
 
 Agents: random, planned (perception-based planned baselines), oracle (the same, on
-true poses), and every shipped learned checkpoint by name (agents/checkpoints/).
+true poses), expert (scripted ee_delta state machines for Lift, Push and Stack), and every shipped
+learned checkpoint by name (agents/checkpoints/).
 Tasks: the benchmarks the task modules register (``panda_grasp_env.registration.BENCHMARKS``): Grasp,
 GraspClutter, TowerBuild, TowerBreak, TowerBreakDirectional, BuildAndBreak, PutInBin (primitive actions),
-Push, Lift (low-level ee_delta).  An agent that does not apply to a task is skipped (one line lists them;
+Push, Lift, Stack (low-level ee_delta).  An agent that does not apply to a task is skipped (one line lists them;
 the report gives each reason).
 Outputs (``--out``, default results/quick or results/full): results.json and
 results.csv (deterministic: same seeds give identical files), timing.json,

@@ -49,7 +49,7 @@ class TowerBuild(Task):
     env_ids = {
         "PandaTowerBuild-v0": EnvId(30, benchmarks={"TowerBuild": {}}),
         # Two blocks, goal-conditioned at 25 Hz: panda-gym's Stack.
-        "PandaStack-v0": EnvId(100, {"n_blocks": 2, "action_mode": "ee_delta"}),
+        "PandaStack-v0": EnvId(100, {"n_blocks": 2, "action_mode": "ee_delta"}, benchmarks={"Stack": {}}),
     }
     primitives = ("grasp", "place", "push")
     goal_conditioned = True
