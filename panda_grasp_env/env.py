@@ -36,6 +36,7 @@ from panda_grasp_env.observations import ObservationBuilder, Sensors, parse_obs_
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
 from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
 from panda_grasp_env.rendering import CameraRenderer, display_available
 from panda_grasp_env.robot import FINGER_CLOSED, FINGER_OPEN, HOME_YAW
@@ -130,6 +131,9 @@ class PandaEnv(gym.Env):
             (uniform) short of touching it -- where a push towards the goal begins.
             The start probabilities sum to at most 1; ``info["start"]`` says how an episode started: ``ready``
             or one of ``Task.start_states`` (``in_hand``, ``above_object``, ``behind_object``).
+        randomization: domain randomisation at each reset (``randomization.Randomization``, a dict of its
+            fields, or True for its defaults): lights, fixed camera poses, object hues, table colour, object
+            mass and friction, depth-observation noise.  None (default): off, and nothing is drawn.
         **task_options: passed to the task (see each task's docstring).
     """
 
@@ -155,6 +159,7 @@ class PandaEnv(gym.Env):
         start_in_hand: float = 0.0,
         start_above_object: float = 0.0,
         start_behind_object: float = 0.0,
+        randomization: Randomization | dict[str, Any] | bool | None = None,
         **task_options: Any,
     ) -> None:
         try:
@@ -192,6 +197,7 @@ class PandaEnv(gym.Env):
             raise ValueError(f"block_gripper=True needs action_mode='ee_delta', not {action_mode!r}")
         if not (is_number(push_distance) and 0 < push_distance <= 0.3):
             raise ValueError(f"push_distance must be in (0, 0.3] m, got {push_distance!r}")
+        randomization_settings = Randomization.of(randomization)
         modalities = parse_obs_mode(obs_mode)
         grid = checked_grid(heightmap_bounds, heightmap_resolution)
         requested = {"in_hand": start_in_hand, "above_object": start_above_object, "behind_object": start_behind_object}
@@ -256,6 +262,11 @@ class PandaEnv(gym.Env):
         )
         self.action_space = self.actions.space
         self.observation_space = self.observations.space
+        self.randomizer = (
+            None if randomization_settings is None else DomainRandomizer(randomization_settings, self.cell)
+        )
+        if self.randomizer is not None:
+            self.observations.depth_filter = self.randomizer.noisy_depth
         self.render_size = tuple(render_size)
         self._render_renderer: CameraRenderer | None = None
         self._viewer = None
@@ -285,6 +296,8 @@ class PandaEnv(gym.Env):
         if options:
             raise ValueError(f"reset options are not supported, got {sorted(options)}")
         self._next_frame_time = np.inf  # rgb_array_list: no frames of the scene being laid out and settled
+        if self.randomizer is not None:
+            self.randomizer.restore()  # the task lays out its scene on the nominal model
         task_info = self.task.reset(self.cell, self.np_random)
         start = "ready"
         if self.actions.low_level:
@@ -301,6 +314,8 @@ class PandaEnv(gym.Env):
                         break
                     draw -= probability
         self.actions.reset(self.cell, self.np_random)
+        if self.randomizer is not None:  # drawn last: the scene and the rest of the stream are as without it
+            task_info["randomization"] = self.randomizer.apply(self.np_random)
         self.sensors.invalidate()
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0

@@ -21,6 +21,7 @@ the modality name, or ``<camera>_<modality>`` when several cameras are used.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
@@ -163,6 +164,9 @@ class ObservationBuilder:
         self.cell, self.modalities, self.cameras, self.sensors = cell, modalities, cameras, sensors
         self.goal_size = goal_size  # None: not goal-conditioned
         self.n_objects = len(cell.object_ids)
+        #: Applied to depth observations (domain randomisation's sensor noise): (depth (H, W) m, far m) -> depth.
+        self.depth_filter: Callable[[np.ndarray, float], np.ndarray] | None = None
+        self._far = float(cell.model.vis.map.zfar * cell.model.stat.extent)
         #: State entries after the objects: the task's properties, then the goal of a primitive-mode goal task.
         self.extra_size = extra_state
         self.state_size = ROBOT_STATE_SIZE + OBJECT_STATE_SIZE * self.n_objects + extra_state
@@ -200,8 +204,7 @@ class ObservationBuilder:
         if modality == "rgb":
             return gym.spaces.Box(0, 255, (height, width, 3), dtype=np.uint8)
         if modality == "depth":
-            far = self.cell.model.vis.map.zfar * self.cell.model.stat.extent
-            return gym.spaces.Box(0.0, far, (height, width, 1), dtype=np.float32)
+            return gym.spaces.Box(0.0, self._far, (height, width, 1), dtype=np.float32)
         return gym.spaces.Box(0, 1 + self.n_objects, (height, width, 1), dtype=np.uint8)  # labels 0 .. 1 + n
 
     def state(self, extra: np.ndarray | None = None) -> np.ndarray:
@@ -256,6 +259,8 @@ class ObservationBuilder:
                         out[key] = self.sensors.segmentation(camera)[..., None]
                     else:
                         rgb, depth = self.sensors.rgbd(camera)
+                        if modality == "depth" and self.depth_filter is not None:
+                            depth = self.depth_filter(depth, self._far)
                         out[key] = rgb if modality == "rgb" else depth[..., None]
         if goals is not None:
             out["achieved_goal"] = bounded(goals[0])

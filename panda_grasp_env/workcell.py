@@ -127,7 +127,7 @@ class Workcell:
         self.object_names = self.block_names + self.config.object_names
         self.object_ids = np.array([self.model.body(n).id for n in self.object_names], dtype=int)
         self._qpos_adr = {b: self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.object_ids}
-        #: Object slot geom -> its compiled (friction, solref, solimp, priority), restored for shapes without
+        #: Free object geom -> its compiled (friction, solref, solimp, priority), restored for objects without
         #: their own friction.
         model = self.model
         self._slot_contacts = {
@@ -415,22 +415,31 @@ class Workcell:
         mujoco.mj_kinematics(self.model, self.data)  # positions read right after parking are current
 
     def set_object_shapes(self, shapes: dict[int, ObjectShape]) -> None:
-        """Give object slots (body id -> shape) new shapes; the model's derived constants are recomputed.
-
-        A shape with its own ``friction`` gets the highest geom priority, so its coefficient is the one in
-        effect against the table, the finger pads and fixtures (a contact otherwise takes the larger of its two
-        geoms' coefficients), and the pads' contact softness, which the priority also decides against them."""
-        model = self.model
+        """Give object slots (body id -> shape) new shapes; the model's derived constants are recomputed."""
         for body_id, shape in shapes.items():
-            apply_shape(model, body_id, shape)
-            geom = model.body_geomadr[body_id]
-            friction, solref, solimp, priority = self._slot_contacts[geom]
-            if shape.friction is not None:
-                friction = np.array([shape.friction, *friction[1:]])
-                solref, solimp, priority = PAD_SOLREF, PAD_SOLIMP, OWN_FRICTION_PRIORITY
-            model.geom_friction[geom], model.geom_solref[geom], model.geom_solimp[geom] = friction, solref, solimp
-            model.geom_priority[geom] = priority
-        # mj_setConst uses the data as scratch space and leaves it at qpos0: keep the state.
+            apply_shape(self.model, body_id, shape)
+            self.set_object_friction(body_id, shape.friction)
+        self.refresh_constants()
+
+    def set_object_friction(self, body_id: int, friction: float | None) -> None:
+        """Make ``friction`` the sliding coefficient in effect between a free object and the table, the finger
+        pads and fixtures; None restores the compiled one (a contact then takes the larger of its pair's).
+
+        An object with its own friction gets the highest geom priority, so that its coefficient is the one
+        used, and the pads' contact softness, which the priority also decides against them."""
+        model = self.model
+        geom = int(model.body_geomadr[body_id])
+        compiled_friction, solref, solimp, priority = self._slot_contacts[geom]
+        sliding = compiled_friction
+        if friction is not None:
+            sliding = np.array([friction, *compiled_friction[1:]])
+            solref, solimp, priority = PAD_SOLREF, PAD_SOLIMP, OWN_FRICTION_PRIORITY
+        model.geom_friction[geom], model.geom_solref[geom], model.geom_solimp[geom] = sliding, solref, solimp
+        model.geom_priority[geom] = priority
+
+    def refresh_constants(self) -> None:
+        """Recompute the model's derived constants after masses or inertias changed, keeping the state."""
+        # mj_setConst uses the data as scratch space and leaves it at qpos0.
         state = self.data.qpos.copy(), self.data.qvel.copy(), self.data.ctrl.copy()
         mujoco.mj_setConst(self.model, self.data)
         self.data.qpos[:], self.data.qvel[:], self.data.ctrl[:] = state
