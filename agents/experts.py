@@ -106,6 +106,9 @@ class PickAndPlaceExpert(LowLevelExpert):
             return self.steer(hand, self.grasp_point, CLOSED)
         if not self.release:  # lift: hold the object at the goal
             return self.steer(hand, goal, CLOSED)
+        # Aim the held object's centre, not the hand, at the goal: a block held off-centre and set down by
+        # the hand's position overhangs the base and slides off as the fingers open.
+        goal = goal + (hand - obj if self.phase in ("carry", "lower") else self.release_offset)
         above_goal = goal + [0.0, 0.0, 0.04]
         if self.phase == "carry":
             if reached(hand, above_goal, 0.01):
@@ -115,6 +118,7 @@ class PickAndPlaceExpert(LowLevelExpert):
             return self.steer(hand, target, CLOSED)
         if self.phase == "lower":
             if reached(hand, goal, 0.006) or self.steps_in_phase > 30:
+                self.release_offset = hand - obj
                 self.next_phase("open")
             return self.steer(hand, goal, CLOSED)
         if self.phase == "open":
