@@ -363,9 +363,8 @@ def test_fuzzed_env_options_raise_value_errors_naming_them():
 
     values = [None, "x", 5, -1, 0, 1e9, float("nan"), float("inf"), True, [], {}, (1,), (1, 2, 3), object()]
     five, zero, yes = values[2], values[4], values[8]
-    valid = [("rotations", five), ("primitive_z", yes), ("block_gripper", yes)] + [
-        (f"start_{s}", zero) for s in ("in_hand", "above_object", "behind_object")
-    ]
+    valid = [("rotations", five), ("primitive_z", yes), ("block_gripper", yes), ("randomization", yes),
+             ("randomization", values[10])] + [(f"start_{s}", zero) for s in ("in_hand", "above_object", "behind_object")]  # fmt: skip
     context = {"rotations": {"action_mode": "pixel"}, "block_gripper": {"task": "Push", "action_mode": "ee_delta"},
                "planner": {"task": "Grasp", "action_mode": "grasp_pose"}}  # fmt: skip
     defaults = {k: p.default for k, p in inspect.signature(PandaEnv.__init__).parameters.items()}
