@@ -23,6 +23,16 @@ ENTRY_POINT = "panda_grasp_env.env:PandaEnv"
 
 
 @dataclass(frozen=True)
+class Benchmark:
+    """An ``evaluate.py`` task played on an id: extra ``make`` options, and the episodes (seeds) of its quick
+    and full protocols."""
+
+    options: Mapping[str, Any] = field(default_factory=dict)
+    quick_seeds: int = 10
+    full_seeds: int = 100
+
+
+@dataclass(frozen=True)
 class EnvId:
     """One Gymnasium id of a task (declared in the task's ``env_ids``, keyed by the id)."""
 
@@ -30,8 +40,8 @@ class EnvId:
     max_episode_steps: int
     #: ``make`` defaults of the id, on top of ``task=<the task's name>``.
     options: Mapping[str, Any] = field(default_factory=dict)
-    #: Benchmark tasks of ``evaluate.py`` played on this id: benchmark name -> extra ``make`` options.
-    benchmarks: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    #: Benchmark tasks of ``evaluate.py`` played on this id: name -> ``Benchmark`` (or its ``make`` options alone).
+    benchmarks: Mapping[str, Benchmark | Mapping[str, Any]] = field(default_factory=dict)
 
 
 #: Task name -> task class (``panda_grasp_env.tasks.base.Task`` subclasses).
@@ -40,6 +50,8 @@ TASKS: dict[str, type] = {}
 ENV_IDS: dict[str, tuple[dict[str, Any], int]] = {}
 #: Benchmark task of ``evaluate.py`` -> (Gymnasium id, extra ``make`` options).
 BENCHMARKS: dict[str, tuple[str, dict[str, Any]]] = {}
+#: Benchmark task -> episodes of the quick and of the full protocol.
+BENCHMARK_SEEDS: dict[str, tuple[int, int]] = {}
 
 TaskClass = TypeVar("TaskClass", bound=type)
 
@@ -59,8 +71,11 @@ def register_task(cls: TaskClass) -> TaskClass:
         ENV_IDS[env_id] = (kwargs, spec.max_episode_steps)
         if env_id not in gym.registry:
             gym.register(id=env_id, entry_point=ENTRY_POINT, kwargs=kwargs, max_episode_steps=spec.max_episode_steps)
-        for benchmark, options in spec.benchmarks.items():
-            BENCHMARKS[benchmark] = (env_id, dict(options))
+        for name, benchmark in spec.benchmarks.items():
+            if not isinstance(benchmark, Benchmark):
+                benchmark = Benchmark(options=benchmark)
+            BENCHMARKS[name] = (env_id, dict(benchmark.options))
+            BENCHMARK_SEEDS[name] = (benchmark.quick_seeds, benchmark.full_seeds)
     return cls
 
 

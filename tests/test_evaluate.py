@@ -203,3 +203,17 @@ def test_a_protocol_file_reproduces_the_command_line_run(tmp_path):
     protocol.write_text("agents: [oracle]\nseed: [1]\n")
     with pytest.raises(SystemExit):
         evaluate.main(["--config", str(protocol)])
+
+
+@pytest.mark.parametrize("protocol", [[], ["--full"]])
+def test_the_default_protocols_cover_every_registered_benchmark(protocol):
+    """``python evaluate.py`` plays every task the task modules register, with the seeds their registration
+    gives (a task missing from a hand-kept table once made the main job fail)."""
+    from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS
+
+    args = evaluate.parse_args(protocol)
+    specs = evaluate.episode_specs(args)
+    assert set(args.tasks) == set(BENCHMARKS) == {spec.task for spec in specs}
+    for task in BENCHMARKS:
+        expected = BENCHMARK_SEEDS[task][1 if protocol else 0]
+        assert {spec.seed for spec in specs if spec.task == task and spec.agent == "random"} == set(range(expected))

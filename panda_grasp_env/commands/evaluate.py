@@ -46,7 +46,7 @@ from panda_grasp_env.agents.evaluation import (
     skip_reason,
 )
 from panda_grasp_env.agents.towers import build_tower, push_tower
-from panda_grasp_env.registration import BENCHMARKS
+from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS
 from panda_grasp_env.runs import commit, interrupt_on_signals, versions, write_atomically
 from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre
 from panda_grasp_env.video import VideoRecorder
@@ -92,28 +92,6 @@ def demo(args: argparse.Namespace) -> int:
     tmp.replace(args.out / "summary.json")
     print(f"simulated {cell.sim_time:.1f} s in {summary['wall_s']:.1f} s wall; summary: {args.out / 'summary.json'}")
     return 0 if build.success and displaced >= 2 else 1
-
-
-QUICK_SEEDS = {
-    "Grasp": 10,
-    "GraspClutter": 2,
-    "TowerBuild": 5,
-    "TowerBreak": 5,
-    "TowerBreakDirectional": 5,
-    "BuildAndBreak": 1,
-    "Push": 20,
-    "Lift": 20,
-}
-FULL_SEEDS = {
-    "Grasp": 100,
-    "GraspClutter": 30,
-    "TowerBuild": 100,
-    "TowerBreak": 100,
-    "TowerBreakDirectional": 100,
-    "BuildAndBreak": 10,
-    "Push": 100,
-    "Lift": 100,
-}
 
 
 #: ``--config`` file keys and the flags they stand for: a protocol (who plays what, on which seeds, with which
@@ -262,7 +240,7 @@ def chosen_seeds(args: argparse.Namespace, task: str) -> list[int]:
     from ``--seed-start``."""
     if args.seed_list is not None:
         return list(args.seed_list)
-    count = args.seeds or (FULL_SEEDS if args.full else QUICK_SEEDS)[task]
+    count = args.seeds or BENCHMARK_SEEDS[task][1 if args.full else 0]
     return list(range(args.seed_start, args.seed_start + count))
 
 

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.primitives import PrimitiveResult
-from panda_grasp_env.registration import EnvId, register_task
+from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.tasks.base import Task, TaskStep
 from panda_grasp_env.tasks.tower_break import TowerBreak
@@ -31,7 +31,11 @@ class BuildAndBreak(Task):
     """
 
     name = "BuildAndBreak"
-    env_ids = {"PandaBuildAndBreak-v0": EnvId(100, benchmarks={"BuildAndBreak": {"max_episode_steps": 30}})}
+    env_ids = {
+        "PandaBuildAndBreak-v0": EnvId(
+            100, benchmarks={"BuildAndBreak": Benchmark({"max_episode_steps": 30}, quick_seeds=1, full_seeds=10)}
+        )
+    }
     primitives = ("grasp", "place", "push")
 
     def __init__(self, n_blocks: int = 4) -> None:

@@ -9,7 +9,7 @@ import numpy as np
 from panda_grasp_env.objects import SHAPES, ObjectShape, ObjectSpec
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
 from panda_grasp_env.primitives import PrimitiveResult
-from panda_grasp_env.registration import EnvId, register_task
+from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, with_scene
 from panda_grasp_env.workcell import SPAWN_REGION, Workcell, body_bottom_height
@@ -94,8 +94,18 @@ class Grasp(Task):
     name = "Grasp"
     # Primitive steps by default; with action_mode="ee_delta" PandaGrasp-v0 is the goal-conditioned lift task.
     env_ids = {
-        "PandaGrasp-v0": EnvId(50, benchmarks={"Grasp": {"primitive_z": True}, "Lift": {"action_mode": "ee_delta"}}),
-        "PandaGraspClutter-v0": EnvId(60, {"clutter": True}, benchmarks={"GraspClutter": {"primitive_z": True}}),
+        "PandaGrasp-v0": EnvId(
+            50,
+            benchmarks={
+                "Grasp": Benchmark({"primitive_z": True}, quick_seeds=10, full_seeds=100),
+                "Lift": Benchmark({"action_mode": "ee_delta"}, quick_seeds=20, full_seeds=100),
+            },
+        ),
+        "PandaGraspClutter-v0": EnvId(
+            60,
+            {"clutter": True},
+            benchmarks={"GraspClutter": Benchmark({"primitive_z": True}, quick_seeds=2, full_seeds=30)},
+        ),
     }
     primitives = ("grasp", "push")
     goal_conditioned = True

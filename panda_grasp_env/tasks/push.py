@@ -8,7 +8,7 @@ import numpy as np
 
 from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.primitives import PrimitiveResult
-from panda_grasp_env.registration import EnvId, register_task
+from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.scene import GOAL_MARKER, SceneConfig
 from panda_grasp_env.tasks.base import (
     GOAL_THRESHOLD,
@@ -33,7 +33,9 @@ class Push(Task):
     """
 
     name = "Push"
-    env_ids = {"PandaPush-v0": EnvId(50, benchmarks={"Push": {}})}  # 50 steps of 40 ms
+    env_ids = {
+        "PandaPush-v0": EnvId(50, benchmarks={"Push": Benchmark(quick_seeds=20, full_seeds=100)})
+    }  # 50 steps of 40 ms
     primitives = ("push",)
     goal_conditioned = True
     default_action_mode = "ee_delta"

@@ -8,7 +8,7 @@ import numpy as np
 
 from panda_grasp_env.geometry import is_number
 from panda_grasp_env.primitives import PrimitiveResult
-from panda_grasp_env.registration import EnvId, register_task
+from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, with_scene
 from panda_grasp_env.workcell import Workcell
@@ -43,8 +43,10 @@ class TowerBreak(Task):
 
     name = "TowerBreak"
     env_ids = {
-        "PandaTowerBreak-v0": EnvId(5, benchmarks={"TowerBreak": {}}),
-        "PandaTowerBreakDirectional-v0": EnvId(5, {"directional": True}, benchmarks={"TowerBreakDirectional": {}}),
+        "PandaTowerBreak-v0": EnvId(5, benchmarks={"TowerBreak": Benchmark(quick_seeds=5, full_seeds=100)}),
+        "PandaTowerBreakDirectional-v0": EnvId(
+            5, {"directional": True}, benchmarks={"TowerBreakDirectional": Benchmark(quick_seeds=5, full_seeds=100)}
+        ),
     }
     primitives = ("push",)
 

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.primitives import PrimitiveResult
-from panda_grasp_env.registration import EnvId, register_task
+from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.scene import SceneConfig
 from panda_grasp_env.stacking import stack_column
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, with_scene
@@ -47,9 +47,13 @@ class TowerBuild(Task):
 
     name = "TowerBuild"
     env_ids = {
-        "PandaTowerBuild-v0": EnvId(30, benchmarks={"TowerBuild": {}}),
+        "PandaTowerBuild-v0": EnvId(30, benchmarks={"TowerBuild": Benchmark(quick_seeds=5, full_seeds=100)}),
         # Two blocks, goal-conditioned at 25 Hz: panda-gym's Stack.
-        "PandaStack-v0": EnvId(100, {"n_blocks": 2, "action_mode": "ee_delta"}, benchmarks={"Stack": {}}),
+        "PandaStack-v0": EnvId(
+            100,
+            {"n_blocks": 2, "action_mode": "ee_delta"},
+            benchmarks={"Stack": Benchmark(quick_seeds=20, full_seeds=100)},
+        ),
     }
     primitives = ("grasp", "place", "push")
     goal_conditioned = True
