@@ -113,7 +113,7 @@ def make_env(spec: EpisodeSpec) -> gym.Env:
     options = dict(options)
     if spec.agent in ("planned", "oracle"):  # they see the scene through cameras
         options |= PERCEPTION
-    return gym.make(f"panda_grasp_env:{env_id}", **options, **dict(spec.options))
+    return gym.make(f"panda_grasp_env:{env_id}", **(options | dict(spec.options)))  # the spec's options win
 
 
 def grasp_baseline(env: gym.Env, seed: int, oracle: bool) -> Any:
