@@ -101,7 +101,8 @@ class PandaEnv(gym.Env):
     """A Franka Panda building, breaking and grasping in MuJoCo.
 
     Args:
-        task: task name (``TowerBuild``, ``TowerBreak``, ``BuildAndBreak``, ``Grasp``, ``Push``).
+        task: a registered task's name (``TowerBuild``, ``TowerBreak``, ``BuildAndBreak``, ``Grasp``, ``Push``,
+            ``PutInBin``, or one of your own: ``registration.TASKS``).
         obs_mode: ``state``, ``rgb``, ``depth``, ``segmentation``, ``heightmap`` or a ``+`` combination.
         action_mode: ``primitive``, ``pixel``, ``pixel_factored``, ``ee_delta``, ``joint`` or ``grasp_pose``
             (default: the task's).
