@@ -63,6 +63,9 @@ def register_task(cls: TaskClass) -> TaskClass:
     clashes = [n for n in (cls.name,) if not n or n in TASKS]
     clashes += [i for i in env_ids if i in ENV_IDS]
     clashes += [b for spec in env_ids.values() for b in spec.benchmarks if b in BENCHMARKS]
+    clashes += [
+        i for i in env_ids if i in gym.registry and gym.registry[i].entry_point != ENTRY_POINT
+    ]  # another package's
     if clashes:
         raise ValueError(f"task {cls.__name__}: name(s) {clashes} are empty or already registered")
     TASKS[cls.name] = cls

@@ -462,3 +462,18 @@ def test_a_task_outside_the_package_registers_its_id_fixtures_and_options(regist
         gym.make("TestWalledTowerBreak-v0", directional2=True)
     with pytest.raises(ValueError, match="already registered"):
         register_task(registered_outside_the_package)
+
+
+def test_an_id_another_package_registered_is_a_clash():
+    from panda_grasp_env.registration import TASKS, EnvId, register_task
+    from panda_grasp_env.tasks.tower_break import TowerBreak
+
+    gym.register(id="TestTakenElsewhere-v0", entry_point="another_package:Env")
+    try:
+        with pytest.raises(ValueError, match="TestTakenElsewhere-v0"):
+            register_task(
+                type("Clash", (TowerBreak,), {"name": "Clash", "env_ids": {"TestTakenElsewhere-v0": EnvId(3)}})
+            )
+        assert "Clash" not in TASKS
+    finally:
+        del gym.registry["TestTakenElsewhere-v0"]
