@@ -10,6 +10,7 @@ World frame, metres.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import Any
 
 import numpy as np
@@ -29,10 +30,11 @@ HOVER = 0.08
 SETTLED = 0.03
 
 
-class LowLevelExpert:
+class LowLevelExpert(ABC):
     """Phases of waypoints for the grasp site; subclasses choose the waypoint and gripper of each phase."""
 
     name = "expert"
+    first_phase = "above"
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
         if not isinstance(observation, dict) or not {"observation", "achieved_goal", "desired_goal"} <= set(
@@ -45,8 +47,6 @@ class LowLevelExpert:
         self.phase, self.steps_in_phase = self.first_phase, 0
         #: The mode's integrated grasp-site target, followed as the mode documents it (it starts at the hand).
         self.target = observation["observation"][:3].astype(float)
-
-    first_phase = "above"
 
     def next_phase(self, phase: str) -> None:
         self.phase, self.steps_in_phase = phase, 0
@@ -70,8 +70,9 @@ class LowLevelExpert:
         return self.waypoint_action(hand, observation["achieved_goal"].astype(float),
                                     observation["desired_goal"].astype(float))  # fmt: skip
 
+    @abstractmethod
     def waypoint_action(self, hand: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
+        """The action of this step, from the grasp site's, the object's and the goal's positions (world, m)."""
 
 
 def reached(hand: np.ndarray, waypoint: np.ndarray, tolerance: float) -> bool:
