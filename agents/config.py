@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from panda_grasp_env.geometry import is_number
-from panda_grasp_env.runs import check_resume_changes, config_from_mapping
+from panda_grasp_env.tooling.runs import check_resume_changes, config_from_mapping
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
 ALGORITHMS: dict[str, tuple[str, str]] = {

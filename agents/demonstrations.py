@@ -35,7 +35,7 @@ import yaml
 
 from panda_grasp_env.agents.evaluation import EpisodeSpec, all_agents, make_agent, make_env, skip_reason
 from panda_grasp_env.registration import BENCHMARKS
-from panda_grasp_env.runs import commit
+from panda_grasp_env.tooling.runs import commit
 
 
 def kept_infos(keys: tuple[str, ...]) -> type:

@@ -19,6 +19,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from panda_grasp_env.actions import ACTION_MODES
 from panda_grasp_env.agents.experts import LiftExpert, PushExpert, StackExpert
 from panda_grasp_env.agents.grasping import OracleGraspAgent, PlannedGraspAgent
 from panda_grasp_env.agents.put_in_bin import PutInBinAgent
@@ -45,10 +46,8 @@ def action_mode_of(env_id: str, options: dict[str, Any]) -> str:
 
 def is_low_level(env_id: str, options: dict[str, Any]) -> bool:
     """Whether that env acts at 25 Hz (the action mode's ``low_level``) rather than through motion primitives."""
-    from panda_grasp_env.actions import ActionMode
-
-    mode = action_mode_of(env_id, options)
-    return any(kind.name == mode and kind.low_level for kind in ActionMode.__subclasses__())
+    name = action_mode_of(env_id, options)
+    return isinstance(name, str) and name in ACTION_MODES and ACTION_MODES[name].low_level
 
 
 def task_label(env_id: str, env_kwargs: dict[str, Any]) -> str:
@@ -159,7 +158,7 @@ def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
 
 def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
     """Run one episode; returns its deterministic outcome under ``result`` and wall-clock figures under ``timing``."""
-    from panda_grasp_env.video import VideoRecorder
+    from panda_grasp_env.tooling.video import VideoRecorder
 
     env = make_env(spec)
     agent = make_agent(spec, env)
@@ -292,7 +291,7 @@ def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             "failures": dict(sorted(failures.items())),
             "sim_seconds_per_episode": round(sim_hours * 3600 / n, 3),
             "physics_errors": sum(r["physics_error"] for r in episodes),
-            # Objects moved or tipped besides each primitive's targets, per action (see panda_grasp_env.collateral).
+            # Objects moved or tipped besides each primitive's targets, per action (see panda_grasp_env.sim.collateral).
             "collateral_per_action": round(sum(r.get("disturbed", 0) for r in episodes) / actions, 4)
             if actions
             else 0.0,

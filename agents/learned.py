@@ -27,7 +27,7 @@ import numpy as np
 from panda_grasp_env.agents.config import TrainConfig, config_from_dict, make_env, observation_transform
 from panda_grasp_env.agents.policy_agent import PolicyAgent
 from panda_grasp_env.agents.policy_files import export_sb3, load_policy, load_sb3, policy_paths
-from panda_grasp_env.runs import sha256
+from panda_grasp_env.tooling.runs import sha256
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
 SHIPPED_FILES = (

@@ -21,7 +21,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from panda_grasp_env.runs import atomic_path, sha256, write_json
+from panda_grasp_env.tooling.runs import atomic_path, sha256, write_json
 
 #: The file format written by ``save_policy``; ``load_policy`` refuses others.
 FORMAT = 1

@@ -14,7 +14,7 @@ import numpy as np
 
 from panda_grasp_env.agents.base import PrimitiveActionWriter, record_failure, require
 from panda_grasp_env.agents.towers import CameraBlocks, OracleBlocks
-from panda_grasp_env.stacking import clearest_grasp_heading
+from panda_grasp_env.sim.stacking import clearest_grasp_heading
 
 
 class PutInBinAgent:

@@ -17,7 +17,7 @@ from panda_grasp_env.agents.config import TrainConfig, load_run
 from panda_grasp_env.agents.evaluation import describe_rate, is_low_level, task_label
 from panda_grasp_env.agents.learned import SHIPPED_FILES
 from panda_grasp_env.agents.policy_files import load_policy, policy_paths, save_policy
-from panda_grasp_env.runs import atomic_path, resume_summary, write_json
+from panda_grasp_env.tooling.runs import atomic_path, resume_summary, write_json
 
 
 def read_evaluations(run_dir: Path) -> list[dict[str, Any]]:

@@ -18,10 +18,16 @@ import numpy as np
 
 from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
 from panda_grasp_env.perception.pose import detect_towers, estimate_block_poses, wrap_quarter
-from panda_grasp_env.primitives import PrimitiveResult, grasp, place, push
-from panda_grasp_env.stacking import clearest_grasp_heading, tower_footprint_centre, tower_is_built, wrap_quarter_turn
+from panda_grasp_env.primitives.result import PrimitiveResult
+from panda_grasp_env.primitives.top_down import grasp, place, push
+from panda_grasp_env.sim.stacking import (
+    clearest_grasp_heading,
+    tower_footprint_centre,
+    tower_is_built,
+    wrap_quarter_turn,
+)
+from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
-from panda_grasp_env.workcell import Workcell
 
 #: Where a push starts: this far from the tower's axis (half a block plus a finger's clearance).
 PUSH_START = 0.065

@@ -52,7 +52,7 @@ from panda_grasp_env.agents.records import (
     read_evaluations,
     save_best_policy,
 )
-from panda_grasp_env.runs import (
+from panda_grasp_env.tooling.runs import (
     atomic_path,
     check_run_files,
     commit,

@@ -14,8 +14,8 @@ from typing import Any
 
 from panda_grasp_env.agents.evaluation import clustered_rate, describe_rate, rate, wilson  # noqa: F401  (one implementation each)
 from panda_grasp_env.agents.learned import Checkpoint, available_checkpoints
-from panda_grasp_env.runs import machine as machine_name
-from panda_grasp_env.runs import write_atomically
+from panda_grasp_env.tooling.runs import machine as machine_name
+from panda_grasp_env.tooling.runs import write_atomically
 
 sys.stdout.reconfigure(line_buffering=True)  # figures appear as they are measured, even when piped
 

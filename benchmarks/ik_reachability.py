@@ -31,9 +31,9 @@ for _threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np
 
 from benchmarks._common import Results, rate
+from panda_grasp_env.control.ik import PoseIK, ToleranceSampler
 from panda_grasp_env.geometry import rotation_about, top_down_rotation
-from panda_grasp_env.motion import PoseIK, ToleranceSampler
-from panda_grasp_env.robot import HOME_QPOS
+from panda_grasp_env.model.robot import HOME_QPOS
 
 APPROACH_TILT = np.deg2rad(60)
 

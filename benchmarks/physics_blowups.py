@@ -28,8 +28,8 @@ import numpy as np
 from benchmarks._common import Results, rate, shipped_checkpoints
 from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent
 from panda_grasp_env.agents.training import TEST_SEED_OFFSET
-from panda_grasp_env.robot import FINGER_OPEN
-from panda_grasp_env.workcell import Workcell
+from panda_grasp_env.model.robot import FINGER_OPEN
+from panda_grasp_env.sim.workcell import Workcell
 
 #: How far outside its range a finger joint may stand before the episode counts as blown up, metres.
 FINGER_SLACK = 0.02

@@ -29,11 +29,11 @@ import numpy as np  # noqa: E402
 
 from benchmarks._common import Results, rate  # noqa: E402
 from panda_grasp_env.agents.towers import build_tower, push_tower
-from panda_grasp_env.primitives import grasp  # noqa: E402
-from panda_grasp_env.scene import SceneConfig  # noqa: E402
-from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
+from panda_grasp_env.model.scene import SceneConfig  # noqa: E402
+from panda_grasp_env.primitives.top_down import grasp  # noqa: E402
+from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
+from panda_grasp_env.sim.workcell import Workcell  # noqa: E402
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS  # noqa: E402
-from panda_grasp_env.workcell import Workcell  # noqa: E402
 
 
 def grasp_isolated(trials: int) -> dict:

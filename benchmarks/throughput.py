@@ -27,9 +27,9 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks._common import Results, median_rate  # noqa: E402
-from panda_grasp_env.primitives import grasp, place  # noqa: E402
-from panda_grasp_env.rendering import CameraRenderer  # noqa: E402
-from panda_grasp_env.workcell import Workcell  # noqa: E402
+from panda_grasp_env.primitives.top_down import grasp, place  # noqa: E402
+from panda_grasp_env.sim.rendering import CameraRenderer  # noqa: E402
+from panda_grasp_env.sim.workcell import Workcell  # noqa: E402
 
 
 def physics(cell: Workcell, repeats: int) -> dict[str, float]:

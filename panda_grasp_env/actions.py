@@ -9,7 +9,11 @@
   row, column), with per-dimension masks, for off-the-shelf clients;
 * ``ee_delta`` -- ``Box(4)``: end-effector displacement and gripper at 25 Hz
   (Fetch / panda-gym style);
-* ``joint`` -- ``Box(8)``: arm joint-position deltas and gripper at 25 Hz.
+* ``joint`` -- ``Box(8)``: arm joint-position deltas and gripper at 25 Hz;
+* ``grasp_pose`` -- ``Box(7)``: one 6-DOF grasp through the motion stack.
+
+Each mode is a class in ``ACTION_MODES`` that builds itself from an ``ActionContext``
+and describes its own layout (``layout()``, ``info["action_layout"]``).
 
 Every mode validates its input the same way: wrong shape or dtype, NaN or inf
 raise ``ValueError`` naming the problem; out-of-range continuous values are
@@ -21,18 +25,22 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import cv2
 import gymnasium as gym
 import mujoco
 import numpy as np
 
-from panda_grasp_env.controller import JacobianServo
+from panda_grasp_env.control.controller import JacobianServo
+from panda_grasp_env.model.robot import FINGER_OPEN, HOME_YAW
 from panda_grasp_env.perception.heightmap import HeightmapGrid
-from panda_grasp_env.primitives import MIN_GRASP_HEIGHT, PrimitiveResult, run_primitive
-from panda_grasp_env.robot import FINGER_OPEN, HOME_YAW
-from panda_grasp_env.workcell import WORKSPACE, Workcell
+from panda_grasp_env.primitives.result import PrimitiveResult
+from panda_grasp_env.primitives.top_down import MIN_GRASP_HEIGHT, run_primitive
+from panda_grasp_env.sim.workcell import WORKSPACE, Workcell
+
+if TYPE_CHECKING:
+    from panda_grasp_env.primitives.pose_grasp import MotionStack
 
 #: Where a grasp closes below the top surface it aims at, metres.
 GRASP_DEPTH = 0.02
@@ -145,12 +153,35 @@ def encode_primitive(
     return np.array([*scores, *position, wrapped_yaw / np.pi], dtype=np.float32)
 
 
+@dataclass(frozen=True)
+class ActionContext:
+    """Everything an action mode may build itself from; each mode takes what it needs."""
+
+    cell: Workcell
+    settings: PrimitiveSettings
+    grid: HeightmapGrid
+    #: Headings of the pixel modes.
+    rotations: int
+    #: The current heightmap (metres above the table on ``grid``), for the pixel modes' masks.
+    heightmap: Callable[[], np.ndarray]
+    block_gripper: bool = False
+    #: OMPL planner of the ``grasp_pose`` mode.
+    planner: str = "RRTConnect"
+
+
 class ActionMode(ABC):
-    """One way of acting.  ``low_level`` modes run one 25 Hz control step per env step."""
+    """One way of acting.  ``low_level`` modes run one 25 Hz control step per env step; ``fixed_hand_yaw``
+    modes keep the hand at ``HOME_YAW`` (tasks then need not turn it)."""
 
     name: ClassVar[str]
     low_level: ClassVar[bool]
+    fixed_hand_yaw: ClassVar[bool] = False
     space: gym.Space
+
+    @classmethod
+    @abstractmethod
+    def build(cls, context: ActionContext) -> ActionMode:
+        """The mode, for the env described by ``context``."""
 
     def validate(self, action: Any) -> tuple[Any, int]:
         """Checked action and the number of clipped components."""
@@ -179,6 +210,10 @@ class PrimitiveActions(ActionMode):
 
     name = "primitive"
     low_level = False
+
+    @classmethod
+    def build(cls, context: ActionContext) -> PrimitiveActions:
+        return cls(context.settings)
 
     def __init__(self, settings: PrimitiveSettings) -> None:
         self.settings = settings
@@ -236,6 +271,10 @@ class PixelActions(ActionMode):
         self.heightmap = heightmap
         self.shape = (len(settings.primitives), rotations, *grid.shape)
         self.space = gym.spaces.Discrete(int(np.prod(self.shape)))
+
+    @classmethod
+    def build(cls, context: ActionContext) -> PixelActions:
+        return cls(context.settings, context.grid, context.rotations, context.heightmap)
 
     def layout(self) -> dict[str, Any]:
         return {
@@ -328,6 +367,7 @@ class EEDeltaActions(ActionMode):
 
     name = "ee_delta"
     low_level = True
+    fixed_hand_yaw = True
     MAX_LAG = 0.02  # metres, horizontal
     LOW, HIGH = LOW_LEVEL_BOUNDS[:, 0].copy(), LOW_LEVEL_BOUNDS[:, 1].copy()
 
@@ -336,6 +376,10 @@ class EEDeltaActions(ActionMode):
         self.space = gym.spaces.Box(-1.0, 1.0, (3 if block_gripper else 4,), dtype=np.float32)
         self.servo = JacobianServo(cell.model, cell.data)
         self.target = np.zeros(3)
+
+    @classmethod
+    def build(cls, context: ActionContext) -> EEDeltaActions:
+        return cls(context.cell, context.block_gripper)
 
     def reset(self, cell: Workcell, rng: np.random.Generator) -> None:
         self.target = cell.robot.ee_position
@@ -366,6 +410,10 @@ class JointActions(ActionMode):
     def __init__(self) -> None:
         self.space = gym.spaces.Box(-1.0, 1.0, (8,), dtype=np.float32)
 
+    @classmethod
+    def build(cls, context: ActionContext) -> JointActions:
+        return cls()
+
     def execute(self, cell: Workcell, action: np.ndarray) -> None:
         cell.robot.command_joints(cell.robot.joint_positions + action[:7] * JOINT_STEP)
         cell.robot.command_fingers(FINGER_OPEN * (1.0 - action[7]) / 2.0)
@@ -382,9 +430,15 @@ class GraspPoseActions(ActionMode):
     name = "grasp_pose"
     low_level = False
 
-    def __init__(self, stack: Any) -> None:
+    def __init__(self, stack: MotionStack) -> None:
         self.stack = stack
         self.space = gym.spaces.Box(-1.0, 1.0, (7,), dtype=np.float32)
+
+    @classmethod
+    def build(cls, context: ActionContext) -> GraspPoseActions:
+        from panda_grasp_env.primitives.pose_grasp import MotionStack  # OMPL loads only when this mode is used
+
+        return cls(MotionStack(context.cell, planner=context.planner))
 
     def layout(self) -> dict[str, Any]:
         return {"mode": self.name}
@@ -426,4 +480,8 @@ def encode_grasp_pose(position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     return np.array([*scaled, *quaternion], dtype=np.float32)
 
 
-ACTION_MODES = ("primitive", "pixel", "pixel_factored", "ee_delta", "joint", "grasp_pose")
+#: Every action mode by name.
+ACTION_MODES: dict[str, type[ActionMode]] = {
+    mode.name: mode
+    for mode in (PrimitiveActions, PixelActions, FactoredPixelActions, EEDeltaActions, JointActions, GraspPoseActions)
+}

@@ -21,28 +21,23 @@ from panda_grasp_env.actions import (
     ACTION_MODES,
     EE_STEP,
     LOW_LEVEL_BOUNDS,
+    ActionContext,
     ActionMode,
-    EEDeltaActions,
-    FactoredPixelActions,
-    GraspPoseActions,
-    JointActions,
-    PixelActions,
-    PrimitiveActions,
     PrimitiveSettings,
 )
-from panda_grasp_env.controller import ControllerLimits
+from panda_grasp_env.control.controller import ControllerLimits
 from panda_grasp_env.geometry import is_number
+from panda_grasp_env.model.robot import FINGER_CLOSED, FINGER_OPEN, HOME_YAW
+from panda_grasp_env.model.scene import CAMERA_NAMES, SceneConfig
 from panda_grasp_env.observations import ObservationBuilder, Sensors, parse_obs_mode
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
-from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
-from panda_grasp_env.rendering import CameraRenderer, display_available
-from panda_grasp_env.robot import FINGER_CLOSED, FINGER_OPEN, HOME_YAW
-from panda_grasp_env.scene import CAMERA_NAMES, SceneConfig
-from panda_grasp_env.tasks import TaskStep
-from panda_grasp_env.workcell import PhysicsError, Workcell
+from panda_grasp_env.sim.rendering import CameraRenderer, display_available
+from panda_grasp_env.sim.workcell import PhysicsError, Workcell
+from panda_grasp_env.tasks import Task, TaskStep
 
 #: Low-level modes start each episode with the hand here (x, y metres), pointing down, this high above
 #: the tallest object (at least ``READY_MIN_HEIGHT``): close to the work, like Fetch and panda-gym.
@@ -71,6 +66,33 @@ def checked_cameras(cameras: Any) -> tuple[str, ...]:
     if not names or not all(isinstance(c, str) and c in CAMERA_NAMES for c in names) or len(set(names)) < len(names):
         raise ValueError(f"cameras must be distinct names from {list(CAMERA_NAMES)}, got {cameras!r}")
     return names
+
+
+def checked_size(name: str, size: Any) -> tuple[int, int]:
+    """``size`` as (width, height) pixels, each an int from 1 to ``MAX_IMAGE_SIDE``; else ``ValueError``."""
+    sides = tuple(size) if isinstance(size, (tuple, list, np.ndarray)) else ()
+    whole = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in sides)
+    if len(sides) != 2 or not whole or not all(1 <= v <= MAX_IMAGE_SIDE for v in sides):
+        raise ValueError(f"{name} must be (width, height) in ints from 1 to {MAX_IMAGE_SIDE}, got {size!r}")
+    return int(sides[0]), int(sides[1])
+
+
+def checked_start_curriculum(requested: dict[str, Any], mode: type[ActionMode], task: Task) -> dict[str, float]:
+    """The ``start_*`` probabilities that are not zero, by start state, after checking them: each in [0, 1],
+    together at most 1, and only for a low-level ``mode`` and a task that can start in that state."""
+    for state, value in requested.items():
+        name = f"start_{state}"
+        if not (is_number(value) and 0.0 <= value <= 1.0):
+            raise ValueError(f"{name} must be a probability in [0, 1], got {value!r}")
+        if value and not (mode.low_level and state in task.start_states):
+            raise ValueError(
+                f"{name} needs a low-level action mode (ee_delta, joint) and a task that can start "
+                f"{state.replace('_', ' ')}; got action_mode={mode.name!r}, task={task.name!r} "
+                f"(its start states: {list(task.start_states)})"
+            )
+    if sum(requested.values()) > 1.0:
+        raise ValueError(f"the start_* probabilities must sum to <= 1, got {sum(requested.values())}")
+    return {state: float(value) for state, value in requested.items() if value}
 
 
 def checked_grid(bounds: Any, resolution: Any) -> HeightmapGrid:
@@ -118,7 +140,7 @@ class PandaEnv(gym.Env):
         push_distance: push length, metres.
         block_gripper: ``ee_delta`` only: fingers held closed, the action is (dx, dy, dz) (panda-gym's Push).
         render_size: (width, height) of ``render()`` frames.
-        planner: OMPL planner of the ``grasp_pose`` mode (``panda_grasp_env.planning.PLANNERS``).
+        planner: OMPL planner of the ``grasp_pose`` mode (``panda_grasp_env.control.planning.PLANNERS``).
         scene: base ``SceneConfig`` (block size, masses, friction, ...); the task sets the objects.
         start_in_hand: low-level modes only: the probability (0-1) that an episode starts with the task's
             object already between the closed fingers (``Task.start_object``: the object to lift, the
@@ -171,21 +193,20 @@ class PandaEnv(gym.Env):
             ]
             raise ValueError(f"{error}; env options: {env_options}") from None
         action_mode = self.task.default_action_mode if action_mode is None else action_mode
-        if action_mode not in ACTION_MODES:
+        if not isinstance(action_mode, str) or action_mode not in ACTION_MODES:
             raise ValueError(f"unknown action_mode {action_mode!r}; valid: {list(ACTION_MODES)}")
+        mode = ACTION_MODES[action_mode]
         if render_mode == "human" and not display_available():
             raise ValueError("render_mode='human' needs a display (neither DISPLAY nor WAYLAND_DISPLAY is set); "
                              "use 'rgb_array' and save the frames, e.g. with gymnasium's RecordVideo")  # fmt: skip
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"unknown render_mode {render_mode!r}; valid: {self.metadata['render_modes']} or None")
         cameras = checked_cameras(cameras)
-        for name, size in (("image_size", image_size), ("render_size", render_size)):
-            sides = tuple(size) if isinstance(size, (tuple, list, np.ndarray)) else ()
-            whole = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in sides)
-            if len(sides) != 2 or not whole or not all(1 <= v <= MAX_IMAGE_SIDE for v in sides):
-                raise ValueError(f"{name} must be (width, height) in ints from 1 to {MAX_IMAGE_SIDE}, got {size!r}")
+        image_size, render_size = checked_size("image_size", image_size), checked_size("render_size", render_size)
         if scene is not None and not isinstance(scene, SceneConfig):
-            raise ValueError(f"scene must be a panda_grasp_env.scene.SceneConfig or None, got {type(scene).__name__}")
+            raise ValueError(
+                f"scene must be a panda_grasp_env.model.scene.SceneConfig or None, got {type(scene).__name__}"
+            )
         for name, flag in (("primitive_z", primitive_z), ("block_gripper", block_gripper)):
             if not isinstance(flag, (bool, np.bool_)):
                 raise ValueError(f"{name} must be a bool, got {flag!r}")
@@ -202,56 +223,40 @@ class PandaEnv(gym.Env):
         modalities = parse_obs_mode(obs_mode)
         grid = checked_grid(heightmap_bounds, heightmap_resolution)
         requested = {"in_hand": start_in_hand, "above_object": start_above_object, "behind_object": start_behind_object}
-        for state, value in requested.items():
-            name = f"start_{state}"
-            if not (is_number(value) and 0.0 <= value <= 1.0):
-                raise ValueError(f"{name} must be a probability in [0, 1], got {value!r}")
-            if value and not (action_mode in ("ee_delta", "joint") and state in self.task.start_states):
-                raise ValueError(
-                    f"{name} needs a low-level action mode (ee_delta, joint) and a task that can start "
-                    f"{state.replace('_', ' ')}; got action_mode={action_mode!r}, task={task!r} "
-                    f"(its start states: {list(self.task.start_states)})"
-                )
-        if sum(requested.values()) > 1.0:
-            raise ValueError(f"the start_* probabilities must sum to <= 1, got {sum(requested.values())}")
         #: Start state -> probability of an episode starting there (a training curriculum; empty: none).
-        self.start_curriculum = {state: float(value) for state, value in requested.items() if value}
+        self.start_curriculum = checked_start_curriculum(requested, mode, self.task)
 
         self.obs_mode, self.action_mode, self.render_mode = obs_mode, action_mode, render_mode
-        low_level = action_mode in ("ee_delta", "joint")
-        self.task.fixed_hand_yaw = HOME_YAW if action_mode == "ee_delta" else None  # joint mode turns the wrist
+        self.task.fixed_hand_yaw = HOME_YAW if mode.fixed_hand_yaw else None
         # Low-level modes: no noslip pass by default.  It stops a held block creeping in the fingers
         # during long primitive carries (place accuracy); at 25 Hz control it costs ~10 % of the rate.
-        scene_config = self.task.scene_config(scene or SceneConfig(noslip_iterations=0 if low_level else 3))
+        scene_config = self.task.scene_config(scene or SceneConfig(noslip_iterations=0 if mode.low_level else 3))
         scene_config = replace(scene_config, fixtures=self._scene_fixtures(scene_config.fixtures))
         # Low-level modes let the reference move EE_STEP per control step; primitives keep their own speeds.
-        limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if low_level else None
+        limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if mode.low_level else None
         self.cell = Workcell(scene_config, limits=limits)
         self.cell.step_hooks.append(self.task.on_control_step)
-        self.sensors = Sensors(self.cell, tuple(image_size), grid)
+        self.sensors = Sensors(self.cell, image_size, grid)
         settings = PrimitiveSettings(
             self.task.primitives, primitive_z, push_distance, getattr(self.task, "impulse_magnitude", 0.06)
         )
-        self.actions: ActionMode
-        if action_mode == "primitive":
-            self.actions = PrimitiveActions(settings)
-        elif action_mode in ("pixel", "pixel_factored"):
-            pixels = PixelActions if action_mode == "pixel" else FactoredPixelActions
-            self.actions = pixels(settings, grid, rotations, lambda: self.sensors.heightmap()[0])
-        elif action_mode == "grasp_pose":
-            from panda_grasp_env.motion_stack import MotionStack  # OMPL loads only when this mode is used
-
-            self.actions = GraspPoseActions(MotionStack(self.cell, planner=planner))
-        elif action_mode == "ee_delta":
-            self.actions = EEDeltaActions(self.cell, block_gripper)
-        else:
-            self.actions = JointActions()
-        self.goal_conditioned = low_level and self.task.goal_conditioned
+        self.actions: ActionMode = mode.build(
+            ActionContext(
+                self.cell,
+                settings,
+                grid,
+                int(rotations),
+                lambda: self.sensors.heightmap()[0],
+                bool(block_gripper),
+                planner,
+            )  # fmt: skip
+        )
+        self.goal_conditioned = mode.low_level and self.task.goal_conditioned
         if self.goal_conditioned:
             # Only goal envs have compute_reward (vectorised, for HER): checkers treat its presence as "GoalEnv".
             self.compute_reward = self.task.compute_reward
         # Primitive-mode agents of goal tasks see the goal at the end of the state vector.
-        self._goal_in_state = self.task.goal_conditioned and not low_level
+        self._goal_in_state = self.task.goal_conditioned and not mode.low_level
         self.observations = ObservationBuilder(
             self.cell,
             modalities,
@@ -268,7 +273,7 @@ class PandaEnv(gym.Env):
         )
         if self.randomizer is not None:
             self.observations.depth_filter = self.randomizer.noisy_depth
-        self.render_size = tuple(render_size)
+        self.render_size = render_size
         self._render_renderer: CameraRenderer | None = None
         self._viewer = None
         self._motion_frames: list[np.ndarray] = []
@@ -472,7 +477,7 @@ class PandaEnv(gym.Env):
             "primitive_reason": result.reason,
             "primitive_object": result.object or "",
             "primitive_sim_time": result.sim_time,
-            # Collateral (see panda_grasp_env.collateral): counts, and the names of what was disturbed.
+            # Collateral (see panda_grasp_env.sim.collateral): counts, and the names of what was disturbed.
             "transit_contacts": len(result.transit_contacts),
             "transit_disturbed": len(result.transit_disturbed),
             "disturbed": len(result.disturbed),

@@ -30,8 +30,8 @@ import numpy as np
 
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_from_rgbd
-from panda_grasp_env.rendering import CameraRenderer
-from panda_grasp_env.workcell import Workcell
+from panda_grasp_env.sim.rendering import CameraRenderer
+from panda_grasp_env.sim.workcell import Workcell
 
 MODALITIES = ("state", "rgb", "depth", "segmentation", "heightmap")
 IMAGE_MODALITIES = ("rgb", "depth", "segmentation")

@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from panda_grasp_env.geometry import is_number
 from panda_grasp_env.perception.noise import DepthNoise
-from panda_grasp_env.workcell import Workcell
+from panda_grasp_env.sim.workcell import Workcell
 
 #: Cameras fixed in the world (the wrist camera rides on the hand and is not moved).
 FIXED_CAMERAS = ("overhead", "front")

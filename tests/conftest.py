@@ -5,7 +5,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from panda_grasp_env.workcell import Workcell  # noqa: E402
+from panda_grasp_env.sim.workcell import Workcell  # noqa: E402
 
 
 @pytest.fixture(scope="session")

@@ -29,7 +29,7 @@ from panda_grasp_env.agents.policy_files import (
 )
 from panda_grasp_env.agents.records import ship
 from panda_grasp_env.commands import evaluate, train
-from panda_grasp_env.runs import sign_run_files
+from panda_grasp_env.tooling.runs import sign_run_files
 
 
 class Payload:

@@ -4,8 +4,8 @@ import imageio.v2 as imageio
 import numpy as np
 
 from panda_grasp_env.commands import evaluate
-from panda_grasp_env.video import VideoRecorder
-from panda_grasp_env.workcell import Workcell
+from panda_grasp_env.sim.workcell import Workcell
+from panda_grasp_env.tooling.video import VideoRecorder
 
 
 def test_demo_builds_and_breaks_a_tower(tmp_path):

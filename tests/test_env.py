@@ -104,7 +104,7 @@ def test_same_seed_same_observations(env_id):
 
 @pytest.mark.parametrize("env_id", sorted(ENV_IDS))
 def test_async_vector_env_runs_every_id(env_id):
-    # forkserver/spawn: a worker forked from a parent that already owns a GL context hangs (DESIGN section 6).
+    # forkserver/spawn: a worker forked from a parent that already owns a GL context hangs forever.
     envs = gym.vector.AsyncVectorEnv([lambda: make(env_id, obs_mode="state+rgb")] * 2, context="forkserver")
     envs.reset(seed=3)
     observations, rewards, terminated, truncated, infos = envs.step(envs.action_space.sample())
@@ -273,7 +273,7 @@ def test_bad_pixel_actions_raise():
         ({"heightmap_resolution": float("nan")}, "heightmap_resolution must be"),
         ({"heightmap_bounds": ((0.0, 1.0),)}, "heightmap_bounds must be"),
         ({"heightmap_bounds": 3}, "heightmap_bounds must be"),
-        ({"scene": "big"}, "scene must be a panda_grasp_env.scene.SceneConfig or None, got str"),
+        ({"scene": "big"}, "scene must be a panda_grasp_env.model.scene.SceneConfig or None, got str"),
         ({"render_mode": "ascii"}, "render_mode"),
         ({"image_size": (0, 10)}, "image_size"),
         ({"image_size": (True, True)}, "image_size"),

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
+from panda_grasp_env.control.ik import PoseIK, ToleranceSampler
 from panda_grasp_env.geometry import rotation_about, top_down_rotation
-from panda_grasp_env.motion import PoseIK, ToleranceSampler
-from panda_grasp_env.robot import HOME_QPOS
+from panda_grasp_env.model.robot import HOME_QPOS
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +52,7 @@ def test_tolerance_sampler_rescues_a_pose_the_exact_orientation_cannot_reach(ik)
 
 
 def test_planner_finds_a_collision_free_path_around_a_wall():
-    from panda_grasp_env.planning import Box, MotionPlanner
+    from panda_grasp_env.control.planning import Box, MotionPlanner
 
     planner = MotionPlanner(obstacles=(Box((0.45, 0.0, 0.15), (0.01, 0.3, 0.15)),), seed=0)
     goal = PoseIK().solve(np.array([0.6, 0.1, 0.08]), top_down_rotation(0.0), HOME_QPOS, np.random.default_rng(0))
@@ -64,7 +64,7 @@ def test_planner_finds_a_collision_free_path_around_a_wall():
 
 
 def test_planner_refuses_a_goal_in_collision_and_unknown_planners():
-    from panda_grasp_env.planning import Box, MotionPlanner
+    from panda_grasp_env.control.planning import Box, MotionPlanner
 
     planner = MotionPlanner(obstacles=(Box((0.5, 0.0, 0.1), (0.3, 0.3, 0.1)),))
     goal = PoseIK().solve(np.array([0.5, 0.0, 0.1]), top_down_rotation(0.0), HOME_QPOS, np.random.default_rng(0))

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from panda_grasp_env.objects import SHAPES, ObjectSpec
-from panda_grasp_env.scene import PAD_SOLREF
+from panda_grasp_env.model.objects import SHAPES, ObjectSpec
+from panda_grasp_env.model.scene import PAD_SOLREF
 from panda_grasp_env.tasks.grasp import OBJECT_PROPERTIES
 
 

@@ -8,8 +8,8 @@ from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_from_p
 from panda_grasp_env.perception.noise import DepthNoise, RGBNoise
 from panda_grasp_env.perception.pose import View, detect_towers, estimate_block_poses, wrap_quarter
 from panda_grasp_env.perception.segmentation import colour_masks, fit_plane_ransac, foreground_mask
-from panda_grasp_env.rendering import CameraRenderer
-from panda_grasp_env.workcell import Workcell
+from panda_grasp_env.sim.rendering import CameraRenderer
+from panda_grasp_env.sim.workcell import Workcell
 
 SIZE = (320, 240)
 

@@ -3,9 +3,10 @@ import numpy as np
 import pytest
 
 from panda_grasp_env.agents.towers import build_tower, push_tower
-from panda_grasp_env.primitives import REASONS, grasp, place, push, run_primitive
-from panda_grasp_env.robot import HOME_QPOS
-from panda_grasp_env.stacking import blocks_displaced, wrap_quarter_turn
+from panda_grasp_env.model.robot import HOME_QPOS
+from panda_grasp_env.primitives.result import REASONS
+from panda_grasp_env.primitives.top_down import grasp, place, push, run_primitive
+from panda_grasp_env.sim.stacking import blocks_displaced, wrap_quarter_turn
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from panda_grasp_env.rendering import CameraRenderer, RenderCache
+from panda_grasp_env.sim.rendering import CameraRenderer, RenderCache
 
 
 @pytest.fixture(scope="module")

@@ -2,10 +2,10 @@ import itertools
 
 import numpy as np
 
-from panda_grasp_env.primitives import grasp, place
-from panda_grasp_env.robot import HOME_QPOS
-from panda_grasp_env.stacking import tower_is_built
-from panda_grasp_env.workcell import SPAWN_REGION
+from panda_grasp_env.model.robot import HOME_QPOS
+from panda_grasp_env.primitives.top_down import grasp, place
+from panda_grasp_env.sim.stacking import tower_is_built
+from panda_grasp_env.sim.workcell import SPAWN_REGION
 
 
 def test_scattered_blocks_do_not_overlap_and_rest_on_the_table(cell):

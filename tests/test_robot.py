@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from panda_grasp_env.robot import HOME_POSITION, HOME_YAW
-from panda_grasp_env.scene import MAX_FINGER_GAP
+from panda_grasp_env.model.robot import HOME_POSITION, HOME_YAW
+from panda_grasp_env.model.scene import MAX_FINGER_GAP
 
 
 def test_home_pose_points_down_above_the_workspace(cell, rng):

@@ -2,7 +2,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from panda_grasp_env.scene import CAMERA_NAMES, GRASP_SITE, SceneConfig, build_model, franka_asset_dir
+from panda_grasp_env.model.scene import CAMERA_NAMES, GRASP_SITE, SceneConfig, build_model, franka_asset_dir
 
 
 def test_panda_is_loaded_from_installed_gymnasium_robotics():

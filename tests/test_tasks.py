@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from panda_grasp_env.actions import LOW_LEVEL_BOUNDS
-from panda_grasp_env.stacking import wrap_quarter_turn
+from panda_grasp_env.sim.stacking import wrap_quarter_turn
 
 SMALL = {"image_size": (32, 24), "heightmap_resolution": 0.008}
 
@@ -338,7 +338,7 @@ def test_rgb_array_list_renders_the_motion_inside_a_primitive(tmp_path):
     # renders at render_fps of simulated time inside primitives, and RecordMotionVideo writes every frame.
     import imageio.v3 as iio
 
-    from panda_grasp_env.video import RecordMotionVideo
+    from panda_grasp_env.tooling.video import RecordMotionVideo
 
     env = make("PandaTowerBreak-v0", render_mode="rgb_array_list", render_size=(64, 48))
     fps = env.metadata["render_fps"]
@@ -361,7 +361,7 @@ def test_rgb_array_list_renders_the_motion_inside_a_primitive(tmp_path):
 
 
 def test_grasp_reset_leaves_the_arm_at_home_at_rest():
-    from panda_grasp_env.robot import HOME_QPOS
+    from panda_grasp_env.model.robot import HOME_QPOS
 
     env = make("PandaGraspClutter-v0")
     env.reset(seed=3)

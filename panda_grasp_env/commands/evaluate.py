@@ -47,10 +47,10 @@ from panda_grasp_env.agents.evaluation import (
 )
 from panda_grasp_env.agents.towers import build_tower, push_tower
 from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS
-from panda_grasp_env.runs import commit, interrupt_on_signals, versions, write_atomically
-from panda_grasp_env.stacking import blocks_displaced, tower_footprint_centre
-from panda_grasp_env.video import VideoRecorder
-from panda_grasp_env.workcell import Workcell
+from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre
+from panda_grasp_env.sim.workcell import Workcell
+from panda_grasp_env.tooling.runs import commit, interrupt_on_signals, versions, write_atomically
+from panda_grasp_env.tooling.video import VideoRecorder
 
 
 def demo(args: argparse.Namespace) -> int:

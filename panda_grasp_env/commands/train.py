@@ -35,7 +35,7 @@ from panda_grasp_env.falls.training import (
     test_fall_model,
     train_fall_model,
 )
-from panda_grasp_env.runs import (
+from panda_grasp_env.tooling.runs import (
     check_resume_changes,
     forget_failed_resume,
     interrupt_on_signals,

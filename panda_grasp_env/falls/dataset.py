@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.runs import sha256
+from panda_grasp_env.tooling.runs import sha256
 
 SHARD_ARRAYS = ("rgb", "depth", "labels", "colour_labels", "poses", "seeds", "breaker", "strike", "crop_origin")
 SPLITS = ("train", "val", "test")

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.falls.dataset import SHARD_ARRAYS, split_of
-from panda_grasp_env.runs import atomic_path, interrupt_on_signals, sha256, write_atomically
+from panda_grasp_env.tooling.runs import atomic_path, interrupt_on_signals, sha256, write_atomically
 
 #: Block speed (m/s) above which the fall has begun.
 MOTION_SPEED = 0.01

@@ -44,7 +44,7 @@ from panda_grasp_env.falls.model import (
     one_hot,
     predict_batch,
 )
-from panda_grasp_env.runs import (
+from panda_grasp_env.tooling.runs import (
     atomic_path,
     check_run_files,
     commit,

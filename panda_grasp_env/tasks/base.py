@@ -10,7 +10,7 @@ loop, the actions and the observations.  A new task is one module in
 Two kinds of step reach a task:
 
 * *primitive* steps (``primitive`` and ``pixel`` action modes): ``evaluate`` is
-  called with the :class:`~panda_grasp_env.primitives.PrimitiveResult` of the
+  called with the :class:`~panda_grasp_env.primitives.top_down.PrimitiveResult` of the
   primitive just executed;
 * *low-level* steps (``ee_delta`` and ``joint`` modes, 25 Hz): ``evaluate`` is
   called with ``None``.  Goal-conditioned tasks (``goal_conditioned = True``)
@@ -29,10 +29,10 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.geometry import is_number
-from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.model.scene import SceneConfig
+from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import EnvId
-from panda_grasp_env.scene import SceneConfig
-from panda_grasp_env.workcell import Workcell
+from panda_grasp_env.sim.workcell import Workcell
 
 #: Distance (metres) under which an achieved goal counts as reached (Fetch and panda-gym use 5 cm).
 GOAL_THRESHOLD = 0.05

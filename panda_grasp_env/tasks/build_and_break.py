@@ -6,13 +6,13 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.model.scene import SceneConfig
+from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
-from panda_grasp_env.scene import SceneConfig
+from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.base import Task, TaskStep
 from panda_grasp_env.tasks.tower_break import TowerBreak
 from panda_grasp_env.tasks.tower_build import TowerBuild
-from panda_grasp_env.workcell import Workcell
 
 
 @register_task

@@ -6,13 +6,13 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.objects import SHAPES, ObjectShape, ObjectSpec
+from panda_grasp_env.model.objects import SHAPES, ObjectShape, ObjectSpec
+from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
-from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
-from panda_grasp_env.scene import SceneConfig
+from panda_grasp_env.sim.workcell import SPAWN_REGION, Workcell, body_bottom_height
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, with_scene
-from panda_grasp_env.workcell import SPAWN_REGION, Workcell, body_bottom_height
 
 #: VPG drops its clutter into the middle of the workspace; a 0.2 m square here.
 CLUTTER_REGION = np.array([[0.4, 0.6], [-0.1, 0.1]])

@@ -7,9 +7,10 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.geometry import yaw_quaternion
-from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.model.scene import GOAL_MARKER, SceneConfig
+from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
-from panda_grasp_env.scene import GOAL_MARKER, SceneConfig
+from panda_grasp_env.sim.workcell import SPAWN_REGION, Workcell
 from panda_grasp_env.tasks.base import (
     GOAL_THRESHOLD,
     Task,
@@ -18,7 +19,6 @@ from panda_grasp_env.tasks.base import (
     is_interval,
     with_scene,
 )
-from panda_grasp_env.workcell import SPAWN_REGION, Workcell
 
 
 @register_task

@@ -12,11 +12,11 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.geometry import is_number, yaw_quaternion
-from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.model.scene import DEFAULT_COLOURS, SceneConfig
+from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
-from panda_grasp_env.scene import DEFAULT_COLOURS, SceneConfig
+from panda_grasp_env.sim.workcell import SPAWN_REGION, Workcell, scattered_layout
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, with_scene
-from panda_grasp_env.workcell import SPAWN_REGION, Workcell, scattered_layout
 
 #: Inside of the bin: half-width of its square floor, and the height of its walls above the floor, metres.
 INNER_HALF_WIDTH = 0.065

@@ -7,11 +7,11 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.geometry import is_number
-from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.model.scene import SceneConfig
+from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
-from panda_grasp_env.scene import SceneConfig
+from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, with_scene
-from panda_grasp_env.workcell import Workcell
 
 #: The source study's four push directions, as headings about world z (radians).
 BREAK_DIRECTIONS = {"+x": 0.0, "+y": np.pi / 2, "-x": np.pi, "-y": -np.pi / 2}

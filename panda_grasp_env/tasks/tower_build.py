@@ -6,12 +6,12 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.primitives import PrimitiveResult
+from panda_grasp_env.model.scene import SceneConfig
+from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
-from panda_grasp_env.scene import SceneConfig
-from panda_grasp_env.stacking import stack_column
+from panda_grasp_env.sim.stacking import stack_column
+from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, with_scene
-from panda_grasp_env.workcell import Workcell
 
 #: A tower must stand still this long, with the gripper released, to count as built (seconds).
 STABLE_TIME = 0.5

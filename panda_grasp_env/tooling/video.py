@@ -11,8 +11,8 @@ import gymnasium as gym
 import imageio.v2 as imageio
 import numpy as np
 
-from panda_grasp_env.rendering import CameraRenderer
-from panda_grasp_env.workcell import Workcell
+from panda_grasp_env.sim.rendering import CameraRenderer
+from panda_grasp_env.sim.workcell import Workcell
 
 
 class VideoRecorder:

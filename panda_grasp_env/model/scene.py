@@ -66,7 +66,7 @@ class SceneConfig:
 
     n_blocks: int = 4
     #: Free objects of variable shape (``object_<i>``) for grasping tasks; their
-    #: shape, size and colour are set at each reset (see ``panda_grasp_env.objects``).
+    #: shape, size and colour are set at each reset (see ``panda_grasp_env.model.objects``).
     n_objects: int = 0
     block_size: float = 0.05
     block_mass: float = 0.1

@@ -10,7 +10,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from panda_grasp_env.scene import (
+from panda_grasp_env.model.scene import (
     ARM_ACTUATORS,
     ARM_JOINTS,
     FINGER_ACTUATORS,

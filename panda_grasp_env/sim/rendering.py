@@ -5,7 +5,8 @@ Two profiles:
 * ``fast`` (observations): no multisampling, no shadows or reflections, and the
   robot drawn with its collision geoms (2.3 k triangles) instead of its visual
   meshes (134 k) -- about 8-16x the frame rate of the authored settings on a
-  software-GL machine (shared/DESIGN.md section 6);
+  software-GL machine (84x84 RGB: 14-18 fps as authored, ~130 without multisampling, shadows and
+  reflections, ~290 with collision geoms too; ``benchmarks/throughput.py`` prints today's rates);
 * ``pretty`` (videos): 4x multisampling, shadows, reflections, visual meshes.
 
 Set ``MUJOCO_GL=egl`` before importing mujoco on a machine without a display.

@@ -26,7 +26,7 @@ from typing import Protocol
 import mujoco
 import numpy as np
 
-from panda_grasp_env.robot import PandaRobot
+from panda_grasp_env.model.robot import PandaRobot
 
 #: An object moved if its centre travelled further than this, metres.
 MOVE_LIMIT = 0.01

@@ -1,7 +1,7 @@
 """Executing a 6-DOF grasp pose: IK with tolerance, collision-free plan, approach, close, retreat, lift, verify.
 
-The motion stack joins ``motion`` (pose IK, tolerance sampler) and ``planning``
-(OMPL, trajectory timing) on a live :class:`~panda_grasp_env.workcell.Workcell`:
+The motion stack joins ``control.ik`` (pose IK, tolerance sampler) and ``control.planning``
+(OMPL, trajectory timing) on a live :class:`~panda_grasp_env.sim.workcell.Workcell`:
 
 1. IK for the grasp pose (tolerance sampler) and for the pre-grasp pose 10 cm
    back along the approach axis;
@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from panda_grasp_env.motion import PoseIK, ToleranceSampler
-from panda_grasp_env.planning import MotionPlanner, time_parametrise
-from panda_grasp_env.primitives import HOLD_TIME, MIN_LIFT, PrimitiveResult, record_collateral
-from panda_grasp_env.workcell import PhysicsError, Workcell
+from panda_grasp_env.control.ik import PoseIK, ToleranceSampler
+from panda_grasp_env.control.planning import MotionPlanner, time_parametrise
+from panda_grasp_env.primitives.result import HOLD_TIME, PrimitiveResult, closed_on, lifted_and_held, record_collateral
+from panda_grasp_env.sim.workcell import PhysicsError, Workcell
 
 PRE_GRASP = 0.10  # metres back along the approach axis
 LIFT = 0.10  # metres straight up after the retreat
@@ -124,15 +124,14 @@ class MotionStack:
     ) -> PrimitiveResult:
         self._follow(cell, self._line(cell, at_pre, at_grasp, APPROACH_SPEED))
         self._gripper(cell, close=True)
-        body = cell.robot.body_between_pads()
-        if body is None or cell.robot.finger_gap < 0.002:
+        body = closed_on(cell)
+        if body is None:
             return self._fail(cell, "missed", (cell.robot.joint_positions, at_pre))
         start_height = cell.data.xpos[body][2]
         self._follow(cell, self._line(cell, at_grasp, at_pre, APPROACH_SPEED))
         self._follow(cell, self._line(cell, at_pre, at_lift, TRANSIT_SPEED))
         self._hold(cell, HOLD_TIME)
         cell.controller.sync(cell.robot.joint_positions)  # later primitives start from here
-        held = cell.robot.body_between_pads() == body
-        if not held or cell.data.xpos[body][2] - start_height < MIN_LIFT:
+        if not lifted_and_held(cell, body, start_height):
             return self._fail(cell, "dropped", None, cell.name_of(body))
         return PrimitiveResult("grasp", True, "ok", object=cell.name_of(body))

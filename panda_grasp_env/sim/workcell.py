@@ -13,12 +13,12 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from panda_grasp_env.collateral import CollateralMonitor
-from panda_grasp_env.controller import CartesianController, ControllerLimits
+from panda_grasp_env.control.controller import CartesianController, ControllerLimits
 from panda_grasp_env.geometry import half_extent_along, yaw_quaternion
-from panda_grasp_env.objects import ObjectShape, apply_shape
-from panda_grasp_env.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
-from panda_grasp_env.scene import OWN_FRICTION_PRIORITY, PAD_SOLIMP, PAD_SOLREF, SceneConfig, build_spec
+from panda_grasp_env.model.objects import ObjectShape, apply_shape
+from panda_grasp_env.model.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
+from panda_grasp_env.model.scene import OWN_FRICTION_PRIORITY, PAD_SOLIMP, PAD_SOLREF, SceneConfig, build_spec
+from panda_grasp_env.sim.collateral import CollateralMonitor
 
 #: Reachable region for primitive targets: x, y, z bounds of the grasp site, metres.
 WORKSPACE = np.array([[0.25, 0.75], [-0.35, 0.35], [0.0, 0.45]])

@@ -15,62 +15,21 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from panda_grasp_env.geometry import is_number
-from panda_grasp_env.workcell import WORKSPACE, PhysicsError, Workcell, body_bottom_height, body_extent_along
+from panda_grasp_env.primitives.result import HOLD_TIME, PrimitiveResult, closed_on, lifted_and_held, record_collateral
+from panda_grasp_env.sim.workcell import WORKSPACE, PhysicsError, Workcell, body_bottom_height, body_extent_along
 
 #: Lowest grasp-site height: the fingertips reach 15 mm below the site.
 MIN_GRASP_HEIGHT = 0.02
 APPROACH_HEIGHT = 0.10  # pre-grasp / pre-place hover above the target, metres
 LIFT_HEIGHT = 0.15  # how high a grasped object is lifted, metres
-MIN_LIFT = 0.05  # a grasp succeeds only if the object rose at least this much
-HOLD_TIME = 0.5  # ... and stayed held this long, seconds
 SLOW_SPEED = 0.12  # m/s for the last approach and pushes
 PLACE_SPEED = 0.04  # m/s while lowering a held object to contact
 IMPULSE_SETTLE = 1.5  # seconds the scene runs after an impulse
 PUSH_SLOW_DESCENT = 0.03  # a push's last approach runs at SLOW_SPEED over at least this many metres
-REASONS = (
-    "ok",
-    "missed",
-    "dropped",
-    "unreachable",
-    "collision",
-    "out_of_workspace",
-    "not_holding",
-    "placed_off",
-    "physics_error",
-    "no_ik_solution",
-    "no_plan",
-    "no_contact",
-)
-
-
-@dataclass
-class PrimitiveResult:
-    """Outcome of one primitive: ``reason`` is ``"ok"`` on success, else one of ``REASONS``."""
-
-    primitive: str
-    success: bool
-    reason: str
-    #: Simulated seconds the primitive took.
-    sim_time: float = 0.0
-    #: Physics steps it took.
-    physics_steps: int = 0
-    #: Name of the object grasped / placed, if any.
-    object: str | None = None
-    params: dict[str, float] = field(default_factory=dict)
-    #: Body ids of what the primitive acted on: the object grasped (or aimed at) or placed; for pushes and
-    #: impulses the piles (towers, heaps) of the objects struck.  Their motion is not collateral.
-    targets: set[int] = field(default_factory=set)
-    #: Names of the objects the robot or its load touched in transit (see ``collateral``).
-    transit_contacts: list[str] = field(default_factory=list)
-    #: Names of the objects at rest that moved or tipped during transit.
-    transit_disturbed: list[str] = field(default_factory=list)
-    #: Names of the objects other than the targets that moved (> 1 cm) or tipped over during the primitive.
-    disturbed: list[str] = field(default_factory=list)
 
 
 def _check_number(primitive: str, name: str, value: float) -> float:
@@ -110,14 +69,6 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
     return wrapper
 
 
-def record_collateral(cell: Workcell, result: PrimitiveResult) -> None:
-    """End the workcell's collateral watch of a primitive and copy what it saw into ``result`` (names)."""
-    record = cell.collateral.finish(result.targets)
-    result.transit_contacts = sorted(map(cell.name_of, record.transit_contacts))
-    result.transit_disturbed = sorted(map(cell.name_of, record.transit_disturbed))
-    result.disturbed = sorted(map(cell.name_of, record.disturbed))
-
-
 def _body_ids(*bodies: int | None) -> set[int]:
     return {int(b) for b in bodies if b is not None and b >= 0}
 
@@ -151,15 +102,15 @@ def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
         # If the fingers land on something the grasp is still attempted where they stopped.
         cell.move_to(target, yaw, speed=SLOW_SPEED, settle_timeout=0.3)
         cell.actuate_gripper(close=True)
-        body = cell.robot.body_between_pads()
-        if body is None or cell.robot.finger_gap < 0.002:
-            body, reason = None, "missed"
+        body = closed_on(cell)
+        if body is None:
+            reason = "missed"
         else:
             start_height = cell.data.xpos[body][2]
             lift = max(z + LIFT_HEIGHT, cell.transit_height())
             cell.move_to(np.array([x, y, lift]), yaw, settle_timeout=0.2, tolerance=0.01)
             cell.wait(HOLD_TIME)
-            if cell.robot.body_between_pads() != body or cell.data.xpos[body][2] - start_height < MIN_LIFT:
+            if not lifted_and_held(cell, body, start_height):
                 reason = "dropped"
         if reason != "ok":
             cell.actuate_gripper(close=False, timeout=0.4)

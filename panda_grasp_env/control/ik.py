@@ -22,8 +22,8 @@ import mink
 import numpy as np
 
 from panda_grasp_env.geometry import rotation_about
-from panda_grasp_env.robot import HOME_QPOS
-from panda_grasp_env.scene import ARM_JOINTS, GRASP_SITE, SceneConfig, build_spec
+from panda_grasp_env.model.robot import HOME_QPOS
+from panda_grasp_env.model.scene import ARM_JOINTS, GRASP_SITE, SceneConfig, build_spec
 
 
 @dataclass(frozen=True)

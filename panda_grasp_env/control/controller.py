@@ -23,8 +23,8 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.geometry import top_down_rotation
-from panda_grasp_env.robot import HOME_QPOS
-from panda_grasp_env.scene import ARM_JOINTS, GRASP_SITE, SceneConfig, build_spec
+from panda_grasp_env.model.robot import HOME_QPOS
+from panda_grasp_env.model.scene import ARM_JOINTS, GRASP_SITE, SceneConfig, build_spec
 
 #: Joint speed (rad/s) below which the IK solution counts as converged for a fixed reference.
 REST_SPEED = 1e-3
@@ -173,7 +173,7 @@ class JacobianServo:
     """
 
     def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, limits: ControllerLimits | None = None) -> None:
-        from panda_grasp_env.robot import PandaRobot
+        from panda_grasp_env.model.robot import PandaRobot
 
         self.model, self.data = model, data
         self.robot = PandaRobot(model, data)

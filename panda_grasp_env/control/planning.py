@@ -21,8 +21,8 @@ from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
 
-from panda_grasp_env.robot import FINGER_OPEN, PandaRobot
-from panda_grasp_env.scene import ARM_JOINTS, SceneConfig, build_spec
+from panda_grasp_env.model.robot import FINGER_OPEN, PandaRobot
+from panda_grasp_env.model.scene import ARM_JOINTS, SceneConfig, build_spec
 
 #: The OMPL planners this module can run, by name.
 PLANNERS = {
