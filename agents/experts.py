@@ -148,18 +148,23 @@ class PushExpert(LowLevelExpert):
     and back onto the line; if the hand loses the block it comes round again from above."""
 
     name = "push_expert"
-    #: Stop pushing this close to the goal (metres): the block slides on a little.
-    STOP = 0.02
+    #: Stop pushing this close to the goal (metres; success is within 5 cm): the block slides on a little.
+    STOP = 0.03
     #: Grasp-site height above the block's centre while going round it, metres: the fingertips clear its top
     #: even when the hand dips during a fast move.
     CLEAR = HOVER
+    #: Grasp-site height above the block's resting centre while pushing, metres.  Lower, the fingertips'
+    #: rounded ends lever the block up by its bottom edge; higher, it tips forward.
+    PUSH_HEIGHT = 0.005
+    #: How far ahead of the contact point the pushing waypoint runs, metres.
+    LEAD = 0.03
 
     def waypoint_action(self, hand: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:
         offset = goal[:2] - obj[:2]
         distance = float(np.linalg.norm(offset))
         contact = self.block_size / 2 + 0.012  # hand centre to block centre when touching
-        # Push a little above the block's centre: lower, the fingertips press it into the table.
-        height = obj[2] + 0.01
+        # From the block's resting centre, not its current one: a tipping block must not lift the hand.
+        height = self.block_size / 2 + self.PUSH_HEIGHT
         if self.phase in ("above", "down"):
             self.direction = offset / max(distance, 1e-6)  # the line is fixed once the push starts
         direction = self.direction
@@ -182,5 +187,5 @@ class PushExpert(LowLevelExpert):
         if distance < self.STOP:
             return self.steer(hand, hand, CLOSED)
         along = float(direction @ offset)  # how far the block still has to go along the line
-        waypoint = obj[:2] - direction * contact + direction * min(max(along - self.STOP, 0.0), 0.03)
+        waypoint = obj[:2] - direction * contact + direction * min(max(along - self.STOP, 0.0), self.LEAD)
         return self.steer(hand, np.array([*waypoint, height]), CLOSED)
