@@ -27,7 +27,16 @@ ALGORITHMS: dict[str, tuple[str, str]] = {
     "sac": ("stable_baselines3:SAC", "MultiInputPolicy"),
     "tqc": ("sb3_contrib:TQC", "MultiInputPolicy"),
     "ppo": ("stable_baselines3:PPO", "MultiInputPolicy"),
+    # Learning from demonstrations (agents/imitation.py); algo_kwargs.demonstrations names the dataset.
+    "bc": ("panda_grasp_env.agents.imitation:BehaviourCloning", "MultiInputPolicy"),
+    "tqc_demos": ("panda_grasp_env.agents.imitation:TQCFromDemonstrations", "MultiInputPolicy"),
 }
+#: The algorithms that learn without stepping an env: their steps are minibatches.
+OFFLINE_ALGORITHMS = ("bc",)
+#: The algorithms that learn from ``algo_kwargs.demonstrations``.
+DEMONSTRATION_ALGORITHMS = ("bc", "tqc_demos")
+#: The algorithms that may use HER.
+HER_ALGORITHMS = ("sac", "tqc", "tqc_demos")
 #: Training rewards: ``task`` is the env's own; ``outcome`` pays each primitive for what it achieved (``OutcomeReward``).
 REWARDS = ("task", "outcome")
 
@@ -95,22 +104,47 @@ class TrainConfig:
         for key in ("env_kwargs", "train_env_kwargs", "algo_kwargs", "policy_kwargs"):
             check(isinstance(getattr(self, key), dict), key, "a mapping")
         check(self.her is None or isinstance(self.her, dict), "her", "a mapping or null")
-        check(self.her is None or self.algo in ("sac", "tqc"), "her", "null unless algo is sac or tqc")
+        check(
+            self.her is None or self.algo in HER_ALGORITHMS, "her", f"null unless algo is one of {list(HER_ALGORITHMS)}"
+        )
         check(self.reward in REWARDS, "reward", f"one of {list(REWARDS)}")
         check(self.reward == "task" or ENV_IDS[self.env_id][0].get("task") == "TowerBuild", "reward",
               "'task' unless env_id is a TowerBuild id (the outcome reward reads the stack height)")  # fmt: skip
         check(self.init_policy is None or isinstance(self.init_policy, str), "init_policy",
               "a checkpoint name or folder, or null")  # fmt: skip
+        if self.algo in DEMONSTRATION_ALGORITHMS:
+            from panda_grasp_env.agents.imitation import Demonstrations
+
+            check("demonstrations" in self.algo_kwargs, "algo_kwargs", f"a demonstrations entry for {self.algo}")
+            Demonstrations.of(self.algo_kwargs["demonstrations"])
         rate = self.algo_kwargs.get("learning_rate", 1.0)
         if isinstance(rate, dict):
             ok = sorted(rate) == ["end", "start"] and all(is_number(v) and v >= 0 for v in rate.values())
             check(ok and rate["start"] > 0, "algo_kwargs",
                   "learning_rate as a positive number or {start: > 0, end: >= 0} (linear over total_steps)")  # fmt: skip
-        algo_class = load_class(ALGORITHMS[self.algo][0])
-        valid = [p for p in inspect.signature(algo_class.__init__).parameters if p not in ("self", "policy", "env")]
+        valid = [p for p in constructor_parameters(load_class(ALGORITHMS[self.algo][0])) if p not in ("policy", "env")]
         unknown = [k for k in self.algo_kwargs if k not in valid or k in ("seed", "policy_kwargs", "tensorboard_log")]
         if unknown:
             raise ValueError(f"unknown algo_kwargs {unknown} for {self.algo}; valid: {sorted(valid)}")
+
+
+def steps_label(config: TrainConfig) -> str:
+    """What a run's steps count: environment steps, or minibatches for an offline algorithm."""
+    return "minibatches (no environment steps)" if config.algo in OFFLINE_ALGORITHMS else "environment steps"
+
+
+def constructor_parameters(cls: type) -> list[str]:
+    """The keyword arguments ``cls(...)`` accepts: its ``__init__``'s, and where that passes ``**kwargs`` on, its
+    bases' too."""
+    names: list[str] = []
+    for klass in cls.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        parameters = inspect.signature(klass.__init__).parameters.values()
+        names += [p.name for p in parameters if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL) and p.name != "self"]
+        if not any(p.kind == p.VAR_KEYWORD for p in parameters):
+            break
+    return list(dict.fromkeys(names))
 
 
 def learning_rate(value: float | dict[str, float]) -> Any:

@@ -13,7 +13,7 @@ from typing import Any
 import yaml
 
 from panda_grasp_env.agents import learned
-from panda_grasp_env.agents.config import TrainConfig, load_run
+from panda_grasp_env.agents.config import TrainConfig, load_run, steps_label
 from panda_grasp_env.agents.evaluation import describe_rate, is_low_level, task_label
 from panda_grasp_env.agents.learned import SHIPPED_FILES
 from panda_grasp_env.agents.policy_files import load_policy, policy_paths, save_policy
@@ -27,8 +27,9 @@ def read_evaluations(run_dir: Path) -> list[dict[str, Any]]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
-def plot_curve(run_dir: Path, title: str) -> None:
-    """curve.png: evaluation success (95 % CI band) against environment steps and against wall time."""
+def plot_curve(run_dir: Path, title: str, steps: str = "environment steps") -> None:
+    """curve.png: evaluation success (95 % CI band) against ``steps`` (what the run's steps count) and against
+    wall time."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -37,10 +38,10 @@ def plot_curve(run_dir: Path, title: str) -> None:
     rows = read_evaluations(run_dir)
     if not rows:
         return
-    steps = [r["steps"] for r in rows]
+    done = [r["steps"] for r in rows]
     minutes = [r["wall_seconds"] / 60 for r in rows]
     figure, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
-    for axis, x, label in ((axes[0], steps, "environment steps"), (axes[1], minutes, "wall time, minutes")):
+    for axis, x, label in ((axes[0], done, steps), (axes[1], minutes, "wall time, minutes")):
         success = [r["metrics"]["trial_success"]["rate"] for r in rows]
         low = [r["metrics"]["trial_success"]["ci95"][0] for r in rows]
         high = [r["metrics"]["trial_success"]["ci95"][1] for r in rows]
@@ -100,6 +101,15 @@ def earlier_tests(run_dir: Path, best_steps: int, steps: int) -> list[dict[str, 
     return [*previous.get("earlier", []), {"test_commit": previous.get("test_commit"), "metrics": previous["metrics"]}]
 
 
+def demonstrations_summary(config: TrainConfig) -> str:
+    """The card's line on the demonstrations a run learned from ('' if none)."""
+    spec = config.algo_kwargs.get("demonstrations")
+    if not spec:
+        return ""
+    kind = "successful " if spec.get("successful_only", True) else ""
+    return f"the first {spec['episodes']} {kind}episodes of Minari dataset `{spec['dataset']}`"
+
+
 def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str:
     meta = json.loads((run_dir / "meta.json").read_text())
     m = final["metrics"]
@@ -137,7 +147,8 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
         "| | |",
         "|---|---|",
         f"| seed | {config.seed} |",
-        f"| environment steps | {final['steps']} |",
+        f"| {steps_label(config)} | {final['steps']} |",
+        *([f"| demonstrations | {demos} |"] if (demos := demonstrations_summary(config)) else []),
         *([f"| sessions | {resumed} |"] if (resumed := resume_summary(meta)) else []),
         f"| wall time | {final['wall_seconds'] / 60:.1f} min ({final['steps_per_second']} steps/s, evaluations included) |",
         f"| machine | {meta['machine']} |",

@@ -33,6 +33,7 @@ from panda_grasp_env.agents.config import (
     make_env,
     make_vec_env,
     observation_transform,
+    steps_label,
     training_env,
 )
 from panda_grasp_env.agents.evaluation import (
@@ -255,7 +256,7 @@ def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_b
                 self.logger.record(f"eval/{key}", value)
             self.logger.dump(self.num_timesteps)
             self.latest = f"{metrics['trial_success']['rate']:.2f}"
-            plot_curve(run_dir, f"{config.name}: {config.algo} on {config.env_id}")
+            plot_curve(run_dir, f"{config.name}: {config.algo} on {config.env_id}", steps_label(config))
             if validation_score(metrics) > max((validation_score(r["metrics"]) for r in read_evaluations(run_dir)[:-1]),
                                                default=(-1.0,)):  # fmt: skip
                 save_best_policy(self.model.policy, run_dir, int(self.num_timesteps))
@@ -389,6 +390,6 @@ def final_test(config: TrainConfig, run_dir: Path, steps: int, wall_seconds: flo
         "earlier": earlier_tests(run_dir, best["steps"], steps),
     }
     write_json(run_dir / "final.json", final)
-    plot_curve(run_dir, f"{config.name}: {config.algo} on {config.env_id}")
+    plot_curve(run_dir, f"{config.name}: {config.algo} on {config.env_id}", steps_label(config))
     write_atomically(run_dir / "card.md", model_card(config, run_dir, final))
     return final

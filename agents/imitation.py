@@ -1,0 +1,284 @@
+"""Learning from demonstrations: episodes recorded as Minari datasets (``agents/demonstrations.py``) into SB3
+policies, through ``train.py`` like any other algorithm.
+
+* ``bc`` -- ``BehaviourCloning``: supervised regression of a SAC policy's deterministic action onto the
+  demonstrated actions.  It never steps an env to learn; its "steps" are minibatches.
+* ``tqc_demos`` -- ``TQCFromDemonstrations``: TQC (+ HER) with the demonstrations in its replay buffer and,
+  after every update, a behaviour-cloning step on the actor filtered by the critic (Nair et al. 2018, "Overcoming
+  exploration in reinforcement learning with demonstrations": a demonstrated action is imitated only where the
+  critic rates it above the policy's own).
+
+Both read ``algo_kwargs.demonstrations``: ``{dataset, episodes, path, successful_only}`` (``Demonstrations``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from sb3_contrib import TQC
+from stable_baselines3 import SAC
+from torch.nn import functional
+
+from panda_grasp_env.geometry import is_number
+
+
+@dataclass(frozen=True)
+class Demonstrations:
+    """The demonstrations a run learns from: the first ``episodes`` episodes (in recorded order; with
+    ``successful_only``, the first that end in success) of the Minari dataset ``dataset`` under ``path``."""
+
+    dataset: str
+    episodes: int
+    path: str = "data/minari"
+    successful_only: bool = True
+
+    @classmethod
+    def of(cls, value: Any) -> Demonstrations:
+        """``value`` (a mapping of the fields) checked; ``ValueError`` naming what is wrong."""
+        names = [f.name for f in fields(cls)]
+        if not isinstance(value, dict) or not {"dataset", "episodes"} <= set(value) or set(value) - set(names):
+            raise ValueError(f"demonstrations must be a mapping with keys dataset, episodes (and optionally path, "
+                             f"successful_only), got {value!r}")  # fmt: skip
+        spec = cls(**value)
+        whole = isinstance(spec.episodes, int) and not isinstance(spec.episodes, bool)
+        if not (whole and spec.episodes >= 1):
+            raise ValueError(f"demonstrations.episodes must be an int >= 1, got {spec.episodes!r}")
+        if not isinstance(spec.dataset, str) or not isinstance(spec.path, str):
+            raise ValueError(f"demonstrations.dataset and .path must be strings, got {spec.dataset!r}, {spec.path!r}")
+        if not isinstance(spec.successful_only, bool):
+            raise ValueError(f"demonstrations.successful_only must be a bool, got {spec.successful_only!r}")
+        return spec
+
+    def episodes_data(self) -> list[Any]:
+        """The chosen episodes (Minari ``EpisodeData``), in recorded order; ``ValueError`` if the dataset is
+        missing or holds too few."""
+        import minari
+
+        folder = Path(self.path) / self.dataset / "data"
+        if not folder.is_dir():
+            raise ValueError(f"demonstrations: no Minari dataset {self.dataset!r} under {self.path} (record it with "
+                             f"python -m panda_grasp_env.agents.demonstrations)")  # fmt: skip
+        chosen = []
+        for episode in minari.MinariDataset(folder).iterate_episodes():
+            success = bool(np.asarray(episode.infos.get("is_success", [False]))[-1]) if episode.infos else False
+            if success or not self.successful_only:
+                chosen.append(episode)
+            if len(chosen) == self.episodes:
+                return chosen
+        raise ValueError(f"demonstrations: {self.dataset} holds only {len(chosen)} "
+                         f"{'successful ' if self.successful_only else ''}episodes, {self.episodes} asked for")  # fmt: skip
+
+    def transitions(self, space: gym.Space) -> tuple[dict[str, np.ndarray] | np.ndarray, np.ndarray]:
+        """(observations, actions) of every step of the chosen episodes, the observations checked against the
+        env's observation ``space`` (a ``Dict`` of boxes or a box)."""
+        episodes = self.episodes_data()
+        if isinstance(space, gym.spaces.Dict):
+            observations = {}
+            for key, box in space.spaces.items():
+                if any(key not in e.observations for e in episodes):
+                    raise ValueError(f"demonstrations {self.dataset}: no observation {key!r} (the env's: "
+                                     f"{list(space.spaces)})")  # fmt: skip
+                observations[key] = np.concatenate([e.observations[key][:-1] for e in episodes]).astype(np.float32)
+                if observations[key].shape[1:] != box.shape:
+                    raise ValueError(f"demonstrations {self.dataset}: observation {key!r} has shape "
+                                     f"{observations[key].shape[1:]}, the env's {box.shape}")  # fmt: skip
+        else:
+            observations = np.concatenate([e.observations[:-1] for e in episodes]).astype(np.float32)
+            if observations.shape[1:] != space.shape:
+                raise ValueError(f"demonstrations {self.dataset}: observations of shape {observations.shape[1:]}, "
+                                 f"the env's {space.shape}")  # fmt: skip
+        actions = np.concatenate([e.actions for e in episodes]).astype(np.float32)
+        return observations, actions
+
+
+def _tensors(observations: dict[str, np.ndarray] | np.ndarray, device: torch.device) -> Any:
+    if isinstance(observations, dict):
+        return {key: torch.as_tensor(value, device=device) for key, value in observations.items()}
+    return torch.as_tensor(observations, device=device)
+
+
+def _rows(observations: Any, index: torch.Tensor) -> Any:
+    if isinstance(observations, dict):
+        return {key: value[index] for key, value in observations.items()}
+    return observations[index]
+
+
+class DemonstrationMixin:
+    """Loads ``demonstrations`` when the model is set up (also after ``load``: never saved with the model) and
+    provides the behaviour-cloning loss on a random minibatch of them."""
+
+    _demo_observations: Any
+    _demo_actions: torch.Tensor
+
+    def _setup_demonstrations(self) -> None:
+        spec = Demonstrations.of(self.demonstrations)
+        observations, actions = spec.transitions(self.observation_space)
+        if actions.shape[1:] != self.action_space.shape:
+            raise ValueError(f"demonstrations {spec.dataset}: actions of shape {actions.shape[1:]}, the env's "
+                             f"{self.action_space.shape}")  # fmt: skip
+        self._demo_observations = _tensors(observations, self.device)
+        self._demo_actions = torch.as_tensor(np.clip(actions, -1.0, 1.0), device=self.device)
+        self._demo_generator = torch.Generator(device="cpu").manual_seed(0 if self.seed is None else int(self.seed))
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_demo_observations", "_demo_actions", "_demo_generator"]
+
+    @property
+    def demonstration_steps(self) -> int:
+        """How many demonstrated steps (observation, action) the model learns from."""
+        return int(self._demo_actions.shape[0])
+
+    def demo_batch(self, size: int) -> tuple[Any, torch.Tensor]:
+        """``size`` demonstrated (observations, actions), drawn uniformly with replacement."""
+        index = torch.randint(0, self.demonstration_steps, (size,), generator=self._demo_generator)
+        return _rows(self._demo_observations, index.to(self.device)), self._demo_actions[index.to(self.device)]
+
+
+def _check_demonstrations(value: Any, algorithm: str) -> None:
+    if value is None:
+        raise ValueError(f"{algorithm} needs algo_kwargs.demonstrations ({{dataset, episodes}})")
+    Demonstrations.of(value)
+
+
+class BehaviourCloning(DemonstrationMixin, SAC):
+    """Behaviour cloning into a SAC policy (actor and critics; only the actor learns): each step draws
+    ``batch_size`` demonstrated steps and regresses the actor's deterministic action (tanh of its mean, what
+    ``predict(deterministic=True)`` returns) onto the demonstrated actions (mean squared error).
+    ``num_timesteps`` counts minibatches; no env step is taken to learn."""
+
+    def __init__(
+        self,
+        policy: Any,
+        env: Any,
+        demonstrations: dict[str, Any] | None = None,
+        learning_rate: float | Any = 1e-3,
+        batch_size: int = 256,
+        policy_kwargs: dict[str, Any] | None = None,
+        tensorboard_log: str | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        if _init_setup_model:
+            _check_demonstrations(demonstrations, "bc")
+        if not (isinstance(batch_size, int) and batch_size >= 1):
+            raise ValueError(f"bc: batch_size must be an int >= 1, got {batch_size!r}")
+        self.demonstrations = demonstrations
+        super().__init__(policy, env, learning_rate=learning_rate, buffer_size=1, learning_starts=0,
+                         batch_size=batch_size, policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log,
+                         verbose=verbose, seed=seed, device=device, _init_setup_model=_init_setup_model)  # fmt: skip
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        self._setup_demonstrations()
+
+    def learn(
+        self,
+        total_timesteps: int,
+        callback: Any = None,
+        log_interval: int = 100,
+        tb_log_name: str = "BC",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> BehaviourCloning:
+        total, callback = self._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+        callback.on_training_start(locals(), globals())
+        self.policy.set_training_mode(True)
+        while self.num_timesteps < total:
+            self._update_current_progress_remaining(self.num_timesteps, total)
+            self._update_learning_rate([self.actor.optimizer])
+            observations, actions = self.demo_batch(self.batch_size)
+            loss = functional.mse_loss(self.actor(observations, deterministic=True), actions)
+            self.actor.optimizer.zero_grad()
+            loss.backward()
+            self.actor.optimizer.step()
+            self.num_timesteps += 1
+            self._n_updates += 1
+            if self.num_timesteps % log_interval == 0:
+                self.logger.record("train/bc_loss", loss.item())
+                self.logger.dump(self.num_timesteps)
+            if not callback.on_step():
+                break
+        self.policy.set_training_mode(False)
+        callback.on_training_end()
+        return self
+
+
+class TQCFromDemonstrations(DemonstrationMixin, TQC):
+    """TQC whose replay buffer starts with the demonstrations (HER relabels them like any episode) and whose
+    actor, after each round of TQC updates, takes one behaviour-cloning step on ``batch_size`` demonstrated
+    steps, weighted by ``bc_weight`` and kept only where the critics rate the demonstrated action above the
+    policy's (the Q-filter).  The demonstrations enter the buffer ``n_envs`` episodes at a time, so their
+    episodes must all have the same length (the low-level ids truncate at a fixed step count)."""
+
+    def __init__(
+        self, policy: Any, env: Any, demonstrations: dict[str, Any] | None = None, bc_weight: float = 1.0, **kwargs: Any
+    ) -> None:
+        if kwargs.get("_init_setup_model", True):
+            _check_demonstrations(demonstrations, "tqc_demos")
+        if not (is_number(bc_weight) and bc_weight >= 0):
+            raise ValueError(f"tqc_demos: bc_weight must be a number >= 0, got {bc_weight!r}")
+        self.demonstrations, self.bc_weight = demonstrations, float(bc_weight)
+        super().__init__(policy, env, **kwargs)
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        self._setup_demonstrations()
+
+    def _setup_learn(self, total_timesteps: int, *args: Any, **kwargs: Any) -> Any:
+        fresh = self.replay_buffer is not None and self.replay_buffer.size() == 0
+        result = super()._setup_learn(total_timesteps, *args, **kwargs)
+        if fresh:  # a resumed run's buffer already holds them
+            self._fill_buffer_with_demonstrations()
+        return result
+
+    def _fill_buffer_with_demonstrations(self) -> None:
+        spec = Demonstrations.of(self.demonstrations)
+        episodes = spec.episodes_data()
+        lengths = {len(e.actions) for e in episodes}
+        n = self.n_envs
+        if len(lengths) != 1 or len(episodes) % n:
+            raise ValueError(f"tqc_demos: the demonstrations must be episodes of one length, a multiple of n_envs="
+                             f"{n} of them; got lengths {sorted(lengths)} and {len(episodes)} episodes")  # fmt: skip
+        length = lengths.pop()
+        for first in range(0, len(episodes), n):
+            group = episodes[first : first + n]
+            for t in range(length):
+                last = t == length - 1
+
+                def at(step: int, group: list[Any] = group) -> Any:
+                    if isinstance(self.observation_space, gym.spaces.Dict):
+                        return {
+                            k: np.stack([e.observations[k][step] for e in group]) for k in self.observation_space.spaces
+                        }
+                    return np.stack([e.observations[step] for e in group])
+
+                infos = [{"TimeLimit.truncated": last, "is_success": bool(np.asarray(e.infos["is_success"])[t])}
+                         for e in group]  # fmt: skip
+                self.replay_buffer.add(at(t), at(t + 1), np.stack([np.clip(e.actions[t], -1, 1) for e in group]),
+                                       np.array([e.rewards[t] for e in group], dtype=np.float32),
+                                       np.full(n, last), infos)  # fmt: skip
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        super().train(gradient_steps, batch_size)
+        if self.bc_weight == 0:
+            return
+        observations, actions = self.demo_batch(self.batch_size)
+        with torch.no_grad():  # the Q-filter: imitate only where the demonstration looks better to the critics
+            policy_actions, _ = self.actor.action_log_prob(observations)
+            demo_value = self.critic(observations, actions).mean(dim=(1, 2))
+            policy_value = self.critic(observations, policy_actions).mean(dim=(1, 2))
+            keep = (demo_value > policy_value).float()
+        error = ((self.actor(observations, deterministic=True) - actions) ** 2).sum(dim=1)
+        loss = self.bc_weight * (keep * error).sum() / keep.sum().clamp(min=1.0)
+        self.actor.optimizer.zero_grad()
+        loss.backward()
+        self.actor.optimizer.step()
+        self.logger.record("train/bc_loss", loss.item())
+        self.logger.record("train/bc_q_filter", float(keep.mean()))  # the share that passed the filter

@@ -1,0 +1,117 @@
+"""Learning from demonstrations through train.py: behaviour cloning and TQC with demonstrations, on a Minari
+dataset recorded by the project's own recorder."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("minari")
+
+from panda_grasp_env.agents import demonstrations  # noqa: E402
+from panda_grasp_env.agents.config import config_from_dict  # noqa: E402
+from panda_grasp_env.agents.imitation import BehaviourCloning, Demonstrations, TQCFromDemonstrations  # noqa: E402
+from panda_grasp_env.agents.training import start_run, train  # noqa: E402
+
+DATASET = "panda_grasp_env/stack-expert-v0"
+
+
+@pytest.fixture(scope="module")
+def dataset_path(tmp_path_factory):
+    """Four Stack expert episodes (100 steps each) recorded by the recorder."""
+    out = tmp_path_factory.mktemp("minari")
+    args = demonstrations.parse_args(["--out", str(out), "--agent", "expert", "--task", "Stack", "--episodes", "4",
+                                      "--seed-start", "40"])  # fmt: skip
+    demonstrations.record(args)
+    return str(out)
+
+
+def spec(path, episodes=4, **extra):
+    return {"dataset": DATASET, "episodes": episodes, "path": path, **extra}
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        (None, "must be a mapping"),
+        ({"dataset": DATASET}, "must be a mapping with keys dataset, episodes"),
+        ({"dataset": DATASET, "episodes": 0}, "episodes must be an int >= 1"),
+        ({"dataset": DATASET, "episodes": 2, "colour": 1}, "must be a mapping"),
+        ({"dataset": DATASET, "episodes": 2, "successful_only": "yes"}, "successful_only must be a bool"),
+    ],
+)
+def test_bad_demonstration_specs_name_the_problem(value, message):
+    with pytest.raises(ValueError, match=message):
+        Demonstrations.of(value)
+
+
+def test_missing_or_short_datasets_are_refused(dataset_path, tmp_path):
+    with pytest.raises(ValueError, match="no Minari dataset"):
+        Demonstrations.of(spec(str(tmp_path))).episodes_data()
+    with pytest.raises(ValueError, match="holds only"):
+        Demonstrations.of(spec(dataset_path, episodes=50)).episodes_data()
+
+
+def test_transitions_match_the_env_spaces(dataset_path):
+    env = gym.make("PandaStack-v0")
+    observations, actions = Demonstrations.of(spec(dataset_path)).transitions(env.observation_space)
+    assert actions.shape == (400, 4) and np.all(np.abs(actions) <= 1)
+    assert {k: v.shape for k, v in observations.items()} == {
+        k: (400, *s.shape) for k, s in env.observation_space.spaces.items()
+    }
+    with pytest.raises(ValueError, match="observation 'observation' has shape"):
+        Demonstrations.of(spec(dataset_path)).transitions(gym.make("PandaPush-v0").observation_space)
+    env.close()
+
+
+def test_behaviour_cloning_fits_the_demonstrations_and_trains_through_train_py(dataset_path, tmp_path):
+    config = config_from_dict({
+        "name": "bc_test", "env_id": "PandaStack-v0", "algo": "bc", "total_steps": 400,
+        "policy_kwargs": {"net_arch": [64, 64]},
+        "algo_kwargs": {"demonstrations": spec(dataset_path), "learning_rate": 0.003, "batch_size": 64},
+        "eval_every": 400, "eval_episodes": 1, "final_eval_episodes": 1, "checkpoint_every": 400,
+    })  # fmt: skip
+    run = start_run(config, tmp_path)
+    final = train(config, run, progress_bar=False)
+    assert final["steps"] == 400 and (run / "card.md").read_text().count("minibatches (no environment steps)") == 1
+    assert "the first 4 successful episodes of Minari dataset" in (run / "card.md").read_text()
+    # The trained actor is closer to the demonstrated actions than an untrained one.
+    model = BehaviourCloning.load(run / "latest.zip", device="cpu", demonstrations=spec(dataset_path))
+    fresh = BehaviourCloning("MultiInputPolicy", gym.make("PandaStack-v0"), demonstrations=spec(dataset_path),
+                             policy_kwargs={"net_arch": [64, 64]}, seed=1)  # fmt: skip
+    observations, actions = model.demo_batch(400)
+
+    def error(m):
+        with torch.no_grad():
+            return float(((m.actor(observations, deterministic=True) - actions) ** 2).mean())
+
+    assert error(model) < 0.5 * error(fresh)
+
+
+def test_tqc_with_demonstrations_starts_with_them_in_the_buffer_and_clones_them(dataset_path):
+    from stable_baselines3 import HerReplayBuffer
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    env = DummyVecEnv([lambda: gym.make("PandaStack-v0")] * 2)
+    model = TQCFromDemonstrations("MultiInputPolicy", env, demonstrations=spec(dataset_path), bc_weight=1.0,
+                                  replay_buffer_class=HerReplayBuffer, buffer_size=2000, learning_starts=10,
+                                  batch_size=32, policy_kwargs={"net_arch": [32, 32]}, seed=0)  # fmt: skip
+    model.learn(20)
+    assert model.replay_buffer.size() == (400 + 20) // 2  # rows of 2 envs: the 4 demonstrations, the 20 steps
+    model.train(gradient_steps=1, batch_size=32)
+    assert 0.0 <= model.logger.name_to_value["train/bc_q_filter"] <= 1.0
+    with pytest.raises(ValueError, match="episodes of one length, a multiple of n_envs"):
+        three = TQCFromDemonstrations("MultiInputPolicy", env, demonstrations=spec(dataset_path, episodes=3),
+                                      replay_buffer_class=HerReplayBuffer, buffer_size=2000)  # fmt: skip
+        three.learn(2)
+    env.close()
+
+
+def test_configs_without_demonstrations_are_refused():
+    with pytest.raises(ValueError, match="expected a demonstrations entry for bc"):
+        config_from_dict({"name": "x", "env_id": "PandaStack-v0", "algo": "bc", "total_steps": 10})
+    with pytest.raises(ValueError, match="bc needs algo_kwargs.demonstrations"):
+        BehaviourCloning("MultiInputPolicy", gym.make("PandaStack-v0"))
+    with pytest.raises(ValueError, match=r"unknown algo_kwargs \['gamma'\] for bc"):
+        config_from_dict({"name": "x", "env_id": "PandaStack-v0", "algo": "bc", "total_steps": 10,
+                          "algo_kwargs": {"demonstrations": {"dataset": DATASET, "episodes": 1}, "gamma": 0.9}})  # fmt: skip
