@@ -91,6 +91,8 @@ PERCEPTION = {"obs_mode": "rgbd", "cameras": ("overhead", "front"), "image_size"
 
 @dataclass(frozen=True)
 class EpisodeSpec:
+    """One benchmark episode: which agent plays which task on which seed, with which extra env options."""
+
     agent: str
     task: str
     seed: int

@@ -35,6 +35,8 @@ PUSH_START = 0.065
 
 @dataclass(frozen=True)
 class SeenBlock:
+    """A block as a pose source sees it: centre (world, metres) and yaw (radians about world z)."""
+
     position: np.ndarray
     yaw: float
 
@@ -209,6 +211,8 @@ class BuildAndBreakAgent:
 
 @dataclass
 class TowerOutcome:
+    """What a workcell-level tower build achieved, primitive by primitive."""
+
     success: bool
     base: str
     #: Primitive results in order (3 grasps + 3 places for an ideal 4-block build).

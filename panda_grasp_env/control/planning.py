@@ -50,6 +50,9 @@ class Box:
 
 @dataclass(frozen=True)
 class PlanResult:
+    """A planning query's answer: whether a path was found, the path, its length, the planning time (seconds)
+    and the OMPL planner that ran."""
+
     success: bool
     #: Waypoints (N, 7) in joint space, start to goal (empty without a solution).
     path: np.ndarray

@@ -47,6 +47,8 @@ class PhysicsError(RuntimeError):
 
 @dataclass
 class MoveOutcome:
+    """How a Cartesian move of the grasp site ended: within tolerance of its goal or not, and how far off."""
+
     reached: bool
     #: Distance between the grasp site and the goal when the move ended, metres.
     error: float
