@@ -54,6 +54,9 @@ class TrainConfig:
     # test and LearnedAgent use env_kwargs alone.
     train_env_kwargs: dict[str, Any] = field(default_factory=dict)
     max_episode_steps: int | None = None  # None: the id's own limit
+    # The entries of a Dict observation the policy sees, e.g. [proprio, overhead_rgb, desired_goal] for a
+    # policy that must see the objects through cameras (None: all of them).
+    observation_keys: list[str] | None = None
     algo_kwargs: dict[str, Any] = field(default_factory=dict)  # SB3 constructor arguments
     policy_kwargs: dict[str, Any] = field(default_factory=dict)
     her: dict[str, Any] | None = None  # HerReplayBuffer arguments; None = no HER
@@ -104,6 +107,12 @@ class TrainConfig:
         for key in ("env_kwargs", "train_env_kwargs", "algo_kwargs", "policy_kwargs"):
             check(isinstance(getattr(self, key), dict), key, "a mapping")
         check(self.her is None or isinstance(self.her, dict), "her", "a mapping or null")
+        keys = self.observation_keys
+        check(keys is None or (isinstance(keys, list) and len(keys) > 0 and all(isinstance(k, str) for k in keys)
+                               and len(set(keys)) == len(keys)), "observation_keys",
+              "null or a non-empty list of distinct observation entry names")  # fmt: skip
+        check(keys is None or (self.her is None and self.algo != "heightmap_dqn"), "observation_keys",
+              "null with HER (it needs achieved_goal) and with heightmap_dqn")  # fmt: skip
         check(
             self.her is None or self.algo in HER_ALGORITHMS, "her", f"null unless algo is one of {list(HER_ALGORITHMS)}"
         )
@@ -222,6 +231,9 @@ def observation_transform(config: TrainConfig) -> Callable[[Any, dict[str, Any]]
 
         holding = holding_plane(config)
         return lambda observation, info: encode_observation(observation, info, holding)
+    if config.observation_keys is not None:
+        keys = config.observation_keys
+        return lambda observation, info: {key: observation[key] for key in keys}
     return lambda observation, info: observation
 
 
@@ -290,6 +302,13 @@ def training_env(config: TrainConfig) -> gym.Env:
         from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap
 
         env = EncodedHeightmap(env, holding_plane(config))
+    if config.observation_keys is not None:
+        spaces = getattr(env.observation_space, "spaces", {})
+        missing = [key for key in config.observation_keys if key not in spaces]
+        if missing:
+            raise ValueError(f"observation_keys {missing} are not in {config.env_id}'s observations with "
+                             f"{config.env_kwargs} (its entries: {list(spaces)})")  # fmt: skip
+        env = gym.wrappers.FilterObservation(env, config.observation_keys)
     return env
 
 

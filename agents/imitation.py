@@ -83,7 +83,9 @@ class Demonstrations:
                 if any(key not in e.observations for e in episodes):
                     raise ValueError(f"demonstrations {self.dataset}: no observation {key!r} (the env's: "
                                      f"{list(space.spaces)})")  # fmt: skip
-                observations[key] = np.concatenate([e.observations[key][:-1] for e in episodes]).astype(np.float32)
+                observations[key] = np.concatenate([e.observations[key][:-1] for e in episodes]).astype(box.dtype)
+                if observations[key].ndim == 4 and observations[key].shape[1:] == (*box.shape[1:], box.shape[0]):
+                    observations[key] = observations[key].transpose(0, 3, 1, 2)  # SB3 sees images channel-first
                 if observations[key].shape[1:] != box.shape:
                     raise ValueError(f"demonstrations {self.dataset}: observation {key!r} has shape "
                                      f"{observations[key].shape[1:]}, the env's {box.shape}")  # fmt: skip
@@ -100,6 +102,17 @@ def _tensors(observations: dict[str, np.ndarray] | np.ndarray, device: torch.dev
     if isinstance(observations, dict):
         return {key: torch.as_tensor(value, device=device) for key, value in observations.items()}
     return torch.as_tensor(observations, device=device)
+
+
+def _noisy(observations: Any, std: float, generator: torch.Generator) -> Any:
+    def noisy(value: torch.Tensor) -> torch.Tensor:
+        if not value.dtype.is_floating_point:  # images: uint8 pixels stay as they are
+            return value
+        return value + std * torch.randn(value.shape, generator=generator).to(value.device)
+
+    if isinstance(observations, dict):
+        return {key: noisy(value) for key, value in observations.items()}
+    return noisy(observations)
 
 
 def _rows(observations: Any, index: torch.Tensor) -> Any:
@@ -149,6 +162,8 @@ class BehaviourCloning(DemonstrationMixin, SAC):
     """Behaviour cloning into a SAC policy (actor and critics; only the actor learns): each step draws
     ``batch_size`` demonstrated steps and regresses the actor's deterministic action (tanh of its mean, what
     ``predict(deterministic=True)`` returns) onto the demonstrated actions (mean squared error).
+    ``observation_noise``: the standard deviation of Gaussian noise added to every vector observation entry
+    in training (metres for positions), so that the policy also sees states a little off the demonstrations.
     ``num_timesteps`` counts minibatches; no env step is taken to learn."""
 
     def __init__(
@@ -158,6 +173,7 @@ class BehaviourCloning(DemonstrationMixin, SAC):
         demonstrations: dict[str, Any] | None = None,
         learning_rate: float | Any = 1e-3,
         batch_size: int = 256,
+        observation_noise: float = 0.0,
         policy_kwargs: dict[str, Any] | None = None,
         tensorboard_log: str | None = None,
         verbose: int = 0,
@@ -169,7 +185,9 @@ class BehaviourCloning(DemonstrationMixin, SAC):
             _check_demonstrations(demonstrations, "bc")
         if not (isinstance(batch_size, int) and batch_size >= 1):
             raise ValueError(f"bc: batch_size must be an int >= 1, got {batch_size!r}")
-        self.demonstrations = demonstrations
+        if not (is_number(observation_noise) and observation_noise >= 0):
+            raise ValueError(f"bc: observation_noise must be a number >= 0, got {observation_noise!r}")
+        self.demonstrations, self.observation_noise = demonstrations, float(observation_noise)
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=1, learning_starts=0,
                          batch_size=batch_size, policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log,
                          verbose=verbose, seed=seed, device=device, _init_setup_model=_init_setup_model)  # fmt: skip
@@ -194,6 +212,8 @@ class BehaviourCloning(DemonstrationMixin, SAC):
             self._update_current_progress_remaining(self.num_timesteps, total)
             self._update_learning_rate([self.actor.optimizer])
             observations, actions = self.demo_batch(self.batch_size)
+            if self.observation_noise:
+                observations = _noisy(observations, self.observation_noise, self._demo_generator)
             loss = functional.mse_loss(self.actor(observations, deterministic=True), actions)
             self.actor.optimizer.zero_grad()
             loss.backward()

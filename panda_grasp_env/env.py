@@ -125,7 +125,8 @@ class PandaEnv(gym.Env):
     Args:
         task: a registered task's name (``TowerBuild``, ``TowerBreak``, ``BuildAndBreak``, ``Grasp``, ``Push``,
             ``PutInBin``, or one of your own: ``registration.TASKS``).
-        obs_mode: ``state``, ``rgb``, ``depth``, ``segmentation``, ``heightmap`` or a ``+`` combination.
+        obs_mode: ``state``, ``proprio``, ``rgb``, ``depth``, ``segmentation``, ``heightmap`` or a ``+``
+            combination.
         action_mode: ``primitive``, ``pixel``, ``pixel_factored``, ``ee_delta``, ``joint`` or ``grasp_pose``
             (default: the task's).
         render_mode: ``rgb_array`` / ``depth_array`` (front camera), ``rgb_array_list`` (the frames since the

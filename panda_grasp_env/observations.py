@@ -5,6 +5,8 @@
 
 * ``state`` -- float32 vector (see ``state_layout``): robot, then every object slot, then the task's
   ``properties`` (if any) and, in primitive modes of goal tasks, the goal;
+* ``proprio`` -- the robot's part of the state alone (``ROBOT_STATE_SIZE`` entries: nothing about the
+  objects), for policies that must see the objects through cameras;
 * ``rgb`` -- (H, W, 3) uint8; ``depth`` -- (H, W, 1) float32 metres along the
   optical axis; ``segmentation`` -- (H, W, 1) uint8 labels: 0 background
   (table, floor), 1 robot, 2 + i object slot i (blocks first);
@@ -33,7 +35,7 @@ from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_from_r
 from panda_grasp_env.sim.rendering import CameraRenderer
 from panda_grasp_env.sim.workcell import Workcell
 
-MODALITIES = ("state", "rgb", "depth", "segmentation", "heightmap")
+MODALITIES = ("state", "proprio", "rgb", "depth", "segmentation", "heightmap")
 IMAGE_MODALITIES = ("rgb", "depth", "segmentation")
 #: Camera whose RGB-D the heightmap is projected from, and its resolution (a Kinect's).
 HEIGHTMAP_CAMERA = ("overhead", 640, 480)
@@ -181,6 +183,8 @@ class ObservationBuilder:
             if modality == "state":
                 key = "observation" if goal_size is not None else "state"
                 spaces[key] = gym.spaces.Box(-STATE_BOUND, STATE_BOUND, (self.state_size,), dtype=np.float32)
+            elif modality == "proprio":
+                spaces["proprio"] = gym.spaces.Box(-STATE_BOUND, STATE_BOUND, (ROBOT_STATE_SIZE,), dtype=np.float32)
             elif modality == "heightmap":
                 rows, cols = sensors.grid.shape
                 high = np.full((rows, cols, 4), 1.0, dtype=np.float32)
@@ -247,6 +251,8 @@ class ObservationBuilder:
         for modality in self.modalities:
             if modality == "state":
                 out["observation" if self.goal_size is not None else "state"] = self.state(extra)
+            elif modality == "proprio":
+                out["proprio"] = self.state(extra)[:ROBOT_STATE_SIZE]
             elif modality == "heightmap":
                 heights, colours = self.sensors.heightmap()
                 out["heightmap"] = np.concatenate([colours / np.float32(255.0), heights[..., None]], axis=-1).astype(

@@ -115,3 +115,24 @@ def test_configs_without_demonstrations_are_refused():
     with pytest.raises(ValueError, match=r"unknown algo_kwargs \['gamma'\] for bc"):
         config_from_dict({"name": "x", "env_id": "PandaStack-v0", "algo": "bc", "total_steps": 10,
                           "algo_kwargs": {"demonstrations": {"dataset": DATASET, "episodes": 1}, "gamma": 0.9}})  # fmt: skip
+
+
+def test_a_camera_policy_sees_only_the_observation_keys_it_names():
+    from panda_grasp_env.agents.config import observation_transform, training_env
+
+    raw = {"name": "x", "env_id": "PandaGrasp-v0", "algo": "sac", "total_steps": 10,
+           "env_kwargs": {"action_mode": "ee_delta", "obs_mode": "proprio+rgb", "cameras": ["overhead", "wrist"],
+                          "image_size": [40, 40]},
+           "observation_keys": ["proprio", "overhead_rgb", "wrist_rgb", "desired_goal"]}  # fmt: skip
+    config = config_from_dict(raw)
+    env = training_env(config)
+    observation, info = env.reset(seed=0)
+    assert sorted(observation) == sorted(raw["observation_keys"]) == sorted(env.observation_space.spaces)
+    assert observation["proprio"].shape == (23,)  # the robot alone: no object in what the policy sees
+    full = gym.make("PandaGrasp-v0", **raw["env_kwargs"]).reset(seed=0)[0]
+    assert sorted(observation_transform(config)(full, {})) == sorted(raw["observation_keys"])
+    env.close()
+    with pytest.raises(ValueError, match=r"observation_keys \['state'\] are not in"):
+        training_env(config_from_dict({**raw, "observation_keys": ["state"]}))
+    with pytest.raises(ValueError, match="observation_keys"):
+        config_from_dict({**raw, "observation_keys": ["proprio", "proprio"]})
