@@ -115,6 +115,26 @@ def _noisy(observations: Any, std: float, generator: torch.Generator) -> Any:
     return noisy(observations)
 
 
+def _shifted(observations: Any, pad: int, generator: torch.Generator) -> Any:
+    """Each (batch, channels, height, width) uint8 image entry shifted by up to ``pad`` pixels each way."""
+
+    def shift(images: torch.Tensor) -> torch.Tensor:
+        if images.ndim != 4 or images.dtype != torch.uint8:
+            return images
+        batch, channels, height, width = images.shape
+        padded = functional.pad(images.float(), (pad, pad, pad, pad), mode="replicate")
+        dy, dx = (torch.randint(0, 2 * pad + 1, (2, batch), generator=generator)).to(images.device)
+        rows = (torch.arange(height, device=images.device)[None, :] + dy[:, None])[:, None, :, None]
+        cols = (torch.arange(width, device=images.device)[None, :] + dx[:, None])[:, None, None, :]
+        samples = torch.arange(batch, device=images.device)[:, None, None, None]
+        planes = torch.arange(channels, device=images.device)[None, :, None, None]
+        return padded[samples, planes, rows, cols].to(torch.uint8)
+
+    if isinstance(observations, dict):
+        return {key: shift(value) for key, value in observations.items()}
+    return shift(observations)
+
+
 def _rows(observations: Any, index: torch.Tensor) -> Any:
     if isinstance(observations, dict):
         return {key: value[index] for key, value in observations.items()}
@@ -164,6 +184,8 @@ class BehaviourCloning(DemonstrationMixin, SAC):
     ``predict(deterministic=True)`` returns) onto the demonstrated actions (mean squared error).
     ``observation_noise``: the standard deviation of Gaussian noise added to every vector observation entry
     in training (metres for positions), so that the policy also sees states a little off the demonstrations.
+    ``image_shift``: image observations are shifted by up to this many pixels each way, per sample (padding
+    by repeating the border, then a random crop: the augmentation of DrQ, Kostrikov et al. 2020).
     ``num_timesteps`` counts minibatches; no env step is taken to learn."""
 
     def __init__(
@@ -174,6 +196,7 @@ class BehaviourCloning(DemonstrationMixin, SAC):
         learning_rate: float | Any = 1e-3,
         batch_size: int = 256,
         observation_noise: float = 0.0,
+        image_shift: int = 0,
         policy_kwargs: dict[str, Any] | None = None,
         tensorboard_log: str | None = None,
         verbose: int = 0,
@@ -187,7 +210,10 @@ class BehaviourCloning(DemonstrationMixin, SAC):
             raise ValueError(f"bc: batch_size must be an int >= 1, got {batch_size!r}")
         if not (is_number(observation_noise) and observation_noise >= 0):
             raise ValueError(f"bc: observation_noise must be a number >= 0, got {observation_noise!r}")
+        if not (isinstance(image_shift, int) and not isinstance(image_shift, bool) and image_shift >= 0):
+            raise ValueError(f"bc: image_shift must be an int >= 0 (pixels), got {image_shift!r}")
         self.demonstrations, self.observation_noise = demonstrations, float(observation_noise)
+        self.image_shift = image_shift
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=1, learning_starts=0,
                          batch_size=batch_size, policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log,
                          verbose=verbose, seed=seed, device=device, _init_setup_model=_init_setup_model)  # fmt: skip
@@ -214,6 +240,8 @@ class BehaviourCloning(DemonstrationMixin, SAC):
             observations, actions = self.demo_batch(self.batch_size)
             if self.observation_noise:
                 observations = _noisy(observations, self.observation_noise, self._demo_generator)
+            if self.image_shift:
+                observations = _shifted(observations, self.image_shift, self._demo_generator)
             loss = functional.mse_loss(self.actor(observations, deterministic=True), actions)
             self.actor.optimizer.zero_grad()
             loss.backward()

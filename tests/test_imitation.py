@@ -136,3 +136,16 @@ def test_a_camera_policy_sees_only_the_observation_keys_it_names():
         training_env(config_from_dict({**raw, "observation_keys": ["state"]}))
     with pytest.raises(ValueError, match="observation_keys"):
         config_from_dict({**raw, "observation_keys": ["proprio", "proprio"]})
+
+
+def test_image_shift_moves_each_image_within_its_padding_and_leaves_vectors_alone():
+    from panda_grasp_env.agents.imitation import _shifted
+
+    images = torch.randint(0, 256, (8, 3, 12, 10), dtype=torch.uint8)
+    vector = torch.randn(8, 5)
+    out = _shifted({"rgb": images, "proprio": vector}, 2, torch.Generator().manual_seed(0))
+    assert out["rgb"].shape == images.shape and out["rgb"].dtype == torch.uint8 and out["proprio"] is vector
+    padded = torch.nn.functional.pad(images.float(), (2, 2, 2, 2), mode="replicate").to(torch.uint8)
+    for i in range(8):  # each sample is one crop of its own padded image
+        crops = [padded[i, :, y : y + 12, x : x + 10] for y in range(5) for x in range(5)]
+        assert any(torch.equal(out["rgb"][i], crop) for crop in crops)
