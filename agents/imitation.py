@@ -142,8 +142,8 @@ def _rows(observations: Any, index: torch.Tensor) -> Any:
 
 
 class DemonstrationMixin:
-    """Loads ``demonstrations`` when the model is set up (also after ``load``: never saved with the model) and
-    provides the behaviour-cloning loss on a random minibatch of them."""
+    """Loads ``demonstrations`` when the model is set up (also after ``load``: they are never saved with the
+    model) and draws random minibatches of them (seeded by the model's seed; a resumed run draws afresh)."""
 
     _demo_observations: Any
     _demo_actions: torch.Tensor
