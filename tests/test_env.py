@@ -252,7 +252,7 @@ def test_bad_pixel_actions_raise():
 @pytest.mark.parametrize(
     "kwargs, message",
     [
-        ({"obs_mode": "lidar"}, "valid: \\['state', 'rgb'"),
+        ({"obs_mode": "lidar"}, "valid: \\['state', 'proprio', 'rgb'"),
         (
             {"action_mode": "torque"},
             "valid: \\['primitive', 'pixel', 'pixel_factored', 'ee_delta', 'joint', 'grasp_pose'\\]",
