@@ -164,6 +164,7 @@ class ObservationBuilder:
         command_size: int = 0,
     ) -> None:
         self.cell, self.modalities, self.cameras, self.sensors = cell, modalities, cameras, sensors
+        self._needs_state = bool({"state", "proprio"} & set(modalities))
         self.goal_size = goal_size  # None: not goal-conditioned
         self.n_objects = len(cell.object_ids)
         #: Applied to depth observations (domain randomisation's sensor noise): (depth (H, W) m, far m) -> depth.
@@ -248,11 +249,13 @@ class ObservationBuilder:
         out: dict[str, Any] = {}
         if "command" in self.keys:
             out["command"] = np.asarray(command, dtype=np.float32)
+        # One state vector serves both "state" and "proprio" (its first ROBOT_STATE_SIZE entries).
+        state = self.state(extra) if self._needs_state else None
         for modality in self.modalities:
             if modality == "state":
-                out["observation" if self.goal_size is not None else "state"] = self.state(extra)
+                out["observation" if self.goal_size is not None else "state"] = state
             elif modality == "proprio":
-                out["proprio"] = self.state(extra)[:ROBOT_STATE_SIZE]
+                out["proprio"] = state[:ROBOT_STATE_SIZE].copy()
             elif modality == "heightmap":
                 heights, colours = self.sensors.heightmap()
                 out["heightmap"] = np.concatenate([colours / np.float32(255.0), heights[..., None]], axis=-1).astype(
