@@ -73,10 +73,12 @@ class Demonstrations:
         raise ValueError(f"demonstrations: {self.dataset} holds only {len(chosen)} "
                          f"{'successful ' if self.successful_only else ''}episodes, {self.episodes} asked for")  # fmt: skip
 
-    def transitions(self, space: gym.Space) -> tuple[dict[str, np.ndarray] | np.ndarray, np.ndarray]:
-        """(observations, actions) of every step of the chosen episodes, the observations checked against the
-        env's observation ``space`` (a ``Dict`` of boxes or a box)."""
-        episodes = self.episodes_data()
+    def transitions(
+        self, space: gym.Space, episodes: list[Any] | None = None
+    ) -> tuple[dict[str, np.ndarray] | np.ndarray, np.ndarray]:
+        """(observations, actions) of every step of ``episodes`` (default: ``episodes_data()``), the
+        observations checked against the env's observation ``space`` (a ``Dict`` of boxes or a box)."""
+        episodes = self.episodes_data() if episodes is None else episodes
         if isinstance(space, gym.spaces.Dict):
             observations = {}
             for key, box in space.spaces.items():
@@ -141,6 +143,13 @@ def _rows(observations: Any, index: torch.Tensor) -> Any:
     return observations[index]
 
 
+def _stacked(episodes: list[Any], step: int, space: gym.Space) -> Any:
+    """The observations of ``episodes`` at ``step``, stacked as a vectorised env returns them."""
+    if isinstance(space, gym.spaces.Dict):
+        return {key: np.stack([e.observations[key][step] for e in episodes]) for key in space.spaces}
+    return np.stack([e.observations[step] for e in episodes])
+
+
 class DemonstrationMixin:
     """Loads ``demonstrations`` when the model is set up (also after ``load``: they are never saved with the
     model) and draws random minibatches of them (seeded by the model's seed; a resumed run draws afresh)."""
@@ -148,15 +157,18 @@ class DemonstrationMixin:
     _demo_observations: Any
     _demo_actions: torch.Tensor
 
-    def _setup_demonstrations(self) -> None:
+    def _setup_demonstrations(self) -> list[Any]:
+        """Read the demonstrations into tensors; returns their episodes (Minari ``EpisodeData``)."""
         spec = Demonstrations.of(self.demonstrations)
-        observations, actions = spec.transitions(self.observation_space)
+        episodes = spec.episodes_data()
+        observations, actions = spec.transitions(self.observation_space, episodes)
         if actions.shape[1:] != self.action_space.shape:
             raise ValueError(f"demonstrations {spec.dataset}: actions of shape {actions.shape[1:]}, the env's "
                              f"{self.action_space.shape}")  # fmt: skip
         self._demo_observations = _tensors(observations, self.device)
         self._demo_actions = torch.as_tensor(np.clip(actions, -1.0, 1.0), device=self.device)
         self._demo_generator = torch.Generator(device="cpu").manual_seed(0 if self.seed is None else int(self.seed))
+        return episodes
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_demo_observations", "_demo_actions", "_demo_generator"]
@@ -277,18 +289,21 @@ class TQCFromDemonstrations(DemonstrationMixin, TQC):
 
     def _setup_model(self) -> None:
         super()._setup_model()
-        self._setup_demonstrations()
+        #: The episodes read at setup, kept until the first ``learn`` puts them in the buffer.
+        self._episodes_for_buffer: list[Any] | None = self._setup_demonstrations()
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_episodes_for_buffer"]
 
     def _setup_learn(self, total_timesteps: int, *args: Any, **kwargs: Any) -> Any:
         fresh = self.replay_buffer is not None and self.replay_buffer.size() == 0
         result = super()._setup_learn(total_timesteps, *args, **kwargs)
-        if fresh:  # a resumed run's buffer already holds them
-            self._fill_buffer_with_demonstrations()
+        if fresh and self._episodes_for_buffer:  # a resumed run's buffer already holds them
+            self._fill_buffer(self._episodes_for_buffer)
+        self._episodes_for_buffer = None
         return result
 
-    def _fill_buffer_with_demonstrations(self) -> None:
-        spec = Demonstrations.of(self.demonstrations)
-        episodes = spec.episodes_data()
+    def _fill_buffer(self, episodes: list[Any]) -> None:
         lengths = {len(e.actions) for e in episodes}
         n = self.n_envs
         if len(lengths) != 1 or len(episodes) % n:
@@ -299,19 +314,11 @@ class TQCFromDemonstrations(DemonstrationMixin, TQC):
             group = episodes[first : first + n]
             for t in range(length):
                 last = t == length - 1
-
-                def at(step: int, group: list[Any] = group) -> Any:
-                    if isinstance(self.observation_space, gym.spaces.Dict):
-                        return {
-                            k: np.stack([e.observations[k][step] for e in group]) for k in self.observation_space.spaces
-                        }
-                    return np.stack([e.observations[step] for e in group])
-
-                infos = [{"TimeLimit.truncated": last, "is_success": bool(np.asarray(e.infos["is_success"])[t])}
-                         for e in group]  # fmt: skip
-                self.replay_buffer.add(at(t), at(t + 1), np.stack([np.clip(e.actions[t], -1, 1) for e in group]),
+                self.replay_buffer.add(_stacked(group, t, self.observation_space),
+                                       _stacked(group, t + 1, self.observation_space),
+                                       np.stack([np.clip(e.actions[t], -1, 1) for e in group]),
                                        np.array([e.rewards[t] for e in group], dtype=np.float32),
-                                       np.full(n, last), infos)  # fmt: skip
+                                       np.full(n, last), [{"TimeLimit.truncated": last} for _ in group])  # fmt: skip
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         super().train(gradient_steps, batch_size)

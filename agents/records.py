@@ -15,6 +15,7 @@ import yaml
 from panda_grasp_env.agents import learned
 from panda_grasp_env.agents.config import TrainConfig, load_run, steps_label
 from panda_grasp_env.agents.evaluation import describe_rate, is_low_level, task_label
+from panda_grasp_env.agents.imitation import Demonstrations
 from panda_grasp_env.agents.learned import SHIPPED_FILES
 from panda_grasp_env.agents.policy_files import load_policy, policy_paths, save_policy
 from panda_grasp_env.tooling.runs import atomic_path, resume_summary, write_json
@@ -103,11 +104,11 @@ def earlier_tests(run_dir: Path, best_steps: int, steps: int) -> list[dict[str, 
 
 def demonstrations_summary(config: TrainConfig) -> str:
     """The card's line on the demonstrations a run learned from ('' if none)."""
-    spec = config.algo_kwargs.get("demonstrations")
-    if not spec:
+    if "demonstrations" not in config.algo_kwargs:
         return ""
-    kind = "successful " if spec.get("successful_only", True) else ""
-    return f"the first {spec['episodes']} {kind}episodes of Minari dataset `{spec['dataset']}`"
+    spec = Demonstrations.of(config.algo_kwargs["demonstrations"])
+    kind = "successful " if spec.successful_only else ""
+    return f"the first {spec.episodes} {kind}episodes of Minari dataset `{spec.dataset}`"
 
 
 def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str:
