@@ -31,9 +31,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
-from panda_grasp_env.agents.evaluation import EpisodeSpec, all_agents, make_agent, make_env, skip_reason
+from panda_grasp_env.agents.evaluation import (
+    EpisodeSpec,
+    all_agents,
+    make_agent,
+    make_env,
+    skip_reason,
+    task_options_from_pairs,
+)
 from panda_grasp_env.registration import BENCHMARKS
 from panda_grasp_env.tooling.runs import commit
 
@@ -196,10 +202,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     for name in ("episodes", "workers", "shard_size"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be at least 1")
-    pairs = [item.split("=", 1) for item in args.task_options]
-    if any(len(pair) != 2 for pair in pairs):
-        parser.error("--task-options takes KEY=VALUE pairs")
-    args.task_options = {key: yaml.safe_load(value) for key, value in pairs}
+    try:
+        args.task_options = task_options_from_pairs(args.task_options, [args.task])
+    except ValueError as error:
+        parser.error(str(error))
     args.infos = tuple(key for key in args.infos.split(",") if key)
     args.name = args.name or f"panda_grasp_env/{args.task.lower()}-{args.agent.replace('_', '-')}-v0"
     if not args.name.rsplit("-v", 1)[-1].isdigit():

@@ -105,6 +105,38 @@ class EpisodeSpec:
         return f"{key}/{json.dumps(dict(self.options), sort_keys=True)}" if self.options else key
 
 
+def _hashable(value: Any) -> Any:
+    """YAML lists as tuples (an episode's options are part of its hashable spec)."""
+    if isinstance(value, list):
+        return tuple(_hashable(v) for v in value)
+    if isinstance(value, dict):
+        raise ValueError("mappings are not supported as option values")
+    return value
+
+
+def task_options_from_pairs(pairs: list[str], tasks: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` strings (``--task-options``) as a mapping of YAML values, checked by making each of the
+    ``tasks``' envs with them; ``ValueError`` naming the bad pair or option."""
+    import yaml
+
+    options: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, text = pair.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"--task-options: {pair!r} is not KEY=VALUE")
+        try:
+            options[key.strip()] = _hashable(yaml.safe_load(text))
+        except (yaml.YAMLError, ValueError) as error:
+            raise ValueError(f"--task-options {key}: {error}") from None
+    for task in tasks if options else ():
+        env_id, task_defaults = BENCHMARKS[task]
+        try:
+            gym.make(f"panda_grasp_env:{env_id}", **task_defaults, **options).close()
+        except (ValueError, TypeError) as error:
+            raise ValueError(f"--task-options on {task} ({env_id}): {error}") from None
+    return options
+
+
 def make_env(spec: EpisodeSpec) -> gym.Env:
     if spec.agent not in AGENTS:  # a learned checkpoint: the env it was trained on
         from panda_grasp_env.agents.learned import Checkpoint

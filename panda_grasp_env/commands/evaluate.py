@@ -44,6 +44,7 @@ from panda_grasp_env.agents.evaluation import (
     is_low_level,
     run_episode,
     skip_reason,
+    task_options_from_pairs,
 )
 from panda_grasp_env.agents.towers import build_tower, push_tower
 from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS
@@ -203,36 +204,12 @@ def parse_seed_list(parser: argparse.ArgumentParser, args: argparse.Namespace) -
     return seeds
 
 
-def _hashable(value: Any) -> Any:
-    """YAML lists as tuples (an episode's options are part of its hashable spec)."""
-    if isinstance(value, list):
-        return tuple(_hashable(v) for v in value)
-    if isinstance(value, dict):
-        raise ValueError("mappings are not supported as option values")
-    return value
-
-
 def parse_task_options(parser: argparse.ArgumentParser, pairs: list[str], tasks: list[str]) -> dict[str, Any]:
-    """``--task-options KEY=VALUE ...`` as a mapping (YAML values), checked by making each chosen task's env."""
-    import gymnasium as gym
-    import yaml
-
-    options: dict[str, Any] = {}
-    for pair in pairs:
-        key, sep, text = pair.partition("=")
-        if not sep or not key.strip():
-            parser.error(f"--task-options: {pair!r} is not KEY=VALUE")
-        try:
-            options[key.strip()] = _hashable(yaml.safe_load(text))
-        except (yaml.YAMLError, ValueError) as error:
-            parser.error(f"--task-options {key}: {error}")
-    for task in tasks if options else ():
-        env_id, task_defaults = BENCHMARKS[task]
-        try:
-            gym.make(f"panda_grasp_env:{env_id}", **task_defaults, **options).close()
-        except (ValueError, TypeError) as error:
-            parser.error(f"--task-options on {task} ({env_id}): {error}")
-    return options
+    """``--task-options KEY=VALUE ...`` as a mapping (``evaluation.task_options_from_pairs``); errors stop the parser."""
+    try:
+        return task_options_from_pairs(pairs, tasks)
+    except ValueError as error:
+        parser.error(str(error))
 
 
 def chosen_seeds(args: argparse.Namespace, task: str) -> list[int]:
