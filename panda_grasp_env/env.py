@@ -491,8 +491,9 @@ class PandaEnv(gym.Env):
         return self.task.achieved_goal(self.cell), self.task.desired_goal()
 
     def _observe(self, sanitise: bool = False) -> Any:
-        extra = [self.task.properties(), self.task.desired_goal() if self._goal_in_state else np.zeros(0)]
-        extra = np.concatenate(extra) if self.observations.extra_size else None
+        extra = None
+        if self.observations.extra_size:
+            extra = np.concatenate([self.task.properties(), self.task.desired_goal() if self._goal_in_state else []])
         observation = self.observations.observe(self._goals(), extra, self.task.command())
         if sanitise:  # after a divergence the state may hold NaN: never hand that to a learner
             if isinstance(observation, dict):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -26,8 +27,9 @@ def top_down_rotation(yaw: float) -> np.ndarray:
 
 
 def yaw_quaternion(yaw: float) -> np.ndarray:
-    """Quaternion (w, x, y, z) of a rotation by ``yaw`` about world z."""
-    return Rotation.from_euler("z", yaw).as_quat(scalar_first=True)
+    """Quaternion (w, x, y, z) of a rotation by ``yaw`` about world z (written out: every reset calls it)."""
+    half = 0.5 * float(yaw)
+    return np.array([math.cos(half), 0.0, 0.0, math.sin(half)])
 
 
 def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:

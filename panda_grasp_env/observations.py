@@ -23,6 +23,7 @@ the modality name, or ``<camera>_<modality>`` when several cameras are used.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -30,6 +31,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from panda_grasp_env.model.robot import fast_index
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_from_rgbd
 from panda_grasp_env.sim.rendering import CameraRenderer
@@ -178,6 +180,13 @@ class ObservationBuilder:
         ).reshape(-1, 1) + np.arange(6)
         self._velocity = np.zeros(6)
         self._buffer = np.zeros(self.state_size)
+        robot = cell.robot
+        self._arm_qpos, self._arm_qvel = fast_index(robot.arm_qpos_idx), fast_index(robot.arm_qvel_idx)
+        self._object_ids = fast_index(np.asarray(cell.object_ids, dtype=int))
+        self._objects = self._buffer[ROBOT_STATE_SIZE : ROBOT_STATE_SIZE + OBJECT_STATE_SIZE * self.n_objects].reshape(
+            self.n_objects, OBJECT_STATE_SIZE
+        )
+        self._angular = np.zeros((self.n_objects, 3, 1))
         spaces: dict[str, gym.Space] = {}
         height, width = sensors.height, sensors.width
         for modality in modalities:
@@ -215,26 +224,25 @@ class ObservationBuilder:
     def state(self, extra: np.ndarray | None = None) -> np.ndarray:
         """The state vector (see ``state_layout``), float32."""
         cell, robot, data = self.cell, self.cell.robot, self.cell.data
-        buffer = self._buffer
-        buffer[0:3] = data.site_xpos[robot.site_id]
-        x_axis = data.site_xmat[robot.site_id][[0, 3]]  # the closing axis, projected on the table
-        buffer[3:5] = x_axis / max(float(np.hypot(*x_axis)), 1e-9)
+        buffer, site = self._buffer, robot.site_id
+        buffer[0:3] = data.site_xpos[site]
+        rotation = data.site_xmat[site]
+        x, y = float(rotation[0]), float(rotation[3])  # the closing axis, projected on the table
+        norm = max(math.hypot(x, y), 1e-9)
+        buffer[3], buffer[4] = x / norm, y / norm
         buffer[5] = robot.finger_gap
-        mujoco.mj_objectVelocity(cell.model, data, mujoco.mjtObj.mjOBJ_SITE, robot.site_id, self._velocity, 0)
+        mujoco.mj_objectVelocity(cell.model, data, mujoco.mjtObj.mjOBJ_SITE, site, self._velocity, 0)
         buffer[6:9] = self._velocity[3:]
-        buffer[9:16] = data.qpos[robot.arm_qpos_idx]
-        buffer[16:23] = data.qvel[robot.arm_qvel_idx]
+        buffer[9:16] = data.qpos[self._arm_qpos]
+        buffer[16:23] = data.qvel[self._arm_qvel]
         if self.n_objects:
-            ids = cell.object_ids
-            objects = buffer[ROBOT_STATE_SIZE : ROBOT_STATE_SIZE + OBJECT_STATE_SIZE * self.n_objects].reshape(
-                self.n_objects, OBJECT_STATE_SIZE
-            )
+            ids, objects = self._object_ids, self._objects
             objects[:, 0:3] = data.xpos[ids]
             objects[:, 3:7] = data.xquat[ids]
             velocity = data.qvel[self._free_qvel]
             objects[:, 7:10] = velocity[:, :3]  # a free joint's linear velocity is in the world frame,
-            rotations = data.xmat[ids].reshape(-1, 3, 3)  # its angular velocity in the body frame
-            objects[:, 10:13] = np.einsum("nij,nj->ni", rotations, velocity[:, 3:])
+            self._angular[:, :, 0] = velocity[:, 3:]  # its angular velocity in the body frame
+            objects[:, 10:13] = np.matmul(data.xmat[ids].reshape(-1, 3, 3), self._angular)[:, :, 0]
             objects[:, 13] = data.xpos[ids, 2] > -0.1
         if extra is not None:
             buffer[self.state_size - len(extra) :] = extra

@@ -173,34 +173,52 @@ class JacobianServo:
     """
 
     def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, limits: ControllerLimits | None = None) -> None:
-        from panda_grasp_env.model.robot import PandaRobot
+        from panda_grasp_env.model.robot import PandaRobot, fast_index
 
         self.model, self.data = model, data
         self.robot = PandaRobot(model, data)
         self.limits = limits or ControllerLimits()
+        self._columns, self._arm_qpos = fast_index(self.robot.arm_qvel_idx), fast_index(self.robot.arm_qpos_idx)
         self._jacp = np.zeros((3, model.nv))
         self._jacr = np.zeros((3, model.nv))
+        self._jacobian = np.zeros((6, len(self.robot.arm_qvel_idx)))
+        self._normal = np.zeros((6, 6))  # J J^T + damping^2 I, then its Cholesky factor
+        self._rhs, self._solution = np.zeros(6), np.zeros(6)
         self._max_speed = np.asarray(self.limits.joint_speed)
-        self._eye6, self._eye7 = np.eye(6), np.eye(7)
+        self._target_yaw, self._target_rotation = math.nan, np.eye(3)
 
     def command(
         self, position: np.ndarray, yaw: float, dt: float, damping: float = 0.05, posture_gain: float = 0.1
     ) -> np.ndarray:
-        """Arm joint targets (7,) that move the grasp site towards ``position`` (world, metres), pointing down at ``yaw``."""
+        """Arm joint targets (7,) that move the grasp site towards ``position`` (world, metres), pointing down at ``yaw``.
+
+        The damped least-squares step with a null-space posture term, ``J+ e + (I - J+ J) p`` with
+        ``J+ = J^T (J J^T + damping^2 I)^-1``, is computed as ``p + J^T (J J^T + damping^2 I)^-1 (e - J p)``:
+        one 6x6 Cholesky solve (MuJoCo's own, without numpy's per-call LAPACK overhead)."""
         site = self.robot.site_id
         mujoco.mj_jacSite(self.model, self.data, self._jacp, self._jacr, site)
-        columns = self.robot.arm_qvel_idx
-        jacobian = np.vstack([self._jacp[:, columns], self._jacr[:, columns]])
-        # Orientation error: half the sum of (current axis x target axis) over the three axes.
-        c, t = self.data.site_xmat[site].reshape(3, 3), top_down_rotation(yaw)
-        rotation_error = 0.5 * np.array(
-            [(c[1] * t[2] - c[2] * t[1]).sum(), (c[2] * t[0] - c[0] * t[2]).sum(), (c[0] * t[1] - c[1] * t[0]).sum()]
-        )
-        error = np.concatenate([position - self.data.site_xpos[site], rotation_error])
-        inverse = jacobian.T @ np.linalg.inv(jacobian @ jacobian.T + damping**2 * self._eye6)
-        q = self.data.qpos[self.robot.arm_qpos_idx]
-        step = inverse @ error + (self._eye7 - inverse @ jacobian) @ (posture_gain * (HOME_QPOS - q))
-        largest = np.max(np.abs(step) / (self._max_speed * dt))
+        jacobian = self._jacobian
+        jacobian[:3], jacobian[3:] = self._jacp[:, self._columns], self._jacr[:, self._columns]
+        if yaw != self._target_yaw:
+            self._target_yaw, self._target_rotation = yaw, top_down_rotation(yaw)
+        # Orientation error: half the sum over the three axes of (current axis x target axis), which is
+        # the vee of the skew-symmetric part of target @ current^T.
+        mixed = self._target_rotation @ self.data.site_xmat[site].reshape(3, 3).T
+        rhs = self._rhs
+        rhs[:3] = position - self.data.site_xpos[site]
+        rhs[3] = 0.5 * (mixed[2, 1] - mixed[1, 2])
+        rhs[4] = 0.5 * (mixed[0, 2] - mixed[2, 0])
+        rhs[5] = 0.5 * (mixed[1, 0] - mixed[0, 1])
+        q = self.data.qpos[self._arm_qpos]
+        posture = posture_gain * (HOME_QPOS - q)
+        rhs -= jacobian @ posture
+        normal = self._normal
+        np.matmul(jacobian, jacobian.T, out=normal)
+        normal.flat[::7] += damping**2
+        mujoco.mju_cholFactor(normal, 0.0)
+        mujoco.mju_cholSolve(self._solution, normal, rhs)
+        step = posture + jacobian.T @ self._solution
+        largest = float((np.abs(step) / self._max_speed).max()) / dt
         if largest > 1.0:
             step /= largest
         return q + step

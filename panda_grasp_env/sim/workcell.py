@@ -35,10 +35,8 @@ TRANSIT_MIN_HEIGHT = 0.12
 #: Reset IK solutions kept (least recently used dropped first).
 TELEPORT_CACHE_SIZE = 64
 _WORLD_GROUP = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # ray casts see geom group 0 only: table and objects
-_WARNINGS = [
-    int(w)
-    for w in (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL)
-]
+#: MuJoCo's bad-state warnings, consecutive in mjtWarning: BADQPOS, BADQVEL, BADQACC.
+_WARNINGS = slice(int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQACC) + 1)
 
 
 class PhysicsError(RuntimeError):
@@ -215,7 +213,7 @@ class Workcell:
         mujoco.mj_step(self.model, self.data, nstep=n_steps)
         self.physics_steps += n_steps
         # MuJoCo's own checks catch NaN/inf and runaway values (and reset the data when they fire).
-        if self.data.warning.number[_WARNINGS].any():
+        if np.count_nonzero(self.data.warning.number[_WARNINGS]):
             raise PhysicsError("simulation diverged (MuJoCo reported bad qpos/qvel/qacc)")
         self.collateral.after_step()
         for hook in self.step_hooks:
