@@ -20,7 +20,8 @@ from panda_grasp_env.agents.heightmap_policy import (
     encode_heightmap,
     heading_in_image,
     holding_after,
-    rotate,
+    rotation_grid,
+    sample,
 )
 from panda_grasp_env.agents.policy_agent import PolicyAgent
 from panda_grasp_env.agents.policy_files import load_policy
@@ -165,7 +166,7 @@ def test_rotation_brings_a_world_heading_onto_the_image_x_axis(yaw):
     point = np.array([0.5, 0.0]) + 0.12 * np.array([np.cos(yaw), np.sin(yaw)])
     row, col = grid.world_to_cell(point)
     image[0, 0, row, col] = 1.0
-    rotated = rotate(image, heading_in_image(th.tensor([yaw], dtype=th.float32)))
+    rotated = sample(image, rotation_grid(heading_in_image(th.tensor([yaw], dtype=th.float32)), image.shape[-1]))
     peak_row, peak_col = np.unravel_index(int(rotated[0, 0].argmax()), grid.shape)
     assert abs(peak_row - 19.5) <= 1 and abs(peak_col - (19.5 + 12)) <= 1
 
