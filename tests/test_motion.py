@@ -72,3 +72,28 @@ def test_planner_refuses_a_goal_in_collision_and_unknown_planners():
     assert not result.success and "goal in collision" in result.planner
     with pytest.raises(ValueError, match="RRTConnect"):
         MotionPlanner(planner="SBL-ish")
+
+
+def test_servo_step_is_the_damped_least_squares_step_with_posture(cell, rng):
+    """The servo's one-solve form equals J+ e + (I - J+ J) p with J+ = J^T (J J^T + d^2 I)^-1, written out."""
+    import mujoco
+
+    from panda_grasp_env.control.controller import JacobianServo
+
+    servo = JacobianServo(cell.model, cell.data)
+    robot, damping, gain, dt = cell.robot, 0.05, 0.1, 1.0  # dt large: no speed scaling, the raw step is compared
+    for _ in range(20):
+        cell.clear()
+        cell.data.qpos[robot.arm_qpos_idx] = HOME_QPOS + rng.uniform(-0.4, 0.4, 7)
+        mujoco.mj_forward(cell.model, cell.data)
+        target, yaw = cell.data.site_xpos[robot.site_id] + rng.normal(0, 0.05, 3), rng.uniform(-np.pi, np.pi)
+        jacp, jacr = np.zeros((3, cell.model.nv)), np.zeros((3, cell.model.nv))
+        mujoco.mj_jacSite(cell.model, cell.data, jacp, jacr, robot.site_id)
+        jacobian = np.vstack([jacp[:, robot.arm_qvel_idx], jacr[:, robot.arm_qvel_idx]])
+        current, wanted = cell.data.site_xmat[robot.site_id].reshape(3, 3), top_down_rotation(yaw)
+        turn = 0.5 * sum(np.cross(current[:, axis], wanted[:, axis]) for axis in range(3))
+        error = np.concatenate([target - cell.data.site_xpos[robot.site_id], turn])
+        pseudo_inverse = jacobian.T @ np.linalg.inv(jacobian @ jacobian.T + damping**2 * np.eye(6))
+        q = cell.data.qpos[robot.arm_qpos_idx].copy()
+        step = pseudo_inverse @ error + (np.eye(7) - pseudo_inverse @ jacobian) @ (gain * (HOME_QPOS - q))
+        np.testing.assert_allclose(servo.command(target, yaw, dt, damping, gain), q + step, atol=1e-12)
