@@ -21,7 +21,7 @@ import numpy as np
 
 from panda_grasp_env.actions import ACTION_MODES
 from panda_grasp_env.agents.experts import LiftExpert, PushExpert, StackExpert
-from panda_grasp_env.agents.grasping import OracleGraspAgent, PlannedGraspAgent
+from panda_grasp_env.agents.grasping import OracleGraspAgent, PackedGraspOracle, PlannedGraspAgent
 from panda_grasp_env.agents.put_in_bin import PutInBinAgent
 from panda_grasp_env.agents.random_agent import RandomAgent
 from panda_grasp_env.agents.towers import (
@@ -154,6 +154,11 @@ def grasp_baseline(env: gym.Env, seed: int, oracle: bool) -> Any:
     return OracleGraspAgent(env, seed=seed) if oracle else PlannedGraspAgent(noise_seed=seed, seed=seed)
 
 
+def packed_grasp_baseline(env: gym.Env, seed: int, oracle: bool) -> Any:
+    """The planned grasping agent (it pushes at random when no grasp is detected), or the push-aware oracle."""
+    return PackedGraspOracle(env, seed=seed) if oracle else PlannedGraspAgent(noise_seed=seed, seed=seed)
+
+
 def block_baseline(agent: Callable[[CameraBlocks | OracleBlocks], Any]) -> Callable[[gym.Env, int, bool], Any]:
     """Makes ``agent`` over block poses from RGB-D (noise seeded), or with ``oracle`` the true poses."""
 
@@ -170,6 +175,7 @@ EXPERTS: dict[str, Callable[[], Any]] = {"Lift": LiftExpert, "Push": PushExpert,
 BASELINES: dict[str, Callable[[gym.Env, int, bool], Any]] = {
     "Grasp": grasp_baseline,
     "GraspClutter": grasp_baseline,
+    "GraspAdversarial": packed_grasp_baseline,
     "TowerBuild": block_baseline(TowerBuilderAgent),
     "TowerBreak": block_baseline(TowerBreakerAgent),
     "TowerBreakDirectional": block_baseline(TowerBreakerAgent),

@@ -22,7 +22,8 @@ import numpy as np
 from panda_grasp_env.actions import encode_grasp_pose
 from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure
 from panda_grasp_env.geometry import top_down_rotation
-from panda_grasp_env.perception.grasps import GraspCandidate, detect_grasps_rgbd
+from panda_grasp_env.perception.grasps import GraspCandidate, GripperGeometry, detect_grasps_rgbd
+from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
 
 #: A candidate this close (metres, radians) to a failed attempt is not tried again.
 RETRY_DISTANCE = 0.01
@@ -147,3 +148,211 @@ class OracleGraspAgent(PlannedGraspAgent):
                 GraspCandidate(grasp, top_down_rotation(yaw), 2 * extents[axis], 1.0 - 0.01 * index, yaw, index)
             )
         return ranked
+
+
+#: Spacing of the points an object's volume is sampled with for finger clearance checks, metres.
+SAMPLE_SPACING = 0.004
+#: Clearance kept around the open fingers, the pusher and the palm, metres.
+CLEARANCE = 0.002
+#: Headings tried for grasps and pushes, radians (grasps: 8 over a half turn; pushes: 8 over a full turn).
+GRASP_HEADINGS = np.arange(8) * np.pi / 8
+PUSH_HEADINGS = np.arange(8) * np.pi / 4
+#: Push stroke height above the table (metres); the closed fingers seen from above: half their width across
+#: the stroke and half their depth along it (metres, the Panda's finger links); the gap left between them and
+#: the object at the start (metres); the sideways shifts of the stroke off an object's centre line tried.
+PUSH_HEIGHT, PUSHER_HALF_WIDTH, PUSHER_HALF_DEPTH, PUSH_GAP = 0.015, 0.031, 0.02, 0.01
+PUSH_SHIFTS = (-0.025, 0.0, 0.025)
+
+
+def _near(points: np.ndarray, others: np.ndarray) -> bool:
+    """Whether any of ``points`` (N, 2) lies within ``SAMPLE_SPACING`` of any of ``others`` (M, 2), metres."""
+    low, high = others.min(axis=0) - SAMPLE_SPACING, others.max(axis=0) + SAMPLE_SPACING
+    candidates = points[np.all((points >= low) & (points <= high), axis=1)]
+    if not len(candidates):
+        return False
+    return bool(np.min(np.linalg.norm(candidates[:, None] - others[None], axis=2)) < SAMPLE_SPACING)
+
+
+def footprint(model: Any, data: Any, body: int) -> np.ndarray:
+    """Columns (N, 3) covering the first geom of ``body`` seen from above: world x, y and the top z of the
+    geom over that point (metres), on a ``SAMPLE_SPACING`` grid."""
+    geom = int(model.body_geomadr[body])
+    kind, size = int(model.geom_type[geom]), model.geom_size[geom]
+    if kind == 6:  # box
+        half = size
+    elif kind == 2:  # sphere
+        half = np.full(3, size[0])
+    else:  # capsule (radius, half length), cylinder (radius, half height): axis along local z
+        half = np.array([size[0], size[0], size[1] + (size[0] if kind == 3 else 0.0)])
+    axes = [np.linspace(-h, h, max(2, int(np.ceil(2 * h / SAMPLE_SPACING)) + 1)) for h in half]
+    local = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    if kind == 2:
+        local = local[np.linalg.norm(local, axis=1) <= size[0] + 1e-9]
+    elif kind == 5:
+        local = local[np.hypot(local[:, 0], local[:, 1]) <= size[0] + 1e-9]
+    elif kind == 3:
+        beyond = np.clip(np.abs(local[:, 2]) - size[1], 0.0, None)
+        local = local[np.hypot(np.hypot(local[:, 0], local[:, 1]), beyond) <= size[0] + 1e-9]
+    points = local @ data.xmat[body].reshape(3, 3).T + data.xpos[body]
+    cells, inverse = np.unique(np.round(points[:, :2] / SAMPLE_SPACING).astype(int), axis=0, return_inverse=True)
+    tops = np.full(len(cells), -np.inf)
+    np.maximum.at(tops, inverse.ravel(), points[:, 2])
+    return np.column_stack([cells * SAMPLE_SPACING, tops])
+
+
+class PackedGraspOracle(OracleGraspAgent):
+    """*Oracle* for packed scenes: true object poses and shapes; grasps only where the open fingers and the
+    palm clear every other object; with ``pushes``, a planned push when no such grasp is left.
+
+    Grasps: for each object in play and each of ``GRASP_HEADINGS``, a top-down grasp through its centre
+    (``grasp_depth`` below its top) whose width across the fingers fits the hand.  Clear: no point of
+    another object (``footprint``) inside either open finger's box, from the fingertips up, or under
+    the palm.  The clear candidate across the narrowest width is tried first; one that failed is not tried
+    again (as ``PlannedGraspAgent``).
+
+    Pushes (VPG's other primitive, ``pushes=True``) when no clear grasp is left: for each object and each of
+    ``PUSH_HEADINGS`` the closed fingers start just behind it -- where they clear everything -- and push
+    ``push_distance``; the object and whatever its sweep meets (transitively) are predicted to move along
+    with it.  The push that leaves the most objects with a clear grasp (ties: moves the fewest, keeps them
+    inside the play region) is made.  Without ``pushes`` (the grasp-only oracle), or when no push frees
+    anything, it tries the grasp that collides least.
+    """
+
+    name = "packed_grasp_oracle"
+
+    def __init__(self, env: gym.Env, seed: int = 0, pushes: bool = True) -> None:
+        super().__init__(env, seed)
+        self.pushes = pushes
+        self.gripper = GripperGeometry()
+        self.push_distance = 0.1
+        self.play_region: np.ndarray | None = None
+
+    def reset(self, observation: Any, info: dict[str, Any]) -> None:
+        super().reset(observation, info)
+        layout = info.get("action_layout", {})
+        self.push_distance = float(layout["push_distance"])
+        self.play_region = np.asarray(DEFAULT_BOUNDS[:2])
+
+    def _objects(self) -> dict[int, np.ndarray]:
+        """``footprint`` of every object on the table inside the play region, by index in ``object_ids``."""
+        cell = self.cell
+        objects = {}
+        for index, body in enumerate(cell.object_ids):
+            xy = cell.data.xpos[body][:2]
+            inside = np.all((xy >= self.play_region[:, 0]) & (xy <= self.play_region[:, 1]))
+            if cell.data.xpos[body][2] > -0.05 and inside:
+                objects[index] = footprint(cell.model, cell.data, body)
+        return objects
+
+    def _grasps(self, objects: dict[int, np.ndarray]) -> list[tuple[int, GraspCandidate]]:
+        """(points of other objects in the hand's way, candidate) for every fitting grasp, fewest first."""
+        g = self.gripper
+        ranked = []
+        for index, points in objects.items():
+            others = np.concatenate([p for i, p in objects.items() if i != index] or [np.zeros((0, 3))])
+            centre, top = points[:, :2].mean(axis=0), points[:, 2].max()
+            z = max(top - g.grasp_depth, g.min_height)
+            for yaw in GRASP_HEADINGS:
+                closing = np.array([np.cos(yaw), np.sin(yaw)])
+                lateral = np.array([-closing[1], closing[0]])
+                u = (points[:, :2] - centre) @ closing
+                width = float(u.max() - u.min())
+                if width > g.max_width:
+                    continue
+                du = np.abs((others[:, :2] - centre) @ closing)
+                dv = np.abs((others[:, :2] - centre) @ lateral)
+                fingers = (du > g.open_width / 2 - CLEARANCE) & (du < g.open_width / 2 + g.finger_thickness + CLEARANCE)
+                fingers &= (dv < g.finger_width / 2 + CLEARANCE) & (others[:, 2] > z - g.fingertip_below)
+                palm = (du < g.palm_half_length) & (dv < g.palm_half_width) & (others[:, 2] > z + g.palm_above)
+                blocked = int(np.count_nonzero(fingers | palm))
+                candidate = GraspCandidate(np.array([*centre, z]), top_down_rotation(yaw), width, -width, yaw, index)
+                ranked.append((blocked, candidate))
+        ranked.sort(key=lambda item: (item[0], item[1].width, item[1].object_index))
+        return ranked
+
+    def _clear_objects(self, objects: dict[int, np.ndarray]) -> int:
+        """How many objects have at least one clear grasp."""
+        return len({c.object_index for blocked, c in self._grasps(objects) if blocked == 0})
+
+    def _push_outcome(self, objects: dict[int, np.ndarray], index: int, heading: float, shift: float) -> tuple | None:
+        """(objects with a clear grasp after, -objects moved, start xy) of a push along ``heading`` that starts
+        just behind object ``index``, ``shift`` metres to the left of its centre line; None if the closed
+        fingers cannot come down there or something would leave the play region.
+
+        The closed fingers are a ``PUSHER_HALF_WIDTH`` x ``PUSHER_HALF_DEPTH`` box; every object whose
+        footprint the box sweeps moves the full stroke less the start gap, and so does whatever those sweep
+        on (transitively)."""
+        direction = np.array([np.cos(heading), np.sin(heading)])
+        lateral = np.array([-direction[1], direction[0]])
+        points = objects[index]
+        centre = points[:, :2].mean(axis=0)
+        rear = float(((points[:, :2] - centre) @ -direction).max())
+        start = centre + shift * lateral - (rear + PUSHER_HALF_DEPTH + PUSH_GAP) * direction
+        travel = self.push_distance - PUSH_GAP
+        everything = np.concatenate(list(objects.values()))
+        relative = everything[:, :2] - start
+        at_start = (np.abs(relative @ direction) < PUSHER_HALF_DEPTH + CLEARANCE) & (
+            np.abs(relative @ lateral) < PUSHER_HALF_WIDTH + CLEARANCE
+        )
+        if np.any(at_start & (everything[:, 2] > PUSH_HEIGHT - 0.01)):
+            return None
+        moved = set()
+        for other, other_points in objects.items():
+            relative = other_points[:, :2] - start
+            ahead = relative @ direction
+            inside = (
+                (np.abs(relative @ lateral) < PUSHER_HALF_WIDTH) & (ahead > 0) & (ahead < travel + PUSHER_HALF_DEPTH)
+            )
+            if np.any(inside):
+                moved.add(other)
+        if index not in moved:
+            return None
+        step = travel * direction
+        frontier = list(moved)
+        while frontier:
+            swept = np.concatenate([objects[i][:, :2] + f * step for i in frontier for f in (0.25, 0.5, 0.75, 1.0)])
+            frontier = []
+            for other, other_points in objects.items():
+                if other not in moved and _near(other_points[:, :2], swept):
+                    moved.add(other)
+                    frontier.append(other)
+        after = {i: p + np.array([*step, 0.0]) if i in moved else p for i, p in objects.items()}
+        for i in moved:
+            xy = after[i][:, :2].mean(axis=0)
+            if not np.all((xy >= self.play_region[:, 0] + 0.03) & (xy <= self.play_region[:, 1] - 0.03)):
+                return None
+        return self._clear_objects(after), -len(moved), start
+
+    def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
+        record_failure(self.failures, info)
+        if self.last is not None and info.get("primitive") == "grasp" and not info["primitive_success"]:
+            self.failed.append((self.last.position, self.last.yaw))
+        start = time.perf_counter()
+        objects = self._objects()
+        ranked = [(blocked, c) for blocked, c in self._grasps(objects) if not self._tried(c)]
+        clear = [c for blocked, c in ranked if blocked == 0]
+        action = None
+        if clear:
+            self.last = clear[0]
+        elif self.pushes and objects:
+            outcomes = [
+                (outcome, heading)
+                for index in objects
+                for heading in PUSH_HEADINGS
+                for shift in PUSH_SHIFTS
+                if (outcome := self._push_outcome(objects, index, heading, shift)) is not None
+            ]
+            best = max(outcomes, key=lambda item: item[0][:2], default=None)
+            if best is not None and best[0][0] > 0:
+                (_, _, push_start), heading = best
+                self.last = None
+                action = self.write("push", push_start[0], push_start[1], float(heading), PUSH_HEIGHT)
+        if action is None:
+            if not clear:
+                self.failures["no_clear_grasp"] += 1
+                # The least blocked grasp, or, with nothing that fits the hand, a harmless one at an empty corner.
+                empty = GraspCandidate(np.array([0.3, 0.3, 0.02]), top_down_rotation(0.0), 0.0, 0.0, 0.0, -1)
+                self.last = ranked[0][1] if ranked else empty
+            action = self._grasp_action(self.last)
+        self.compute_seconds.append(time.perf_counter() - start)
+        return action

@@ -227,7 +227,9 @@ class PrimitiveActions(ActionMode):
         return low + (value + 1.0) / 2.0 * (high - low)
 
     def layout(self) -> dict[str, Any]:
-        return {"mode": self.name, "primitives": list(self.settings.primitives), "primitive_z": self.settings.with_z}
+        settings = self.settings
+        return {"mode": self.name, "primitives": list(settings.primitives), "primitive_z": settings.with_z,
+                "push_distance": settings.push_distance}  # fmt: skip
 
     def decode(self, action: np.ndarray) -> tuple[str, float, float, float | None, float]:
         """(primitive, x, y, z or None, yaw) in world units from a validated action."""

@@ -13,6 +13,14 @@ from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.workcell import SPAWN_REGION, Workcell, body_bottom_height
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, with_scene
+from panda_grasp_env.tasks.packed_layouts import (
+    ADVERSARIAL_LAYOUTS,
+    CENTRE_JITTER,
+    MAX_OBJECTS,
+    TURN_JITTER,
+    jittered,
+    random_packed_layout,
+)
 
 #: VPG drops its clutter into the middle of the workspace; a 0.2 m square here.
 CLUTTER_REGION = np.array([[0.4, 0.6], [-0.1, 0.1]])
@@ -22,6 +30,9 @@ SCENE_CHANGE = 0.01
 #: VPG's workspace.  As in VPG, one pushed or rolled beyond it is out of the episode: no policy that sees
 #: the workspace through the heightmap could find it.
 PLAY_REGION = np.array(DEFAULT_BOUNDS[:2])
+#: Where packed layouts stand (world xy, metres): the hand-designed ones at the centre (then jittered),
+#: random ones anywhere in the square around it.
+PACKED_CENTRE, RANDOM_PACKED_REGION = np.array([0.5, 0.0]), np.array([[0.45, 0.55], [-0.05, 0.05]])
 #: Low-level lift goal: this many metres above the object's resting centre (range).
 LIFT_GOAL_HEIGHT = (0.05, 0.15)
 
@@ -68,7 +79,13 @@ class Grasp(Task):
     object kinds drawn from (default all of cube, box, cylinder, sphere,
     capsule); ``size_ranges``: per-kind size ranges overriding
     ``objects.DEFAULT_SIZE_RANGES``; ``clutter``: drop the objects into a
-    0.2 m square heap as VPG does (default: spread apart); ``max_failures``:
+    0.2 m square heap as VPG does (default: spread apart); ``packed``:
+    ``"adversarial"`` lays out one of the hand-designed packed layouts of
+    ``packed_layouts.ADVERSARIAL_LAYOUTS`` (objects wedged so that no grasp fits
+    until a push frees one; ``layout``: its index or name, default drawn per
+    episode; pose jitter drawn per episode), ``"random"`` a random packed grid
+    (``packed_layouts.random_packed_layout``, for training); the reset
+    ``info["layout"]`` names it; ``max_failures``:
     consecutive failed attempts that end the episode (VPG's rule, default 10);
     ``objects``: a list of ``objects.ObjectSpec`` (or dicts of its fields), one
     per object -- shape, size, mass, friction, colour, resting pose and yaw,
@@ -106,6 +123,16 @@ class Grasp(Task):
             {"clutter": True},
             benchmarks={"GraspClutter": Benchmark({"primitive_z": True}, quick_seeds=2, full_seeds=30)},
         ),
+        "PandaGraspAdversarial-v0": EnvId(
+            40,
+            {"packed": "adversarial"},
+            benchmarks={
+                "GraspAdversarial": Benchmark(
+                    {"primitive_z": True}, quick_seeds=2, full_seeds=5 * len(ADVERSARIAL_LAYOUTS)
+                )
+            },
+        ),
+        "PandaGraspPacked-v0": EnvId(40, {"packed": "random"}),
     }
     primitives = ("grasp", "push")
     goal_conditioned = True
@@ -119,8 +146,18 @@ class Grasp(Task):
         clutter: bool = False,
         max_failures: int = 10,
         objects: list[ObjectSpec | dict] | None = None,
+        packed: str | None = None,
+        layout: int | str | None = None,
     ) -> None:
         check_option("clutter", clutter, isinstance(clutter, bool), "a bool")
+        check_option("packed", packed, packed in (None, "adversarial", "random"), 'None, "adversarial" or "random"')
+        self.packed, self.layout = packed, self._checked_layout(packed, layout)
+        if packed is not None:
+            given = {"n_objects": n_objects, "shapes": shapes, "size_ranges": size_ranges, "objects": objects}
+            clashing = sorted(name for name, value in given.items() if value is not None) + ["clutter"] * clutter
+            if clashing:
+                raise ValueError(f"task option packed lays out its own objects: drop {clashing}")
+            n_objects = MAX_OBJECTS
         check_option("max_failures", max_failures, isinstance(max_failures, int) and max_failures >= 1, "an int >= 1")
         if objects is None:
             specs = [shorthand_spec(shapes, size_ranges)]
@@ -154,8 +191,41 @@ class Grasp(Task):
         self.in_play = 0  # objects on the table after the reset drop
         self._goal_body = 0
 
+    @staticmethod
+    def _checked_layout(packed: str | None, layout: int | str | None) -> int | None:
+        """The index in ``ADVERSARIAL_LAYOUTS`` of the ``layout`` option (an index or a name), or None."""
+        if layout is None:
+            return None
+        names = list(ADVERSARIAL_LAYOUTS)
+        check_option("layout", layout, packed == "adversarial", 'given with packed="adversarial" only')
+        if isinstance(layout, str):
+            check_option("layout", layout, layout in names, f"an index or one of {names}")
+            return names.index(layout)
+        valid = isinstance(layout, (int, np.integer)) and not isinstance(layout, bool) and 0 <= layout < len(names)
+        check_option("layout", layout, valid, f"an index in [0, {len(names) - 1}] or one of {names}")
+        return int(layout)
+
     def scene_config(self, base: SceneConfig) -> SceneConfig:
         return with_scene(base, n_blocks=0, n_objects=self.n_objects)
+
+    def _lay_out_packed(self, cell: Workcell, rng: np.random.Generator) -> tuple[str, list[ObjectShape]]:
+        """Put a packed layout on the table (the unused object slots stay parked); its name and shapes."""
+        if self.packed == "adversarial":
+            index = self.layout if self.layout is not None else int(rng.integers(len(ADVERSARIAL_LAYOUTS)))
+            name = list(ADVERSARIAL_LAYOUTS)[index]
+            centre = PACKED_CENTRE + rng.uniform(-CENTRE_JITTER, CENTRE_JITTER, 2)
+            placed = jittered(ADVERSARIAL_LAYOUTS[name], rng, centre, rng.uniform(-TURN_JITTER, TURN_JITTER))
+        else:
+            name = "random"
+            layout = random_packed_layout(rng)
+            centre = rng.uniform(RANDOM_PACKED_REGION[:, 0], RANDOM_PACKED_REGION[:, 1])
+            placed = jittered(layout, rng, centre, rng.uniform(-np.pi, np.pi))
+        bodies = cell.object_ids[: len(placed)]
+        cell.set_object_shapes({int(body): shape for body, (shape, _, _) in zip(bodies, placed)})
+        for body, (shape, xy, yaw) in zip(bodies, placed):
+            cell.set_body_pose(body, [*xy, shape.resting_half_height + 0.0005], shape.resting_quaternion(yaw))
+        cell.settle(0.3)
+        return name, [shape for shape, _, _ in placed]
 
     @property
     def ideal_actions(self) -> int:
@@ -163,28 +233,33 @@ class Grasp(Task):
 
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
         cell.clear()
-        shapes = self.drawn = [spec.sample(rng) for spec in self.specs]
-        cell.set_object_shapes(dict(zip(cell.object_ids.tolist(), shapes)))
-        if self.clutter:
-            for level, (body, shape) in enumerate(zip(cell.object_ids, shapes)):
-                xy = [rng.uniform(*CLUTTER_REGION[0]), rng.uniform(*CLUTTER_REGION[1])]
-                height = shape.bounding_radius + 0.01 + 0.06 * level  # staggered, so they fall onto each other
-                cell.set_body_pose(body, [*xy, height], shape.resting_quaternion(rng.uniform(-np.pi, np.pi)))
-            cell.settle(1.5)
+        layout = None
+        if self.packed is not None:
+            layout, shapes = self._lay_out_packed(cell, rng)
+            self.drawn = shapes
         else:
-            placed: list[tuple[np.ndarray, float]] = []
-            for body, shape, spec in zip(cell.object_ids, shapes, self.specs):
-                for _ in range(1000):  # rejection sampling; the region holds 30 small objects easily
-                    xy = np.array([rng.uniform(*SPAWN_REGION[0]), rng.uniform(*SPAWN_REGION[1])])
-                    if all(np.linalg.norm(xy - p) >= shape.bounding_radius + r + 0.04 for p, r in placed):
-                        break
-                placed.append((xy, shape.bounding_radius))
-                yaw = spec.sample_yaw(rng)
-                if self.fixed_hand_yaw is not None:  # a hand that cannot turn must fit around the object
-                    yaw = fitting_yaw(shape, yaw, self.fixed_hand_yaw, rng)
-                position = [*xy, shape.resting_half_height + 0.001]
-                cell.set_body_pose(body, position, shape.resting_quaternion(yaw))
-            cell.settle(0.3)
+            shapes = self.drawn = [spec.sample(rng) for spec in self.specs]
+            cell.set_object_shapes(dict(zip(cell.object_ids.tolist(), shapes)))
+            if self.clutter:
+                for level, (body, shape) in enumerate(zip(cell.object_ids, shapes)):
+                    xy = [rng.uniform(*CLUTTER_REGION[0]), rng.uniform(*CLUTTER_REGION[1])]
+                    height = shape.bounding_radius + 0.01 + 0.06 * level  # staggered, so they fall onto each other
+                    cell.set_body_pose(body, [*xy, height], shape.resting_quaternion(rng.uniform(-np.pi, np.pi)))
+                cell.settle(1.5)
+            else:
+                placed: list[tuple[np.ndarray, float]] = []
+                for body, shape, spec in zip(cell.object_ids, shapes, self.specs):
+                    for _ in range(1000):  # rejection sampling; the region holds 30 small objects easily
+                        xy = np.array([rng.uniform(*SPAWN_REGION[0]), rng.uniform(*SPAWN_REGION[1])])
+                        if all(np.linalg.norm(xy - p) >= shape.bounding_radius + r + 0.04 for p, r in placed):
+                            break
+                    placed.append((xy, shape.bounding_radius))
+                    yaw = spec.sample_yaw(rng)
+                    if self.fixed_hand_yaw is not None:  # a hand that cannot turn must fit around the object
+                        yaw = fitting_yaw(shape, yaw, self.fixed_hand_yaw, rng)
+                    position = [*xy, shape.resting_half_height + 0.001]
+                    cell.set_body_pose(body, position, shape.resting_quaternion(yaw))
+                cell.settle(0.3)
         # Objects that rolled out of the play region or off the table in the drop are removed from the
         # scene, and so are the rare ones a heap pressed into the table top (soft contacts; they could never
         # be lifted): what is left on the table is exactly what is in play.
@@ -215,7 +290,8 @@ class Grasp(Task):
             }  # fmt: skip
             for o in shapes
         ]
-        return {"shapes": [o.kind for o in shapes], "objects": objects, **self._info(cell)}
+        extra = {} if layout is None else {"layout": layout}
+        return {"shapes": [o.kind for o in shapes], "objects": objects, **extra, **self._info(cell)}
 
     def properties(self) -> np.ndarray:
         """Per object, as drawn (with ``objects`` specs only): kind one-hot (``SHAPES`` order), geom size (m),
