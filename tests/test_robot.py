@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from panda_grasp_env.model.robot import HOME_POSITION, HOME_YAW
+from panda_grasp_env.model.robot import HOME_POSITION, HOME_YAW, fast_index
 from panda_grasp_env.model.scene import MAX_FINGER_GAP
 
 
@@ -56,3 +56,11 @@ def test_ik_keeps_up_with_large_combined_moves(cell):
     finally:
         cell.step_hooks.clear()
     assert max(errors) < 0.005
+
+
+def test_fast_index_is_a_slice_only_for_consecutive_indices():
+    values = np.arange(20.0)
+    assert fast_index(np.array([3, 4, 5])) == slice(3, 6)
+    assert np.array_equal(values[fast_index(np.array([3, 4, 5]))], values[[3, 4, 5]])
+    for indices in (np.array([3, 5, 6]), np.array([5, 4]), np.array([], dtype=int)):
+        assert fast_index(indices) is indices
