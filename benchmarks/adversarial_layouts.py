@@ -4,12 +4,14 @@
                                              [--layouts 0,1,...] [--out results/benchmarks/adversarial_layouts.json]
                                              [--resume]
 
-``PandaGraspAdversarial-v0`` (``primitive_z=True``) with ``layout=i``; run ``k`` of a layout is seed
-``--first-seed + 100 * i + k`` (the seed draws the layout's pose jitter).  Agents, both with the true object
-poses (``panda_grasp_env.agents.grasping.PackedGraspOracle``):
+``PandaGraspAdversarial-v0`` with ``layout=i``; run ``k`` of a layout is seed ``--first-seed + 100 * i + k``
+(the seed draws the layout's pose jitter).  Agents:
 
-* ``grasp_only``: the best grasp whose fingers clear every other object, never a push;
-* ``push_aware``: the same, and a planned push when no such grasp is left.
+* ``grasp_only``: true object poses (``panda_grasp_env.agents.grasping.PackedGraspOracle``), the best grasp
+  whose fingers clear every other object, never a push;
+* ``push_aware``: the same, and a planned push when no such grasp is left;
+* any shipped heightmap checkpoint by name (e.g. ``grasp_clutter_dqn``, grasps only; ``push_grasp_dqn``),
+  on the env options it was trained with.
 
 Printed per layout and agent: completion (objects grasped / objects in play), trial success (the table
 cleared) with its 95 % interval over the runs, grasp success, the share of pushes among the actions and of
@@ -31,6 +33,7 @@ import gymnasium as gym  # noqa: E402
 
 from benchmarks._common import Results, wilson  # noqa: E402
 from panda_grasp_env.agents.grasping import PackedGraspOracle  # noqa: E402
+from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent, available_checkpoints  # noqa: E402
 from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS  # noqa: E402
 
 AGENTS = {"grasp_only": False, "push_aware": True}
@@ -38,8 +41,13 @@ AGENTS = {"grasp_only": False, "push_aware": True}
 
 def episode(agent_name: str, layout: int, seed: int) -> dict[str, float]:
     """One episode's counts."""
-    env = gym.make("panda_grasp_env:PandaGraspAdversarial-v0", layout=layout, primitive_z=True)
-    agent = PackedGraspOracle(env, seed=seed, pushes=AGENTS[agent_name])
+    if agent_name in AGENTS:
+        env = gym.make("panda_grasp_env:PandaGraspAdversarial-v0", layout=layout, primitive_z=True)
+        agent = PackedGraspOracle(env, seed=seed, pushes=AGENTS[agent_name])
+    else:
+        options = Checkpoint(agent_name).config.env_kwargs
+        env = gym.make("panda_grasp_env:PandaGraspAdversarial-v0", layout=layout, **options)
+        agent = LearnedAgent(agent_name, env)
     observation, info = env.reset(seed=seed)
     agent.reset(observation, info)
     in_play = info["objects_remaining"]
@@ -75,9 +83,11 @@ def main() -> None:
     names = list(ADVERSARIAL_LAYOUTS)
     layouts = range(len(names)) if args.layouts is None else [int(i) for i in args.layouts.split(",")]
     agents = args.agents.split(",")
-    unknown = sorted(set(agents) - set(AGENTS))
+    unknown = sorted(set(agents) - set(AGENTS) - set(available_checkpoints()))
     if unknown or args.runs < 1 or any(not 0 <= i < len(names) for i in layouts):
-        raise ValueError(f"--agents from {list(AGENTS)}, --runs >= 1, --layouts in [0, {len(names) - 1}]")
+        raise ValueError(
+            f"--agents from {list(AGENTS)} or shipped checkpoints, --runs >= 1, --layouts in [0, {len(names) - 1}]"
+        )
     results = Results(args.out, args.resume)
     print(f"{'layout':26s} {'agent':10s} {'completion':>10s} {'cleared (95 % CI)':>22s} {'grasp ok':>8s} "
           f"{'pushes':>6s} {'push->grasp':>11s} {'disturbed/act':>13s}")  # fmt: skip
