@@ -90,7 +90,7 @@ def main() -> None:
             f"--agents from {list(AGENTS)} or shipped checkpoints, --runs >= 1, --layouts in [0, {len(names) - 1}]"
         )
     results = Results(args.out, args.resume)
-    print(f"{'layout':26s} {'agent':10s} {'grasped':>10s} {'cleared (95 % CI)':>22s} {'grasp ok':>8s} "
+    print(f"{'layout':26s} {'agent':18s} {'grasped':>10s} {'cleared (95 % CI)':>22s} {'grasp ok':>8s} "
           f"{'pushes':>6s} {'push->grasp':>11s} {'disturbed/act':>13s}")  # fmt: skip
     totals = {agent: [] for agent in agents}
     for index in layouts:
@@ -111,7 +111,7 @@ def report(label: str, agent: str, rows: list[dict[str, float]]) -> None:
     total = {key: sum(row[key] for row in rows) for key in rows[0]}
     low, high = wilson(total["cleared"], len(rows))
     print(
-        f"{label:26s} {agent:10s} {total['grasped'] / max(total['in_play'], 1):10.1%} "
+        f"{label:26s} {agent:18s} {total['grasped'] / max(total['in_play'], 1):10.1%} "
         f"{total['cleared']:3d}/{len(rows):<3d} ({low:5.1%}-{high:6.1%}) "
         f"{total['grasped'] / max(total['grasps'], 1):8.1%} {total['pushes'] / max(total['actions'], 1):6.1%} "
         f"{total['pushes_then_grasp'] / max(total['pushes'], 1):11.1%} {total['disturbed'] / max(total['actions'], 1):13.2f}"
