@@ -204,7 +204,7 @@ class PackedGraspOracle(OracleGraspAgent):
     """*Oracle* for packed scenes: true object poses and shapes; grasps only where the open fingers and the
     palm clear every other object; with ``pushes``, a planned push when no such grasp is left.
 
-    Grasps: for each object in play and each of ``GRASP_HEADINGS``, a top-down grasp through its centre
+    Grasps: for each object in play, at each of ``GRASP_HEADINGS`` and across its own faces, a top-down grasp through its centre
     (``grasp_depth`` below its top) whose width across the fingers fits the hand.  Clear: no point of
     another object (``footprint``) inside either open finger's box, from the fingertips up, or under
     the palm.  The clear candidate across the narrowest width is tried first; one that failed is not tried
@@ -213,9 +213,10 @@ class PackedGraspOracle(OracleGraspAgent):
     Pushes (VPG's other primitive, ``pushes=True``) when no clear grasp is left: for each object and each of
     ``PUSH_HEADINGS`` the closed fingers start just behind it -- where they clear everything -- and push
     ``push_distance``; the object and whatever its sweep meets (transitively) are predicted to move along
-    with it.  The push that leaves the most objects with a clear grasp (ties: moves the fewest, keeps them
-    inside the play region) is made.  Without ``pushes`` (the grasp-only oracle), or when no push frees
-    anything, it tries the grasp that collides least.
+    with it.  The push that leaves the most objects with a clear grasp (then: the least blocked grasp
+    freest; then: moving the fewest; never one that moves an object out of the play region) is made, if
+    it does better than the scene as it is.  Without ``pushes`` (the grasp-only oracle), or when no push
+    helps, it tries the grasp that collides least.
     """
 
     name = "packed_grasp_oracle"
@@ -226,6 +227,7 @@ class PackedGraspOracle(OracleGraspAgent):
         self.gripper = GripperGeometry()
         self.push_distance = 0.1
         self.play_region: np.ndarray | None = None
+        self._face_headings: dict[int, tuple[float, float]] = {}
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
         super().reset(observation, info)
@@ -242,6 +244,10 @@ class PackedGraspOracle(OracleGraspAgent):
             inside = np.all((xy >= self.play_region[:, 0]) & (xy <= self.play_region[:, 1]))
             if cell.data.xpos[body][2] > -0.05 and inside:
                 objects[index] = footprint(cell.model, cell.data, body)
+                # Across its faces too, not only at the fixed headings (a box turned between two of them).
+                x_axis = cell.data.xmat[body].reshape(3, 3)[:, 0]
+                heading = float(np.arctan2(x_axis[1], x_axis[0]))
+                self._face_headings[index] = (heading % np.pi, (heading + np.pi / 2) % np.pi)
         return objects
 
     def _grasps(self, objects: dict[int, np.ndarray]) -> list[tuple[int, GraspCandidate]]:
@@ -252,7 +258,7 @@ class PackedGraspOracle(OracleGraspAgent):
             others = np.concatenate([p for i, p in objects.items() if i != index] or [np.zeros((0, 3))])
             centre, top = points[:, :2].mean(axis=0), points[:, 2].max()
             z = max(top - g.grasp_depth, g.min_height)
-            for yaw in GRASP_HEADINGS:
+            for yaw in (*GRASP_HEADINGS, *self._face_headings.get(index, ())):
                 closing = np.array([np.cos(yaw), np.sin(yaw)])
                 lateral = np.array([-closing[1], closing[0]])
                 u = (points[:, :2] - centre) @ closing
@@ -270,12 +276,13 @@ class PackedGraspOracle(OracleGraspAgent):
         ranked.sort(key=lambda item: (item[0], item[1].width, item[1].object_index))
         return ranked
 
-    def _clear_objects(self, objects: dict[int, np.ndarray]) -> int:
-        """How many objects have at least one clear grasp."""
-        return len({c.object_index for blocked, c in self._grasps(objects) if blocked == 0})
+    def _clearance(self, objects: dict[int, np.ndarray]) -> tuple[int, int]:
+        """(objects with at least one clear grasp, minus the points in the way of the least blocked grasp)."""
+        ranked = self._grasps(objects)
+        return len({c.object_index for blocked, c in ranked if blocked == 0}), -(ranked[0][0] if ranked else 0)
 
     def _push_outcome(self, objects: dict[int, np.ndarray], index: int, heading: float, shift: float) -> tuple | None:
-        """(objects with a clear grasp after, -objects moved, start xy) of a push along ``heading`` that starts
+        """(``_clearance`` after, -objects moved, start xy) of a push along ``heading`` that starts
         just behind object ``index``, ``shift`` metres to the left of its centre line; None if the closed
         fingers cannot come down there or something would leave the play region.
 
@@ -321,7 +328,7 @@ class PackedGraspOracle(OracleGraspAgent):
             xy = after[i][:, :2].mean(axis=0)
             if not np.all((xy >= self.play_region[:, 0] + 0.03) & (xy <= self.play_region[:, 1] - 0.03)):
                 return None
-        return self._clear_objects(after), -len(moved), start
+        return self._clearance(after), -len(moved), start
 
     def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
         record_failure(self.failures, info)
@@ -342,8 +349,10 @@ class PackedGraspOracle(OracleGraspAgent):
                 for shift in PUSH_SHIFTS
                 if (outcome := self._push_outcome(objects, index, heading, shift)) is not None
             ]
+            # The push that frees the most objects; if none frees one, the one that most clears the way of the
+            # least blocked grasp -- unless no push does better than trying that grasp as it is.
             best = max(outcomes, key=lambda item: item[0][:2], default=None)
-            if best is not None and best[0][0] > 0:
+            if best is not None and best[0][0] > (0, -ranked[0][0] if ranked else 0):
                 (_, _, push_start), heading = best
                 self.last = None
                 action = self.write("push", push_start[0], push_start[1], float(heading), PUSH_HEIGHT)
