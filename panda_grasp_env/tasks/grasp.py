@@ -16,6 +16,7 @@ from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reach
 from panda_grasp_env.tasks.packed_layouts import (
     ADVERSARIAL_LAYOUTS,
     CENTRE_JITTER,
+    CUBE,
     MAX_OBJECTS,
     TURN_JITTER,
     jittered,
@@ -33,6 +34,8 @@ PLAY_REGION = np.array(DEFAULT_BOUNDS[:2])
 #: Where packed layouts stand (world xy, metres): the hand-designed ones at the centre (then jittered),
 #: random ones anywhere in the square around it.
 PACKED_CENTRE, RANDOM_PACKED_REGION = np.array([0.5, 0.0]), np.array([[0.45, 0.55], [-0.05, 0.05]])
+#: The (kind, geom size) of the object slots a packed layout leaves unused (parked).
+SPARE_SHAPE = CUBE
 #: Low-level lift goal: this many metres above the object's resting centre (range).
 LIFT_GOAL_HEIGHT = (0.05, 0.15)
 
@@ -220,12 +223,19 @@ class Grasp(Task):
             layout = random_packed_layout(rng)
             centre = rng.uniform(RANDOM_PACKED_REGION[:, 0], RANDOM_PACKED_REGION[:, 1])
             placed = jittered(layout, rng, centre, rng.uniform(-np.pi, np.pi))
-        bodies = cell.object_ids[: len(placed)]
-        cell.set_object_shapes({int(body): shape for body, (shape, _, _) in zip(bodies, placed)})
-        for body, (shape, xy, yaw) in zip(bodies, placed):
+        # Slots the layout leaves unused get one fixed shape and stay parked: what they held in the previous
+        # episode must not show in this one's state.
+        shapes = [shape for shape, _, _ in placed]
+        spare = ObjectShape(*SPARE_SHAPE)
+        cell.set_object_shapes(
+            {int(body): shapes[i] if i < len(shapes) else spare for i, body in enumerate(cell.object_ids)}
+        )
+        for body in cell.object_ids[len(placed) :]:
+            cell.park(int(body))
+        for body, (shape, xy, yaw) in zip(cell.object_ids, placed):
             cell.set_body_pose(body, [*xy, shape.resting_half_height + 0.0005], shape.resting_quaternion(yaw))
         cell.settle(0.3)
-        return name, [shape for shape, _, _ in placed]
+        return name, shapes
 
     @property
     def ideal_actions(self) -> int:
