@@ -53,6 +53,7 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # benchmarks._physics, also in the workers
 VENVS = ROOT / ".bench-venvs"
 SAME_MUJOCO = ("ours_state", "fetch_pick_state", "fetch_push_state", "ours_rgbd", "fetch_render")
 EXTRA = {
@@ -95,22 +96,6 @@ def make_env(case: str) -> tuple[Any, Any, Any, int]:
     return env, env.unwrapped.model, env.unwrapped.data, env.unwrapped.n_substeps
 
 
-def raw_rate(model: Any, data: Any) -> float:
-    """``mj_step`` calls per second from ``data``'s state with its controls held (on a copy)."""
-    import mujoco
-    import numpy as np
-
-    spec = mujoco.mjtState.mjSTATE_INTEGRATION
-    snapshot = np.empty(mujoco.mj_stateSize(model, spec))
-    mujoco.mj_getState(model, data, snapshot, spec)
-    copy = mujoco.MjData(model)
-    mujoco.mj_setState(model, copy, snapshot, spec)
-    mujoco.mj_forward(model, copy)
-    start = time.perf_counter()
-    mujoco.mj_step(model, copy, nstep=RAW_STEPS)
-    return RAW_STEPS / (time.perf_counter() - start)
-
-
 def measure(case: str, steps: int, seed: int = 0) -> dict[str, float]:
     """One case in this interpreter: env steps/s, and the physics figures (see the module docstring)."""
     os.environ.setdefault("MUJOCO_GL", "egl")
@@ -118,7 +103,7 @@ def measure(case: str, steps: int, seed: int = 0) -> dict[str, float]:
 
     if case == "panda_gym_push":
         return measure_panda_gym(steps, seed)
-    import mujoco
+    from benchmarks._physics import raw_step_rate, timed_mj_step
 
     env, model, data, substeps = make_env(case)
     render = case == "fetch_render"
@@ -129,26 +114,16 @@ def measure(case: str, steps: int, seed: int = 0) -> dict[str, float]:
         if render:
             env.render()
     env.reset(seed=seed)
-    raw = raw_rate(model, data)
-
-    step, physics = mujoco.mj_step, [0.0, 0]
-
-    def timed_step(m: Any, d: Any, nstep: int = 1) -> None:
-        started = time.perf_counter()
-        step(m, d, nstep=nstep)
-        physics[0] += time.perf_counter() - started
-        physics[1] += nstep
-
-    mujoco.mj_step = timed_step
-    start = time.perf_counter()
-    for action in actions:
-        _, _, terminated, truncated, _ = env.step(action)
-        if render:
-            env.render()
-        if terminated or truncated:
-            env.reset()
-    wall = time.perf_counter() - start
-    mujoco.mj_step = step
+    raw = raw_step_rate(model, data, RAW_STEPS)
+    with timed_mj_step() as physics:
+        start = time.perf_counter()
+        for action in actions:
+            _, _, terminated, truncated, _ = env.step(action)
+            if render:
+                env.render()
+            if terminated or truncated:
+                env.reset()
+        wall = time.perf_counter() - start
     env.close()
     rate = steps / wall
     return {
@@ -156,8 +131,8 @@ def measure(case: str, steps: int, seed: int = 0) -> dict[str, float]:
         "raw_rate": raw,
         "substeps": substeps,
         "loop_efficiency": rate / (raw / substeps),
-        "physics_share": physics[0] / wall,
-        "physics_steps_per_step": physics[1] / steps,
+        "physics_share": physics.seconds / wall,
+        "physics_steps_per_step": physics.steps / steps,
     }
 
 
@@ -221,7 +196,6 @@ def main() -> None:
         print(json.dumps(measure(args.worker, args.steps)))
         return
 
-    sys.path.insert(0, str(ROOT))
     from benchmarks._common import Results
 
     cases = [*SAME_MUJOCO]

@@ -26,9 +26,9 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # benchmarks._physics, also in the workers
 TASKS = ("TowerBuild", "TowerBreak", "GraspClutter")
 RAW_STEPS = 5000
 
@@ -37,42 +37,29 @@ def measure(task: str, primitives: int) -> dict[str, float]:
     """One task in this interpreter (see the module docstring)."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     import gymnasium as gym
-    import mujoco
     import numpy as np
+
+    from benchmarks._physics import raw_step_rate, timed_mj_step
 
     env = gym.make(f"panda_grasp_env:Panda{task}-v0")
     env.action_space.seed(0)
     seed = 0
     env.reset(seed=seed)
-    step, physics = mujoco.mj_step, [0.0, 0]
-
-    def timed_step(m: Any, d: Any, nstep: int = 1) -> None:
-        started = time.perf_counter()
-        step(m, d, nstep=nstep)
-        physics[0] += time.perf_counter() - started
-        physics[1] += nstep
-
     rows = []
-    mujoco.mj_step = timed_step
-    for _ in range(primitives):
-        physics[:] = [0.0, 0]
-        start = time.perf_counter()
-        _, _, terminated, truncated, info = env.step(env.action_space.sample())
-        wall = time.perf_counter() - start
-        if physics[1]:
-            rows.append((wall, physics[0], physics[1], info.get("primitive_sim_time", 0.0)))
-        if terminated or truncated:
-            seed += 1
-            env.reset(seed=seed)
-    mujoco.mj_step = step
+    with timed_mj_step() as physics:
+        for _ in range(primitives):
+            physics.seconds, physics.steps = 0.0, 0
+            start = time.perf_counter()
+            _, _, terminated, truncated, info = env.step(env.action_space.sample())
+            wall = time.perf_counter() - start
+            if physics.steps:
+                rows.append((wall, physics.seconds, physics.steps, info.get("primitive_sim_time", 0.0)))
+            if terminated or truncated:
+                seed += 1
+                env.reset(seed=seed)
     cell = env.unwrapped.cell
     env.reset(seed=0)
-    data = mujoco.MjData(cell.model)
-    data.qpos[:], data.ctrl[:] = cell.data.qpos, cell.data.ctrl
-    mujoco.mj_forward(cell.model, data)
-    start = time.perf_counter()
-    mujoco.mj_step(cell.model, data, nstep=RAW_STEPS)
-    raw = RAW_STEPS / (time.perf_counter() - start)
+    raw = raw_step_rate(cell.model, cell.data, RAW_STEPS)
     env.close()
     walls, inside, steps, sim = (np.array(column) for column in zip(*rows))
     return {
@@ -105,7 +92,6 @@ def main() -> None:
     if unknown:
         raise ValueError(f"unknown --tasks {unknown}; choose from {list(TASKS)}")
 
-    sys.path.insert(0, str(ROOT))
     from benchmarks._common import Results
 
     def run(task: str) -> dict[str, float]:
