@@ -298,11 +298,18 @@ def train(
             replay = will_learn and (run_dir / "replay.pkl").exists()  # not for a finished run resumed to re-test
             if not trust:
                 check_run_files(run_dir, ["latest.zip"] + (["replay.pkl"] if replay else []))
-            algo_class = load_class(ALGORITHMS[config.algo][0])
+            algo_path, policy = ALGORITHMS[config.algo]
             # The config's algo_kwargs replace the saved ones (a resumed run may change them: RESUME_CHANGEABLE).
+            # The policy class comes from the config, not the pickle: a checkpoint written before the package's
+            # import names moved names a module (``agents.heightmap_policy``) that policy files may not name.
+            custom_objects = {"policy_class": load_class(policy)} if config.algo == "heightmap_dqn" else None
             try:
-                model = algo_class.load(
-                    run_dir / "latest.zip", env=env, tensorboard_log=str(run_dir / "tb"), **algo_arguments(config)
+                model = load_class(algo_path).load(
+                    run_dir / "latest.zip",
+                    env=env,
+                    tensorboard_log=str(run_dir / "tb"),
+                    custom_objects=custom_objects,
+                    **algo_arguments(config),
                 )
                 if replay:
                     model.load_replay_buffer(run_dir / "replay.pkl")

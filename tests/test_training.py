@@ -585,6 +585,40 @@ def test_resume_from_a_corrupt_checkpoint_is_one_error_line_and_no_session(finis
     assert json.loads((broken / "meta.json").read_text())["resumed"] == sessions  # the failed session left no record
 
 
+def test_resume_rebuilds_a_policy_pickled_under_a_retired_module_name(finished_run, tmp_path):
+    """Checkpoints written before the package's import names moved pickle their policy class as
+    ``agents.heightmap_policy:...``; a resume builds the config's own class instead of unpickling that name."""
+    import base64
+    import pickle
+    import shutil
+    import sys
+    import types
+    import zipfile
+
+    retired = types.ModuleType("retired_agents")
+    retired.HeightmapQPolicy = type("HeightmapQPolicy", (), {"__module__": "retired_agents"})
+    sys.modules["retired_agents"] = retired
+    try:
+        serialized = base64.b64encode(pickle.dumps(retired.HeightmapQPolicy)).decode()
+    finally:
+        del sys.modules["retired_agents"]
+    old = tmp_path / "old"
+    shutil.copytree(finished_run, old)
+    with zipfile.ZipFile(finished_run / "latest.zip") as source, zipfile.ZipFile(old / "latest.zip", "w") as target:
+        for item in source.infolist():
+            content = source.read(item)
+            if item.filename == "data":
+                data = json.loads(content)
+                data["policy_class"][":serialized:"] = serialized
+                content = json.dumps(data).encode()
+            target.writestr(item, content)
+    assert train.main(["--resume", str(old), "total_steps=14", "--no-progress", "--trust"]) == 0
+    with zipfile.ZipFile(old / "latest.zip") as rewritten:
+        policy_class = json.loads(rewritten.read("data"))["policy_class"]
+    assert policy_class["__module__"] == "panda_grasp_env.agents.heightmap_policy"
+    assert isinstance(load_policy(old / "best_policy"), HeightmapQPolicy)
+
+
 def test_retest_runs_on_a_shipped_checkpoint_too(finished_run, tmp_path, monkeypatch):
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path)
     shipped = ship(finished_run, "tiny")  # policy.zip, no progress.json: the run's totals are in final.json
