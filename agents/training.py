@@ -66,6 +66,9 @@ from panda_grasp_env.tooling.runs import (
 #: The final test's seeds start this far above the validation seeds: choosing the best checkpoint on the
 #: validation episodes does not flatter the reported figures.
 TEST_SEED_OFFSET = 100_000
+#: Episodes for choosing among runs or agent settings (``benchmarks/select_runs.py``) start this far above the
+#: validation seeds: past the periodic validations, far below the test seeds.
+SELECTION_SEED_OFFSET = 1_000
 
 
 def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:

@@ -1,11 +1,14 @@
-"""Shipped heightmap policies on their held-out test seeds, with and without the agent's ``FailureMemory``.
+"""Shipped heightmap policies with and without the agent's ``FailureMemory``, on the same seeds.
 
     python benchmarks/failure_memory.py [--checkpoints tower_build_dqn,grasp_clutter_dqn] [--episodes N]
+                                        [--seeds test|selection]
                                         [--out results/benchmarks/failure_memory.json] [--resume]
 
-Same policy, same seeds (the run's final-test seeds, ``eval_seed + TEST_SEED_OFFSET``...), side by side:
-trial success (95 % CI), completion, grasp success and action efficiency.  Without the memory a greedy
-policy in an unchanged scene repeats the action that just failed.
+Same policy, same seeds, side by side: trial success (95 % CI), completion, grasp success and action
+efficiency.  Without the memory a greedy policy in an unchanged scene repeats the action that just failed.
+``--seeds test`` (default) plays the run's final-test seeds (``eval_seed + TEST_SEED_OFFSET`` ...), the figures
+to quote; ``--seeds selection`` plays the selection seeds (``eval_seed + SELECTION_SEED_OFFSET`` ...), the ones
+to decide on whether a policy should run with the memory.
 """
 
 from __future__ import annotations
@@ -21,17 +24,19 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from benchmarks._common import Results, policy_figures, shipped_checkpoints
 from panda_grasp_env.agents.learned import Checkpoint
-from panda_grasp_env.agents.training import TEST_SEED_OFFSET, evaluate_policy
+from panda_grasp_env.agents.training import SELECTION_SEED_OFFSET, TEST_SEED_OFFSET, evaluate_policy
+
+SEED_OFFSETS = {"test": TEST_SEED_OFFSET, "selection": SELECTION_SEED_OFFSET}
 
 
-def measure(name: str, episodes: int | None, avoid_failures: bool) -> dict:
+def measure(name: str, episodes: int | None, avoid_failures: bool, seed_offset: int) -> dict:
     checkpoint = Checkpoint(name)
     config = checkpoint.config
     metrics = evaluate_policy(
         checkpoint.load_policy(),
         config,
         episodes or config.final_eval_episodes,
-        first_seed=config.eval_seed + TEST_SEED_OFFSET,
+        first_seed=config.eval_seed + seed_offset,
         avoid_failures=avoid_failures,
     )
     return policy_figures(metrics)
@@ -41,9 +46,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoints", default=None, help="comma-separated names (default: every heightmap one)")
     parser.add_argument("--episodes", type=int, default=None, help="default: each run's final_eval_episodes")
+    parser.add_argument("--seeds", choices=sorted(SEED_OFFSETS), default="test")
     parser.add_argument("--out", type=Path, default=Path("results/benchmarks/failure_memory.json"))
     parser.add_argument("--resume", action="store_true", help="keep the sections already in --out")
     args = parser.parse_args()
+    if args.seeds == "selection" and not 1 <= (args.episodes or 1) <= TEST_SEED_OFFSET - SELECTION_SEED_OFFSET:
+        parser.error(f"--episodes must be in [1, {TEST_SEED_OFFSET - SELECTION_SEED_OFFSET}] (clear of the test seeds)")
     names = args.checkpoints.split(",") if args.checkpoints else shipped_checkpoints(heightmap=True)
     for name in names:
         Checkpoint(name)  # unknown names fail before anything runs
@@ -52,8 +60,8 @@ def main() -> None:
           f"{'grasp success':>16} {'efficiency':>10}  failures")  # fmt: skip
     for name in names:
         for avoid in (False, True):
-            section = f"{name}/{'memory' if avoid else 'none'}"
-            row = results.section(section, partial(measure, name, args.episodes, avoid))
+            section = f"{name}/{args.seeds}/{'memory' if avoid else 'none'}"
+            row = results.section(section, partial(measure, name, args.episodes, avoid, SEED_OFFSETS[args.seeds]))
             success, grasp = row["trial_success"], row["grasp_success"]
             low, high = success["ci95"]
             print(f"{name:<20} {'on' if avoid else 'off':<7} {row['episodes']:>4} "

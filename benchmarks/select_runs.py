@@ -26,10 +26,12 @@ from benchmarks._common import Results, policy_figures
 from panda_grasp_env.agents.config import load_run
 from panda_grasp_env.agents.evaluation import describe_rate
 from panda_grasp_env.agents.records import load_best_policy
-from panda_grasp_env.agents.training import TEST_SEED_OFFSET, evaluate_policy, validation_score
-
-#: Selection seeds start this far above the validation seeds (runs validate on far fewer episodes).
-SELECTION_SEED_OFFSET = 1_000
+from panda_grasp_env.agents.training import (
+    SELECTION_SEED_OFFSET,
+    TEST_SEED_OFFSET,
+    evaluate_policy,
+    validation_score,
+)
 
 
 def measure(run_dir: Path, episodes: int) -> dict:
