@@ -28,8 +28,9 @@ from panda_grasp_env.model.scene import ARM_JOINTS, GRASP_SITE, SceneConfig, bui
 
 #: Joint speed (rad/s) below which the IK solution counts as converged for a fixed reference.
 REST_SPEED = 1e-3
-#: Bounds on the memo of IK solves while holding still after a ``sync``: configurations remembered, and solves
-#: remembered per configuration (a hold from home converges in a few).
+#: Bounds on the memo of IK solves while holding still at home after a ``sync``: configurations remembered
+#: (the home arm with the fingers' IK coordinates as earlier holds left them), and solves remembered per
+#: configuration (a hold from home converges in a few).
 HOLD_MEMO_STARTS, HOLD_MEMO_STEPS = 8, 32
 
 
@@ -82,9 +83,9 @@ class CartesianController:
         #: Whether the last IK step barely moved: with an unchanged reference, further solves are skipped.
         self._at_rest = False
         # Holding still right after a sync is a pure function of the synced configuration and dt (the IK
-        # never reads the simulation), and every reset holds from the same home configuration while the
-        # scene settles: its solves are remembered and replayed bit for bit instead of re-solving the QP.
-        self._hold: tuple[bytes, int] | None = None  # (synced configuration, solves since) while holding
+        # never reads the simulation), and every reset holds at home while the scene settles: those solves
+        # are remembered and replayed bit for bit instead of re-solving the QP.
+        self._hold: tuple[bytes, int] | None = None  # (synced configuration, solves since) while holding at home
         self._hold_memo: dict[tuple[bytes, float], list[tuple[np.ndarray, bool]]] = {}
 
     def sync(self, arm_qpos: np.ndarray) -> None:
@@ -103,7 +104,7 @@ class CartesianController:
         self.goal_position = self.reference_position.copy()
         self.goal_yaw = self.reference_yaw
         self._at_rest = False
-        self._hold = (self.configuration.q.tobytes(), 0)
+        self._hold = (self.configuration.q.tobytes(), 0) if np.array_equal(arm_qpos, HOME_QPOS) else None
 
     def set_goal(self, position: np.ndarray, yaw: float, speed: float | None = None) -> None:
         """New goal: grasp site at ``position`` (world, metres), pointing down, closing axis at ``yaw``.
