@@ -168,6 +168,8 @@ def save_policy(policy: Any, stem: Path | str) -> None:
 
     description, weights = policy_paths(stem)
     arguments = {k: v for k, v in policy._get_constructor_parameters().items() if k != "lr_schedule"}
+    if hasattr(policy, "share_features_extractor"):  # SB3's SAC / TQC policies leave it out of their arguments
+        arguments.setdefault("share_features_extractor", policy.share_features_extractor)
     name = class_name(type(policy))
     if name not in policy_classes():
         raise ValueError(f"policy class {name} is not one policy files may name")

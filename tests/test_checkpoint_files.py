@@ -182,6 +182,25 @@ def test_policy_files_round_trip_with_identical_actions(shipped, tmp_path):
         load_policy(tmp_path / "again")
 
 
+def test_a_policy_with_one_feature_extractor_for_actor_and_critics_round_trips(tmp_path):
+    """SB3's SAC / TQC policies leave ``share_features_extractor`` out of their constructor arguments; a policy
+    file keeps it, or the critics would be rebuilt with their own extractors and the weights would not fit."""
+    from sb3_contrib.tqc.policies import MultiInputPolicy
+
+    space = gym.spaces.Dict(
+        {"image": gym.spaces.Box(0, 255, (3, 36, 36), np.uint8), "goal": gym.spaces.Box(-1, 1, (3,), np.float32)}
+    )
+    policy = MultiInputPolicy(space, gym.spaces.Box(-1, 1, (4,), np.float32), lambda _: 1e-3,
+                              net_arch=[16], share_features_extractor=True)  # fmt: skip
+    save_policy(policy, tmp_path / "shared")
+    again = load_policy(tmp_path / "shared")
+    assert again.share_features_extractor and again.critic.features_extractor is again.actor.features_extractor
+    observation = space.sample()
+    assert np.array_equal(
+        policy.predict(observation, deterministic=True)[0], again.predict(observation, deterministic=True)[0]
+    )
+
+
 @pytest.mark.parametrize(
     "space",
     [
