@@ -102,13 +102,25 @@ class Checkpoint:
 
 
 def observation_mismatch(space: gym.Space, observation: Any) -> str | None:
-    """How a (transformed) observation's shapes differ from what ``space`` expects, or None if they match."""
+    """How a (transformed) observation's shapes differ from what ``space`` expects, or None if they match.
+
+    An image the policy sees channel-first (C, H, W) may come channel-last (H, W, C), as cameras give it:
+    SB3's ``predict`` transposes it, as its ``VecTransposeImage`` did in training."""
+    from stable_baselines3.common.preprocessing import is_image_space
+
+    def fits(box: gym.Space, shape: tuple[int, ...]) -> bool:
+        channel_last = (*box.shape[1:], box.shape[0]) if is_image_space(box, check_channels=False) else None
+        return shape in (box.shape, channel_last)
+
     if isinstance(space, gym.spaces.Dict):
         shapes = {k: np.shape(v) for k, v in observation.items()} if isinstance(observation, dict) else None
         wanted: Any = {k: s.shape for k, s in space.spaces.items()}
+        match = shapes is not None and shapes.keys() == wanted.keys()
+        match = match and all(fits(space.spaces[k], shapes[k]) for k in wanted)
     else:
         shapes, wanted = np.shape(observation), space.shape
-    return None if shapes == wanted else f"expects observations {wanted}, this env gives {shapes}"
+        match = fits(space, shapes)
+    return None if match else f"expects observations {wanted}, this env gives {shapes}"
 
 
 def check_compatible(policy: Any, config: TrainConfig, env: gym.Env, name: str) -> None:
