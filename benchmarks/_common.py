@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import platform
@@ -34,6 +35,15 @@ def policy_figures(metrics: dict[str, Any]) -> dict[str, Any]:
     """The task figures a policy benchmark saves from ``panda_grasp_env.agents.evaluation.aggregate``'s metrics."""
     keys = ("trial_success", "completion", "grasp_success", "action_efficiency", "failures", "episodes", "seeds")
     return {key: metrics[key] for key in keys}
+
+
+def check_selection_episodes(parser: argparse.ArgumentParser, episodes: int) -> None:
+    """``parser.error`` unless ``episodes`` episodes from the selection seeds stay clear of the test seeds."""
+    from panda_grasp_env.agents.training import SELECTION_SEED_OFFSET, TEST_SEED_OFFSET
+
+    most = TEST_SEED_OFFSET - SELECTION_SEED_OFFSET
+    if not 1 <= episodes <= most:
+        parser.error(f"--episodes must be in [1, {most}] (clear of the test seeds)")
 
 
 def shipped_checkpoints(heightmap: bool) -> list[str]:

@@ -114,12 +114,12 @@ def main() -> None:
             ]
             totals[agent] += rows
             report(names[index], agent, rows)
-    for agent in agents:
-        if layouts:
+    if layouts:
+        for agent in agents:
             report("all layouts", agent, totals[agent])
     seeds = range(args.heap_first_seed, args.heap_first_seed + args.heaps)
-    for agent in agents:
-        if seeds:
+    if seeds:
+        for agent in agents:
             rows = [results.section(f"{agent}/heap/{seed}", lambda seed=seed, agent=agent: episode(agent, None, seed))
                     for seed in seeds]  # fmt: skip
             report(f"random heaps ({len(rows)})", agent, rows)

@@ -22,7 +22,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from benchmarks._common import Results, policy_figures, shipped_checkpoints
+from benchmarks._common import Results, check_selection_episodes, policy_figures, shipped_checkpoints
 from panda_grasp_env.agents.learned import Checkpoint
 from panda_grasp_env.agents.training import SELECTION_SEED_OFFSET, TEST_SEED_OFFSET, evaluate_policy
 
@@ -50,8 +50,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("results/benchmarks/failure_memory.json"))
     parser.add_argument("--resume", action="store_true", help="keep the sections already in --out")
     args = parser.parse_args()
-    if args.seeds == "selection" and not 1 <= (args.episodes or 1) <= TEST_SEED_OFFSET - SELECTION_SEED_OFFSET:
-        parser.error(f"--episodes must be in [1, {TEST_SEED_OFFSET - SELECTION_SEED_OFFSET}] (clear of the test seeds)")
+    if args.seeds == "selection" and args.episodes is not None:
+        check_selection_episodes(parser, args.episodes)
     names = args.checkpoints.split(",") if args.checkpoints else shipped_checkpoints(heightmap=True)
     for name in names:
         Checkpoint(name)  # unknown names fail before anything runs

@@ -22,16 +22,11 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from benchmarks._common import Results, policy_figures
+from benchmarks._common import Results, check_selection_episodes, policy_figures
 from panda_grasp_env.agents.config import load_run
 from panda_grasp_env.agents.evaluation import describe_rate
 from panda_grasp_env.agents.records import load_best_policy
-from panda_grasp_env.agents.training import (
-    SELECTION_SEED_OFFSET,
-    TEST_SEED_OFFSET,
-    evaluate_policy,
-    validation_score,
-)
+from panda_grasp_env.agents.training import SELECTION_SEED_OFFSET, evaluate_policy, validation_score
 
 
 def measure(run_dir: Path, episodes: int) -> dict:
@@ -48,8 +43,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("results/benchmarks/select_runs.json"))
     parser.add_argument("--resume", action="store_true", help="keep the runs already measured in --out")
     args = parser.parse_args()
-    if not 1 <= args.episodes <= TEST_SEED_OFFSET - SELECTION_SEED_OFFSET:
-        parser.error(f"--episodes must be in [1, {TEST_SEED_OFFSET - SELECTION_SEED_OFFSET}] (clear of the test seeds)")
+    check_selection_episodes(parser, args.episodes)
     for run_dir in args.runs:  # a wrong folder fails before anything runs
         if not (run_dir / "best.json").is_file():
             parser.error(f"{run_dir} has no best.json: not a finished run folder")

@@ -85,7 +85,8 @@ class CartesianController:
         # Holding still right after a sync is a pure function of the synced configuration and dt (the IK
         # never reads the simulation), and every reset holds at home while the scene settles: those solves
         # are remembered and replayed bit for bit instead of re-solving the QP.
-        self._hold: tuple[bytes, int] | None = None  # (synced configuration, solves since) while holding at home
+        self._hold_start: bytes | None = None  # the synced configuration, while holding at home since the sync
+        self._hold_solves = 0  # solves (made or replayed) since that sync
         self._hold_memo: dict[tuple[bytes, float], list[tuple[np.ndarray, bool]]] = {}
 
     def sync(self, arm_qpos: np.ndarray) -> None:
@@ -104,7 +105,8 @@ class CartesianController:
         self.goal_position = self.reference_position.copy()
         self.goal_yaw = self.reference_yaw
         self._at_rest = False
-        self._hold = (self.configuration.q.tobytes(), 0) if np.array_equal(arm_qpos, HOME_QPOS) else None
+        self._hold_start = self.configuration.q.tobytes() if np.array_equal(arm_qpos, HOME_QPOS) else None
+        self._hold_solves = 0
 
     def set_goal(self, position: np.ndarray, yaw: float, speed: float | None = None) -> None:
         """New goal: grasp site at ``position`` (world, metres), pointing down, closing axis at ``yaw``.
@@ -116,13 +118,13 @@ class CartesianController:
         self.goal_position = np.asarray(position, dtype=float).copy()
         self.goal_yaw = wrap_gripper_yaw(yaw, self.goal_position)
         self.goal_speed = self.limits.linear_speed if speed is None else min(speed, self.limits.linear_speed)
-        self._hold = None
+        self._hold_start = None
 
     def stop(self) -> None:
         """Make the current reference the goal: the hand stays where it is commanded now."""
         self.goal_position = self.reference_position.copy()
         self.goal_yaw = self.reference_yaw
-        self._hold = None
+        self._hold_start = None
 
     @property
     def time_to_goal(self) -> float:
@@ -150,17 +152,12 @@ class CartesianController:
         holding = distance == 0.0 and self.goal_yaw == self.reference_yaw
         if holding and self._at_rest:
             return self.commanded_qpos  # holding still: the last solution stands, no QP needed
-        memo = None
-        if holding and self._hold is not None:
-            start, solves = self._hold
-            memo = self._hold_memo.get((start, dt))
-            if memo is None and len(self._hold_memo) < HOLD_MEMO_STARTS:
-                memo = self._hold_memo[(start, dt)] = []
-            if memo is not None and solves < len(memo):
-                q, self._at_rest = memo[solves]
-                self.configuration.update(q)
-                self._hold = (start, solves + 1)
-                return self.commanded_qpos
+        memo = self._hold_solutions(dt) if holding else None
+        if memo is not None and self._hold_solves < len(memo):
+            q, self._at_rest = memo[self._hold_solves]
+            self.configuration.update(q)
+            self._hold_solves += 1
+            return self.commanded_qpos
         self.reference_position = self.reference_position + offset
         max_turn = self.limits.angular_speed * dt
         self.reference_yaw += float(np.clip(self.goal_yaw - self.reference_yaw, -max_turn, max_turn))
@@ -172,12 +169,21 @@ class CartesianController:
         )
         self.configuration.integrate_inplace(velocity, dt)
         self._at_rest = float(np.abs(velocity).max()) < REST_SPEED
-        if memo is not None and self._hold is not None:
-            start, solves = self._hold
-            if solves == len(memo) < HOLD_MEMO_STEPS:
+        if memo is not None:
+            if self._hold_solves == len(memo) < HOLD_MEMO_STEPS:
                 memo.append((self.configuration.q.copy(), self._at_rest))
-            self._hold = (start, solves + 1)
+            self._hold_solves += 1
         return self.commanded_qpos
+
+    def _hold_solutions(self, dt: float) -> list[tuple[np.ndarray, bool]] | None:
+        """The remembered (configuration, at rest) of each solve of the current hold at home, or None when
+        not holding at home since a sync (or the memo is full)."""
+        if self._hold_start is None:
+            return None
+        key = (self._hold_start, dt)
+        if key not in self._hold_memo and len(self._hold_memo) < HOLD_MEMO_STARTS:
+            self._hold_memo[key] = []
+        return self._hold_memo.get(key)
 
     @property
     def converged(self) -> bool:
