@@ -47,6 +47,8 @@ HEIGHT_RANGE = 0.255
 #: the heights there stay within ``RETRY_HEIGHT_CHANGE`` metres of what they were (``FailureMemory``).
 RETRY_RADIUS = 0.012
 RETRY_HEIGHT_CHANGE = 0.005
+#: Primitives whose heading is a direction of travel: turned by half a turn, they are another action.
+DIRECTED_PRIMITIVES = frozenset({"push"})
 
 
 def holding_after(info: dict[str, Any]) -> bool:
@@ -278,38 +280,51 @@ class HeightmapQNetwork(nn.Module):
 
 
 class FailureMemory:
-    """The primitives that failed in an episode, with the heights around their cells when they were chosen.
+    """The primitives that failed in an episode, with where, at which heading, and the heights around them.
 
     In an unchanged scene a greedy policy chooses the same action again and often fails the same way:
     held-out tower trials ended at the action limit retrying one grasp next to the tower.  ``excluded``
-    marks the actions near an earlier failure whose surroundings have not changed, for every heading.
-    Heights are all it compares: the arm may stand elsewhere after a failure, so a retry can differ.
-    Works on encoded heightmaps (``encode_heightmap``).  Used by ``PolicyAgent(avoid_failures=True)``.
+    marks the actions near an earlier failure, at its heading, whose surroundings have not changed -- the
+    planned grasp agent's rule (``RETRY_DISTANCE``, ``RETRY_HEADING`` in ``agents/grasping.py``) on the
+    policy's grid.  A grasp or place turned by half a turn is the same action (the two fingers are alike),
+    so that heading is marked too; a push turned round is not (``DIRECTED_PRIMITIVES``).  Other headings
+    stay open: the tower policy's repeated failures were grasps at a wrong heading beside a block, and
+    marking every heading also forbade the right grasp there (``benchmarks/failure_memory.py``).  Heights are
+    all it compares: the arm may stand elsewhere after a failure, so a retry can differ.  Works on encoded
+    heightmaps (``encode_heightmap``).  Used by ``PolicyAgent(avoid_failures=True)``.
     """
 
-    def __init__(self, shape: tuple[int, int, int, int], cell_size: float) -> None:
-        """``shape``: (primitives, rotations, rows, cols) of the ``pixel`` actions; ``cell_size``: metres."""
+    def __init__(self, shape: tuple[int, int, int, int], cell_size: float, primitives: tuple[str, ...]) -> None:
+        """``shape``: (primitives, rotations, rows, cols) of the ``pixel`` actions; ``cell_size``: metres;
+        ``primitives``: their names, in the action layout's order."""
+        if len(primitives) != shape[0]:
+            raise ValueError(f"{len(primitives)} primitive names for an action layout of shape {shape}")
         self.shape = shape
         self.radius = max(1, round(RETRY_RADIUS / cell_size))
         self.tolerance = RETRY_HEIGHT_CHANGE / HEIGHT_RANGE * 255  # encoded height levels
-        self.failures: list[tuple[int, slice, slice, np.ndarray]] = []
+        rotations = shape[1]
+        self.half_turn = [rotations % 2 == 0 and name not in DIRECTED_PRIMITIVES for name in primitives]
+        self.failures: list[tuple[int, list[int], slice, slice, np.ndarray]] = []
 
     def reset(self) -> None:
         self.failures.clear()
 
     def record_failure(self, action: int, observation: np.ndarray) -> None:
         """``action`` failed; ``observation`` is the encoded heightmap it was chosen on."""
-        primitive, _, row, col = np.unravel_index(int(action), self.shape)
+        primitive, rotation, row, col = (int(i) for i in np.unravel_index(int(action), self.shape))
+        rotations = self.shape[1]
+        headings = [rotation, (rotation + rotations // 2) % rotations] if self.half_turn[primitive] else [rotation]
         rows = slice(max(0, row - self.radius), row + self.radius + 1)
         cols = slice(max(0, col - self.radius), col + self.radius + 1)
-        self.failures.append((int(primitive), rows, cols, observation[3, rows, cols].astype(np.int16)))
+        self.failures.append((primitive, headings, rows, cols, observation[3, rows, cols].astype(np.int16)))
 
     def excluded(self, observation: np.ndarray) -> np.ndarray | None:
-        """(P * R * H * W,) bool: the actions near a failure whose heights are as they were; None if none."""
+        """(P * R * H * W,) bool: the actions near a failure, at its heading, whose heights are as they were;
+        None if none."""
         mask = np.zeros(self.shape, dtype=bool)
-        for primitive, rows, cols, heights in self.failures:
+        for primitive, headings, rows, cols, heights in self.failures:
             if np.abs(observation[3, rows, cols].astype(np.int16) - heights).max() <= self.tolerance:
-                mask[primitive, :, rows, cols] = True
+                mask[primitive, headings, rows, cols] = True
         return mask.ravel() if mask.any() else None
 
 

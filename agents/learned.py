@@ -5,7 +5,8 @@ A checkpoint is a folder ``agents/checkpoints/<name>/`` written by
 
     policy.safetensors  the policy's weights (no optimiser, no replay buffer): the run's best on validation
     policy.json         its class and constructor arguments, as data (``panda_grasp_env.agents.policy_files``)
-    checkpoint.json     env id, evaluation task, policy class, the step it was saved at
+    checkpoint.json     env id, evaluation task, policy class, the step it was saved at, and whether the
+                        policy acts with a ``FailureMemory`` (``avoid_failures``, set by ``--ship --avoid-failures``)
     config.yaml         the training config
     card.md             the model card: config, seed, steps, wall time, machine, metrics with 95 % CIs
     curve.png           the learning curve; evaluations.jsonl, final.json, meta.json: its data
@@ -73,6 +74,12 @@ class Checkpoint:
     @property
     def task(self) -> str:
         return self.meta["task"]
+
+    @property
+    def avoid_failures(self) -> bool:
+        """Whether the policy acts with a ``FailureMemory`` as shipped: a choice made on selection seeds
+        (``benchmarks/failure_memory.py --seeds selection``), not part of its training."""
+        return bool(self.meta.get("avoid_failures", False))
 
     def load_policy(self) -> Any:
         """The policy, from policy.json + policy.safetensors; from an SB3 policy.zip only if ``trust``."""
@@ -150,11 +157,18 @@ class LearnedAgent(PolicyAgent):
     and a heightmap policy's ``FailureMemory`` of the episode: see ``PolicyAgent``)."""
 
     def __init__(
-        self, checkpoint: str | Path, env: gym.Env | None = None, avoid_failures: bool = False, trust: bool = False
+        self,
+        checkpoint: str | Path,
+        env: gym.Env | None = None,
+        avoid_failures: bool | None = None,
+        trust: bool = False,
     ) -> None:
-        """``trust``: the checkpoint may be an SB3 ``policy.zip`` (a pickle: see ``Checkpoint``)."""
+        """``avoid_failures``: None acts as the checkpoint was shipped (``Checkpoint.avoid_failures``);
+        ``trust``: the checkpoint may be an SB3 ``policy.zip`` (a pickle: see ``Checkpoint``)."""
         self.checkpoint = Checkpoint(checkpoint, trust)
         policy = self.checkpoint.load_policy()
+        if avoid_failures is None:
+            avoid_failures = self.checkpoint.avoid_failures
         super().__init__(policy, observation_transform(self.checkpoint.config), self.checkpoint.name, avoid_failures)
         if env is not None:
             check_compatible(policy, self.checkpoint.config, env, self.name)

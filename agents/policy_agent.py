@@ -12,9 +12,9 @@ class PolicyAgent:
     """An SB3 model or policy as an ``Agent``: deterministic actions from transformed observations.
 
     With ``avoid_failures`` a heightmap Q-policy also keeps a ``FailureMemory``: it does not choose again,
-    anywhere within a few millimetres and at any heading, a primitive that failed there while the heights
-    around it are unchanged.  Off by default: across three tower policies it changed held-out success by
-    +3, 0 and -12 points (``benchmarks/failure_memory.py``, docs/learning.md).
+    within 12 mm and at the same heading, a primitive that failed there while the heights around it are
+    unchanged.  Off by default; a checkpoint shipped with it on (``Checkpoint.avoid_failures``) had it chosen
+    on selection seeds (``benchmarks/failure_memory.py --seeds selection``, docs/learning.md).
     """
 
     def __init__(
@@ -26,7 +26,8 @@ class PolicyAgent:
         self.policy = getattr(model, "policy", model)  # an SB3 model's policy, or the policy itself
         self.memory = None
         if avoid_failures and isinstance(self.policy, HeightmapQPolicy):
-            self.memory = FailureMemory(self.policy.shape, self.policy.network_args["cell_size"])
+            args = self.policy.network_args
+            self.memory = FailureMemory(self.policy.shape, args["cell_size"], args["primitives"])
         self._chosen: tuple[int, np.ndarray] | None = None  # the last action and what it was chosen on
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:

@@ -191,9 +191,10 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
     return "\n".join(lines)
 
 
-def ship(run_dir: Path, name: str) -> Path:
+def ship(run_dir: Path, name: str, avoid_failures: bool = False) -> Path:
     """Copy a finished run (policy, card, curve, config) to ``agents/checkpoints/<name>`` (``learned.CHECKPOINTS``),
-    atomically."""
+    atomically.  ``avoid_failures``: the checkpoint acts with a ``FailureMemory`` (``Checkpoint.avoid_failures``;
+    heightmap Q-policies only)."""
     run_dir = Path(run_dir)
     missing = [f for f in SHIPPED_FILES if not (run_dir / f).is_file()]
     if missing:
@@ -201,6 +202,10 @@ def ship(run_dir: Path, name: str) -> Path:
     if not name.replace("-", "").replace("_", "").isalnum():
         raise ValueError(f"checkpoint name {name!r}: letters, digits, - and _ only")
     config = load_run(run_dir)
+    if avoid_failures and config.algo != "heightmap_dqn":
+        raise ValueError(
+            f"avoid_failures: only heightmap_dqn policies keep a FailureMemory, {run_dir} is {config.algo}"
+        )
     best = json.loads((run_dir / "best.json").read_text())
     staging = learned.CHECKPOINTS / f".{name}.tmp"
     shutil.rmtree(staging, ignore_errors=True)
@@ -219,6 +224,7 @@ def ship(run_dir: Path, name: str) -> Path:
             "env_id": config.env_id,
             "task": task_label(config.env_id, config.env_kwargs),
             "algo": config.algo,
+            "avoid_failures": avoid_failures,
         },
     )
     target = learned.CHECKPOINTS / name

@@ -135,6 +135,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     assert model.context == 3 and model.use_depth and saved["classes"][0] == "background"
     assert load_split(dataset, "val", depth=True).depth.dtype == np.float16
     monkeypatch.setattr(fall_training, "FALL_CHECKPOINTS", tmp_path / "shipped")
+    assert train.main(["--ship", str(run), "--name", "tiny", "--avoid-failures"]) == 2  # no FailureMemory here
     assert train.main(["--ship", str(run), "--name", "tiny"]) == 0
     shipped, _ = load_fall_model(tmp_path / "shipped" / "tiny" / "model.pt")
     assert shipped.describe() == model.describe() and (tmp_path / "shipped" / "tiny" / "card.md").exists()

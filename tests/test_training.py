@@ -15,6 +15,7 @@ from panda_grasp_env.agents.config import OutcomeReward, TrainConfig, load_confi
 from panda_grasp_env.agents.heightmap_policy import (
     HEIGHT_RANGE,
     EncodedHeightmap,
+    FailureMemory,
     HeightmapDQN,
     HeightmapQPolicy,
     encode_heightmap,
@@ -255,20 +256,34 @@ def test_agent_does_not_retry_a_failed_primitive_where_nothing_changed():
         each.reset(observation, {})
     first = agent.act(observation, {})
     assert forgetful.act(observation, {}) == forgetful.act(observation, failed) == first
-    cells = [np.unravel_index(first, (2, 4, 40, 40))[2:]]
-    for _ in range(int(inside.sum()) + 2):  # every blob cell fails in turn, then the least bad one again
-        p, _, row, col = np.unravel_index(agent.act(observation, failed), (2, 4, 40, 40))
+    shape = (2, 4, 40, 40)
+    tried = [np.unravel_index(first, shape)[1:]]
+    for _ in range(2 * int(inside.sum()) + 2):  # every blob cell fails at both headings, then repeats begin
+        p, rotation, row, col = np.unravel_index(agent.act(observation, failed), shape)
         assert p == 0 and inside[row, col]
-        cells.append((row, col))
+        tried.append((rotation, row, col))
     radius = agent.memory.radius
-    fresh = [(r, c) for i, (r, c) in enumerate(cells) if all(max(abs(r - r0), abs(c - c0)) > radius
-                                                              for r0, c0 in cells[:i])]  # fmt: skip
-    assert len(fresh) >= 4 and cells[: len(fresh)] == fresh  # new places first, repeats only when none is left
-    assert agent.memory.excluded(observation).reshape(2, 4, 40, 40)[0, :, inside].all()
+    fresh = [(h, r, c) for i, (h, r, c) in enumerate(tried)
+             if all(h % 2 != h0 % 2 or max(abs(r - r0), abs(c - c0)) > radius for h0, r0, c0 in tried[:i])]  # fmt: skip
+    assert len(fresh) >= 4 and tried[: len(fresh)] == fresh  # new places or headings first, then repeats
+    assert agent.memory.excluded(observation).reshape(shape)[0][:, inside].all()
     raised, _ = blob_observation(height=0.08)  # the heights there changed: everything may be tried again
     assert agent.memory.excluded(raised) is None
     agent.reset(observation, {})
     assert agent.act(observation, failed) == first  # a new episode forgets
+
+
+def test_failure_memory_marks_the_failed_heading_and_a_grasps_half_turn_only():
+    observation, _ = blob_observation()
+    memory = FailureMemory((2, 4, 40, 40), cell_size=0.01, primitives=("grasp", "push"))
+    memory.record_failure(np.ravel_multi_index((0, 1, 12, 25), (2, 4, 40, 40)), observation)
+    memory.record_failure(np.ravel_multi_index((1, 1, 30, 5), (2, 4, 40, 40)), observation)
+    excluded = memory.excluded(observation).reshape(2, 4, 40, 40)
+    assert excluded[0, [1, 3], 12, 25].all() and not excluded[0, [0, 2], 12, 25].any()  # the fingers are alike
+    assert excluded[1, 1, 30, 5] and not excluded[1, [0, 2, 3], 30, 5].any()  # a push turned round is not
+    assert excluded[0, 1, 12 + memory.radius, 25] and not excluded[0, 1, 13 + memory.radius, 25]
+    with pytest.raises(ValueError, match="primitive names"):
+        FailureMemory((2, 4, 40, 40), cell_size=0.01, primitives=("grasp",))
 
 
 def test_exploration_samples_only_allowed_actions():
@@ -355,6 +370,10 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
     coarse = gym.make("PandaGrasp-v0", obs_mode="heightmap", action_mode="pixel", heightmap_resolution=0.008)
     with pytest.raises(ValueError, match="expects observations"):
         learned.LearnedAgent("tiny", coarse)
+    assert agent.memory is None and not learned.Checkpoint("tiny").avoid_failures
+    ship(finished_run, "tiny", avoid_failures=True)  # shipped again, to act with its FailureMemory
+    assert learned.LearnedAgent("tiny").memory is not None
+    assert learned.LearnedAgent("tiny", avoid_failures=False).memory is None
     (path / "policy.safetensors").write_bytes(b"truncated")
     with pytest.raises(ValueError, match="policy.safetensors is missing or is not the weights"):
         learned.LearnedAgent("tiny")

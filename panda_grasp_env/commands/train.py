@@ -60,6 +60,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--resume", type=Path, default=None, help="continue this run folder")
     parser.add_argument("--ship", type=Path, default=None, help="copy this finished run to agents/checkpoints/--name")
     parser.add_argument("--name", default=None, help="checkpoint name for --ship")
+    parser.add_argument("--avoid-failures", action="store_true",
+                        help="--ship: the checkpoint acts with a FailureMemory (decide on selection seeds: "
+                             "benchmarks/failure_memory.py --seeds selection)")  # fmt: skip
     parser.add_argument("--retest", type=Path, default=None, help="test this run or checkpoint again")
     parser.add_argument("--trust", action="store_true",
                         help="with --resume: load latest.zip / replay.pkl / latest.pt even if this user's job did not "
@@ -71,6 +74,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("give exactly one of --config, --resume, --ship or --retest")
     if args.ship is not None and not args.name:
         parser.error("--ship needs --name")
+    if args.avoid_failures and args.ship is None:
+        parser.error("--avoid-failures goes with --ship")
     if args.trust and args.resume is None:
         parser.error("--trust goes with --resume")
     return args
@@ -82,10 +87,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.ship is not None:
             if (args.ship / "best.pt").exists():
-                from panda_grasp_env.falls.training import ship_fall_run as ship
+                from panda_grasp_env.falls.training import ship_fall_run
+
+                if args.avoid_failures:
+                    raise ValueError("--avoid-failures: a fall-dynamics model keeps no FailureMemory")
+                shipped = ship_fall_run(args.ship, args.name)
             else:
                 from panda_grasp_env.agents.records import ship
-            print(f"shipped to {ship(args.ship, args.name)}")
+
+                shipped = ship(args.ship, args.name, args.avoid_failures)
+            print(f"shipped to {shipped}")
             return 0
         if args.retest is not None:
             if (args.retest / "best.pt").is_file() or (args.retest / "model.pt").is_file():
