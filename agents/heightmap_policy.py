@@ -173,15 +173,15 @@ class HeightmapQNetwork(nn.Module):
                     (side - self.rows) // 2, side - self.rows - (side - self.rows) // 2)  # fmt: skip
         self.net = nn.Sequential(
             nn.Conv2d(channels, 16, 5, stride=2, padding=2),
-            nn.ReLU(),
+            nn.ReLU(inplace=True),
             nn.Conv2d(16, 32, 3, stride=2, padding=1),
-            nn.ReLU(),
+            nn.ReLU(inplace=True),
             nn.Conv2d(32, width, 3, padding=1),
-            nn.ReLU(),
+            nn.ReLU(inplace=True),
             nn.Conv2d(width, width, 3, padding=2, dilation=2),
-            nn.ReLU(),
+            nn.ReLU(inplace=True),
             nn.Conv2d(width, width, 3, padding=1),
-            nn.ReLU(),
+            nn.ReLU(inplace=True),
             nn.Conv2d(width, self.n_primitives, 1),
         )
         # Quarter-resolution scores peak only on a 4-cell grid (16 mm at 4 mm cells), too coarse to centre a
@@ -190,7 +190,7 @@ class HeightmapQNetwork(nn.Module):
         self.refine = None
         if refine:
             self.refine = nn.Sequential(
-                nn.Conv2d(16 + width, 32, 3, padding=1), nn.ReLU(), nn.Conv2d(32, self.n_primitives, 1)
+                nn.Conv2d(16 + width, 32, 3, padding=1), nn.ReLU(inplace=True), nn.Conv2d(32, self.n_primitives, 1)
             )
             nn.init.zeros_(self.refine[-1].weight)
             nn.init.zeros_(self.refine[-1].bias)
@@ -238,7 +238,9 @@ class HeightmapQNetwork(nn.Module):
         batch = observations.shape[0]
         images = observations.float().div(255.0)
         repeated = images.repeat_interleave(self.rotations, 0)
-        grids = (self.grids_in.repeat(batch, 1, 1, 1), self.grids_back.repeat(batch, 1, 1, 1))
+        grids = (self.grids_in, self.grids_back)
+        if batch > 1:
+            grids = (self.grids_in.repeat(batch, 1, 1, 1), self.grids_back.repeat(batch, 1, 1, 1))
         scores = self._scores(repeated, self.angles.repeat(batch), grids)  # (B * R, P, H, W)
         scores = scores.view(batch, self.rotations, self.n_primitives, self.rows, self.cols).transpose(1, 2)
         return scores.reshape(batch, -1)
