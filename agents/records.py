@@ -99,7 +99,10 @@ def earlier_tests(run_dir: Path, best_steps: int, steps: int) -> list[dict[str, 
     previous = json.loads(path.read_text())
     if (previous.get("best_steps"), previous.get("steps")) != (best_steps, steps):
         return []
-    return [*previous.get("earlier", []), {"test_commit": previous.get("test_commit"), "metrics": previous["metrics"]}]
+    test = {"test_commit": previous.get("test_commit"), "metrics": previous["metrics"]}
+    if previous.get("avoid_failures"):
+        test["avoid_failures"] = True
+    return [*previous.get("earlier", []), test]
 
 
 def demonstrations_summary(config: TrainConfig) -> str:
@@ -134,7 +137,8 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
 
     earlier = []
     for test in reversed(final.get("earlier", [])):
-        earlier += ["", f"At commit {test['test_commit']}:", "", *results(test["metrics"])]
+        memory = ", with its `FailureMemory`" if test.get("avoid_failures") else ""
+        earlier += ["", f"At commit {test['test_commit']}{memory}:", "", *results(test["metrics"])]
     if earlier:
         earlier = ["", "### Earlier tests of this policy, same seeds (newest first)", *earlier]
 
@@ -175,6 +179,16 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
             if final["chosen_by"] == "validation"
             else f"The policy tested is the final one (step {final['steps']}): this run kept no validated best."
         ),  # fmt: skip
+        *(
+            [
+                "",
+                "It acts as shipped, with its `FailureMemory` (`checkpoint.json` `avoid_failures`, chosen on selection "
+                "seeds): no primitive again within 12 mm and at the heading of one that failed there while the "
+                "heights around it are unchanged.",
+            ]
+            if final.get("avoid_failures")
+            else []
+        ),
         "",
         *results(m),
         *earlier,

@@ -367,16 +367,25 @@ def retest(run_dir: Path) -> dict[str, Any]:
     if not (run_dir / "best.json").is_file() or not totals.is_file():
         raise ValueError(f"{run_dir} has no best policy to test yet (best.json, {totals.name})")
     progress = json.loads(totals.read_text())
-    return final_test(config, run_dir, int(progress["steps"]), float(progress["wall_seconds"]))
+    # A shipped checkpoint is tested as it acts when shipped (with its FailureMemory if it has one).
+    avoid_failures = (run_dir / "checkpoint.json").is_file() and Checkpoint(run_dir).avoid_failures
+    return final_test(config, run_dir, int(progress["steps"]), float(progress["wall_seconds"]), avoid_failures)
 
 
-def final_test(config: TrainConfig, run_dir: Path, steps: int, wall_seconds: float) -> dict[str, Any]:
+def final_test(
+    config: TrainConfig, run_dir: Path, steps: int, wall_seconds: float, avoid_failures: bool = False
+) -> dict[str, Any]:
     """Test the best validated policy on held-out seeds (``final_eval_episodes`` episodes from
-    ``eval_seed + TEST_SEED_OFFSET``): final.json and card.md."""
+    ``eval_seed + TEST_SEED_OFFSET``): final.json and card.md.  ``avoid_failures``: it acts with a
+    ``FailureMemory`` (a shipped checkpoint's setting)."""
     policy, best = load_best_policy(run_dir)
     began = time.perf_counter()
     metrics = evaluate_policy(
-        policy, config, config.final_eval_episodes, first_seed=config.eval_seed + TEST_SEED_OFFSET
+        policy,
+        config,
+        config.final_eval_episodes,
+        first_seed=config.eval_seed + TEST_SEED_OFFSET,
+        avoid_failures=avoid_failures,
     )
     evaluations = read_evaluations(run_dir)
     first_90 = next((r for r in evaluations if r["metrics"]["trial_success"]["rate"] >= 0.9), None)
@@ -397,6 +406,7 @@ def final_test(config: TrainConfig, run_dir: Path, steps: int, wall_seconds: flo
         "steps_to_90_percent": first_90["steps"] if first_90 else None,
         "minutes_to_90_percent": round(first_90["wall_seconds"] / 60, 1) if first_90 else None,
         "metrics": metrics,
+        **({"avoid_failures": True} if avoid_failures else {}),
         "earlier": earlier_tests(run_dir, best["steps"], steps),
     }
     write_json(run_dir / "final.json", final)

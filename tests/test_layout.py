@@ -145,3 +145,20 @@ def test_the_docs_snippet_directives_are_intact_and_name_files():
     for line in directives:
         match = re.fullmatch(r'--8<-- "([^"]+)"', line.strip())
         assert match and (ROOT / match.group(1)).is_file(), line
+
+
+def test_a_runs_commit_label_sees_changes_anywhere_in_the_repository(monkeypatch):
+    # The label a card carries ("+changes": code no commit holds) must look at agents/, perception/ and the
+    # entry scripts too, not only at the panda_grasp_env/ folder that holds the function.
+    from panda_grasp_env.tooling import runs
+
+    calls = []
+
+    def fake_git(command, **kwargs):
+        calls.append(command)
+        changed = " M agents/training.py\n" if "status" in command else ""
+        return subprocess.CompletedProcess(command, 0, stdout=changed or "abc1234\n", stderr="")
+
+    monkeypatch.setattr(runs.subprocess, "run", fake_git)
+    assert runs.commit.__wrapped__() == "abc1234+changes"
+    assert all(Path(command[command.index("-C") + 1]) == ROOT for command in calls)

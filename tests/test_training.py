@@ -650,3 +650,12 @@ def test_retest_runs_on_a_shipped_checkpoint_too(finished_run, tmp_path, monkeyp
     # The figures it replaces stay beside the new ones (final.json and the card), newest last.
     assert after["earlier"][-1] == {"test_commit": before["test_commit"], "metrics": before["metrics"]}
     assert "Earlier tests of this policy" in (shipped / "card.md").read_text()
+    # Shipped to act with its FailureMemory, it is retested so, and its card says which test had it.
+    shipped = ship(finished_run, "tiny", avoid_failures=True)
+    assert train.main(["--retest", str(shipped)]) == 0
+    assert train.main(["--retest", str(shipped)]) == 0
+    final = json.loads((shipped / "final.json").read_text())
+    assert final["avoid_failures"] and final["earlier"][-1]["avoid_failures"]
+    assert "avoid_failures" not in final["earlier"][0]  # the run's own test, without it
+    card = (shipped / "card.md").read_text()
+    assert "It acts as shipped, with its `FailureMemory`" in card and ", with its `FailureMemory`:" in card

@@ -85,7 +85,7 @@ def commit() -> str:
     a retest rewrites their results, not the code.  Read once per process: a process runs the code it
     imported, so the final test at the end of a two-hour run is labelled with that code, not with commits
     made while it ran."""
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]  # the repository (agents/, perception/ and train.py too)
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
         changes = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no", "--",
