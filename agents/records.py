@@ -132,6 +132,11 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
             f"- completion: {pct(m['completion'])}",
             f"- grasp success: {pct(m['grasp_success'])}",
             f"- action efficiency: {100 * m['action_efficiency']:.1f} %",
+            *(
+                [f"- collateral: {m['collateral_per_action']:.2f} disturbed objects per action"]
+                if "collateral_per_action" in m
+                else []
+            ),  # fmt: skip
             f"- failures: {json.dumps(m['failures'])}",
         ]
 

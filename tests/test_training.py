@@ -659,3 +659,4 @@ def test_retest_runs_on_a_shipped_checkpoint_too(finished_run, tmp_path, monkeyp
     assert "avoid_failures" not in final["earlier"][0]  # the run's own test, without it
     card = (shipped / "card.md").read_text()
     assert "It acts as shipped, with its `FailureMemory`" in card and ", with its `FailureMemory`:" in card
+    assert "disturbed objects per action" in card  # collateral, for primitive tasks
