@@ -161,15 +161,23 @@ def policy_paths(stem: Path | str) -> tuple[Path, Path]:
     return stem.with_name(stem.name + ".json"), stem.with_name(stem.name + ".safetensors")
 
 
+def constructor_arguments(policy: Any) -> dict[str, Any]:
+    """What rebuilds ``policy`` (SB3's ``_get_constructor_parameters``), with ``share_features_extractor``,
+    which SB3's SAC / TQC policies leave out: without it one CNN shared by actor and critics is rebuilt as
+    separate ones, and the weights no longer fit."""
+    arguments = dict(policy._get_constructor_parameters())
+    if hasattr(policy, "share_features_extractor"):
+        arguments.setdefault("share_features_extractor", policy.share_features_extractor)
+    return arguments
+
+
 def save_policy(policy: Any, stem: Path | str) -> None:
     """Write ``<stem>.safetensors`` (the weights) and ``<stem>.json`` (class, arguments, weights digest),
     each through a temporary file and a rename; the JSON last, so it only ever names complete weights."""
     from safetensors.torch import save_model
 
     description, weights = policy_paths(stem)
-    arguments = {k: v for k, v in policy._get_constructor_parameters().items() if k != "lr_schedule"}
-    if hasattr(policy, "share_features_extractor"):  # SB3's SAC / TQC policies leave it out of their arguments
-        arguments.setdefault("share_features_extractor", policy.share_features_extractor)
+    arguments = {k: v for k, v in constructor_arguments(policy).items() if k != "lr_schedule"}
     name = class_name(type(policy))
     if name not in policy_classes():
         raise ValueError(f"policy class {name} is not one policy files may name")
@@ -209,10 +217,13 @@ def load_policy(stem: Path | str) -> Any:
 
 
 def export_sb3(policy: Any, path: Path | str) -> Path:
-    """The policy as SB3's own ``.zip`` (``policy.save``), for SB3 users; atomic."""
+    """The policy in SB3's own format (what ``policy.save`` writes, with ``constructor_arguments``), for SB3
+    users: ``type(policy).load(path)`` reads it back; atomic."""
+    import torch
+
     path = Path(path)
     with atomic_path(path) as tmp:
-        policy.save(str(tmp))
+        torch.save({"state_dict": policy.state_dict(), "data": constructor_arguments(policy)}, str(tmp))
     return path
 
 

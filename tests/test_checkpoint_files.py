@@ -199,6 +199,12 @@ def test_a_policy_with_one_feature_extractor_for_actor_and_critics_round_trips(t
     assert np.array_equal(
         policy.predict(observation, deterministic=True)[0], again.predict(observation, deterministic=True)[0]
     )
+    # The SB3 export too: SB3's own policy.save drops the flag, and its load then fails on the weights.
+    exported = MultiInputPolicy.load(str(export_sb3(policy, tmp_path / "shared.zip")), device="cpu")
+    assert exported.critic.features_extractor is exported.actor.features_extractor
+    assert np.array_equal(
+        policy.predict(observation, deterministic=True)[0], exported.predict(observation, deterministic=True)[0]
+    )
 
 
 @pytest.mark.parametrize(
