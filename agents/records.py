@@ -188,8 +188,7 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
             [
                 "",
                 "It acts as shipped, with its `FailureMemory` (`checkpoint.json` `avoid_failures`, chosen on selection "
-                "seeds): no primitive again within 12 mm and at the heading of one that failed there while the "
-                "heights around it are unchanged.",
+                "seeds; the rule: `panda_grasp_env.agents.heightmap_policy.FailureMemory`).",
             ]
             if final.get("avoid_failures")
             else []
