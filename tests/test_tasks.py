@@ -392,6 +392,23 @@ def test_a_push_that_moves_something_is_not_a_failed_attempt():
     env.close()
 
 
+def test_a_push_that_carries_an_object_out_of_play_earns_nothing():
+    from panda_grasp_env.tasks.grasp import PLAY_REGION
+
+    env = make("PandaGrasp-v0", max_failures=2, shapes=("cube",))
+    env.reset(seed=0)
+    cell = env.unwrapped.cell
+    body = int(cell.object_ids[0])
+    x, y, z = cell.object_positions()[0]
+    cell.set_body_pose(body, [PLAY_REGION[0, 1] - 0.02, y, z], cell.data.xquat[body])  # at the region's far edge
+    cell.settle(0.2)
+    x = cell.object_positions()[0][0]
+    _, reward, terminated, truncated, info = env.step(env.unwrapped.actions.encode("push", x - 0.06, y, 0.0))
+    assert info["objects_lost"] == 1 and info["objects_remaining"] == 0
+    assert reward == 0.0 and terminated and not info["is_success"] and info["consecutive_failures"] == 1
+    env.close()
+
+
 def test_image_observations_are_contiguous_arrays():
     env = make("PandaPush-v0", obs_mode="rgbd")
     observation, _ = env.reset(seed=0)

@@ -103,8 +103,11 @@ class Grasp(Task):
     or rolled out of it is lost); one that lands outside it in the reset drop
     is removed from the scene.  Terminates when none is left (success if every object in
     play after the reset drop was grasped) or after ``max_failures``
-    consecutive failed attempts (failed grasps and pushes that moved nothing).  Reward: 1 per successful grasp,
-    0.5 for a push that moved something (VPG).
+    consecutive failed attempts (failed grasps, and pushes that moved nothing or carried an object out of
+    play).  Reward: 1 per successful grasp, 0.5 for a push that moved something (VPG) and lost nothing:
+    VPG pays any push that changes the scene, and a policy trained so learns to push objects it cannot
+    grasp out of the workspace.  ``info["objects_lost"]``: objects in play at the reset that are neither
+    grasped nor still in play.
     Goal-conditioned (low-level modes, lift): lift object 0 to a point 5-15 cm
     above where it rests; success = within 5 cm.  The hand keeps one heading in
     these modes, so objects spread apart are turned to fit between its fingers
@@ -192,6 +195,7 @@ class Grasp(Task):
         self._goal = np.zeros(3)
         self._positions = np.zeros((0, 3))  # object positions after the previous step
         self.in_play = 0  # objects on the table after the reset drop
+        self._remaining = 0  # objects in play after the previous step
         self._goal_body = 0
 
     @staticmethod
@@ -285,7 +289,7 @@ class Grasp(Task):
         self.consecutive_failures = 0
         self._positions = cell.object_positions()
         on_table = self.on_table(cell)
-        self.in_play = len(on_table)
+        self.in_play = self._remaining = len(on_table)
         # Low-level modes lift the first object still on the table.
         self._goal_body = on_table[0] if on_table else int(cell.object_ids[0])
         self._goal = cell.data.xpos[self._goal_body] + [0.0, 0.0, rng.uniform(*LIFT_GOAL_HEIGHT)]
@@ -336,9 +340,11 @@ class Grasp(Task):
         return np.all((xy >= PLAY_REGION[:, 0]) & (xy <= PLAY_REGION[:, 1]), axis=1)
 
     def _info(self, cell: Workcell, remaining: int | None = None) -> dict[str, Any]:
+        remaining = len(self.on_table(cell)) if remaining is None else remaining
         return {
             "objects_grasped": self.grasped,
-            "objects_remaining": len(self.on_table(cell)) if remaining is None else remaining,
+            "objects_remaining": remaining,
+            "objects_lost": self.in_play - self.grasped - remaining,
             "consecutive_failures": self.consecutive_failures,
         }
 
@@ -347,7 +353,8 @@ class Grasp(Task):
             reached = bool(goals_reached(self.achieved_goal(cell), self._goal))
             return TaskStep(0.0 if reached else -1.0, reached, False, self._info(cell))  # as compute_reward
         reward = 0.0
-        if result.primitive == "grasp" and result.success:
+        grasped = result.primitive == "grasp" and result.success
+        if grasped:
             body = cell.model.body(result.object).id
             cell.park(body)  # set the grasped object aside, then return home with an open hand
             cell.actuate_gripper(close=False, timeout=0.4)
@@ -355,14 +362,16 @@ class Grasp(Task):
             self.grasped += 1
             self.consecutive_failures = 0
             reward = 1.0
-        else:
+        remaining = len(self.on_table(cell))
+        if not grasped:
             moved = np.linalg.norm(cell.object_positions() - self._positions, axis=1).max()
-            if result.primitive == "push" and moved >= SCENE_CHANGE:
+            kept_all = remaining == self._remaining
+            if result.primitive == "push" and moved >= SCENE_CHANGE and kept_all:
                 reward = 0.5  # a push that changed the scene is not a failed attempt
             else:
                 self.consecutive_failures += 1
         self._positions = cell.object_positions()
-        remaining = len(self.on_table(cell))
+        self._remaining = remaining
         success = remaining == 0 and 0 < self.in_play == self.grasped  # nothing in play is no success
         # VPG's K-failure rule ends the trial, not the MDP: the count is not in the observation.
         gave_up = remaining > 0 and self.consecutive_failures >= self.max_failures
