@@ -392,7 +392,7 @@ def test_a_push_that_moves_something_is_not_a_failed_attempt():
     env.close()
 
 
-def test_a_push_that_carries_an_object_out_of_play_earns_nothing():
+def test_a_push_that_carries_an_object_out_of_play_costs_that_object():
     from panda_grasp_env.tasks.grasp import PLAY_REGION
 
     env = make("PandaGrasp-v0", max_failures=2, shapes=("cube",))
@@ -405,7 +405,7 @@ def test_a_push_that_carries_an_object_out_of_play_earns_nothing():
     x = cell.object_positions()[0][0]
     _, reward, terminated, truncated, info = env.step(env.unwrapped.actions.encode("push", x - 0.06, y, 0.0))
     assert info["objects_lost"] == 1 and info["objects_remaining"] == 0
-    assert reward == 0.0 and terminated and not info["is_success"] and info["consecutive_failures"] == 1
+    assert reward == -1.0 and terminated and not info["is_success"] and info["consecutive_failures"] == 1
     env.close()
 
 

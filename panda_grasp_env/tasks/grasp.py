@@ -104,8 +104,10 @@ class Grasp(Task):
     is removed from the scene.  Terminates when none is left (success if every object in
     play after the reset drop was grasped) or after ``max_failures``
     consecutive failed attempts (failed grasps, and pushes that moved nothing or carried an object out of
-    play).  Reward: 1 per successful grasp, 0.5 for a push that moved something (VPG) and lost nothing:
-    VPG pays any push that changes the scene, and a policy trained so learns to push objects it cannot
+    play).  Reward: 1 per successful grasp, 0.5 for a push that moved something (VPG) and lost nothing,
+    and -1 per object an action carries out of play (pushed, knocked or dropped outside the region, or off
+    the table), so an episode's return is objects grasped less objects lost plus 0.5 per useful push.  VPG
+    pays any push that changes the scene, and a policy trained so learns to push the objects it cannot
     grasp out of the workspace.  ``info["objects_lost"]``: objects in play at the reset that are neither
     grasped nor still in play.
     Goal-conditioned (low-level modes, lift): lift object 0 to a point 5-15 cm
@@ -363,13 +365,14 @@ class Grasp(Task):
             self.consecutive_failures = 0
             reward = 1.0
         remaining = len(self.on_table(cell))
+        lost = self._remaining - remaining - int(grasped)
         if not grasped:
             moved = np.linalg.norm(cell.object_positions() - self._positions, axis=1).max()
-            kept_all = remaining == self._remaining
-            if result.primitive == "push" and moved >= SCENE_CHANGE and kept_all:
+            if result.primitive == "push" and moved >= SCENE_CHANGE and lost == 0:
                 reward = 0.5  # a push that changed the scene is not a failed attempt
             else:
                 self.consecutive_failures += 1
+        reward -= lost
         self._positions = cell.object_positions()
         self._remaining = remaining
         success = remaining == 0 and 0 < self.in_play == self.grasped  # nothing in play is no success
