@@ -114,7 +114,9 @@ def demonstrations_summary(config: TrainConfig) -> str:
     return f"the first {spec.episodes} {kind}episodes of Minari dataset `{spec.dataset}`"
 
 
-def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str:
+def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: str | None = None) -> str:
+    """The model card (markdown) of a run or shipped checkpoint folder; ``name``: the checkpoint's name, when it
+    was shipped under another name than its run's (``config.name``)."""
     meta = json.loads((run_dir / "meta.json").read_text())
     m = final["metrics"]
     low_level = is_low_level(config.env_id, config.env_kwargs)
@@ -148,8 +150,9 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any]) -> str
         earlier = ["", "### Earlier tests of this policy, same seeds (newest first)", *earlier]
 
     lines = [
-        f"# {config.name}",
+        f"# {name or config.name}",
         "",
+        *([f"Shipped from the run `{config.name}`.", ""] if name not in (None, config.name) else []),
         f"`{config.algo}` on `{config.env_id}` ({json.dumps(config.env_kwargs)}"
         + (f"; training envs also {json.dumps(config.train_env_kwargs)}" if config.train_env_kwargs else "")
         + "), trained by this repository's `train.py` with the resolved config below.",
@@ -230,6 +233,9 @@ def ship(run_dir: Path, name: str, avoid_failures: bool = False) -> Path:
     staging.mkdir(parents=True)
     for f in SHIPPED_FILES:
         shutil.copy2(run_dir / f, staging / f.replace("best_policy.", "policy."))
+    if name != config.name:
+        final = json.loads((run_dir / "final.json").read_text())
+        (staging / "card.md").write_text(model_card(config, run_dir, final, name))
     size = (staging / "policy.safetensors").stat().st_size
     if size > 20e6:
         shutil.rmtree(staging)

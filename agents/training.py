@@ -411,5 +411,6 @@ def final_test(
     }
     write_json(run_dir / "final.json", final)
     plot_curve(run_dir, f"{config.name}: {config.algo} on {config.env_id}", steps_label(config))
-    write_atomically(run_dir / "card.md", model_card(config, run_dir, final))
+    shipped_as = run_dir.resolve().name if (run_dir / "checkpoint.json").is_file() else None
+    write_atomically(run_dir / "card.md", model_card(config, run_dir, final, shipped_as))
     return final

@@ -354,6 +354,7 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path)
     path = ship(finished_run, "tiny")
     assert learned.available_checkpoints() == ["tiny"]
+    assert (path / "card.md").read_text().startswith("# tiny\n\nShipped from the run `")
     assert (path / "policy.safetensors").stat().st_size < 20e6 and not (path / "policy.zip").exists()
     agent_env = learned.Checkpoint("tiny").make_env()
     agent = learned.LearnedAgent("tiny", agent_env)
@@ -649,7 +650,9 @@ def test_retest_runs_on_a_shipped_checkpoint_too(finished_run, tmp_path, monkeyp
     assert after["test_commit"]  # the code the test ran on, which a card names when it differs from training's
     # The figures it replaces stay beside the new ones (final.json and the card), newest last.
     assert after["earlier"][-1] == {"test_commit": before["test_commit"], "metrics": before["metrics"]}
-    assert "Earlier tests of this policy" in (shipped / "card.md").read_text()
+    card = (shipped / "card.md").read_text()
+    assert "Earlier tests of this policy" in card
+    assert card.startswith("# tiny\n\nShipped from the run `")  # named as shipped, not as the run was
     # Shipped to act with its FailureMemory, it is retested so, and its card says which test had it.
     shipped = ship(finished_run, "tiny", avoid_failures=True)
     assert train.main(["--retest", str(shipped)]) == 0
