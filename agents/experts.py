@@ -145,7 +145,8 @@ class StackExpert(PickAndPlaceExpert):
 class PushExpert(LowLevelExpert):
     """Push: the closed hand comes down behind the block on the line from the goal through it, then pushes
     along that line, re-aimed every step: the waypoint is the contact point behind the block, moved forward
-    and back onto the line; if the hand loses the block it comes round again from above."""
+    and back onto the line; if the hand loses the block it comes round again from above.  A block that tips
+    onto its leading edge and digs in (its centre sinks) is pushed higher from then on."""
 
     name = "push_expert"
     #: Stop pushing this close to the goal (metres; success is within 5 cm): the block slides on a little.
@@ -158,13 +159,26 @@ class PushExpert(LowLevelExpert):
     PUSH_HEIGHT = 0.005
     #: How far ahead of the contact point the pushing waypoint runs, metres.
     LEAD = 0.03
+    #: A block whose centre sinks this far below where it rested at the reset has tipped onto its leading
+    #: edge and dug into the table (metres) ...
+    DUG_IN = 0.002
+    #: ... and the hand pushes this much higher for the rest of the episode (metres): the push then slides
+    #: it instead of pressing the edge further in.
+    DUG_IN_RAISE = 0.006
+
+    def reset(self, observation: Any, info: dict[str, Any]) -> None:
+        super().reset(observation, info)
+        self.resting_height = float(observation["achieved_goal"][2])
+        self.raised = 0.0
 
     def waypoint_action(self, hand: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:
         offset = goal[:2] - obj[:2]
         distance = float(np.linalg.norm(offset))
         contact = self.block_size / 2 + 0.012  # hand centre to block centre when touching
+        if self.phase == "push" and obj[2] < self.resting_height - self.DUG_IN:
+            self.raised = self.DUG_IN_RAISE
         # From the block's resting centre, not its current one: a tipping block must not lift the hand.
-        height = self.block_size / 2 + self.PUSH_HEIGHT
+        height = self.block_size / 2 + self.PUSH_HEIGHT + self.raised
         if self.phase in ("above", "down"):
             self.direction = offset / max(distance, 1e-6)  # the line is fixed once the push starts
         direction = self.direction
