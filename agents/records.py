@@ -233,9 +233,8 @@ def ship(run_dir: Path, name: str, avoid_failures: bool = False) -> Path:
     staging.mkdir(parents=True)
     for f in SHIPPED_FILES:
         shutil.copy2(run_dir / f, staging / f.replace("best_policy.", "policy."))
-    if name != config.name:
-        final = json.loads((run_dir / "final.json").read_text())
-        (staging / "card.md").write_text(model_card(config, run_dir, final, name))
+    final = json.loads((run_dir / "final.json").read_text())
+    (staging / "card.md").write_text(model_card(config, run_dir, final, name))  # under the checkpoint's name
     size = (staging / "policy.safetensors").stat().st_size
     if size > 20e6:
         shutil.rmtree(staging)

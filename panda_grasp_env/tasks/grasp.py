@@ -366,15 +366,15 @@ class Grasp(Task):
             reward = 1.0
         remaining = len(self.on_table(cell))
         lost = self._remaining - remaining - int(grasped)
+        positions = cell.object_positions()
         if not grasped:
-            moved = np.linalg.norm(cell.object_positions() - self._positions, axis=1).max()
+            moved = np.linalg.norm(positions - self._positions, axis=1).max()
             if result.primitive == "push" and moved >= SCENE_CHANGE and lost == 0:
                 reward = 0.5  # a push that changed the scene is not a failed attempt
             else:
                 self.consecutive_failures += 1
         reward -= lost
-        self._positions = cell.object_positions()
-        self._remaining = remaining
+        self._positions, self._remaining = positions, remaining
         success = remaining == 0 and 0 < self.in_play == self.grasped  # nothing in play is no success
         # VPG's K-failure rule ends the trial, not the MDP: the count is not in the observation.
         gave_up = remaining > 0 and self.consecutive_failures >= self.max_failures
