@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from panda_grasp_env.agents.grasping import PackedGraspOracle
-from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS
+from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS, GAP, random_packed_layout
 
 
 def test_every_hand_designed_layout_stands_still_with_all_its_objects_in_play():
@@ -30,6 +30,22 @@ def test_same_seed_same_jitter_and_random_layouts_vary():
     packed = gym.make("panda_grasp_env:PandaGraspPacked-v0", obs_mode="state")
     counts = {packed.reset(seed=seed)[1]["objects_remaining"] for seed in range(6)}
     assert len(counts) > 1
+
+
+def test_random_packed_grids_stand_gap_apart_at_their_widest_objects():
+    """Training grids are packed at the pitch of their widest objects (4 cm cube grids at theirs, not at the
+    5 cm cubes'), and grids of 4 cm cubes alone are drawn.  Layout frame, before jitter."""
+    rng = np.random.default_rng(0)
+    small_cube_grids = 0
+    for _ in range(300):
+        layout = random_packed_layout(rng)
+        if layout[0].kind == "box":
+            continue
+        widest = max(p.size[0] for p in layout)
+        pitch = min(abs(a.x - b.x) for a in layout for b in layout if abs(a.x - b.x) > 1e-9)
+        assert pitch == pytest.approx(2 * widest + GAP, abs=1e-9)
+        small_cube_grids += all(p.kind == "cube" and p.size[0] == 0.02 for p in layout)
+    assert small_cube_grids >= 10
 
 
 @pytest.mark.parametrize(

@@ -109,15 +109,20 @@ MAX_OBJECTS = max(max(len(layout) for layout in ADVERSARIAL_LAYOUTS.values()), 1
 
 
 def random_packed_layout(rng: np.random.Generator) -> tuple[Placement, ...]:
-    """A packed layout for training: a grid of 2-3 rows by 2-4 columns (at most ``MAX_OBJECTS`` objects) of
-    5 cm cubes, 4 cm cubes and cylinders drawn per cell, ``GAP`` apart; or 2-5 long boxes side by side."""
+    """A packed layout for training: a grid of 2-3 rows by 2-4 columns (at most ``MAX_OBJECTS`` objects), half
+    of them of one kind (5 cm cubes, 4 cm cubes or cylinders), half with the kind drawn per cell, at the pitch
+    that leaves ``GAP`` between its widest objects; or 2-5 long boxes side by side."""
     if rng.random() < 0.25:
         return _rows_of_long_boxes(int(rng.integers(2, 6)))
     rows = int(rng.integers(2, 4))
     cols = int(rng.integers(2, 5))
     kinds = [CUBE, SMALL_CUBE, CYLINDER]
+    if rng.random() < 0.5:
+        kinds = [kinds[int(rng.integers(len(kinds)))]]
     shapes = [kinds[int(i)] for i in rng.integers(0, len(kinds), rows * cols)]
-    return _grid(rows, cols, shapes, _PITCH)[:MAX_OBJECTS]
+    # A 4 cm cube grid at the 5 cm cubes' pitch would leave 13 mm gaps: room for a finger, not packed.
+    pitch = 2 * max(size[0] for _, size in shapes) + GAP
+    return _grid(rows, cols, shapes, pitch)[:MAX_OBJECTS]
 
 
 def jittered(
