@@ -306,12 +306,14 @@ class TQCFromDemonstrations(DemonstrationMixin, TQC):
     def _fill_buffer(self, episodes: list[Any]) -> None:
         lengths = {len(e.actions) for e in episodes}
         n = self.n_envs
-        if len(lengths) != 1 or len(episodes) % n:
-            raise ValueError(f"tqc_demos: the demonstrations must be episodes of one length, a multiple of n_envs="
-                             f"{n} of them; got lengths {sorted(lengths)} and {len(episodes)} episodes")  # fmt: skip
+        if len(lengths) != 1:
+            raise ValueError(f"tqc_demos: the demonstrations must be episodes of one length; got lengths "
+                             f"{sorted(lengths)}")  # fmt: skip
         length = lengths.pop()
         for first in range(0, len(episodes), n):
-            group = episodes[first : first + n]
+            # The buffer takes one episode per env at a time: a last, partial group (10 demonstrations on 4
+            # envs) is completed with its own episodes again, so a few demonstrations enter it twice.
+            group = [episodes[first + k % min(n, len(episodes) - first)] for k in range(n)]
             for t in range(length):
                 last = t == length - 1
                 self.replay_buffer.add(_stacked(group, t, self.observation_space),

@@ -100,10 +100,14 @@ def test_tqc_with_demonstrations_starts_with_them_in_the_buffer_and_clones_them(
     assert model.replay_buffer.size() == (400 + 20) // 2  # rows of 2 envs: the 4 demonstrations, the 20 steps
     model.train(gradient_steps=1, batch_size=32)
     assert 0.0 <= model.logger.name_to_value["train/bc_q_filter"] <= 1.0
-    with pytest.raises(ValueError, match="episodes of one length, a multiple of n_envs"):
-        three = TQCFromDemonstrations("MultiInputPolicy", env, demonstrations=spec(dataset_path, episodes=3),
-                                      replay_buffer_class=HerReplayBuffer, buffer_size=2000)  # fmt: skip
-        three.learn(2)
+    # 3 demonstrations on 2 envs: the last row of episodes completes itself with the third one again.
+    three = TQCFromDemonstrations("MultiInputPolicy", env, demonstrations=spec(dataset_path, episodes=3),
+                                  replay_buffer_class=HerReplayBuffer, buffer_size=2000, learning_starts=10)  # fmt: skip
+    three.learn(2)
+    assert three.replay_buffer.size() == 2 * 100 + 1
+    stored = three.replay_buffer.observations["observation"]
+    assert np.array_equal(stored[100:200, 0], stored[100:200, 1])  # both envs' second episode: the third demo
+    assert not np.array_equal(stored[:100, 0], stored[:100, 1])
     env.close()
 
 
