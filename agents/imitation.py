@@ -313,7 +313,8 @@ class TQCFromDemonstrations(DemonstrationMixin, TQC):
         for first in range(0, len(episodes), n):
             # The buffer takes one episode per env at a time: a last, partial group (10 demonstrations on 4
             # envs) is completed with its own episodes again, so a few demonstrations enter it twice.
-            group = [episodes[first + k % min(n, len(episodes) - first)] for k in range(n)]
+            group = episodes[first : first + n]
+            group = [group[k % len(group)] for k in range(n)]
             for t in range(length):
                 last = t == length - 1
                 self.replay_buffer.add(_stacked(group, t, self.observation_space),

@@ -46,8 +46,10 @@ class Placement:
     yaw: float = 0.0
 
 
-def _grid(rows: int, cols: int, shapes: list[tuple[str, tuple[float, ...]]], pitch: float) -> tuple[Placement, ...]:
-    """``rows`` x ``cols`` objects (row-major from ``shapes``, cycled) centred on the origin, ``pitch`` apart."""
+def _grid(rows: int, cols: int, shapes: list[tuple[str, tuple[float, ...]]]) -> tuple[Placement, ...]:
+    """``rows`` x ``cols`` objects (row-major from ``shapes``, cycled) centred on the origin, packed: at the pitch
+    that leaves ``GAP`` between the widest of them (cubes and cylinders: ``size[0]`` is the half-width)."""
+    pitch = 2 * max(size[0] for _, size in shapes) + GAP
     return tuple(
         Placement(*shapes[(r * cols + c) % len(shapes)], (c - (cols - 1) / 2) * pitch, (r - (rows - 1) / 2) * pitch)
         for r in range(rows)
@@ -66,8 +68,7 @@ def _rows_of_long_boxes(count: int, yaw: float = 0.0) -> tuple[Placement, ...]:
 
 def _walled_column(count: int) -> tuple[Placement, ...]:
     """A column of ``count`` cubes along y between two walls of long boxes laid end to end along y."""
-    pitch = 2 * CUBE[1][0] + GAP
-    cubes = [Placement(*CUBE, 0.0, (k - (count - 1) / 2) * pitch) for k in range(count)]
+    cubes = _grid(count, 1, [CUBE])
     offset = CUBE[1][0] + GAP + LONG_BOX[1][1]
     length = 2 * LONG_BOX[1][0] + GAP
     walls = [Placement(*LONG_BOX, side * offset, (k - 0.5) * length, math.pi / 2) for side in (-1, 1) for k in range(2)]
@@ -82,22 +83,21 @@ def _brick_wall() -> tuple[Placement, ...]:
     return (*first, *second)
 
 
-_PITCH = 2 * CUBE[1][0] + GAP
 #: The hand-designed packed layouts, in a fixed order (an episode's ``layout`` indexes it).
 ADVERSARIAL_LAYOUTS: dict[str, tuple[Placement, ...]] = {
-    "cubes_2x2": _grid(2, 2, [CUBE], _PITCH),
-    "cubes_2x3": _grid(2, 3, [CUBE], _PITCH),
-    "cubes_3x3": _grid(3, 3, [CUBE], _PITCH),
-    "small_cubes_3x3": _grid(3, 3, [SMALL_CUBE], 2 * SMALL_CUBE[1][0] + GAP),
-    "cylinders_2x2": _grid(2, 2, [CYLINDER], _PITCH),
-    "cubes_and_cylinders_3x3": _grid(3, 3, [CUBE, CYLINDER], _PITCH),
+    "cubes_2x2": _grid(2, 2, [CUBE]),
+    "cubes_2x3": _grid(2, 3, [CUBE]),
+    "cubes_3x3": _grid(3, 3, [CUBE]),
+    "small_cubes_3x3": _grid(3, 3, [SMALL_CUBE]),
+    "cylinders_2x2": _grid(2, 2, [CYLINDER]),
+    "cubes_and_cylinders_3x3": _grid(3, 3, [CUBE, CYLINDER]),
     "long_boxes_2": _rows_of_long_boxes(2),
     "long_boxes_4": _rows_of_long_boxes(4),
     "long_boxes_5_diagonal": _rows_of_long_boxes(5, math.pi / 4),
     "cubes_between_walls": _walled_column(3),
     "brick_wall": _brick_wall(),
     "cube_row_against_boxes": (
-        *(Placement(*CUBE, (k - 1) * _PITCH, 0.0) for k in range(3)),
+        *_grid(1, 3, [CUBE]),
         *(
             Placement(*LONG_BOX, (k - 0.5) * (2 * LONG_BOX[1][0] + GAP), -(CUBE[1][0] + GAP + LONG_BOX[1][1]))
             for k in range(2)
@@ -120,9 +120,7 @@ def random_packed_layout(rng: np.random.Generator) -> tuple[Placement, ...]:
     if rng.random() < 0.5:
         kinds = [kinds[int(rng.integers(len(kinds)))]]
     shapes = [kinds[int(i)] for i in rng.integers(0, len(kinds), rows * cols)]
-    # A 4 cm cube grid at the 5 cm cubes' pitch would leave 13 mm gaps: room for a finger, not packed.
-    pitch = 2 * max(size[0] for _, size in shapes) + GAP
-    return _grid(rows, cols, shapes, pitch)[:MAX_OBJECTS]
+    return _grid(rows, cols, shapes)[:MAX_OBJECTS]
 
 
 def jittered(
