@@ -66,7 +66,11 @@ def plot_curve(run_dir: Path, title: str, steps: str = "environment steps") -> N
 def save_best_policy(policy: Any, run_dir: Path, steps: int, chosen_by: str = "validation") -> None:
     """best_policy.safetensors + best_policy.json (the policy alone, as data: ``policy_files``) and best.json.
 
-    ``chosen_by``: ``validation`` (the best periodic evaluation so far) or ``final`` (no tracked best)."""
+    ``chosen_by``: ``validation`` (the best periodic evaluation so far), ``final`` (no tracked best) or
+    ``selection`` (a policy that beat the validated best on further validation episodes, the selection seeds
+    ``eval_seed + SELECTION_SEED_OFFSET`` ...)."""
+    if chosen_by not in ("validation", "final", "selection"):
+        raise ValueError(f"chosen_by={chosen_by!r}: expected 'validation', 'final' or 'selection'")
     save_policy(policy, run_dir / "best_policy")
     write_json(run_dir / "best.json", {"steps": steps, "chosen_by": chosen_by})
 
@@ -185,6 +189,9 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: 
             f"The policy tested is the best of the periodic validation evaluations (seeds {config.eval_seed}-"
             f"{config.eval_seed + config.eval_episodes - 1}), from step {final['best_steps']} of {final['steps']}."
             if final["chosen_by"] == "validation"
+            else f"The policy tested is the one from step {final['best_steps']} of {final['steps']}, chosen over the best "
+            f"periodic validation's on selection seeds (further validation episodes, never the test seeds)."
+            if final["chosen_by"] == "selection"
             else f"The policy tested is the final one (step {final['steps']}): this run kept no validated best."
         ),  # fmt: skip
         *(

@@ -1,6 +1,7 @@
 """train.py, its configs, the heightmap Q-policy and loading shipped checkpoints."""
 
 import json
+import shutil
 from pathlib import Path
 
 import gymnasium as gym
@@ -26,7 +27,7 @@ from panda_grasp_env.agents.heightmap_policy import (
 )
 from panda_grasp_env.agents.policy_agent import PolicyAgent
 from panda_grasp_env.agents.policy_files import load_policy
-from panda_grasp_env.agents.records import ship
+from panda_grasp_env.agents.records import load_best_policy, save_best_policy, ship
 from panda_grasp_env.commands import train
 from panda_grasp_env.perception.heightmap import HeightmapGrid
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
@@ -346,6 +347,19 @@ def test_a_run_folder_holds_everything_and_resumes(finished_run):
     card = (run / "card.md").read_text()
     assert "95 % CI" in card and "environment steps | 12" in card
     assert not list(run.glob("*.tmp"))
+
+
+def test_a_policy_chosen_on_selection_seeds_is_tested_and_carded_as_such(finished_run, tmp_path):
+    run = tmp_path / finished_run.name
+    shutil.copytree(finished_run, run)
+    policy, _ = load_best_policy(run)
+    with pytest.raises(ValueError, match="chosen_by='luck'"):
+        save_best_policy(policy, run, 12, chosen_by="luck")
+    save_best_policy(policy, run, 12, chosen_by="selection")
+    assert train.main(["--retest", str(run)]) == 0
+    final = json.loads((run / "final.json").read_text())
+    assert final["chosen_by"] == "selection" and final["best_steps"] == 12
+    assert "chosen over the best periodic validation's on selection seeds" in (run / "card.md").read_text()
 
 
 def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, tmp_path, monkeypatch):
