@@ -63,14 +63,23 @@ def plot_curve(run_dir: Path, title: str, steps: str = "environment steps") -> N
     plt.close(figure)
 
 
+#: How a run's tested policy was chosen (``best.json`` ``chosen_by``), as its card says it.
+CHOSEN_BY = {
+    "validation": "the best of the periodic validation evaluations (seeds {first}-{last}), from step {best} of {steps}",
+    "selection": "the one from step {best} of {steps}, chosen over the best periodic validation's on selection seeds "
+    "(further validation episodes, never the test seeds)",
+    "final": "the final one (step {steps}): this run kept no validated best",
+}
+
+
 def save_best_policy(policy: Any, run_dir: Path, steps: int, chosen_by: str = "validation") -> None:
     """best_policy.safetensors + best_policy.json (the policy alone, as data: ``policy_files``) and best.json.
 
     ``chosen_by``: ``validation`` (the best periodic evaluation so far), ``final`` (no tracked best) or
     ``selection`` (a policy that beat the validated best on further validation episodes, the selection seeds
     ``eval_seed + SELECTION_SEED_OFFSET`` ...)."""
-    if chosen_by not in ("validation", "final", "selection"):
-        raise ValueError(f"chosen_by={chosen_by!r}: expected 'validation', 'final' or 'selection'")
+    if chosen_by not in CHOSEN_BY:
+        raise ValueError(f"chosen_by={chosen_by!r}: expected one of {list(CHOSEN_BY)}")
     save_policy(policy, run_dir / "best_policy")
     write_json(run_dir / "best.json", {"steps": steps, "chosen_by": chosen_by})
 
@@ -185,15 +194,14 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: 
         "",
         f"## Final test: {m['episodes']} episodes on held-out seeds {final['test_seeds'][0]}-{final['test_seeds'][1]}",
         "",
-        (
-            f"The policy tested is the best of the periodic validation evaluations (seeds {config.eval_seed}-"
-            f"{config.eval_seed + config.eval_episodes - 1}), from step {final['best_steps']} of {final['steps']}."
-            if final["chosen_by"] == "validation"
-            else f"The policy tested is the one from step {final['best_steps']} of {final['steps']}, chosen over the best "
-            f"periodic validation's on selection seeds (further validation episodes, never the test seeds)."
-            if final["chosen_by"] == "selection"
-            else f"The policy tested is the final one (step {final['steps']}): this run kept no validated best."
-        ),  # fmt: skip
+        "The policy tested is "
+        + CHOSEN_BY[final["chosen_by"]].format(
+            first=config.eval_seed,
+            last=config.eval_seed + config.eval_episodes - 1,
+            best=final["best_steps"],
+            steps=final["steps"],
+        )
+        + ".",
         *(
             [
                 "",
