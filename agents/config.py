@@ -37,6 +37,15 @@ OFFLINE_ALGORITHMS = ("bc",)
 DEMONSTRATION_ALGORITHMS = ("bc", "tqc_demos")
 #: The algorithms that may use HER.
 HER_ALGORITHMS = ("sac", "tqc", "tqc_demos")
+#: The final test's seeds start this far above the validation seeds: choosing the best checkpoint on the
+#: validation episodes does not flatter the reported figures.
+TEST_SEED_OFFSET = 100_000
+#: Episodes for choosing among runs or agent settings (``selection_episodes``, ``benchmarks/select_runs.py``) start this far above the
+#: validation seeds: past the periodic validations, far below the test seeds.
+SELECTION_SEED_OFFSET = 1_000
+#: As many selection episodes as fit below the test seeds.
+MOST_SELECTION_EPISODES = TEST_SEED_OFFSET - SELECTION_SEED_OFFSET
+
 #: Training rewards: ``task`` is the env's own; ``outcome`` pays each primitive for what it achieved (``OutcomeReward``).
 REWARDS = ("task", "outcome")
 
@@ -69,6 +78,10 @@ class TrainConfig:
     eval_seed: int = 1_000_000  # validation episodes: seeds eval_seed, eval_seed + 1, ...; the final test:
     # eval_seed + TEST_SEED_OFFSET, ... (training episodes draw other seeds; see TrainConfig docs)
     final_eval_episodes: int = 100
+    # After training, the best periodic validation's policy and the final one each play this many episodes on
+    # the selection seeds (eval_seed + SELECTION_SEED_OFFSET, ...) and the better of the two is tested; 0: the
+    # validated best is tested unchecked.
+    selection_episodes: int = 0
     checkpoint_every: int = 5000
     max_minutes: float | None = None  # stop (and checkpoint) after this much wall time in total
     torch_threads: int = 1
@@ -98,6 +111,9 @@ class TrainConfig:
             value = getattr(self, key)
             check(isinstance(value, int) and not isinstance(value, bool) and value >= 1, key, "an int >= 1")
         check(isinstance(self.seed, int) and self.seed >= 0, "seed", "an int >= 0")
+        check(isinstance(self.selection_episodes, int) and not isinstance(self.selection_episodes, bool)
+              and 0 <= self.selection_episodes <= MOST_SELECTION_EPISODES, "selection_episodes",
+              f"an int in [0, {MOST_SELECTION_EPISODES}] (clear of the test seeds)")  # fmt: skip
         check(isinstance(self.eval_seed, int) and self.eval_seed >= 0, "eval_seed", "an int >= 0")
         check(self.vec_env in ("dummy", "subproc"), "vec_env", "'dummy' or 'subproc'")
         check(self.max_minutes is None or (isinstance(self.max_minutes, (int, float)) and self.max_minutes > 0),
@@ -336,6 +352,7 @@ RESUME_CHANGEABLE = (
     "eval_every",
     "eval_episodes",
     "final_eval_episodes",
+    "selection_episodes",
     "checkpoint_every",
     "torch_threads",
     "algo_kwargs",

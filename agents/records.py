@@ -72,16 +72,22 @@ CHOSEN_BY = {
 }
 
 
-def save_best_policy(policy: Any, run_dir: Path, steps: int, chosen_by: str = "validation") -> None:
+def save_best_policy(
+    policy: Any, run_dir: Path, steps: int, chosen_by: str = "validation", selection: dict[str, Any] | None = None
+) -> None:
     """best_policy.safetensors + best_policy.json (the policy alone, as data: ``policy_files``) and best.json.
 
     ``chosen_by``: ``validation`` (the best periodic evaluation so far), ``final`` (no tracked best) or
     ``selection`` (a policy that beat the validated best on further validation episodes, the selection seeds
-    ``eval_seed + SELECTION_SEED_OFFSET`` ...)."""
+    ``eval_seed + SELECTION_SEED_OFFSET`` ...).  ``selection``: both policies' figures there, when they were
+    compared (``training.select_on_selection_seeds``)."""
     if chosen_by not in CHOSEN_BY:
         raise ValueError(f"chosen_by={chosen_by!r}: expected one of {list(CHOSEN_BY)}")
     save_policy(policy, run_dir / "best_policy")
-    write_json(run_dir / "best.json", {"steps": steps, "chosen_by": chosen_by})
+    write_json(
+        run_dir / "best.json",
+        {"steps": steps, "chosen_by": chosen_by, **({"selection": selection} if selection else {})},
+    )
 
 
 def load_best_policy(run_dir: Path) -> tuple[Any, dict[str, Any]]:
@@ -202,6 +208,16 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: 
             steps=final["steps"],
         )
         + ".",
+        *(
+            [
+                "",
+                f"Before the test, on {s['episodes']} selection episodes (seeds {s['seeds'][0]}-{s['seeds'][1]}), the "
+                f"validated best (step {s['validated_best']['steps']}) held {pct(s['validated_best']['trial_success'])} "
+                f"and the final policy (step {s['final']['steps']}) {pct(s['final']['trial_success'])}.",
+            ]
+            if (s := final.get("selection"))
+            else []
+        ),
         *(
             [
                 "",

@@ -26,6 +26,8 @@ import gymnasium as gym
 
 from panda_grasp_env.agents.config import (
     ALGORITHMS,
+    SELECTION_SEED_OFFSET,
+    TEST_SEED_OFFSET,
     TrainConfig,
     algo_arguments,
     load_class,
@@ -62,13 +64,6 @@ from panda_grasp_env.tooling.runs import (
     write_atomically,
     write_json,
 )
-
-#: The final test's seeds start this far above the validation seeds: choosing the best checkpoint on the
-#: validation episodes does not flatter the reported figures.
-TEST_SEED_OFFSET = 100_000
-#: Episodes for choosing among runs or agent settings (``benchmarks/select_runs.py``) start this far above the
-#: validation seeds: past the periodic validations, far below the test seeds.
-SELECTION_SEED_OFFSET = 1_000
 
 
 def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
@@ -189,9 +184,14 @@ def headline(metrics: dict[str, Any]) -> dict[str, float]:
 # --- the run -----------------------------------------------------------------------------------
 
 
+#: The metrics ``validation_score`` ranks by.
+SCORE_KEYS = ("trial_success", "action_efficiency", "grasp_success")
+
+
 def validation_score(metrics: dict[str, Any]) -> tuple[float, ...]:
     """How checkpoints are ranked on the validation episodes: success, then efficiency, then grasp success."""
-    return (metrics["trial_success"]["rate"], metrics["action_efficiency"], metrics["grasp_success"]["rate"])
+    success, efficiency, grasps = (metrics[key] for key in SCORE_KEYS)
+    return (success["rate"], efficiency, grasps["rate"])
 
 
 def save_checkpoint(model: Any, run_dir: Path, wall_seconds: float) -> None:
@@ -352,10 +352,37 @@ def stopped_by(config: TrainConfig, steps: int, wall_seconds: float) -> str:
 
 
 def finish(model: Any, config: TrainConfig, run_dir: Path, wall_seconds: float) -> dict[str, Any]:
-    """The final test of the best validated policy (``final_test``) once training has ended."""
+    """The final test of the best validated policy (``final_test``) once training has ended; with
+    ``selection_episodes``, of the better of that one and the final policy (``select_on_selection_seeds``)."""
+    steps = int(model.num_timesteps)
     if not (run_dir / "best.json").exists():  # no periodic evaluation ran: the final policy is the best known
-        save_best_policy(model.policy, run_dir, int(model.num_timesteps), chosen_by="final")
-    return final_test(config, run_dir, int(model.num_timesteps), wall_seconds)
+        save_best_policy(model.policy, run_dir, steps, chosen_by="final")
+    elif config.selection_episodes:
+        select_on_selection_seeds(model.policy, config, run_dir, steps)
+    return final_test(config, run_dir, steps, wall_seconds)
+
+
+def select_on_selection_seeds(final_policy: Any, config: TrainConfig, run_dir: Path, steps: int) -> None:
+    """Play the validated best and the final policy (step ``steps``) for ``config.selection_episodes`` episodes
+    each on the selection seeds; the final one becomes the best (``chosen_by="selection"``) if it ranks higher
+    (``validation_score``; a tie keeps the validated one).  best.json records both figures.
+
+    Periodic validations are few episodes each and the best of many of them flatters its policy; the final
+    policy, never picked by them, is the natural rival."""
+    best_policy, best = load_best_policy(run_dir)
+    if best["steps"] == steps:  # the final policy is the validated best
+        return
+    first = config.eval_seed + SELECTION_SEED_OFFSET
+    figures = {}
+    for role, policy, at in (("validated_best", best_policy, best["steps"]), ("final", final_policy, steps)):
+        metrics = evaluate_policy(policy, config, config.selection_episodes, first_seed=first)
+        figures[role] = {"steps": at, **{key: metrics[key] for key in SCORE_KEYS}}
+    selection = {"episodes": config.selection_episodes, "seeds": [first, first + config.selection_episodes - 1],
+                 **figures}  # fmt: skip
+    if validation_score(figures["final"]) > validation_score(figures["validated_best"]):
+        save_best_policy(final_policy, run_dir, steps, chosen_by="selection", selection=selection)
+    else:
+        save_best_policy(best_policy, run_dir, best["steps"], chosen_by=best["chosen_by"], selection=selection)
 
 
 def retest(run_dir: Path) -> dict[str, Any]:
@@ -393,6 +420,7 @@ def final_test(
         "steps": steps,
         "best_steps": best["steps"],
         "chosen_by": best.get("chosen_by", "validation"),
+        **({"selection": best["selection"]} if "selection" in best else {}),
         "policy_class": class_name(type(policy)),
         "test_seeds": [
             config.eval_seed + TEST_SEED_OFFSET,

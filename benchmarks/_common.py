@@ -39,11 +39,10 @@ def policy_figures(metrics: dict[str, Any]) -> dict[str, Any]:
 
 def check_selection_episodes(parser: argparse.ArgumentParser, episodes: int) -> None:
     """``parser.error`` unless ``episodes`` episodes from the selection seeds stay clear of the test seeds."""
-    from panda_grasp_env.agents.training import SELECTION_SEED_OFFSET, TEST_SEED_OFFSET
+    from panda_grasp_env.agents.config import MOST_SELECTION_EPISODES
 
-    most = TEST_SEED_OFFSET - SELECTION_SEED_OFFSET
-    if not 1 <= episodes <= most:
-        parser.error(f"--episodes must be in [1, {most}] (clear of the test seeds)")
+    if not 1 <= episodes <= MOST_SELECTION_EPISODES:
+        parser.error(f"--episodes must be in [1, {MOST_SELECTION_EPISODES}] (clear of the test seeds)")
 
 
 def shipped_checkpoints(heightmap: bool) -> list[str]:

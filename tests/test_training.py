@@ -28,6 +28,7 @@ from panda_grasp_env.agents.heightmap_policy import (
 from panda_grasp_env.agents.policy_agent import PolicyAgent
 from panda_grasp_env.agents.policy_files import load_policy
 from panda_grasp_env.agents.records import load_best_policy, save_best_policy, ship
+from panda_grasp_env.agents.training import validation_score
 from panda_grasp_env.commands import train
 from panda_grasp_env.perception.heightmap import HeightmapGrid
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
@@ -86,6 +87,7 @@ def test_unknown_key_fails_listing_the_valid_ones(tmp_path):
         ("algo_kwargs.learning_rate={start: 0.001}", r"learning_rate as a positive number or \{start"),
         ("seed", "key=value"),
         ("train_env_kwargs=0.5", "train_env_kwargs=0.5: expected a mapping"),
+        ("selection_episodes=99001", r"selection_episodes=99001: expected an int in \[0, 99000\]"),
     ],
 )
 def test_bad_values_fail_before_training(override, message):
@@ -360,6 +362,23 @@ def test_a_policy_chosen_on_selection_seeds_is_tested_and_carded_as_such(finishe
     final = json.loads((run / "final.json").read_text())
     assert final["chosen_by"] == "selection" and final["best_steps"] == 12
     assert "chosen over the best periodic validation's on selection seeds" in (run / "card.md").read_text()
+
+
+def test_selection_episodes_pit_the_validated_best_against_the_final_policy_before_the_test(finished_run, tmp_path):
+    run = tmp_path / finished_run.name
+    shutil.copytree(finished_run, run)
+    policy, _ = load_best_policy(run)
+    save_best_policy(policy, run, 6)  # a validated best that is not the final policy (step 12)
+    assert train.main(["--resume", str(run), "selection_episodes=2", "--trust", "--no-progress"]) == 0  # a copied run
+    best = json.loads((run / "best.json").read_text())
+    selection = best["selection"]
+    assert selection["episodes"] == 2 and selection["seeds"] == [1_001_000, 1_001_001]  # clear of validation and test
+    assert (selection["validated_best"]["steps"], selection["final"]["steps"]) == (6, 12)
+    final_won = validation_score(selection["final"]) > validation_score(selection["validated_best"])
+    assert (best["steps"], best["chosen_by"]) == ((12, "selection") if final_won else (6, "validation"))
+    final = json.loads((run / "final.json").read_text())
+    assert final["best_steps"] == best["steps"] and final["selection"] == selection
+    assert "Before the test, on 2 selection episodes (seeds 1001000-1001001)" in (run / "card.md").read_text()
 
 
 def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, tmp_path, monkeypatch):
