@@ -15,6 +15,8 @@ TREE = ROOT / "build" / "api-src" / "panda_grasp_env"
 #: Nav sections (titles in mkdocs.yml) whose pages ``on_config`` lists.
 ENV_IDS_SECTION = "Env ids (generated from the envs themselves)"
 CARDS_SECTION = "Checkpoint cards"
+#: Replaced in index.md by a link to every registered id's page.
+ENV_ID_LINKS = "<!-- env id links -->"
 
 
 def checkpoint_folders() -> list[Path]:
@@ -100,6 +102,17 @@ def on_config(config, **kwargs):  # MkDocs hook: the signature is MkDocs'
             if isinstance(item, dict) and title in item:
                 item[title] = pages[title]
     return config
+
+
+def on_page_markdown(markdown, page, config, files, **kwargs):  # MkDocs hook: the signature is MkDocs'
+    """The home page's list of id pages, from the registry (a hand-kept list missed new ids)."""
+    from panda_grasp_env.registration import ENV_IDS
+
+    if page.file.src_uri != "index.md":
+        return markdown
+    if ENV_ID_LINKS not in markdown:
+        raise ValueError(f"docs/index.md lost its {ENV_ID_LINKS} marker")
+    return markdown.replace(ENV_ID_LINKS, ", ".join(f"[{env_id}](ids/{env_id}.md)" for env_id in ENV_IDS))
 
 
 def on_files(files, config, **kwargs):  # MkDocs hook: the signature is MkDocs'
