@@ -84,6 +84,12 @@ def save_best_policy(
     if chosen_by not in CHOSEN_BY:
         raise ValueError(f"chosen_by={chosen_by!r}: expected one of {list(CHOSEN_BY)}")
     save_policy(policy, run_dir / "best_policy")
+    write_best_record(run_dir, steps, chosen_by, selection)
+
+
+def write_best_record(run_dir: Path, steps: int, chosen_by: str, selection: dict[str, Any] | None = None) -> None:
+    """best.json alone: the best policy's step, how it was chosen and any selection figures (its weights are
+    already saved)."""
     write_json(
         run_dir / "best.json",
         {"steps": steps, "chosen_by": chosen_by, **({"selection": selection} if selection else {})},

@@ -54,6 +54,7 @@ from panda_grasp_env.agents.records import (
     plot_curve,
     read_evaluations,
     save_best_policy,
+    write_best_record,
 )
 from panda_grasp_env.tooling.runs import (
     atomic_path,
@@ -186,6 +187,12 @@ def headline(metrics: dict[str, Any]) -> dict[str, float]:
 
 #: The metrics ``validation_score`` ranks by.
 SCORE_KEYS = ("trial_success", "action_efficiency", "grasp_success")
+
+
+def evaluate_on_selection_seeds(policy: Any, config: TrainConfig, episodes: int) -> dict[str, Any]:
+    """``evaluate_policy`` on ``episodes`` selection seeds (``eval_seed + SELECTION_SEED_OFFSET`` ...): for
+    choosing between policies or runs without touching the validation or the test seeds."""
+    return evaluate_policy(policy, config, episodes, first_seed=config.eval_seed + SELECTION_SEED_OFFSET)
 
 
 def validation_score(metrics: dict[str, Any]) -> tuple[float, ...]:
@@ -375,14 +382,14 @@ def select_on_selection_seeds(final_policy: Any, config: TrainConfig, run_dir: P
     first = config.eval_seed + SELECTION_SEED_OFFSET
     figures = {}
     for role, policy, at in (("validated_best", best_policy, best["steps"]), ("final", final_policy, steps)):
-        metrics = evaluate_policy(policy, config, config.selection_episodes, first_seed=first)
+        metrics = evaluate_on_selection_seeds(policy, config, config.selection_episodes)
         figures[role] = {"steps": at, **{key: metrics[key] for key in SCORE_KEYS}}
     selection = {"episodes": config.selection_episodes, "seeds": [first, first + config.selection_episodes - 1],
                  **figures}  # fmt: skip
     if validation_score(figures["final"]) > validation_score(figures["validated_best"]):
         save_best_policy(final_policy, run_dir, steps, chosen_by="selection", selection=selection)
     else:
-        save_best_policy(best_policy, run_dir, best["steps"], chosen_by=best["chosen_by"], selection=selection)
+        write_best_record(run_dir, best["steps"], best["chosen_by"], selection)  # its weights stay as saved
 
 
 def retest(run_dir: Path) -> dict[str, Any]:

@@ -23,16 +23,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from benchmarks._common import Results, check_selection_episodes, policy_figures
-from panda_grasp_env.agents.config import SELECTION_SEED_OFFSET, load_run
+from panda_grasp_env.agents.config import load_run
 from panda_grasp_env.agents.evaluation import describe_rate
 from panda_grasp_env.agents.records import load_best_policy
-from panda_grasp_env.agents.training import evaluate_policy, validation_score
+from panda_grasp_env.agents.training import evaluate_on_selection_seeds, validation_score
 
 
 def measure(run_dir: Path, episodes: int) -> dict:
     config = load_run(run_dir)
     policy, best = load_best_policy(run_dir)
-    metrics = evaluate_policy(policy, config, episodes, first_seed=config.eval_seed + SELECTION_SEED_OFFSET)
+    metrics = evaluate_on_selection_seeds(policy, config, episodes)
     return {"best_steps": best["steps"], **policy_figures(metrics)}
 
 
