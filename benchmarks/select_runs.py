@@ -3,7 +3,7 @@
     python benchmarks/select_runs.py runs/<run A> runs/<run B> ... [--episodes 100]
                                      [--out results/benchmarks/select_runs.json] [--resume]
 
-Each run's best validated policy (``best_policy.zip``) plays ``--episodes`` episodes seeded
+Each run's best validated policy (``best_policy.json`` + ``.safetensors``) plays ``--episodes`` episodes seeded
 ``eval_seed + SELECTION_SEED_OFFSET`` ... : past the periodic validation seeds (``eval_seed`` ...), far below
 the final test's (``eval_seed + TEST_SEED_OFFSET`` ...).  A few validation episodes per evaluation pick a
 run's best step; they are too few to rank runs against each other (a policy at 20/20 there can hold 88 %
@@ -38,7 +38,7 @@ def measure(run_dir: Path, episodes: int) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("runs", type=Path, nargs="+", help="finished run folders (best.json, best_policy.zip)")
+    parser.add_argument("runs", type=Path, nargs="+", help="finished run folders (best.json, best_policy.json)")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--out", type=Path, default=Path("results/benchmarks/select_runs.json"))
     parser.add_argument("--resume", action="store_true", help="keep the runs already measured in --out")
