@@ -15,6 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from panda_grasp_env.actions import encode_primitive
+from panda_grasp_env.perception.heightmap import HeightmapGrid
 from panda_grasp_env.perception.noise import DepthNoise, RGBNoise
 from panda_grasp_env.perception.pose import View
 
@@ -52,23 +53,44 @@ def require(info: dict[str, Any], keys: tuple[str, ...], agent: str, hint: str) 
 
 
 class PrimitiveActionWriter:
-    """Builds ``primitive``-mode actions from world coordinates using the layout the env published."""
+    """Builds actions from world coordinates using the layout the env published: a ``primitive``-mode action,
+    or in ``pixel`` mode the index of the heightmap cell under (x, y) at the nearest of the env's headings
+    (VPG's discrete actions; the env then chooses the heights, so ``needs_z`` asks nothing of it)."""
 
     def __init__(self, info: dict[str, Any], agent: str, needs: tuple[str, ...], needs_z: bool = False) -> None:
         require(info, ("action_layout",), agent, "make the env with action_mode='primitive'")
         layout = info["action_layout"]
-        if layout["mode"] != "primitive":
-            raise ValueError(f"{agent} writes primitive actions: make the env with action_mode='primitive', "
-                             f"not {layout['mode']!r}")  # fmt: skip
+        if layout["mode"] not in ("primitive", "pixel"):
+            raise ValueError(f"{agent} writes primitive actions: make the env with action_mode='primitive' (or "
+                             f"'pixel'), not {layout['mode']!r}")  # fmt: skip
         missing = [p for p in needs if p not in layout["primitives"]]
         if missing:
             raise ValueError(f"{agent} needs the primitives {missing}; this env offers {layout['primitives']}")
+        self.primitives = tuple(layout["primitives"])
+        self.pixel_shape: tuple[int, ...] | None = None
+        if layout["mode"] == "pixel":
+            self.pixel_shape = tuple(layout["shape"])  # (primitive, rotation, row, column)
+            bounds = tuple(tuple(pair) for pair in layout["heightmap_bounds"])
+            self.grid = HeightmapGrid(bounds, layout["heightmap_resolution"])  # type: ignore[arg-type]
+            self.with_z = False
+            return
         if needs_z and not layout["primitive_z"]:
             raise ValueError(f"{agent} chooses grasp heights itself: make the env with primitive_z=True")
-        self.primitives, self.with_z = tuple(layout["primitives"]), bool(layout["primitive_z"])
+        self.with_z = bool(layout["primitive_z"])
 
     def __call__(self, name: str, x: float, y: float, yaw: float, z: float | None = None) -> np.ndarray:
-        return encode_primitive(self.primitives, self.with_z, name, x, y, yaw, z if self.with_z else None)
+        """The action running primitive ``name`` at world (x, y[, z]) metres with heading ``yaw`` radians."""
+        if self.pixel_shape is None:
+            return encode_primitive(self.primitives, self.with_z, name, x, y, yaw, z if self.with_z else None)
+        if name not in self.primitives:
+            raise ValueError(f"primitive {name!r} not available here; valid: {list(self.primitives)}")
+        _, rotations, rows, cols = self.pixel_shape
+        row, col = (int(i) for i in self.grid.world_to_cell(np.array([x, y])))
+        if not (0 <= row < rows and 0 <= col < cols):
+            raise ValueError(f"({x:.3f}, {y:.3f}) m lies outside the heightmap the pixel actions cover "
+                             f"({self.grid.bounds[:2]})")  # fmt: skip
+        rotation = int(np.round(yaw / (2 * np.pi / rotations))) % rotations
+        return np.array(np.ravel_multi_index((self.primitives.index(name), rotation, row, col), self.pixel_shape))
 
 
 class CameraViews:

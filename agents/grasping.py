@@ -57,7 +57,8 @@ class PlannedGraspAgent:
 
     def _choose_writer(self, info: dict[str, Any]) -> None:
         # With action_mode='grasp_pose' the full 6-DOF candidate goes through the env's motion stack;
-        # with 'primitive' (primitive_z=True) through the top-down grasp primitive.
+        # with 'primitive' (primitive_z=True) through the top-down grasp primitive; with 'pixel' (the oracles,
+        # which need no images) at the nearest cell and heading, the env choosing the height.
         self.pose_mode = info.get("action_layout", {}).get("mode") == "grasp_pose"
         self.write = None if self.pose_mode else PrimitiveActionWriter(info, self.name, ("grasp",), needs_z=True)
 
@@ -216,7 +217,9 @@ class PackedGraspOracle(OracleGraspAgent):
     with it.  The push that leaves the most objects with a clear grasp (then: the least blocked grasp
     freest; then: moving the fewest; never one that moves an object out of the play region) is made, if
     it does better than the scene as it is.  Without ``pushes`` (the grasp-only oracle), or when no push
-    helps, it tries the grasp that collides least.
+    helps, it tries the grasp that collides least.  It plays in ``primitive`` mode (``primitive_z=True``) or,
+    its choices rounded to the nearest cell and heading, in ``pixel`` mode: the demonstrator of
+    ``heightmap_dqn_demos``.
     """
 
     name = "packed_grasp_oracle"

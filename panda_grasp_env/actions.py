@@ -286,6 +286,7 @@ class PixelActions(ActionMode):
             "shape": list(self.shape),  # (primitive, rotation, row, column): the index's layout
             "heightmap_bounds": [list(map(float, b)) for b in self.grid.bounds],
             "heightmap_resolution": self.grid.resolution,
+            "push_distance": self.settings.push_distance,
         }
 
     def validate(self, action: Any) -> tuple[int, int]:

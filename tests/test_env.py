@@ -207,9 +207,20 @@ def test_pixel_mode_publishes_its_action_layout():
     expected = (layout["primitives"][primitive], x1 - (row + 0.5) * cell, y1 - (column + 0.5) * cell)
     assert env.unwrapped.actions.decode(index)[:3] == pytest.approx(expected)
     assert rotation == 7
-    with pytest.raises(ValueError, match="action_mode='primitive', not 'pixel'"):
-        PrimitiveActionWriter(info, "scripted", ("push",))
+    # Agents that choose world points write pixel actions too: the cell under the point, the nearest heading.
+    write = PrimitiveActionWriter(info, "scripted", ("push",), needs_z=True)
+    x, y = env.unwrapped.actions.decode(index)[1:3]
+    action = write("push", x + 0.3 * cell, y - 0.3 * cell, 2 * np.pi * 7 / 8 + 0.2)
+    assert action.shape == () and int(action) == index and env.action_space.contains(action)
+    assert int(write("push", x, y, 2 * np.pi - 0.1)) == np.ravel_multi_index((primitive, 0, row, column),
+                                                                           layout["shape"])  # fmt: skip
+    with pytest.raises(ValueError, match="outside the heightmap"):
+        write("push", 2.0, 0.0, 0.0)
     env.close()
+    factored = make("PandaTowerBreak-v0", action_mode="pixel_factored", rotations=8)
+    with pytest.raises(ValueError, match="action_mode='primitive' \\(or 'pixel'\\), not 'pixel_factored'"):
+        PrimitiveActionWriter(factored.reset(seed=0)[1], "scripted", ("push",))
+    factored.close()
 
 
 def test_factored_pixel_mode_is_the_pixel_mode_per_dimension():
