@@ -30,11 +30,17 @@ ALGORITHMS: dict[str, tuple[str, str]] = {
     # Learning from demonstrations (agents/imitation.py); algo_kwargs.demonstrations names the dataset.
     "bc": ("panda_grasp_env.agents.imitation:BehaviourCloning", "MultiInputPolicy"),
     "tqc_demos": ("panda_grasp_env.agents.imitation:TQCFromDemonstrations", "MultiInputPolicy"),
+    "heightmap_dqn_demos": (
+        "panda_grasp_env.agents.imitation:HeightmapDQNFromDemonstrations",
+        "panda_grasp_env.agents.heightmap_policy:HeightmapQPolicy",
+    ),
 }
+#: The algorithms of the ``pixel`` mode's heightmap Q-policy (``panda_grasp_env.agents.heightmap_policy``).
+HEIGHTMAP_ALGORITHMS = ("heightmap_dqn", "heightmap_dqn_demos")
 #: The algorithms that learn without stepping an env: their steps are minibatches.
 OFFLINE_ALGORITHMS = ("bc",)
 #: The algorithms that learn from ``algo_kwargs.demonstrations``.
-DEMONSTRATION_ALGORITHMS = ("bc", "tqc_demos")
+DEMONSTRATION_ALGORITHMS = ("bc", "tqc_demos", "heightmap_dqn_demos")
 #: The algorithms that may use HER.
 HER_ALGORITHMS = ("sac", "tqc", "tqc_demos")
 #: The final test's seeds start this far above the validation seeds: choosing the best checkpoint on the
@@ -127,8 +133,8 @@ class TrainConfig:
         check(keys is None or (isinstance(keys, list) and len(keys) > 0 and all(isinstance(k, str) for k in keys)
                                and len(set(keys)) == len(keys)), "observation_keys",
               "null or a non-empty list of distinct observation entry names")  # fmt: skip
-        check(keys is None or (self.her is None and self.algo != "heightmap_dqn"), "observation_keys",
-              "null with HER (it needs achieved_goal) and with heightmap_dqn")  # fmt: skip
+        check(keys is None or (self.her is None and self.algo not in HEIGHTMAP_ALGORITHMS), "observation_keys",
+              "null with HER (it needs achieved_goal) and with the heightmap algorithms")  # fmt: skip
         check(
             self.her is None or self.algo in HER_ALGORITHMS, "her", f"null unless algo is one of {list(HER_ALGORITHMS)}"
         )
@@ -236,13 +242,13 @@ def config_from_dict(raw: dict[str, Any], source: str = "config") -> TrainConfig
 
 def holding_plane(config: TrainConfig) -> bool:
     """Whether a heightmap policy sees the holding plane: it does when it may ``place``."""
-    return config.algo == "heightmap_dqn" and "place" in config.policy_kwargs.get("primitives_used", ())
+    return config.algo in HEIGHTMAP_ALGORITHMS and "place" in config.policy_kwargs.get("primitives_used", ())
 
 
 def observation_transform(config: TrainConfig) -> Callable[[Any, dict[str, Any]], Any]:
     """What the policy sees of an env observation and the step's info (the same in training, evaluation and
     ``LearnedAgent``)."""
-    if config.algo == "heightmap_dqn":
+    if config.algo in HEIGHTMAP_ALGORITHMS:
         from panda_grasp_env.agents.heightmap_policy import encode_observation
 
         holding = holding_plane(config)
@@ -314,7 +320,7 @@ def training_env(config: TrainConfig) -> gym.Env:
     env = make_env(config, training=True)
     if config.reward == "outcome":
         env = OutcomeReward(env)
-    if config.algo == "heightmap_dqn":
+    if config.algo in HEIGHTMAP_ALGORITHMS:
         from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap
 
         env = EncodedHeightmap(env, holding_plane(config))

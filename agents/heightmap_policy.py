@@ -248,12 +248,16 @@ class HeightmapQNetwork(nn.Module):
     def set_training_mode(self, mode: bool) -> None:
         self.train(mode)
 
+    def q_maps(self, observations: th.Tensor, rotations: th.Tensor) -> th.Tensor:
+        """(B, P, H, W) Q-values of every primitive and cell at one rotation index (B,) per observation."""
+        return self._scores(observations.float().div(255.0), self.angles[rotations])
+
     def q_at(self, observations: th.Tensor, actions: th.Tensor) -> th.Tensor:
         """Q-values (B,) of one action per observation, running only that action's rotation."""
         p, r, row, col = np.unravel_index(
             actions.cpu().numpy().reshape(-1), (self.n_primitives, self.rotations, self.rows, self.cols)
         )
-        scores = self._scores(observations.float().div(255.0), self.angles[th.as_tensor(r)])
+        scores = self.q_maps(observations, th.as_tensor(r))
         index = th.arange(len(p))
         return scores[index, th.as_tensor(p), th.as_tensor(row), th.as_tensor(col)]
 

@@ -7,8 +7,10 @@ policies, through ``train.py`` like any other algorithm.
   after every update, a behaviour-cloning step on the actor filtered by the critic (Nair et al. 2018, "Overcoming
   exploration in reinforcement learning with demonstrations": a demonstrated action is imitated only where the
   critic rates it above the policy's own).
+* ``heightmap_dqn_demos`` -- ``HeightmapDQNFromDemonstrations``: the ``pixel`` mode's heightmap DQN with the
+  demonstrations in its replay buffer and a large-margin loss that ranks the demonstrated action first (DQfD).
 
-Both read ``algo_kwargs.demonstrations``: ``{dataset, episodes, path, successful_only}`` (``Demonstrations``).
+All read ``algo_kwargs.demonstrations``: ``{dataset, episodes, path, successful_only}`` (``Demonstrations``).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from sb3_contrib import TQC
 from stable_baselines3 import SAC
 from torch.nn import functional
 
+from panda_grasp_env.agents.heightmap_policy import DIRECTED_PRIMITIVES, HeightmapDQN, encode_heightmap
 from panda_grasp_env.geometry import is_number
 
 
@@ -165,10 +168,14 @@ class DemonstrationMixin:
         if actions.shape[1:] != self.action_space.shape:
             raise ValueError(f"demonstrations {spec.dataset}: actions of shape {actions.shape[1:]}, the env's "
                              f"{self.action_space.shape}")  # fmt: skip
-        self._demo_observations = _tensors(observations, self.device)
-        self._demo_actions = torch.as_tensor(np.clip(actions, -1.0, 1.0), device=self.device)
-        self._demo_generator = torch.Generator(device="cpu").manual_seed(0 if self.seed is None else int(self.seed))
+        self._keep_demonstrations(observations, np.clip(actions, -1.0, 1.0))
         return episodes
+
+    def _keep_demonstrations(self, observations: dict[str, np.ndarray] | np.ndarray, actions: np.ndarray) -> None:
+        """Hold the demonstrated (observations, actions) as tensors for ``demo_batch``, with its generator."""
+        self._demo_observations = _tensors(observations, self.device)
+        self._demo_actions = torch.as_tensor(actions, device=self.device)
+        self._demo_generator = torch.Generator(device="cpu").manual_seed(0 if self.seed is None else int(self.seed))
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_demo_observations", "_demo_actions", "_demo_generator"]
@@ -340,3 +347,138 @@ class TQCFromDemonstrations(DemonstrationMixin, TQC):
         self.actor.optimizer.step()
         self.logger.record("train/bc_loss", loss.item())
         self.logger.record("train/bc_q_filter", float(keep.mean()))  # the share that passed the filter
+
+
+#: Cells this close to the demonstrated one (metres, either way along rows and columns), with the same primitive
+#: and heading, count as the demonstrated action itself: the Q-maps are scored at a quarter of the heightmap's
+#: resolution and upsampled, so no margin can part neighbouring cells.
+SAME_ACTION_RADIUS = 0.012
+
+
+class HeightmapDQNFromDemonstrations(DemonstrationMixin, HeightmapDQN):
+    """``HeightmapDQN`` with demonstrations (DQfD, Hester et al. 2018, "Deep Q-learning from demonstrations"):
+    the demonstrated transitions start in the replay buffer, where they stay (a ``buffer_size`` below them and
+    the run's steps is refused), and after each round of TD updates the Q-network takes one large-margin step
+    on ``batch_size`` demonstrated steps: no allowed action may score within ``margin`` of the demonstrated one,
+    ``margin_weight * mean(max_a [Q(s, a) + margin * (a != a_E)] - Q(s, a_E))``, where actions within
+    ``SAME_ACTION_RADIUS`` of a_E (same primitive and heading) count as a_E.  The maximum runs over the
+    demonstrated heading's map and one other heading drawn at random (two network passes per sample, not
+    all ``rotations``; never the half-turned grasp, which is the same grasp), so over the run every heading
+    is held below the demonstrated action.
+
+    The demonstrations are episodes in ``obs_mode='heightmap'`` and ``action_mode='pixel'``, e.g. the
+    push-aware oracle's (``python -m panda_grasp_env.agents.demonstrations --agent oracle --task
+    GraspAdversarial --task-options obs_mode=heightmap action_mode=pixel ...``), with the rewards they were
+    recorded under; policies with the holding or command planes cannot learn from them (their episodes do
+    not say what was held or commanded)."""
+
+    def __init__(
+        self,
+        policy: Any,
+        env: Any,
+        demonstrations: dict[str, Any] | None = None,
+        margin: float = 0.2,
+        margin_weight: float = 1.0,
+        **kwargs: Any,
+    ) -> None:
+        if kwargs.get("_init_setup_model", True):
+            _check_demonstrations(demonstrations, "heightmap_dqn_demos")
+        for name, value in (("margin", margin), ("margin_weight", margin_weight)):
+            if not (is_number(value) and value >= 0):
+                raise ValueError(f"heightmap_dqn_demos: {name} must be a number >= 0, got {value!r}")
+        self.demonstrations, self.margin, self.margin_weight = demonstrations, float(margin), float(margin_weight)
+        super().__init__(policy, env, **kwargs)
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        if self.n_envs != 1:
+            raise ValueError(f"heightmap_dqn_demos: n_envs must be 1 (the demonstrations enter the buffer one "
+                             f"step at a time), got {self.n_envs}")  # fmt: skip
+        spec = Demonstrations.of(self.demonstrations)
+        planes, rows, cols = self.observation_space.shape
+        if planes != 4:
+            raise ValueError(f"heightmap_dqn_demos: the policy sees {planes} planes; demonstrations give the "
+                             f"heightmap's 4 (no holding or command planes)")  # fmt: skip
+        episodes = []
+        for episode in spec.episodes_data():
+            heightmaps = np.asarray(episode.observations)
+            if heightmaps.shape[1:] != (rows, cols, 4):
+                raise ValueError(f"demonstrations {spec.dataset}: observations of shape {heightmaps.shape[1:]}, "
+                                 f"the env's heightmap ({rows}, {cols}, 4) (obs_mode='heightmap')")  # fmt: skip
+            actions = np.asarray(episode.actions).reshape(-1)
+            if actions.dtype.kind not in "iu" or actions.min() < 0 or actions.max() >= self.action_space.n:
+                raise ValueError(f"demonstrations {spec.dataset}: actions are not indices of this env's "
+                                 f"{self.action_space} (action_mode='pixel' with the same grid and rotations)")  # fmt: skip
+            encoded = np.stack([encode_heightmap(h) for h in heightmaps])
+            episodes.append((encoded, actions.astype(np.int64), episode))
+        self._keep_demonstrations(np.concatenate([e[0][:-1] for e in episodes]),
+                                  np.concatenate([e[1] for e in episodes]))  # fmt: skip
+        self._episodes_for_buffer: list[Any] | None = episodes
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_episodes_for_buffer"]
+
+    def _setup_learn(self, total_timesteps: int, *args: Any, **kwargs: Any) -> Any:
+        fresh = self.replay_buffer is not None and self.replay_buffer.size() == 0
+        result = super()._setup_learn(total_timesteps, *args, **kwargs)
+        if fresh and self._episodes_for_buffer:  # a resumed run's buffer already holds them
+            needed = self.demonstration_steps + total_timesteps
+            if self.buffer_size < needed:
+                raise ValueError(f"heightmap_dqn_demos: buffer_size {self.buffer_size} cannot keep the "
+                                 f"{self.demonstration_steps} demonstrated steps and {total_timesteps} more")  # fmt: skip
+            for encoded, actions, episode in self._episodes_for_buffer:
+                for t, action in enumerate(actions):
+                    terminated, truncated = bool(episode.terminations[t]), bool(episode.truncations[t])
+                    self.replay_buffer.add(encoded[t][None], encoded[t + 1][None], np.array([[action]]),
+                                           np.array([episode.rewards[t]], dtype=np.float32),
+                                           np.array([terminated or truncated]),
+                                           [{"TimeLimit.truncated": truncated and not terminated}])  # fmt: skip
+        self._episodes_for_buffer = None
+        return result
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        super().train(gradient_steps, batch_size)
+        if self.margin_weight == 0:
+            return
+        loss, met = self.margin_loss(*self.demo_batch(batch_size))
+        self.policy.optimizer.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+        self.policy.optimizer.step()
+        self.logger.record("train/margin_loss", loss.item())
+        self.logger.record("train/margin_met", met)
+
+    def margin_loss(self, observations: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, float]:
+        """(the weighted large-margin loss of demonstrated ``actions`` (B,) on encoded heightmaps
+        ``observations``, the share of them that already beat every other allowed action by the margin at the
+        headings tried)."""
+        q_net = self.q_net
+        rotations, rows, cols = q_net.rotations, q_net.rows, q_net.cols
+        shape = (q_net.n_primitives, rotations, rows, cols)
+        primitive, rotation, row, col = (torch.as_tensor(i) for i in np.unravel_index(actions.cpu().numpy(), shape))
+        index = torch.arange(len(actions))
+        allowed = q_net.allowed(observations).view(len(actions), *shape)[:, :, 0]  # alike at every heading
+        allowed[index, primitive, row, col] = True
+
+        def best_allowed(scores: torch.Tensor) -> torch.Tensor:
+            return scores.masked_fill(~allowed, -torch.inf).flatten(1).amax(1)
+
+        demonstrated = q_net.q_maps(observations, rotation)
+        chosen = demonstrated[index, primitive, row, col]
+        reach = max(1, round(SAME_ACTION_RADIUS / self.policy.network_args["cell_size"]))
+        near = ((torch.arange(rows)[None, :, None] - row[:, None, None]).abs() <= reach) & (
+            (torch.arange(cols)[None, None, :] - col[:, None, None]).abs() <= reach
+        )
+        margins = torch.full_like(demonstrated, self.margin)
+        margins[index, primitive] = torch.where(near, 0.0, self.margin)
+        best = best_allowed(demonstrated + margins)
+        # One other heading, never one that is the same action: a grasp turned by half a turn is.
+        symmetric = torch.tensor([rotations % 2 == 0 and q_net.primitives[p] not in DIRECTED_PRIMITIVES
+                                  for p in primitive.tolist()])  # fmt: skip
+        choices = rotations - 1 - symmetric.long()
+        if bool((choices > 0).any()):
+            turn = 1 + (torch.rand(len(actions), generator=self._demo_generator) * choices).long()
+            turn = turn + (symmetric & (turn >= rotations // 2)).long()
+            elsewhere = best_allowed(q_net.q_maps(observations, (rotation + turn) % rotations) + self.margin)
+            best = torch.where(choices > 0, torch.maximum(best, elsewhere), best)
+        return self.margin_weight * (best - chosen).mean(), float((best - chosen <= 1e-6).float().mean())

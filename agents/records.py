@@ -13,7 +13,7 @@ from typing import Any
 import yaml
 
 from panda_grasp_env.agents import learned
-from panda_grasp_env.agents.config import TrainConfig, load_run, steps_label
+from panda_grasp_env.agents.config import HEIGHTMAP_ALGORITHMS, TrainConfig, load_run, steps_label
 from panda_grasp_env.agents.evaluation import describe_rate, is_low_level, task_label
 from panda_grasp_env.agents.imitation import Demonstrations
 from panda_grasp_env.agents.learned import SHIPPED_FILES
@@ -260,7 +260,7 @@ def ship(run_dir: Path, name: str, avoid_failures: bool = False) -> Path:
     if not name.replace("-", "").replace("_", "").isalnum():
         raise ValueError(f"checkpoint name {name!r}: letters, digits, - and _ only")
     config = load_run(run_dir)
-    if avoid_failures and config.algo != "heightmap_dqn":
+    if avoid_failures and config.algo not in HEIGHTMAP_ALGORITHMS:
         raise ValueError(
             f"avoid_failures: only heightmap_dqn policies keep a FailureMemory, {run_dir} is {config.algo}"
         )

@@ -26,6 +26,7 @@ import gymnasium as gym
 
 from panda_grasp_env.agents.config import (
     ALGORITHMS,
+    HEIGHTMAP_ALGORITHMS,
     SELECTION_SEED_OFFSET,
     TEST_SEED_OFFSET,
     TrainConfig,
@@ -76,7 +77,7 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
     algo_class = load_class(algo_path)
     policy_kwargs = dict(config.policy_kwargs)
     kwargs = algo_arguments(config)
-    if config.algo == "heightmap_dqn":
+    if config.algo in HEIGHTMAP_ALGORITHMS:
         policy = load_class(policy)
         probe = make_env(config)
         policy_kwargs = {
@@ -117,7 +118,8 @@ def initial_policy_source(config: TrainConfig) -> Any:
         source = Checkpoint(str(name))
     except ValueError as error:  # it lists the shipped checkpoints
         raise ValueError(f"init_policy: {error}") from None
-    if source.config.algo != config.algo:
+    same_policy = {source.config.algo, config.algo} <= set(HEIGHTMAP_ALGORITHMS)  # one Q-policy, two learners
+    if source.config.algo != config.algo and not same_policy:
         raise ValueError(f"init_policy {name} was trained with {source.config.algo}, this run uses {config.algo}")
     policy = source.load_policy()
     env = training_env(config)  # what the run's policy will see and do
@@ -312,7 +314,7 @@ def train(
             # The config's algo_kwargs replace the saved ones (a resumed run may change them: RESUME_CHANGEABLE).
             # The policy class comes from the config, not the pickle: a checkpoint written before the package's
             # import names moved names a module (``agents.heightmap_policy``) that policy files may not name.
-            custom_objects = {"policy_class": load_class(policy)} if config.algo == "heightmap_dqn" else None
+            custom_objects = {"policy_class": load_class(policy)} if config.algo in HEIGHTMAP_ALGORITHMS else None
             try:
                 model = load_class(algo_path).load(
                     run_dir / "latest.zip",

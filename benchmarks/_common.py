@@ -13,6 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from panda_grasp_env.agents.config import HEIGHTMAP_ALGORITHMS
 from panda_grasp_env.agents.evaluation import clustered_rate, describe_rate, rate, wilson  # noqa: F401  (one implementation each)
 from panda_grasp_env.agents.learned import Checkpoint, available_checkpoints
 from panda_grasp_env.tooling.runs import machine as machine_name
@@ -47,7 +48,8 @@ def check_selection_episodes(parser: argparse.ArgumentParser, episodes: int) -> 
 
 def shipped_checkpoints(heightmap: bool) -> list[str]:
     """Names of the shipped heightmap (pixel-action DQN) checkpoints, or of the low-level ones."""
-    return [name for name in available_checkpoints() if (Checkpoint(name).config.algo == "heightmap_dqn") == heightmap]
+    names = available_checkpoints()
+    return [name for name in names if (Checkpoint(name).config.algo in HEIGHTMAP_ALGORITHMS) == heightmap]
 
 
 def machine() -> dict[str, Any]:

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from panda_grasp_env.agents.config import HEIGHTMAP_ALGORITHMS
 from panda_grasp_env.agents.learned import Checkpoint, available_checkpoints
 
 RECORDED = Path(__file__).parent / "data" / "heightmap_decisions.npz"
@@ -27,7 +28,7 @@ DECISIONS = recorded()
 
 
 def test_the_record_covers_every_shipped_heightmap_policy():
-    shipped = {name for name in available_checkpoints() if Checkpoint(name).config.algo == "heightmap_dqn"}
+    shipped = {name for name in available_checkpoints() if Checkpoint(name).config.algo in HEIGHTMAP_ALGORITHMS}
     assert shipped == set(DECISIONS) and len(shipped) >= 3
     assert sum(len(actions) for _, actions in DECISIONS.values()) >= 200
 

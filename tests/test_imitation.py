@@ -153,3 +153,66 @@ def test_image_shift_moves_each_image_within_its_padding_and_leaves_vectors_alon
     for i in range(8):  # each sample is one crop of its own padded image
         crops = [padded[i, :, y : y + 12, x : x + 10] for y in range(5) for x in range(5)]
         assert any(torch.equal(out["rgb"][i], crop) for crop in crops)
+
+
+#: The push-aware oracle in the pixel mode a heightmap policy acts in (a coarse grid, 4 headings: quick).
+PIXEL_OPTIONS = {"obs_mode": "heightmap", "action_mode": "pixel", "heightmap_resolution": 0.008, "rotations": 4,
+                 "layout": "cubes_2x2"}  # fmt: skip
+PIXEL_DATASET = "panda_grasp_env/packed-oracle-pixel-v0"
+
+
+@pytest.fixture(scope="module")
+def pixel_dataset_path(tmp_path_factory):
+    """One episode of the push-aware oracle clearing a packed 2 x 2 grid of cubes in pixel mode."""
+    out = tmp_path_factory.mktemp("minari_pixel")
+    options = [f"{key}={value}" for key, value in PIXEL_OPTIONS.items()]
+    args = demonstrations.parse_args(["--out", str(out), "--agent", "oracle", "--task", "GraspAdversarial",
+                                      "--episodes", "1", "--seed-start", "40", "--name", PIXEL_DATASET,
+                                      "--task-options", *options])  # fmt: skip
+    demonstrations.record(args)
+    return str(out)
+
+
+def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_them_first(pixel_dataset_path):
+    from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap, HeightmapQPolicy, encode_heightmap
+    from panda_grasp_env.agents.imitation import HeightmapDQNFromDemonstrations
+
+    demos = {"dataset": PIXEL_DATASET, "episodes": 1, "path": pixel_dataset_path}
+    episode = Demonstrations.of(demos).episodes_data()[0]
+    steps = len(episode.actions)
+    assert steps >= 4 and np.asarray(episode.actions).dtype.kind in "iu"  # the oracle cleared 4 cubes in pixel mode
+
+    def make(**extra):
+        env = EncodedHeightmap(gym.make("PandaGraspAdversarial-v0", **PIXEL_OPTIONS))
+        arguments = {"buffer_size": 100, "learning_starts": 1, "train_freq": 1, "batch_size": 4, "gamma": 0.5,
+                     "learning_rate": 3e-3,
+                     "seed": 0, "policy_kwargs": {"rotations": 4, "cell_size": 0.008, "width": 8}} | extra  # fmt: skip
+        return HeightmapDQNFromDemonstrations(HeightmapQPolicy, env, demonstrations=demos, **arguments)
+
+    model = make()
+    model.learn(2)
+    buffer = model.replay_buffer
+    assert buffer.size() == steps + 2  # the demonstration first, then the run's own steps
+    assert np.array_equal(buffer.observations[0, 0], encode_heightmap(episode.observations[0]))
+    assert np.array_equal(buffer.actions[:steps, 0, 0], episode.actions)
+    assert np.array_equal(buffer.next_observations[steps - 1, 0], encode_heightmap(episode.observations[-1]))
+    assert buffer.dones[steps - 1, 0] == 1 and buffer.rewards[0, 0] == episode.rewards[0]
+    model.train(gradient_steps=1, batch_size=4)  # a TD step, then a large-margin step
+    assert 0 < model.logger.name_to_value["train/margin_loss"] and "train/margin_met" in model.logger.name_to_value
+    # The large-margin loss alone learns to rank the demonstrated actions above every other allowed one.
+    observations, actions = model.demo_batch(steps)
+    optimiser = torch.optim.Adam(model.q_net.parameters(), lr=3e-3)
+    first, _ = model.margin_loss(observations, actions)
+    for _ in range(150):
+        loss, met = model.margin_loss(observations, actions)
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+    assert loss.item() < 0.7 * first.item() and met > 0
+    with pytest.raises(ValueError, match="buffer_size 10 cannot keep the"):
+        make(buffer_size=10).learn(2)
+    with pytest.raises(ValueError, match="margin must be a number >= 0"):
+        make(margin=-1)
+    with pytest.raises(ValueError, match="expected a demonstrations entry for heightmap_dqn_demos"):
+        config_from_dict({"name": "x", "env_id": "PandaGraspAdversarial-v0", "algo": "heightmap_dqn_demos",
+                          "total_steps": 10})  # fmt: skip

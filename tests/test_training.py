@@ -434,6 +434,9 @@ def test_init_policy_starts_a_run_from_a_checkpoints_weights(finished_run, tmp_p
     env.close()
     with pytest.raises(ValueError, match="init_policy tiny was trained with heightmap_dqn, this run uses sac"):
         initial_policy_source(TrainConfig(**{**vars(config), "algo": "sac"}))
+    # The same Q-policy learned from demonstrations may start from it.
+    demos = {**config.algo_kwargs, "demonstrations": {"dataset": "panda_grasp_env/any-v0", "episodes": 1}}
+    assert initial_policy_source(TrainConfig(**{**vars(config), "algo": "heightmap_dqn_demos", "algo_kwargs": demos}))
     with pytest.raises(ValueError, match="init_policy tiny: its action_space"):
         initial_policy_source(load_config(CONFIGS / "grasp_clutter_dqn.yaml", [*TINY_DQN, "init_policy=tiny",
                                                                                "env_kwargs.rotations=8"]))  # fmt: skip
