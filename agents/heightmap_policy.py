@@ -446,10 +446,24 @@ class HeightmapDQN(DQN):
         if deterministic or np.random.rand() >= self.exploration_rate:
             return self.policy.predict(observation, state, episode_start, deterministic)
         batch = observation if observation.ndim == 4 else observation[None]
-        with th.no_grad():
-            allowed = self.q_net.allowed(th.as_tensor(batch, device=self.device)).cpu().numpy()
-        actions = np.array([np.random.choice(np.flatnonzero(row)) for row in allowed])
+        actions = self.random_allowed(batch)
         return (actions if observation.ndim == 4 else actions[0]), state
+
+    def random_allowed(self, observations: np.ndarray) -> np.ndarray:
+        """(B,) actions drawn uniformly among those allowed on each encoded heightmap (B, C, H, W)."""
+        with th.no_grad():
+            allowed = self.q_net.allowed(th.as_tensor(observations, device=self.device)).cpu().numpy()
+        return np.array([np.random.choice(np.flatnonzero(row)) for row in allowed])
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        # SB3's warm-up draws from the whole action space, nearly all of it cells of empty table; draw among the
+        # allowed actions instead, as exploration does.
+        if self.num_timesteps < learning_starts:
+            actions = self.random_allowed(self._last_obs)
+            return actions, actions
+        return super()._sample_action(learning_starts, action_noise, n_envs)
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         self.policy.set_training_mode(True)

@@ -319,6 +319,11 @@ def test_exploration_samples_only_allowed_actions():
     starts = np.argwhere(near)
     gaps = np.abs(starts[:, None, :] - blob[None, :, :]).max(axis=2).min(axis=1)
     assert len(starts) and gaps.max() <= near_cells
+    # The warm-up before learning_starts draws among the allowed actions too (SB3's draws from the whole space).
+    warm = HeightmapDQN(HeightmapQPolicy, Blob(), learning_starts=100, policy_kwargs=model.policy_kwargs, seed=0)
+    warm.learn(20)
+    allowed = warm.q_net.allowed(th.as_tensor(observation[None]))[0].numpy()
+    assert warm.replay_buffer.size() == 20 and allowed[warm.replay_buffer.actions[:20, 0, 0]].all()
 
 
 @pytest.fixture(scope="module")
