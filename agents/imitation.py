@@ -421,11 +421,11 @@ class HeightmapDQNFromDemonstrations(DemonstrationMixin, HeightmapDQN):
     def _setup_learn(self, total_timesteps: int, *args: Any, **kwargs: Any) -> Any:
         fresh = self.replay_buffer is not None and self.replay_buffer.size() == 0
         result = super()._setup_learn(total_timesteps, *args, **kwargs)
+        steps = result[0]  # the run's whole length, a resumed run's steps so far included
+        if self.buffer_size < self.demonstration_steps + steps:
+            raise ValueError(f"heightmap_dqn_demos: buffer_size {self.buffer_size} cannot keep the "
+                             f"{self.demonstration_steps} demonstrated steps and the run's {steps}")  # fmt: skip
         if fresh and self._episodes_for_buffer:  # a resumed run's buffer already holds them
-            needed = self.demonstration_steps + total_timesteps
-            if self.buffer_size < needed:
-                raise ValueError(f"heightmap_dqn_demos: buffer_size {self.buffer_size} cannot keep the "
-                                 f"{self.demonstration_steps} demonstrated steps and {total_timesteps} more")  # fmt: skip
             for encoded, actions, episode in self._episodes_for_buffer:
                 for t, action in enumerate(actions):
                     terminated, truncated = bool(episode.terminations[t]), bool(episode.truncations[t])
