@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from sb3_contrib import TQC
 from stable_baselines3 import SAC
+from stable_baselines3.common.utils import polyak_update
 from torch.nn import functional
 
 from panda_grasp_env.agents.heightmap_policy import DIRECTED_PRIMITIVES, HeightmapDQN, encode_heightmap
@@ -364,7 +365,8 @@ class HeightmapDQNFromDemonstrations(DemonstrationMixin, HeightmapDQN):
     ``SAME_ACTION_RADIUS`` of a_E (same primitive and heading) count as a_E.  The maximum runs over the
     demonstrated heading's map and one other heading drawn at random (two network passes per sample, not
     all ``rotations``; never the half-turned grasp, which is the same grasp), so over the run every heading
-    is held below the demonstrated action.
+    is held below the demonstrated action.  With ``pretrain_steps``, that many such updates on the
+    demonstrations alone come before the first env step (DQfD's pretraining).
 
     The demonstrations are episodes in ``obs_mode='heightmap'`` and ``action_mode='pixel'``, e.g. the
     push-aware oracle's (``python -m panda_grasp_env.agents.demonstrations --agent oracle --task
@@ -379,6 +381,7 @@ class HeightmapDQNFromDemonstrations(DemonstrationMixin, HeightmapDQN):
         demonstrations: dict[str, Any] | None = None,
         margin: float = 0.2,
         margin_weight: float = 1.0,
+        pretrain_steps: int = 0,
         **kwargs: Any,
     ) -> None:
         if kwargs.get("_init_setup_model", True):
@@ -386,7 +389,12 @@ class HeightmapDQNFromDemonstrations(DemonstrationMixin, HeightmapDQN):
         for name, value in (("margin", margin), ("margin_weight", margin_weight)):
             if not (is_number(value) and value >= 0):
                 raise ValueError(f"heightmap_dqn_demos: {name} must be a number >= 0, got {value!r}")
+        if not (isinstance(pretrain_steps, int) and not isinstance(pretrain_steps, bool) and pretrain_steps >= 0):
+            raise ValueError(f"heightmap_dqn_demos: pretrain_steps must be an int >= 0, got {pretrain_steps!r}")
         self.demonstrations, self.margin, self.margin_weight = demonstrations, float(margin), float(margin_weight)
+        self.pretrain_steps = pretrain_steps
+        #: Pretraining steps taken so far (saved with the model: a run stopped while pretraining goes on with it).
+        self.pretrained_steps = 0
         super().__init__(policy, env, **kwargs)
 
     def _setup_model(self) -> None:
@@ -434,7 +442,18 @@ class HeightmapDQNFromDemonstrations(DemonstrationMixin, HeightmapDQN):
                                            np.array([terminated or truncated]),
                                            [{"TimeLimit.truncated": truncated and not terminated}])  # fmt: skip
         self._episodes_for_buffer = None
+        self._pretrain()
         return result
+
+    def _pretrain(self) -> None:
+        """DQfD's pretraining: before the first env step, ``pretrain_steps`` updates (a TD step and a
+        large-margin step each) on the buffer, which then holds the demonstrations alone; the target network
+        follows every ``target_update_interval`` of them, as it does env steps."""
+        while self.pretrained_steps < self.pretrain_steps:
+            self.train(1, self.batch_size)
+            self.pretrained_steps += 1
+            if self.pretrained_steps % self.target_update_interval == 0 or self.pretrained_steps == self.pretrain_steps:
+                polyak_update(self.q_net.parameters(), self.q_net_target.parameters(), 1.0)
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         super().train(gradient_steps, batch_size)

@@ -213,6 +213,17 @@ def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_th
         make(buffer_size=10).learn(2)
     with pytest.raises(ValueError, match="margin must be a number >= 0"):
         make(margin=-1)
+    # DQfD's pretraining: updates on the demonstrations alone before the first env step, the target network
+    # following; once done, never again.
+    pretrained = make(pretrain_steps=3, target_update_interval=2, learning_starts=100)  # no update after
+    before = [p.clone() for p in pretrained.q_net.parameters()]
+    pretrained.learn(1)
+    assert pretrained.pretrained_steps == 3 and pretrained.replay_buffer.size() == steps + 1
+    assert not all(torch.equal(a, b) for a, b in zip(before, pretrained.q_net.parameters(), strict=True))
+    assert all(torch.equal(a, b) for a, b in zip(pretrained.q_net.parameters(),
+                                                 pretrained.q_net_target.parameters(), strict=True))  # fmt: skip
+    with pytest.raises(ValueError, match="pretrain_steps must be an int >= 0"):
+        make(pretrain_steps=1.5)
     with pytest.raises(ValueError, match="expected a demonstrations entry for heightmap_dqn_demos"):
         config_from_dict({"name": "x", "env_id": "PandaGraspAdversarial-v0", "algo": "heightmap_dqn_demos",
                           "total_steps": 10})  # fmt: skip
