@@ -1,6 +1,7 @@
 """Train from a config:  python train.py --config configs/<name>.yaml [key=value ...]
 
-Policies (SB3: ``heightmap_dqn``, ``sac``, ``tqc``, ``ppo``; ``agents/training.py``) or, with
+Policies (SB3: ``heightmap_dqn``, ``sac``, ``tqc``, ``ppo``, and from demonstrations ``bc``, ``tqc_demos``,
+``heightmap_dqn_demos``; ``agents/training.py``) or, with
 ``kind: fall_dynamics``, the falling-tower ConvLSTM (``panda_grasp_env/falls/training.py``).
 
 Overrides use dotted keys into mappings (``algo_kwargs.learning_rate=3e-4``,
