@@ -178,8 +178,25 @@ class DemonstrationMixin:
         self._demo_actions = torch.as_tensor(actions, device=self.device)
         self._demo_generator = torch.Generator(device="cpu").manual_seed(0 if self.seed is None else int(self.seed))
 
+    #: The demonstrated episodes read at setup, kept until the first ``learn`` puts them in the replay buffer
+    #: (``_fill_buffer``, for the algorithms that learn from a buffer of them).
+    _episodes_for_buffer: list[Any] | None = None
+
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_demo_observations", "_demo_actions", "_demo_generator"]
+        return [*super()._excluded_save_params(), "_demo_observations", "_demo_actions", "_demo_generator",
+                "_episodes_for_buffer"]  # fmt: skip
+
+    def _setup_learn(self, total_timesteps: int, *args: Any, **kwargs: Any) -> Any:
+        fresh = self.replay_buffer is not None and self.replay_buffer.size() == 0
+        result = super()._setup_learn(total_timesteps, *args, **kwargs)
+        if fresh and self._episodes_for_buffer:  # a resumed run's buffer already holds them
+            self._fill_buffer(self._episodes_for_buffer)
+        self._episodes_for_buffer = None
+        return result
+
+    def _fill_buffer(self, episodes: list[Any]) -> None:
+        """Put the demonstrated ``episodes`` into the (empty) replay buffer."""
+        raise NotImplementedError
 
     @property
     def demonstration_steps(self) -> int:
@@ -297,19 +314,7 @@ class TQCFromDemonstrations(DemonstrationMixin, TQC):
 
     def _setup_model(self) -> None:
         super()._setup_model()
-        #: The episodes read at setup, kept until the first ``learn`` puts them in the buffer.
-        self._episodes_for_buffer: list[Any] | None = self._setup_demonstrations()
-
-    def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_episodes_for_buffer"]
-
-    def _setup_learn(self, total_timesteps: int, *args: Any, **kwargs: Any) -> Any:
-        fresh = self.replay_buffer is not None and self.replay_buffer.size() == 0
-        result = super()._setup_learn(total_timesteps, *args, **kwargs)
-        if fresh and self._episodes_for_buffer:  # a resumed run's buffer already holds them
-            self._fill_buffer(self._episodes_for_buffer)
-        self._episodes_for_buffer = None
-        return result
+        self._episodes_for_buffer = self._setup_demonstrations()
 
     def _fill_buffer(self, episodes: list[Any]) -> None:
         lengths = {len(e.actions) for e in episodes}
@@ -421,29 +426,25 @@ class HeightmapDQNFromDemonstrations(DemonstrationMixin, HeightmapDQN):
             episodes.append((encoded, actions.astype(np.int64), episode))
         self._keep_demonstrations(np.concatenate([e[0][:-1] for e in episodes]),
                                   np.concatenate([e[1] for e in episodes]))  # fmt: skip
-        self._episodes_for_buffer: list[Any] | None = episodes
-
-    def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_episodes_for_buffer"]
+        self._episodes_for_buffer = episodes
 
     def _setup_learn(self, total_timesteps: int, *args: Any, **kwargs: Any) -> Any:
-        fresh = self.replay_buffer is not None and self.replay_buffer.size() == 0
         result = super()._setup_learn(total_timesteps, *args, **kwargs)
         steps = result[0]  # the run's whole length, a resumed run's steps so far included
         if self.buffer_size < self.demonstration_steps + steps:
             raise ValueError(f"heightmap_dqn_demos: buffer_size {self.buffer_size} cannot keep the "
                              f"{self.demonstration_steps} demonstrated steps and the run's {steps}")  # fmt: skip
-        if fresh and self._episodes_for_buffer:  # a resumed run's buffer already holds them
-            for encoded, actions, episode in self._episodes_for_buffer:
-                for t, action in enumerate(actions):
-                    terminated, truncated = bool(episode.terminations[t]), bool(episode.truncations[t])
-                    self.replay_buffer.add(encoded[t][None], encoded[t + 1][None], np.array([[action]]),
-                                           np.array([episode.rewards[t]], dtype=np.float32),
-                                           np.array([terminated or truncated]),
-                                           [{"TimeLimit.truncated": truncated and not terminated}])  # fmt: skip
-        self._episodes_for_buffer = None
         self._pretrain()
         return result
+
+    def _fill_buffer(self, episodes: list[Any]) -> None:
+        for encoded, actions, episode in episodes:
+            for t, action in enumerate(actions):
+                terminated, truncated = bool(episode.terminations[t]), bool(episode.truncations[t])
+                self.replay_buffer.add(encoded[t][None], encoded[t + 1][None], np.array([[action]]),
+                                       np.array([episode.rewards[t]], dtype=np.float32),
+                                       np.array([terminated or truncated]),
+                                       [{"TimeLimit.truncated": truncated and not terminated}])  # fmt: skip
 
     def _pretrain(self) -> None:
         """DQfD's pretraining: before the first env step, ``pretrain_steps`` updates (a TD step and a
