@@ -57,3 +57,23 @@ def test_bad_render_arguments(tower_cell):
         CameraRenderer(tower_cell.model, 0, 64)
     with CameraRenderer(tower_cell.model, 32, 32) as renderer, pytest.raises(ValueError, match="modality"):
         renderer.render(tower_cell.data, "front", "infrared")
+
+
+def test_closing_or_dropping_one_renderer_leaves_the_others_drawing(tower_cell):
+    """Two envs in one process (training and validation): closing one, or dropping it unclosed, must not
+    free the other's framebuffers (MuJoCo 3.x's Renderer.close frees them in whichever context is current)."""
+    import gc
+
+    with CameraRenderer(tower_cell.model, 48, 48) as kept:
+        before = kept.render_rgbd(tower_cell.data, "overhead")
+        closed, dropped = CameraRenderer(tower_cell.model, 48, 48), CameraRenderer(tower_cell.model, 48, 48)
+        for other in (closed, dropped):
+            other.render_rgbd(tower_cell.data, "overhead")
+        kept.render_rgbd(tower_cell.data, "overhead")  # the kept one's context is now the current one
+        closed.close()
+        closed.close()  # idempotent
+        del dropped
+        gc.collect()
+        after = kept.render_rgbd(tower_cell.data, "overhead")
+        assert np.array_equal(before[0], after[0]) and np.array_equal(before[1], after[1])
+        assert np.allclose(kept.render(tower_cell.data, "overhead", "depth"), before[1], atol=1e-3)  # metres

@@ -110,10 +110,11 @@ class CameraRenderer:
         self._set_mode("rgb")
         renderer = self._renderer
         renderer.update_scene(data, camera=camera, scene_option=self.option)
-        if renderer._gl_context:
-            renderer._gl_context.make_current()
         rgb = np.empty((self.height, self.width, 3), dtype=np.uint8)
         depth = np.empty((self.height, self.width), dtype=np.float32)
+        # Current right before drawing: nothing allocated in between can run a finaliser that releases it.
+        if renderer._gl_context:
+            renderer._gl_context.make_current()
         mujoco.mjr_render(renderer._rect, renderer.scene, renderer._mjr_context)
         mujoco.mjr_readPixels(rgb, depth, renderer._rect, renderer._mjr_context)
         # Reversed-z depth buffer (1 at the near plane, 0 at the far one) -> metres along the optical axis.
@@ -124,7 +125,23 @@ class CameraRenderer:
         return np.ascontiguousarray(rgb[::-1]), np.ascontiguousarray(depth[::-1])
 
     def close(self) -> None:
-        self._renderer.close()
+        """Free the GL resources (idempotent).  MuJoCo 3.x's ``Renderer.close`` frees the render context's
+        framebuffers and textures in whichever GL context is current, which is another renderer's if that
+        one drew last: its next frames come back empty (NaN depth).  So the context is freed here with its
+        own GL context current first; 4.x does the same itself."""
+        renderer = self._renderer
+        if renderer._mjr_context is not None:
+            if renderer._gl_context:
+                renderer._gl_context.make_current()
+            renderer._mjr_context.free()
+            renderer._mjr_context = None
+        renderer.close()
+
+    def __del__(self) -> None:
+        # An env dropped without close() must not leave its renderer to MuJoCo's own finaliser (see close).
+        # At interpreter exit EGL may be gone already, and nothing draws again.
+        if hasattr(self, "_renderer") and not sys.is_finalizing():
+            self.close()
 
     def __enter__(self) -> CameraRenderer:
         return self
