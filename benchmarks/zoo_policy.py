@@ -1,13 +1,16 @@
-"""Test an RL Zoo model (an SB3 zip from ``python -m rl_zoo3.train``) on held-out seeds of its env.
+"""Test RL Zoo models (SB3 zips from ``python -m rl_zoo3.train``) on held-out seeds of their env.
 
-    python benchmarks/zoo_policy.py runs/zoo/logs/tqc/PandaPush-v0_1/best_model.zip [--algo tqc]
+    python benchmarks/zoo_policy.py logs/tqc/PandaPush-v0_1/best_model.zip [more.zip ...] [--algo tqc]
         [--env PandaPush-v0] [--episodes 100] [--seed-start 1100000]
 
-Runs the policy deterministically through ``env.step``, one episode per seed from ``--seed-start``. The
+Runs each policy deterministically through ``env.step``, one episode per seed from ``--seed-start``. The
 default seeds are those the final tests of this repository's own runs use: the Zoo validates on its own
-episodes, never these. Prints the success rate with its 95 % interval and the learning curve the Zoo
-logged (``evaluations.npz`` beside the model: mean episode reward and validation success against steps).  The zip is an SB3
-pickle: load only one you made.
+episodes, never these. To choose among several saved models (``best_model.zip`` is chosen on mean
+episode reward, the periodic ``rl_model_*_steps.zip`` on nothing), score them on the selection seeds
+(``--seed-start 1001000 --episodes 200``, as ``train.py``'s selection does) and test only the chosen one on
+the default seeds. Prints each success rate with its 95 % interval and the learning curve the Zoo
+logged (``evaluations.npz`` beside the model: mean episode reward and validation success against steps).
+A zip is an SB3 pickle: load only one you made.
 """
 
 from __future__ import annotations
@@ -24,38 +27,48 @@ import gymnasium as gym
 import numpy as np
 
 from benchmarks._common import rate
+from panda_grasp_env.agents.config import TEST_SEED_OFFSET, TrainConfig
+
+#: Where the held-out test seeds of this repository's own runs start (default ``eval_seed`` + offset).
+TEST_SEED_START = TrainConfig.eval_seed + TEST_SEED_OFFSET
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("model", type=Path)
+    parser.add_argument("models", type=Path, nargs="+")
     parser.add_argument("--algo", default="tqc", choices=("tqc", "sac"))
     parser.add_argument("--env", default="PandaPush-v0")
     parser.add_argument("--episodes", type=int, default=100)
-    parser.add_argument("--seed-start", type=int, default=1_100_000)
+    parser.add_argument("--seed-start", type=int, default=TEST_SEED_START)
     args = parser.parse_args()
     if args.algo == "tqc":
         from sb3_contrib import TQC as Algorithm
     else:
         from stable_baselines3 import SAC as Algorithm
+    if args.episodes < 1:
+        parser.error(f"--episodes must be a positive number of episodes, got {args.episodes}")
     env = gym.make(f"panda_grasp_env:{args.env}")
-    model = Algorithm.load(args.model, env=env, device="cpu")
-    successes = 0
-    for seed in range(args.seed_start, args.seed_start + args.episodes):
-        observation, info = env.reset(seed=seed)
-        while True:
-            action, _ = model.predict(observation, deterministic=True)
-            observation, _, terminated, truncated, info = env.step(action)
-            if terminated or truncated:
-                break
-        successes += bool(info["is_success"])
-    result = rate(successes, args.episodes)
-    low, high = result["ci95"]
     seeds = f"{args.seed_start}-{args.seed_start + args.episodes - 1}"
-    print(f"{args.model}: {100 * result['rate']:.1f} % success ({successes}/{args.episodes}, 95 % CI "
-          f"{100 * low:.1f}-{100 * high:.1f} %) on {args.env}, held-out seeds {seeds}")  # fmt: skip
-    curve = args.model.parent / "evaluations.npz"
-    if curve.is_file():
+    kind = "held-out test seeds" if args.seed_start == TEST_SEED_START else "seeds"
+    for path in args.models:
+        model = Algorithm.load(path, env=env, device="cpu")
+        successes = 0
+        for seed in range(args.seed_start, args.seed_start + args.episodes):
+            observation, info = env.reset(seed=seed)
+            while True:
+                action, _ = model.predict(observation, deterministic=True)
+                observation, _, terminated, truncated, info = env.step(action)
+                if terminated or truncated:
+                    break
+            successes += bool(info["is_success"])
+        result = rate(successes, args.episodes)
+        low, high = result["ci95"]
+        print(f"{path}: {100 * result['rate']:.1f} % success ({successes}/{args.episodes}, 95 % CI "
+              f"{100 * low:.1f}-{100 * high:.1f} %) on {args.env}, {kind} {seeds}")  # fmt: skip
+    for curve in dict.fromkeys(path.parent / "evaluations.npz" for path in args.models):
+        if not curve.is_file():
+            continue
+        print(f"the Zoo's log {curve}:")
         logged = np.load(curve)
         successes = logged["successes"] if "successes" in logged else [None] * len(logged["timesteps"])
         for steps, rewards, won in zip(logged["timesteps"], logged["results"], successes):
