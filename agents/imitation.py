@@ -15,6 +15,7 @@ All read ``algo_kwargs.demonstrations``: ``{dataset, episodes, path, successful_
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -178,25 +179,8 @@ class DemonstrationMixin:
         self._demo_actions = torch.as_tensor(actions, device=self.device)
         self._demo_generator = torch.Generator(device="cpu").manual_seed(0 if self.seed is None else int(self.seed))
 
-    #: The demonstrated episodes read at setup, kept until the first ``learn`` puts them in the replay buffer
-    #: (``_fill_buffer``, for the algorithms that learn from a buffer of them).
-    _episodes_for_buffer: list[Any] | None = None
-
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_demo_observations", "_demo_actions", "_demo_generator",
-                "_episodes_for_buffer"]  # fmt: skip
-
-    def _setup_learn(self, total_timesteps: int, *args: Any, **kwargs: Any) -> Any:
-        fresh = self.replay_buffer is not None and self.replay_buffer.size() == 0
-        result = super()._setup_learn(total_timesteps, *args, **kwargs)
-        if fresh and self._episodes_for_buffer:  # a resumed run's buffer already holds them
-            self._fill_buffer(self._episodes_for_buffer)
-        self._episodes_for_buffer = None
-        return result
-
-    def _fill_buffer(self, episodes: list[Any]) -> None:
-        """Put the demonstrated ``episodes`` into the (empty) replay buffer."""
-        raise NotImplementedError
+        return [*super()._excluded_save_params(), "_demo_observations", "_demo_actions", "_demo_generator"]
 
     @property
     def demonstration_steps(self) -> int:
@@ -213,6 +197,29 @@ def _check_demonstrations(value: Any, algorithm: str) -> None:
     if value is None:
         raise ValueError(f"{algorithm} needs algo_kwargs.demonstrations ({{dataset, episodes}})")
     Demonstrations.of(value)
+
+
+class BufferedDemonstrationMixin(DemonstrationMixin, ABC):
+    """Demonstrations that also start in the replay buffer: the episodes read at setup wait in
+    ``_episodes_for_buffer`` (never saved) until the first ``learn`` of a fresh buffer puts them in with
+    ``_fill_buffer``; a resumed run's buffer already holds them."""
+
+    _episodes_for_buffer: list[Any] | None = None
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_episodes_for_buffer"]
+
+    def _setup_learn(self, total_timesteps: int, *args: Any, **kwargs: Any) -> Any:
+        fresh = self.replay_buffer is not None and self.replay_buffer.size() == 0
+        result = super()._setup_learn(total_timesteps, *args, **kwargs)
+        if fresh and self._episodes_for_buffer:
+            self._fill_buffer(self._episodes_for_buffer)
+        self._episodes_for_buffer = None
+        return result
+
+    @abstractmethod
+    def _fill_buffer(self, episodes: list[Any]) -> None:
+        """Put the demonstrated ``episodes`` into the (empty) replay buffer."""
 
 
 class BehaviourCloning(DemonstrationMixin, SAC):
@@ -295,7 +302,7 @@ class BehaviourCloning(DemonstrationMixin, SAC):
         return self
 
 
-class TQCFromDemonstrations(DemonstrationMixin, TQC):
+class TQCFromDemonstrations(BufferedDemonstrationMixin, TQC):
     """TQC whose replay buffer starts with the demonstrations (HER relabels them like any episode) and whose
     actor, after each round of TQC updates, takes one behaviour-cloning step on ``batch_size`` demonstrated
     steps, weighted by ``bc_weight`` and kept only where the critics rate the demonstrated action above the
@@ -361,7 +368,7 @@ class TQCFromDemonstrations(DemonstrationMixin, TQC):
 SAME_ACTION_RADIUS = 0.012
 
 
-class HeightmapDQNFromDemonstrations(DemonstrationMixin, HeightmapDQN):
+class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
     """``HeightmapDQN`` with demonstrations (DQfD, Hester et al. 2018, "Deep Q-learning from demonstrations"):
     the demonstrated transitions start in the replay buffer, where they stay (a ``buffer_size`` below them and
     the run's steps is refused), and after each round of TD updates the Q-network takes one large-margin step
