@@ -362,21 +362,29 @@ class TQCFromDemonstrations(BufferedDemonstrationMixin, TQC):
         self.logger.record("train/bc_q_filter", float(keep.mean()))  # the share that passed the filter
 
 
-#: Cells this close to the demonstrated one (metres, either way along rows and columns), with the same primitive
-#: and heading, count as the demonstrated action itself: the Q-maps are scored at a quarter of the heightmap's
+#: Cells this close to the demonstrated one (metres, Euclidean on the table), with the same primitive and
+#: heading, count as the demonstrated action itself: the Q-maps are scored at a quarter of the heightmap's
 #: resolution and upsampled, so no margin can part neighbouring cells.
 SAME_ACTION_RADIUS = 0.012
+#: The margin grows linearly from nothing at ``SAME_ACTION_RADIUS`` to the whole ``margin`` at this distance
+#: (metres): a cell 2 cm away is nearly the same grasp, and a Q-map smooth at 16 mm cannot rank it far below.
+FULL_MARGIN_DISTANCE = 0.04
+#: Likewise over headings (radians): the whole margin from this turn on, half of it at 22.5 degrees.
+FULL_MARGIN_TURN = np.pi / 4
 
 
 class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
     """``HeightmapDQN`` with demonstrations (DQfD, Hester et al. 2018, "Deep Q-learning from demonstrations"):
     the demonstrated transitions start in the replay buffer, where they stay (a ``buffer_size`` below them and
     the run's steps is refused), and after each round of TD updates the Q-network takes one large-margin step
-    on ``batch_size`` demonstrated steps: no allowed action may score within ``margin`` of the demonstrated one,
-    ``margin_weight * mean(max_a [Q(s, a) + margin * (a != a_E)] - Q(s, a_E))``, where actions within
-    ``SAME_ACTION_RADIUS`` of a_E (same primitive and heading) count as a_E.  The maximum runs over the
-    demonstrated heading's map and one other heading drawn at random (two network passes per sample, not
-    all ``rotations``; never the half-turned grasp, which is the same grasp), so over the run every heading
+    on ``batch_size`` demonstrated steps, ``margin_weight * mean(max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E))``
+    (DQfD's supervised loss).  The margin ``l`` is graded, as the actions are alike: ``margin`` against
+    another primitive; for the same primitive, ``margin`` times the larger of how far (0 within
+    ``SAME_ACTION_RADIUS``, rising to 1 at ``FULL_MARGIN_DISTANCE``) and how much turned (rising to 1 at
+    ``FULL_MARGIN_TURN``) it is from a_E.  A flat margin against neighbouring cells and headings, which the
+    Q-maps cannot part, is never met and only flattens them.  The maximum runs over the demonstrated
+    heading's map and one other heading drawn at random (two network passes per sample, not all
+    ``rotations``; never the half-turned grasp, which is the same grasp), so over the run every heading
     is held below the demonstrated action.  With ``pretrain_steps``, that many such updates on the
     demonstrations alone come before the first env step (DQfD's pretraining).
 
@@ -492,13 +500,18 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
 
         demonstrated = q_net.q_maps(observations, rotation)
         chosen = demonstrated[index, primitive, row, col]
-        reach = max(1, round(SAME_ACTION_RADIUS / self.policy.network_args["cell_size"]))
-        near = ((torch.arange(rows)[None, :, None] - row[:, None, None]).abs() <= reach) & (
-            (torch.arange(cols)[None, None, :] - col[:, None, None]).abs() <= reach
-        )
-        margins = torch.full_like(demonstrated, self.margin)
-        margins[index, primitive] = torch.where(near, 0.0, self.margin)
-        best = best_allowed(demonstrated + margins)
+        cell = self.policy.network_args["cell_size"]
+        distance = cell * torch.hypot((torch.arange(rows)[None, :, None] - row[:, None, None]).float(),
+                                      (torch.arange(cols)[None, None, :] - col[:, None, None]).float())  # fmt: skip
+        apart = ((distance - SAME_ACTION_RADIUS) / (FULL_MARGIN_DISTANCE - SAME_ACTION_RADIUS)).clamp(0.0, 1.0)
+
+        def margins(turned: torch.Tensor) -> torch.Tensor:
+            """(B, P, H, W) margins on a map turned by ``turned`` (B,) of ``FULL_MARGIN_TURN``s from a_E's."""
+            graded = torch.full_like(demonstrated, self.margin)
+            graded[index, primitive] = self.margin * torch.maximum(apart, turned[:, None, None])
+            return graded
+
+        best = best_allowed(demonstrated + margins(torch.zeros(len(actions))))
         # One other heading, never one that is the same action: a grasp turned by half a turn is.
         symmetric = torch.tensor([rotations % 2 == 0 and q_net.primitives[p] not in DIRECTED_PRIMITIVES
                                   for p in primitive.tolist()])  # fmt: skip
@@ -506,6 +519,10 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
         if bool((choices > 0).any()):
             turn = 1 + (torch.rand(len(actions), generator=self._demo_generator) * choices).long()
             turn = turn + (symmetric & (turn >= rotations // 2)).long()
-            elsewhere = best_allowed(q_net.q_maps(observations, (rotation + turn) % rotations) + self.margin)
+            period = torch.where(symmetric, rotations // 2, rotations)  # headings until the same action again
+            steps = turn % period
+            turned = torch.minimum(steps, period - steps) * (2 * np.pi / rotations) / FULL_MARGIN_TURN
+            elsewhere_maps = q_net.q_maps(observations, (rotation + turn) % rotations)
+            elsewhere = best_allowed(elsewhere_maps + margins(turned.clamp(max=1.0).float()))
             best = torch.where(choices > 0, torch.maximum(best, elsewhere), best)
         return self.margin_weight * (best - chosen).mean(), float((best - chosen <= 1e-6).float().mean())

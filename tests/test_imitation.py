@@ -173,9 +173,14 @@ def pixel_dataset_path(tmp_path_factory):
     return str(out)
 
 
-def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_them_first(pixel_dataset_path):
+def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_them_first(
+    pixel_dataset_path, monkeypatch
+):
     from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap, HeightmapQPolicy, encode_heightmap
-    from panda_grasp_env.agents.imitation import HeightmapDQNFromDemonstrations
+    from panda_grasp_env.agents.imitation import (
+        FULL_MARGIN_DISTANCE,
+        HeightmapDQNFromDemonstrations,
+    )
 
     demos = {"dataset": PIXEL_DATASET, "episodes": 1, "path": pixel_dataset_path}
     episode = Demonstrations.of(demos).episodes_data()[0]
@@ -209,6 +214,31 @@ def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_th
         loss.backward()
         optimiser.step()
     assert loss.item() < 0.7 * first.item() and met > 0
+    # The margin is graded with distance: Q falling off from each demonstrated cell faster than the margin
+    # grows meets it; falling off slower does not, and the loss is the shortfall.
+    q_net = model.q_net
+    shape = (q_net.n_primitives, q_net.rotations, q_net.rows, q_net.cols)
+    primitive, rotation, row, col = np.unravel_index(actions.numpy(), shape)
+    rows, cols = np.meshgrid(np.arange(q_net.rows), np.arange(q_net.cols), indexing="ij")
+
+    def cones(slope):  # Q (per metre from a_E) on a_E's primitive and heading, -10 elsewhere
+        def q_maps(observations, rotations):
+            maps = torch.full((len(observations), *shape[:1], *shape[2:]), -10.0)
+            for i, turned in enumerate(rotations.tolist()):
+                if turned == rotation[i]:
+                    metres = 0.008 * np.hypot(rows - row[i], cols - col[i])
+                    maps[i, primitive[i]] = torch.as_tensor(-slope * metres, dtype=torch.float32)
+            return maps
+
+        return q_maps
+
+    steepest_margin = model.margin / FULL_MARGIN_DISTANCE  # per metre; a flat margin would need 0.2 / 2.4 cm
+    monkeypatch.setattr(q_net, "q_maps", cones(1.2 * steepest_margin))
+    assert model.margin_loss(observations, actions) == (pytest.approx(0.0, abs=1e-6), 1.0)
+    monkeypatch.setattr(q_net, "q_maps", cones(0.5 * steepest_margin))
+    loss, met = model.margin_loss(observations, actions)
+    assert met < 1.0 and 0 < loss.item() <= 0.5 * model.margin + 1e-6
+    monkeypatch.undo()
     with pytest.raises(ValueError, match="buffer_size 10 cannot keep the .* demonstrated steps and the run.s 2"):
         make(buffer_size=10).learn(2)
     with pytest.raises(ValueError, match="margin must be a number >= 0"):
