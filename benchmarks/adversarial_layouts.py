@@ -21,7 +21,8 @@ Printed per layout and agent: the objects grasped (of those in play), the runs t
 (trial success: the table cleared by grasps, not by pushing things out of reach) with its 95 % interval
 over the runs, grasp success, action efficiency (the objects of the cleared runs per action, VPG's),
 the share of pushes among the actions and of pushes followed by a successful grasp, and the objects other
-than the target that each action disturbed.
+than the target that each action disturbed, and the episodes a physics error ended (an object thrown by the
+contact solver; see docs/environments.md, "Bad input").
 Goals (issue 32): grasp-only well below 100 %; push-aware completion >= 90 %, grasp success >= 85 %; on
 random heaps the push-grasp policy keeps completion >= 95 % at efficiency >= 80 %.
 """
@@ -76,7 +77,12 @@ def episode(agent_name: str, layout: int | None, seed: int) -> dict[str, float]:
             counts["pushes_then_grasp"] += int(after_push)
         after_push = False
     env.close()
-    return {**counts, "in_play": in_play, "cleared": int(info["is_success"])}
+    return {
+        **counts,
+        "in_play": in_play,
+        "cleared": int(info["is_success"]),
+        "physics_errors": int(info["physics_error"]),
+    }
 
 
 def main() -> None:
@@ -102,7 +108,7 @@ def main() -> None:
                          f"--layouts in [0, {len(names) - 1}] or none")  # fmt: skip
     results = Results(args.out, args.resume)
     print(f"{'layout':26s} {'agent':18s} {'grasped':>10s} {'cleared (95 % CI)':>22s} {'grasp ok':>8s} "
-          f"{'effic.':>6s} {'pushes':>6s} {'push->grasp':>11s} {'disturbed/act':>13s}")  # fmt: skip
+          f"{'effic.':>6s} {'pushes':>6s} {'push->grasp':>11s} {'disturbed/act':>13s} {'physics errors':>14s}")  # fmt: skip
     totals = {agent: [] for agent in agents}
     for index in layouts:
         for agent in agents:
@@ -126,7 +132,7 @@ def main() -> None:
 
 
 def report(label: str, agent: str, rows: list[dict[str, float]]) -> None:
-    total = {key: sum(row[key] for row in rows) for key in rows[0]}
+    total = {key: sum(row.get(key, 0) for row in rows) for key in set().union(*rows)}  # older files: no new keys
     low, high = wilson(total["cleared"], len(rows))
     print(
         f"{label:26s} {agent:18s} {total['grasped'] / max(total['in_play'], 1):10.1%} "
@@ -134,7 +140,8 @@ def report(label: str, agent: str, rows: list[dict[str, float]]) -> None:
         f"{total['grasped'] / max(total['grasps'], 1):8.1%} "
         f"{sum(row['in_play'] for row in rows if row['cleared']) / max(total['actions'], 1):6.1%} "
         f"{total['pushes'] / max(total['actions'], 1):6.1%} "
-        f"{total['pushes_then_grasp'] / max(total['pushes'], 1):11.1%} {total['disturbed'] / max(total['actions'], 1):13.2f}"
+        f"{total['pushes_then_grasp'] / max(total['pushes'], 1):11.1%} {total['disturbed'] / max(total['actions'], 1):13.2f} "
+        f"{total['physics_errors']:14d}"
     )
 
 

@@ -330,6 +330,22 @@ def test_task_options_of_the_wrong_type_raise_value_errors_naming_them(env_id, k
         gym.make(f"panda_grasp_env:{env_id}", **kwargs)
 
 
+def test_an_object_thrown_faster_than_anything_here_moves_is_a_physics_error():
+    from panda_grasp_env.sim.workcell import MAX_OBJECT_SPEED
+
+    env = make("PandaPush-v0")
+    env.reset(seed=0)
+    cell = env.unwrapped.cell
+    _, _, _, truncated, info = env.step(np.zeros(4))
+    assert not truncated and not info["physics_error"]
+    body = int(cell.object_ids[0])
+    linear = cell.model.jnt_dofadr[cell.model.body_jntadr[body]]
+    cell.data.qvel[linear + 2] = 2 * MAX_OBJECT_SPEED  # straight up, as a solver blow-up throws it
+    observation, reward, terminated, truncated, info = env.step(np.zeros(4))
+    assert truncated and not terminated and info["physics_error"] and reward == -1.0
+    env.close()
+
+
 def test_physics_divergence_truncates_and_reset_recovers():
     env = make("PandaPush-v0")
     env.reset(seed=0)

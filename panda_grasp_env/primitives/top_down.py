@@ -269,7 +269,8 @@ def impulse(cell: Workcell, x: float, y: float, z: float, yaw: float, magnitude:
         return PrimitiveResult("impulse", False, "missed")
     body = int(cell.object_ids[nearest])
     duration = 0.01
-    with cell.collateral.work():
+    struck_speed = magnitude / cell.model.body_subtreemass[body]  # m/s, before anything slows it
+    with cell.collateral.work(), cell.allowing_object_speed(2 * struck_speed):
         cell.data.xfrc_applied[body, :2] = magnitude / duration * np.array([np.cos(yaw), np.sin(yaw)])
         cell.step_physics(max(1, round(duration / cell.model.opt.timestep)))
         cell.data.xfrc_applied[body] = 0.0

@@ -7,7 +7,8 @@ reset layouts.  World frame, metres, radians throughout.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import mujoco
@@ -38,9 +39,14 @@ _WORLD_GROUP = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # ray casts see geo
 #: MuJoCo's bad-state warnings, consecutive in mjtWarning: BADQPOS, BADQVEL, BADQACC.
 _WARNINGS = slice(int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQACC) + 1)
 
+#: No free object here moves faster than this (m/s) unless the contact solver threw it: a fall from the table
+#: top to the floor reaches 3.8 m/s and the arm's fastest motion under 2 m/s, while a small cube wedged between
+#: a finger pad, its neighbours and the table has left at 18-30 m/s (through the table, or metres away).
+MAX_OBJECT_SPEED = 8.0
+
 
 class PhysicsError(RuntimeError):
-    """The simulation diverged (MuJoCo warning or non-finite state)."""
+    """The simulation diverged (MuJoCo warning or non-finite state) or threw an object (``MAX_OBJECT_SPEED``)."""
 
 
 @dataclass
@@ -140,6 +146,10 @@ class Workcell:
             for g in model.body_geomadr[self.object_ids]
         }
         self._dof_adr = {b: self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.object_ids}
+        self._object_linear_dofs = np.array([self._dof_adr[b] + axis for b in self.object_ids for axis in range(3)],
+                                            dtype=int)  # fmt: skip
+        #: Objects faster than this (m/s) end the step with ``PhysicsError``; see ``allowing_object_speed``.
+        self.max_object_speed = MAX_OBJECT_SPEED
         self.physics_steps = 0
         self._teleport_solutions: dict[tuple, np.ndarray] = {}
         #: Called with the workcell after every control step (video recording, logging).
@@ -215,6 +225,12 @@ class Workcell:
         # MuJoCo's own checks catch NaN/inf and runaway values (and reset the data when they fire).
         if np.count_nonzero(self.data.warning.number[_WARNINGS]):
             raise PhysicsError("simulation diverged (MuJoCo reported bad qpos/qvel/qacc)")
+        # Free joints' first three dofs are the linear velocity, world frame.
+        linear = self.data.qvel[self._object_linear_dofs].reshape(-1, 3)
+        fastest = float(np.einsum("ij,ij->i", linear, linear).max(initial=0.0))
+        if fastest > self.max_object_speed**2:
+            raise PhysicsError(f"the contact solver threw an object at {np.sqrt(fastest):.1f} m/s "
+                               f"(no object here moves faster than {self.max_object_speed:g} m/s)")  # fmt: skip
         self.collateral.after_step()
         for hook in self.step_hooks:
             hook(self)
@@ -230,6 +246,17 @@ class Workcell:
             self.control_step()
 
     # --- motion ------------------------------------------------------------
+    @contextmanager
+    def allowing_object_speed(self, speed: float) -> Iterator[None]:
+        """Let objects move at up to ``speed`` m/s (when faster than ``MAX_OBJECT_SPEED``) inside the block: an
+        impulse's own push is not a solver fault."""
+        before = self.max_object_speed
+        self.max_object_speed = max(before, float(speed))
+        try:
+            yield
+        finally:
+            self.max_object_speed = before
+
     def move_to(
         self,
         position: np.ndarray,
