@@ -146,6 +146,9 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("results/benchmarks/agents.json"))
     parser.add_argument("--resume", action="store_true")
     args = parser.parse_args()
+    counts = {name: getattr(args, name) for name in ("isolated", "shapes", "clutter", "pose", "towers")}
+    if too_few := [f"--{name} {value}" for name, value in counts.items() if value < 1]:
+        parser.error(f"every section runs at least one episode: {', '.join(too_few)}")
     results = Results(args.out, args.resume)
     for shape in ("cube", "box", "cylinder", "sphere", "capsule"):
         n = args.isolated if shape == "cube" else args.shapes
