@@ -508,7 +508,7 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
         def margins(turned: torch.Tensor) -> torch.Tensor:
             """(B, P, H, W) margins on a map turned by ``turned`` (B,) of ``FULL_MARGIN_TURN``s from a_E's."""
             graded = torch.full_like(demonstrated, self.margin)
-            graded[index, primitive] = self.margin * torch.maximum(apart, turned[:, None, None])
+            graded[index, primitive] = self.margin * torch.maximum(apart, turned.clamp(max=1.0)[:, None, None])
             return graded
 
         best = best_allowed(demonstrated + margins(torch.zeros(len(actions))))
@@ -522,7 +522,6 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
             period = torch.where(symmetric, rotations // 2, rotations)  # headings until the same action again
             steps = turn % period
             turned = torch.minimum(steps, period - steps) * (2 * np.pi / rotations) / FULL_MARGIN_TURN
-            elsewhere_maps = q_net.q_maps(observations, (rotation + turn) % rotations)
-            elsewhere = best_allowed(elsewhere_maps + margins(turned.clamp(max=1.0).float()))
+            elsewhere = best_allowed(q_net.q_maps(observations, (rotation + turn) % rotations) + margins(turned))
             best = torch.where(choices > 0, torch.maximum(best, elsewhere), best)
         return self.margin_weight * (best - chosen).mean(), float((best - chosen <= 1e-6).float().mean())

@@ -226,7 +226,7 @@ def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_th
             maps = torch.full((len(observations), *shape[:1], *shape[2:]), -10.0)
             for i, turned in enumerate(rotations.tolist()):
                 if turned == rotation[i]:
-                    metres = 0.008 * np.hypot(rows - row[i], cols - col[i])
+                    metres = PIXEL_OPTIONS["heightmap_resolution"] * np.hypot(rows - row[i], cols - col[i])
                     maps[i, primitive[i]] = torch.as_tensor(-slope * metres, dtype=torch.float32)
             return maps
 

@@ -98,7 +98,7 @@ class CollateralMonitor:
         held = self.cell.robot.body_between_pads()
         self._load = -1 if held is None else held
         if not work:
-            speeds = np.linalg.norm(self.cell.data.cvel[self.cell.object_ids, 3:], axis=1)
+            speeds = self.cell.body_speeds(self.cell.object_ids)
             self._transit_start = (*self._poses(), speeds < REST_SPEED)
 
     def _close_transit(self) -> None:

@@ -21,7 +21,7 @@ STILL_SPEED = 0.01
 
 def blocks_still(cell: Workcell) -> bool:
     """Every block moving slower than ``STILL_SPEED``."""
-    return bool(np.all(np.linalg.norm(cell.data.cvel[cell.block_ids, 3:], axis=1) < STILL_SPEED))
+    return bool(np.all(cell.body_speeds(cell.block_ids) < STILL_SPEED))
 
 
 def holding_a_block(cell: Workcell) -> bool:
