@@ -40,8 +40,8 @@ _WORLD_GROUP = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # ray casts see geo
 _WARNINGS = slice(int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQACC) + 1)
 
 #: No free object here moves faster than this (m/s) unless the contact solver threw it: a fall from the table
-#: top to the floor reaches 3.8 m/s and the arm's fastest motion under 2 m/s, while a small cube wedged between
-#: a finger pad, its neighbours and the table has left at 18-30 m/s (through the table, or metres away).
+#: top to the floor reaches 3.8 m/s and the arm's fastest motion under 2 m/s, while cubes thrown by a wrong
+#: Newton solve (MuJoCo 4.0.0's sparse factorisation, see ``model.scene``) left at 18-64 m/s.
 MAX_OBJECT_SPEED = 8.0
 
 
