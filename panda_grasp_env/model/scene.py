@@ -203,7 +203,7 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
         # 4.0.0's sparse Cholesky factorisation gives the Newton solver a wrong Hessian factor when the
         # constraint Jacobian is sparse (google-deepmind/mujoco#3767, fixed in 4.0.1).  MuJoCo makes it
         # sparse from 60 dofs on (the ten-object scenes), where fingers closing on packed cubes then threw
-        # them at 18-60 m/s.  The dense Jacobian gives the solution 3.17 gives, at ~1.5x the step time there.
+        # them at 18-64 m/s.  The dense Jacobian gives the solution 3.17 gives, at ~1.4x the step time there.
         spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
     spec.option.iterations = 50
     spec.option.ls_iterations = 20
