@@ -435,9 +435,10 @@ class Workcell:
         self.data.qvel[dof : dof + 6] = 0.0
 
     def park(self, body_id: int) -> None:
-        """Set a free body aside: onto the floor beside the table, out of view and out of the way."""
+        """Set a free body aside: upright on the floor beside the table, out of view and out of the way, at rest
+        (a body dropped there would still be falling when the next primitive's collateral watch begins)."""
         slot = int(np.flatnonzero(self.object_ids == body_id)[0])
-        lift = self.model.geom_rbound[self.model.body_geomadr[body_id]] + 0.002
+        lift = self.model.geom_aabb[self.model.body_geomadr[body_id], 5]  # half height in the body frame
         self.set_body_pose(body_id, PARKING_ORIGIN + [slot * PARKING_SPACING, 0.0, lift])
         mujoco.mj_kinematics(self.model, self.data)  # positions read right after parking are current
 
