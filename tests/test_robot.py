@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from panda_grasp_env.model.robot import HOME_POSITION, HOME_YAW, fast_index
+from panda_grasp_env.model.robot import FINGER_OPEN, HOME_POSITION, HOME_YAW, fast_index
 from panda_grasp_env.model.scene import MAX_FINGER_GAP
 
 
@@ -19,6 +19,18 @@ def test_gripper_closes_and_opens(cell, rng):
     assert cell.robot.finger_gap < 1e-3
     cell.actuate_gripper(close=False)
     assert cell.robot.finger_gap > MAX_FINGER_GAP - 2e-3
+
+
+def test_an_opening_finger_stops_at_its_stop(cell, rng):
+    # The fingers are light, so a soft joint limit let them fly 8.6 mm past it (finger_gap clips this).
+    cell.reset(rng)
+    cell.actuate_gripper(close=True)
+    cell.robot.open_gripper()
+    widest = 0.0
+    for _ in range(10):
+        cell.control_step()
+        widest = max(widest, float(cell.data.qpos[cell.robot.finger_qpos_idx].max()))
+    assert FINGER_OPEN - 1e-3 < widest < FINGER_OPEN + 1e-3
 
 
 @pytest.mark.parametrize("target, yaw", [((0.5, 0.2, 0.15), 0.3), ((0.65, -0.25, 0.05), -1.2), ((0.3, 0.0, 0.3), 1.5)])
