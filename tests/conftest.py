@@ -1,11 +1,28 @@
 import os
+from collections.abc import Callable
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
+from panda_grasp_env.model.scene import FINGER_JOINTS  # noqa: E402
 from panda_grasp_env.sim.workcell import Workcell  # noqa: E402
+
+
+@pytest.fixture
+def soften_finger_limits() -> Callable[[mujoco.MjModel], None]:
+    """A function giving a model's finger joint limits MuJoCo's default softness, as before commit 2f82af1: a
+    test of the stiff limits runs its scenario this way too, to show that the scenario still provokes the fault."""
+
+    def soften(model: mujoco.MjModel) -> None:
+        for name in FINGER_JOINTS:
+            joint = model.joint(name).id
+            model.jnt_solref[joint] = [0.02, 1.0]
+            model.jnt_solimp[joint] = [0.9, 0.95, 0.001, 0.5, 2.0]
+
+    return soften
 
 
 @pytest.fixture(scope="session")

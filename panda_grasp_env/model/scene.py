@@ -227,9 +227,10 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
         joint.armature = 0.01
         _set_damping(joint, 5.0)
         # A limit's force scales with the joint's effective mass, and these fingers are light: with MuJoCo's
-        # default limit softness (time constant 0.02 s) an opening finger overshot its stop by 8.6 mm, and
+        # default limit softness (time constant 0.02 s) an opening finger overshot its stop by 9.6 mm, and
         # objects pressed fingers up to 15 mm past it, so an "open" hand clamped two boxes wedged between its
-        # fingers and carried them home.  Twice the time step is as stiff as MuJoCo recommends: <= 0.6 mm.
+        # fingers and carried them home.  Twice the time step is as stiff as MuJoCo recommends: 1.5 mm for a
+        # moment as an opening finger meets its stop at full speed, <= 0.6 mm under load.
         joint.solref_limit = [2 * config.timestep, 1.0]
         joint.solimp_limit = [0.95, 0.99, 0.001, 0.5, 2.0]
     for actuator_name in FINGER_ACTUATORS:
