@@ -16,11 +16,13 @@ def soften_finger_limits() -> Callable[[mujoco.MjModel], None]:
     """A function giving a model's finger joint limits MuJoCo's default softness, as before commit 2f82af1: a
     test of the stiff limits runs its scenario this way too, to show that the scenario still provokes the fault."""
 
+    default = mujoco.MjSpec().worldbody.add_body().add_joint()  # MuJoCo's own defaults, not copies of them
+
     def soften(model: mujoco.MjModel) -> None:
         for name in FINGER_JOINTS:
             joint = model.joint(name).id
-            model.jnt_solref[joint] = [0.02, 1.0]
-            model.jnt_solimp[joint] = [0.9, 0.95, 0.001, 0.5, 2.0]
+            model.jnt_solref[joint] = default.solref_limit
+            model.jnt_solimp[joint] = default.solimp_limit
 
     return soften
 

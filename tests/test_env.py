@@ -346,12 +346,21 @@ def test_an_object_thrown_faster_than_anything_here_moves_is_a_physics_error():
     env.close()
 
 
+#: The env options push_grasp_dqn was trained with, written out (not read from its card): the replays below keep
+#: the pixel actions it took when it met these faults even if the checkpoint is retrained.
+PUSH_GRASP_DQN_OPTIONS = {
+    "obs_mode": "heightmap",
+    "action_mode": "pixel",
+    "heightmap_resolution": 0.004,
+    "rotations": 16,
+}
+
+
 def test_a_finger_landing_on_a_packed_cube_does_not_throw_it():
     # The first action push_grasp_dqn takes on this seed: its left finger lands on a 4 cm cube of the packed
     # 3 x 3 grid and presses it into the table until the finger slips off.  MuJoCo 4.0.0's Newton solve on a
     # sparse Jacobian (google-deepmind/mujoco#3767) then threw the cube through the table at 18 m/s.
-    env = make("PandaGraspAdversarial-v0", layout="small_cubes_3x3", obs_mode="heightmap", action_mode="pixel",
-               heightmap_resolution=0.004, rotations=16)  # fmt: skip
+    env = make("PandaGraspAdversarial-v0", layout="small_cubes_3x3", **PUSH_GRASP_DQN_OPTIONS)
     env.reset(seed=1001300)
     _, _, _, truncated, info = env.step(82720)
     assert info["primitive"] == "grasp" and not info["physics_error"] and not truncated
@@ -364,8 +373,7 @@ def test_an_open_hand_does_not_carry_objects_home(soften_finger_limits):
     # stop; the limits then squeezed the pair in the "open" hand, which lifted both and carried them home.
     lost = {}
     for limits in ("soft", "as built"):
-        env = make("PandaGraspAdversarial-v0", layout="long_boxes_2", obs_mode="heightmap", action_mode="pixel",
-                   heightmap_resolution=0.004, rotations=16)  # fmt: skip
+        env = make("PandaGraspAdversarial-v0", layout="long_boxes_2", **PUSH_GRASP_DQN_OPTIONS)
         if limits == "soft":
             soften_finger_limits(env.unwrapped.cell.model)
         env.reset(seed=810602)
