@@ -87,7 +87,7 @@ def primitive_parameters(
     the height of what lies in its path (within ``PUSH_HEIGHT_RANGE``);
     ``impulse`` strikes the top object at (x, y).
     """
-    held = cell.robot.body_between_pads()
+    held = cell.robot.body_between_fingers()
     if name == "grasp":
         z = max(surface_height(cell, x, y) - GRASP_DEPTH, MIN_GRASP_HEIGHT) if z is None else z
         return [x, y, z, yaw]

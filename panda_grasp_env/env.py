@@ -398,7 +398,7 @@ class PandaEnv(gym.Env):
         held = not cell.touches_robot(body)  # the open hand must be around the object, not in it
         if held:
             cell.actuate_gripper(close=True, timeout=0.5)
-            held = cell.robot.body_between_pads() == body
+            held = cell.robot.body_between_fingers() == body
         if not held or np.linalg.norm(cell.data.xpos[body] - position) > HOLD_START_DRIFT:
             cell.set_body_pose(body, position, orientation)
             cell.robot.teleport_fingers(FINGER_OPEN)
@@ -507,7 +507,7 @@ class PandaEnv(gym.Env):
         MaskablePPO)."""
         if not hasattr(self.actions, "action_masks"):
             raise ValueError(f"action_masks is defined for the pixel action modes only, not {self.action_mode!r}")
-        return self.actions.action_masks(holding=self.cell.robot.body_between_pads() is not None)
+        return self.actions.action_masks(holding=self.cell.robot.body_between_fingers() is not None)
 
     def camera_model(
         self, camera: str = "overhead", width: int | None = None, height: int | None = None

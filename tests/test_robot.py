@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from panda_grasp_env.model.robot import FINGER_OPEN, HOME_POSITION, HOME_YAW, fast_index
-from panda_grasp_env.model.scene import MAX_FINGER_GAP
+from panda_grasp_env.model.scene import FINGER_BODIES, MAX_FINGER_GAP, SceneConfig
 from panda_grasp_env.sim.workcell import Workcell
 
 
@@ -39,6 +39,29 @@ def test_an_opening_finger_stops_at_its_stop(rng, soften_finger_limits):
             widest[limits] = max(widest[limits], float(cell.data.qpos[cell.robot.finger_qpos_idx].max()))
     assert widest["soft"] > FINGER_OPEN + 5e-3  # 9.6 mm: the stop met at 1.75 m/s
     assert FINGER_OPEN - 1e-3 < widest["as built"] < FINGER_OPEN + 2.5e-3  # 1.5 mm, for a moment
+
+
+def test_a_block_held_above_the_pads_counts_as_held(rng):
+    # A block that rode up past the pads is held by the fingers behind them; a pads-only test called such
+    # grasps dropped, and the arm then let go of objects it had carried home, outside the workspace.
+    cell = Workcell(SceneConfig(block_size=0.03))
+    cell.reset(rng)
+    site = np.array([0.5, 0.0, 0.2])
+    cell.teleport_hand(site, HOME_YAW)
+    block = int(cell.block_ids[0])
+    cell.set_body_pose(block, site + [0.0, 0.0, 0.03])  # its bottom 1.5 cm above the pads' centre
+    cell.actuate_gripper(close=True)
+    pads = {cell.model.geom(f"{finger}_pad").id for finger in FINGER_BODIES}
+    touching_pads = {
+        geom for c in cell.data.contact[: cell.data.ncon] for geom, other in ((c.geom1, c.geom2), (c.geom2, c.geom1))
+        if geom in pads and cell.model.geom_bodyid[other] == block
+    }  # fmt: skip
+    assert not touching_pads
+    start = cell.data.xpos[block][2]
+    cell.move_to(site + [0.0, 0.0, 0.1], HOME_YAW)
+    cell.wait(0.5)
+    assert cell.data.xpos[block][2] - start > 0.09
+    assert cell.robot.body_between_fingers() == block
 
 
 @pytest.mark.parametrize("target, yaw", [((0.5, 0.2, 0.15), 0.3), ((0.65, -0.25, 0.05), -1.2), ((0.3, 0.0, 0.3), 1.5)])

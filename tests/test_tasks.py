@@ -210,7 +210,7 @@ def test_start_in_hand_holds_the_object_to_lift_and_a_lift_reaches_the_goal():
     env = make("PandaGrasp-v0", action_mode="ee_delta", shapes=("cube",), start_in_hand=1.0)
     observation, info = env.reset(seed=3)
     cell = env.unwrapped.cell
-    assert info["start"] == "in_hand" and cell.robot.body_between_pads() == env.unwrapped.task.start_object(cell)
+    assert info["start"] == "in_hand" and cell.robot.body_between_fingers() == env.unwrapped.task.start_object(cell)
     assert info["sim_time"] == 0.0 and not info["is_success"]
     start = observation["achieved_goal"].copy()
     reached = False

@@ -56,8 +56,9 @@ class PandaRobot:
         self.body_ids = {
             i for i in range(model.nbody) if mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, i).startswith("panda0_")
         }
-        self.finger_body_ids = frozenset(model.body(n).id for n in FINGER_BODIES)
-        self.pad_geom_ids = tuple(model.geom(f"{n}_pad").id for n in FINGER_BODIES)
+        #: (left, right): each finger's body, which carries its pad.
+        self.finger_bodies = tuple(model.body(n).id for n in FINGER_BODIES)
+        self.finger_body_ids = frozenset(self.finger_bodies)
         self.arm_lower = model.jnt_range[[model.joint(n).id for n in ARM_JOINTS], 0].copy()
         self.arm_upper = model.jnt_range[[model.joint(n).id for n in ARM_JOINTS], 1].copy()
 
@@ -134,18 +135,22 @@ class PandaRobot:
         self.teleport_fingers(FINGER_OPEN)
         self.command_joints(HOME_QPOS)
 
-    def contacts_with_pads(self) -> dict[int, set[int]]:
-        """Bodies (not the robot's) touching each finger pad: ``{pad_geom: {body ids}}``."""
-        touching: dict[int, set[int]] = {g: set() for g in self.pad_geom_ids}
+    def contacts_with_fingers(self) -> tuple[set[int], set[int]]:
+        """Bodies (not the robot's) touching each finger, its pad or the finger behind it: (left, right)."""
+        touching: dict[int, set[int]] = {finger: set() for finger in self.finger_bodies}
         geom_body = self.model.geom_bodyid
         for contact in self.data.contact[: self.data.ncon]:
             for mine, other in ((contact.geom1, contact.geom2), (contact.geom2, contact.geom1)):
-                if mine in touching and geom_body[other] not in self.body_ids:
-                    touching[mine].add(int(geom_body[other]))
-        return touching
+                finger = int(geom_body[mine])
+                if finger in touching and geom_body[other] not in self.body_ids:
+                    touching[finger].add(int(geom_body[other]))
+        left, right = (touching[finger] for finger in self.finger_bodies)
+        return left, right
 
-    def body_between_pads(self) -> int | None:
-        """The body touched by both finger pads (the one being held), or None."""
-        left, right = self.contacts_with_pads().values()
+    def body_between_fingers(self) -> int | None:
+        """The body both fingers touch (the one being held), or None.  Either finger may hold it with its
+        pad or with the finger itself: an object that slips up past the pads is still held, and a pads-only
+        test read it as dropped, so the arm let it go wherever it then was."""
+        left, right = self.contacts_with_fingers()
         both = left & right
         return min(both) if both else None

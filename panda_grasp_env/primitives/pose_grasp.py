@@ -9,7 +9,7 @@ The motion stack joins ``control.ik`` (pose IK, tolerance sampler) and ``control
    configuration around the scene as it is now, timed by ruckig;
 3. the approach: a straight joint-space line to the grasp configuration, slowly;
 4. close, retreat to the pre-grasp configuration, lift 10 cm straight up, hold;
-5. verify as the top-down grasp primitive does (held by both pads, risen >= 5 cm).
+5. verify as the top-down grasp primitive does (held by both fingers, risen >= 5 cm).
 
 Failures say where they happened: ``no_ik_solution``, ``no_plan``, ``missed``,
 ``dropped`` (or ``physics_error``); after one the arm opens and goes home.

@@ -51,16 +51,16 @@ class PrimitiveResult:
 
 
 def closed_on(cell: Workcell) -> int | None:
-    """Body id of the object between the pads of the just-closed gripper, or ``None`` for a miss (nothing
+    """Body id of the object between the fingers of the just-closed gripper, or ``None`` for a miss (nothing
     between them, or the fingers shut)."""
-    body = cell.robot.body_between_pads()
+    body = cell.robot.body_between_fingers()
     return None if body is None or cell.robot.finger_gap < CLOSED_GAP else body
 
 
 def lifted_and_held(cell: Workcell, body: int, start_height: float) -> bool:
-    """Whether ``body`` is still between the pads and its centre has risen at least ``MIN_LIFT`` above
+    """Whether ``body`` is still between the fingers and its centre has risen at least ``MIN_LIFT`` above
     ``start_height`` (world z, metres): the test of a grasp after the lift and ``HOLD_TIME`` hold."""
-    return cell.robot.body_between_pads() == body and cell.data.xpos[body][2] - start_height >= MIN_LIFT
+    return cell.robot.body_between_fingers() == body and cell.data.xpos[body][2] - start_height >= MIN_LIFT
 
 
 def record_collateral(cell: Workcell, result: PrimitiveResult) -> None:

@@ -116,7 +116,7 @@ def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
             cell.actuate_gripper(close=False, timeout=0.4)
             cell.rise()
     cell.move_home()
-    if reason == "ok" and cell.robot.body_between_pads() != body:
+    if reason == "ok" and cell.robot.body_between_fingers() != body:
         reason = "dropped"
     if reason != "ok":
         cell.actuate_gripper(close=False, timeout=0.4)
@@ -136,7 +136,7 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     centre within a quarter of the block size of (x, y) and its bottom within
     1 cm of ``z``.  ``yaw`` is the closing-axis heading during the place.
     """
-    body = cell.robot.body_between_pads()
+    body = cell.robot.body_between_fingers()
     if body is None:
         return PrimitiveResult("place", False, "not_holding")
     name = cell.name_of(body)
@@ -169,7 +169,7 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     cell.move_home()
     centre_error = np.linalg.norm(cell.data.xpos[body][:2] - [x, y])
     bottom_error = abs(body_bottom_height(cell.model, cell.data, body) - z)
-    if cell.robot.body_between_pads() == body or centre_error > cell.config.block_size / 4 or bottom_error > 0.01:
+    if cell.robot.body_between_fingers() == body or centre_error > cell.config.block_size / 4 or bottom_error > 0.01:
         return PrimitiveResult("place", False, "placed_off", object=name, targets={body})
     return PrimitiveResult("place", True, "ok", object=name, targets={body})
 

@@ -95,7 +95,7 @@ class CollateralMonitor:
     def _start_segment(self, work: bool) -> None:
         self._close_transit()
         self.in_work = work
-        held = self.cell.robot.body_between_pads()
+        held = self.cell.robot.body_between_fingers()
         self._load = -1 if held is None else held
         if not work:
             speeds = self.cell.body_speeds(self.cell.object_ids)

@@ -322,7 +322,7 @@ class Workcell:
     def transit_height(self) -> float:
         """Grasp-site height (metres) at which the hand, and whatever it carries, clears every object on the
         table by ``TRANSIT_CLEARANCE``; at least ``TRANSIT_MIN_HEIGHT``, at most the workspace's top."""
-        held = self.robot.body_between_pads()
+        held = self.robot.body_between_fingers()
         hang = FINGERTIP_DEPTH
         if held is not None:
             hang = max(hang, self.robot.ee_position[2] - body_vertical_extent(self.model, self.data, held)[0])
