@@ -58,7 +58,6 @@ class PandaRobot:
         }
         #: (left, right): each finger's body, which carries its pad.
         self.finger_bodies = tuple(model.body(n).id for n in FINGER_BODIES)
-        self.finger_body_ids = frozenset(self.finger_bodies)
         self.arm_lower = model.jnt_range[[model.joint(n).id for n in ARM_JOINTS], 0].copy()
         self.arm_upper = model.jnt_range[[model.joint(n).id for n in ARM_JOINTS], 1].copy()
 
@@ -144,8 +143,8 @@ class PandaRobot:
                 finger = int(geom_body[mine])
                 if finger in touching and geom_body[other] not in self.body_ids:
                     touching[finger].add(int(geom_body[other]))
-        left, right = (touching[finger] for finger in self.finger_bodies)
-        return left, right
+        left, right = self.finger_bodies
+        return touching[left], touching[right]
 
     def body_between_fingers(self) -> int | None:
         """The body both fingers touch (the one being held), or None.  Either finger may hold it with its

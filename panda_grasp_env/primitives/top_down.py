@@ -235,7 +235,7 @@ def push_line_targets(cell: Workcell, start: np.ndarray, end: np.ndarray) -> set
     shift = start - cell.robot.ee_position  # the fingers, measured where the hand is, brought to the start
 
     def fingers_along(axis: np.ndarray) -> tuple[float, float]:
-        extents = [body_extent_along(cell.model, cell.data, f, axis) for f in cell.robot.finger_body_ids]
+        extents = [body_extent_along(cell.model, cell.data, f, axis) for f in cell.robot.finger_bodies]
         return min(low for low, _ in extents) + shift @ axis, max(high for _, high in extents) + shift @ axis
 
     front = fingers_along(u)[1] - start @ u
