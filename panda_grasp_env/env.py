@@ -398,7 +398,7 @@ class PandaEnv(gym.Env):
         held = not cell.touches_robot(body)  # the open hand must be around the object, not in it
         if held:
             cell.actuate_gripper(close=True, timeout=0.5)
-            held = cell.robot.body_between_fingers() == body
+            held = body in cell.robot.bodies_between_fingers()
         if not held or np.linalg.norm(cell.data.xpos[body] - position) > HOLD_START_DRIFT:
             cell.set_body_pose(body, position, orientation)
             cell.robot.teleport_fingers(FINGER_OPEN)

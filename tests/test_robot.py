@@ -51,17 +51,38 @@ def test_a_block_held_above_the_pads_counts_as_held(rng):
     block = int(cell.block_ids[0])
     cell.set_body_pose(block, site + [0.0, 0.0, 0.03])  # its bottom 1.5 cm above the pads' centre
     cell.actuate_gripper(close=True)
-    pads = {cell.model.geom(f"{finger}_pad").id for finger in FINGER_BODIES}
-    touching_pads = {
-        geom for c in cell.data.contact[: cell.data.ncon] for geom, other in ((c.geom1, c.geom2), (c.geom2, c.geom1))
-        if geom in pads and cell.model.geom_bodyid[other] == block
-    }  # fmt: skip
-    assert not touching_pads
+    assert not pad_contacts(cell, block)
     start = cell.data.xpos[block][2]
     cell.move_to(site + [0.0, 0.0, 0.1], HOME_YAW)
     cell.wait(0.5)
-    assert cell.data.xpos[block][2] - start > 0.09
+    assert cell.data.xpos[block][2] - start > 0.09 and not pad_contacts(cell, block)
     assert cell.robot.body_between_fingers() == block
+
+
+def test_closed_fingers_resting_on_a_block_hold_nothing(rng):
+    # Both fingers touch it, with their tips on its top face: no grip across the closing axis.
+    cell = Workcell()
+    cell.reset(rng)
+    block = int(cell.block_ids[0])
+    position = cell.data.xpos[block].copy()
+    cell.move_to(position + [0.0, 0.0, 0.1], HOME_YAW)
+    cell.actuate_gripper(close=True)
+    cell.move_to(position + [0.0, 0.0, 0.01], HOME_YAW, settle_timeout=0.3)  # pressed onto its top
+    fingers = {
+        int(cell.model.geom_bodyid[geom]) for c in cell.data.contact[: cell.data.ncon]
+        for geom, other in ((c.geom1, c.geom2), (c.geom2, c.geom1)) if cell.model.geom_bodyid[other] == block
+    }  # fmt: skip
+    assert set(cell.robot.finger_bodies) <= fingers
+    assert cell.robot.bodies_between_fingers() == set() and cell.robot.body_between_fingers() is None
+
+
+def pad_contacts(cell: Workcell, body: int) -> set[int]:
+    """The finger pads touching ``body``."""
+    pads = {cell.model.geom(f"{finger}_pad").id for finger in FINGER_BODIES}
+    return {
+        geom for c in cell.data.contact[: cell.data.ncon] for geom, other in ((c.geom1, c.geom2), (c.geom2, c.geom1))
+        if geom in pads and cell.model.geom_bodyid[other] == body
+    }  # fmt: skip
 
 
 @pytest.mark.parametrize("target, yaw", [((0.5, 0.2, 0.15), 0.3), ((0.65, -0.25, 0.05), -1.2), ((0.3, 0.0, 0.3), 1.5)])

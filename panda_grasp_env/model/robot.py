@@ -29,6 +29,8 @@ HOME_YAW = -np.pi / 2
 #: Finger joint command when open / closed (each finger slides 0-0.04 m).
 FINGER_OPEN = 0.04
 FINGER_CLOSED = 0.0
+#: A finger contact grips when its normal is within 60 degrees of the closing axis (cosine).
+GRIP_NORMAL_COS = 0.5
 
 
 def fast_index(indices: np.ndarray) -> slice | np.ndarray:
@@ -134,22 +136,33 @@ class PandaRobot:
         self.teleport_fingers(FINGER_OPEN)
         self.command_joints(HOME_QPOS)
 
-    def contacts_with_fingers(self) -> tuple[set[int], set[int]]:
-        """Bodies (not the robot's) touching each finger, its pad or the finger behind it: (left, right)."""
-        touching: dict[int, set[int]] = {finger: set() for finger in self.finger_bodies}
+    def bodies_between_fingers(self) -> set[int]:
+        """Free bodies that both fingers press on across the closing axis: the ones held.
+
+        A finger presses with its pad or with its capsules (an object that slips up past the pads is still
+        held; a pads-only test read it as dropped, and the arm let it go wherever it then was), but only a
+        contact whose normal lies within 60 degrees of the closing axis counts: fingertips resting on a top
+        face, or closed fingers pushing with their front, hold nothing.  The table, fixtures and the bin
+        (bodies without degrees of freedom) are never held."""
+        closing_axis = self.data.site_xmat[self.site_id].reshape(3, 3)[:, 0]
+        pressed: dict[int, set[int]] = {finger: set() for finger in self.finger_bodies}
         geom_body = self.model.geom_bodyid
         for contact in self.data.contact[: self.data.ncon]:
             for mine, other in ((contact.geom1, contact.geom2), (contact.geom2, contact.geom1)):
-                finger = int(geom_body[mine])
-                if finger in touching and geom_body[other] not in self.body_ids:
-                    touching[finger].add(int(geom_body[other]))
+                finger, body = int(geom_body[mine]), int(geom_body[other])
+                if (
+                    finger in pressed
+                    and body not in self.body_ids
+                    and self.model.body_dofnum[body] > 0
+                    and abs(contact.frame[:3] @ closing_axis) >= GRIP_NORMAL_COS
+                ):
+                    pressed[finger].add(body)
         left, right = self.finger_bodies
-        return touching[left], touching[right]
+        return pressed[left] & pressed[right]
 
     def body_between_fingers(self) -> int | None:
-        """The body both fingers touch (the one being held), or None.  Either finger may hold it with its
-        pad or with the finger itself: an object that slips up past the pads is still held, and a pads-only
-        test read it as dropped, so the arm let it go wherever it then was."""
-        left, right = self.contacts_with_fingers()
-        both = left & right
-        return min(both) if both else None
+        """The held body (``bodies_between_fingers``) nearest the grasp site -- the one grasped, not one lying
+        on it and caught between the fingers above -- or None."""
+        held = self.bodies_between_fingers()
+        site = self.data.site_xpos[self.site_id]
+        return min(held, key=lambda body: np.linalg.norm(self.data.xpos[body] - site)) if held else None

@@ -60,7 +60,7 @@ def closed_on(cell: Workcell) -> int | None:
 def lifted_and_held(cell: Workcell, body: int, start_height: float) -> bool:
     """Whether ``body`` is still between the fingers and its centre has risen at least ``MIN_LIFT`` above
     ``start_height`` (world z, metres): the test of a grasp after the lift and ``HOLD_TIME`` hold."""
-    return cell.robot.body_between_fingers() == body and cell.data.xpos[body][2] - start_height >= MIN_LIFT
+    return body in cell.robot.bodies_between_fingers() and cell.data.xpos[body][2] - start_height >= MIN_LIFT
 
 
 def record_collateral(cell: Workcell, result: PrimitiveResult) -> None:

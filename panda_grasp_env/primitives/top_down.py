@@ -116,7 +116,7 @@ def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
             cell.actuate_gripper(close=False, timeout=0.4)
             cell.rise()
     cell.move_home()
-    if reason == "ok" and cell.robot.body_between_fingers() != body:
+    if reason == "ok" and body not in cell.robot.bodies_between_fingers():
         reason = "dropped"
     if reason != "ok":
         cell.actuate_gripper(close=False, timeout=0.4)
@@ -169,7 +169,7 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     cell.move_home()
     centre_error = np.linalg.norm(cell.data.xpos[body][:2] - [x, y])
     bottom_error = abs(body_bottom_height(cell.model, cell.data, body) - z)
-    if cell.robot.body_between_fingers() == body or centre_error > cell.config.block_size / 4 or bottom_error > 0.01:
+    if body in cell.robot.bodies_between_fingers() or centre_error > cell.config.block_size / 4 or bottom_error > 0.01:
         return PrimitiveResult("place", False, "placed_off", object=name, targets={body})
     return PrimitiveResult("place", True, "ok", object=name, targets={body})
 

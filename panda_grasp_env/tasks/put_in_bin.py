@@ -122,6 +122,6 @@ class PutInBin(Task):
     def evaluate(self, cell: Workcell, result: PrimitiveResult | None) -> TaskStep:
         contents = self._contents(cell)
         target = int(cell.block_ids[self._target_index])
-        released = cell.robot.body_between_fingers() != target
+        released = target not in cell.robot.bodies_between_fingers()
         success = contents["target_in_bin"] and released and contents["others_in_bin"] == 0
         return TaskStep(float(success), success, success or cell.is_parked(target), contents)

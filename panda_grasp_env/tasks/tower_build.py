@@ -25,7 +25,7 @@ def blocks_still(cell: Workcell) -> bool:
 
 
 def holding_a_block(cell: Workcell) -> bool:
-    return cell.robot.body_between_fingers() in set(cell.block_ids.tolist())
+    return not cell.robot.bodies_between_fingers().isdisjoint(cell.block_ids.tolist())
 
 
 @register_task
