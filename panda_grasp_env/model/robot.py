@@ -29,8 +29,6 @@ HOME_YAW = -np.pi / 2
 #: Finger joint command when open / closed (each finger slides 0-0.04 m).
 FINGER_OPEN = 0.04
 FINGER_CLOSED = 0.0
-#: A finger contact grips when its normal is within 60 degrees of the closing axis (cosine).
-GRIP_NORMAL_COS = 0.5
 
 
 def fast_index(indices: np.ndarray) -> slice | np.ndarray:
@@ -137,28 +135,22 @@ class PandaRobot:
         self.command_joints(HOME_QPOS)
 
     def bodies_between_fingers(self) -> set[int]:
-        """Free bodies that both fingers press on across the closing axis: the ones held.
+        """Free bodies that both fingers touch: the ones held.
 
-        A finger presses with its pad or with its capsules (an object that slips up past the pads is still
-        held; a pads-only test read it as dropped, and the arm let it go wherever it then was), but only a
-        contact whose normal lies within 60 degrees of the closing axis counts: fingertips resting on a top
-        face, or closed fingers pushing with their front, hold nothing.  The table, fixtures and the bin
-        (bodies without degrees of freedom) are never held."""
-        closing_axis = self.data.site_xmat[self.site_id].reshape(3, 3)[:, 0]
-        pressed: dict[int, set[int]] = {finger: set() for finger in self.finger_bodies}
+        A finger may touch with its pad or its capsules: an object that slips up past the pads is still held (a
+        pads-only test read it as dropped, and the arm let it go wherever it then was).  The table, fixtures and
+        the bin (bodies without degrees of freedom) are never held.  Contacts count whatever their direction:
+        closed fingertips resting on an object's top count too, but requiring a contact across the closing axis
+        (within 60 degrees) also rejected grips that would have lifted the block (see docs/internals.md)."""
+        touching: dict[int, set[int]] = {finger: set() for finger in self.finger_bodies}
         geom_body = self.model.geom_bodyid
         for contact in self.data.contact[: self.data.ncon]:
             for mine, other in ((contact.geom1, contact.geom2), (contact.geom2, contact.geom1)):
                 finger, body = int(geom_body[mine]), int(geom_body[other])
-                if (
-                    finger in pressed
-                    and body not in self.body_ids
-                    and self.model.body_dofnum[body] > 0
-                    and abs(contact.frame[:3] @ closing_axis) >= GRIP_NORMAL_COS
-                ):
-                    pressed[finger].add(body)
+                if finger in touching and body not in self.body_ids and self.model.body_dofnum[body] > 0:
+                    touching[finger].add(body)
         left, right = self.finger_bodies
-        return pressed[left] & pressed[right]
+        return touching[left] & touching[right]
 
     def body_between_fingers(self) -> int | None:
         """The held body (``bodies_between_fingers``) nearest the grasp site -- the one grasped, not one lying
