@@ -64,11 +64,7 @@ def test_the_table_under_both_fingertips_is_not_held(rng):
     cell.reset(rng)
     cell.actuate_gripper(close=True)
     cell.move_to(np.array([0.3, 0.3, 0.005]), HOME_YAW, settle_timeout=0.3)  # fingertips pressed on the table
-    on_the_table = {
-        int(cell.model.geom_bodyid[mine]) for c in cell.data.contact[: cell.data.ncon]
-        for mine, other in ((c.geom1, c.geom2), (c.geom2, c.geom1)) if cell.model.geom_bodyid[other] == 0
-    }  # fmt: skip
-    assert set(cell.robot.finger_bodies) <= on_the_table and cell.robot.body_between_fingers() is None
+    assert set(cell.robot.finger_bodies) <= cell.bodies_touching(0) and cell.robot.body_between_fingers() is None
 
 
 def pad_contacts(cell: Workcell, body: int) -> set[int]:
