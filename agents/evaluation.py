@@ -8,13 +8,15 @@ bit for bit, in any process, in any order.
 
 from __future__ import annotations
 
+import functools
+import inspect
 import json
 import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -31,7 +33,11 @@ from panda_grasp_env.agents.towers import (
     TowerBreakerAgent,
     TowerBuilderAgent,
 )
+from panda_grasp_env.env import PandaEnv
 from panda_grasp_env.registration import BENCHMARKS, ENV_IDS, TASKS
+
+if TYPE_CHECKING:
+    from panda_grasp_env.agents.learned import Checkpoint
 
 #: Perception agents get RGB-D from both cameras at 640 x 480 (``PERCEPTION``).
 #: The built-in agents; every shipped checkpoint (``panda_grasp_env.agents.learned.available_checkpoints``) is an agent too.
@@ -78,12 +84,51 @@ def skip_reason(agent: str, task: str) -> str | None:
         if task not in BASELINES:
             return f"no {agent} agent is written for {task}"
         return None
+    return learned_skip_reason(agent, task)
+
+
+@functools.cache
+def learned_skip_reason(agent: str, task: str) -> str | None:
+    """Why checkpoint ``agent`` does not play ``task`` (None if it does).
+
+    A checkpoint plays the task it was trained for, and any other benchmark task of the same registered task
+    at the same level of action (motion primitives or 25 Hz control) whose env, made with the checkpoint's
+    env options, has the observation and action spaces it was trained on: a heightmap grasping policy
+    trained on packed layouts plays random heaps and single objects too.  Checking the spaces makes both envs
+    once per (checkpoint, task)."""
     from panda_grasp_env.agents.learned import Checkpoint
 
     checkpoint = Checkpoint(agent)
-    if checkpoint.task != task:
-        return f"checkpoint {agent} was trained for {checkpoint.task} ({checkpoint.config.env_id})"
+    config = checkpoint.config
+    if checkpoint.task == task:
+        return None
+    trained_for = f"checkpoint {agent} was trained for {checkpoint.task} ({config.env_id})"
+    env_id, options = BENCHMARKS[task]
+    if ENV_IDS[env_id][0]["task"] != ENV_IDS[config.env_id][0]["task"]:
+        return trained_for
+    if is_low_level(env_id, options) != is_low_level(config.env_id, config.env_kwargs):
+        return f"{trained_for}, at the other level of action"
+    with checkpoint.make_env() as trained, learned_env(checkpoint, task) as benchmark:
+        for name in ("observation_space", "action_space"):
+            if getattr(trained, name) != getattr(benchmark, name):
+                return f"{trained_for}; {task}'s {name.replace('_', ' ')} differs with its env options"
     return None
+
+
+#: ``PandaEnv`` options: how an agent sees and acts.  A benchmark's other ``make`` options set its scene and
+#: protocol (task options, ``max_episode_steps``).
+ENV_OPTIONS = frozenset(inspect.signature(PandaEnv.__init__).parameters) - {"self", "task", "task_options"}
+
+
+def learned_env(checkpoint: Checkpoint, task: str, **options: Any) -> gym.Env:
+    """The env a shipped checkpoint plays benchmark ``task`` in: on its own task the env it was trained on;
+    on another, that task's id and scene options, seen and acted on through the checkpoint's env options;
+    ``options`` on top of either."""
+    if task == checkpoint.task:
+        return checkpoint.make_env(**options)
+    env_id, protocol = BENCHMARKS[task]
+    protocol = {key: value for key, value in protocol.items() if key not in ENV_OPTIONS}
+    return gym.make(f"panda_grasp_env:{env_id}", **(protocol | checkpoint.config.env_kwargs | options))
 
 
 PERCEPTION = {"obs_mode": "rgbd", "cameras": ("overhead", "front"), "image_size": (640, 480)}
@@ -138,10 +183,10 @@ def task_options_from_pairs(pairs: list[str], tasks: list[str]) -> dict[str, Any
 
 
 def make_env(spec: EpisodeSpec) -> gym.Env:
-    if spec.agent not in AGENTS:  # a learned checkpoint: the env it was trained on
+    if spec.agent not in AGENTS:  # a learned checkpoint: its env options on the task's scene
         from panda_grasp_env.agents.learned import Checkpoint
 
-        return Checkpoint(spec.agent).make_env(**dict(spec.options))
+        return learned_env(Checkpoint(spec.agent), spec.task, **dict(spec.options))
     env_id, options = BENCHMARKS[spec.task]
     options = dict(options)
     if spec.agent in ("planned", "oracle"):  # they see the scene through cameras

@@ -11,7 +11,7 @@
   whose fingers clear every other object, never a push;
 * ``push_aware``: the same, and a planned push when no such grasp is left;
 * any shipped heightmap checkpoint by name (e.g. ``grasp_clutter_dqn``, grasps only; ``push_grasp_dqn``),
-  on the env options it was trained with.
+  on the env options it was trained with (``evaluate.py``'s env for it on that task).
 
 ``--heaps N`` adds N random heaps of ``PandaGraspClutter-v0`` (VPG's protocol; seeds ``--heap-first-seed``
 ... , held out from every shipped heightmap policy's training and validation): pushing where it is not
@@ -40,6 +40,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import gymnasium as gym  # noqa: E402
 
 from benchmarks._common import Results, wilson  # noqa: E402
+from panda_grasp_env.agents.evaluation import learned_env  # noqa: E402
 from panda_grasp_env.agents.grasping import PackedGraspOracle  # noqa: E402
 from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent, available_checkpoints  # noqa: E402
 from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS  # noqa: E402
@@ -54,8 +55,7 @@ def episode(agent_name: str, layout: int | None, seed: int) -> dict[str, float]:
         env = gym.make(f"panda_grasp_env:{env_id}", **scene, primitive_z=True)
         agent = PackedGraspOracle(env, seed=seed, pushes=AGENTS[agent_name])
     else:
-        options = Checkpoint(agent_name).config.env_kwargs
-        env = gym.make(f"panda_grasp_env:{env_id}", **scene, **options)
+        env = learned_env(Checkpoint(agent_name), "GraspClutter" if layout is None else "GraspAdversarial", **scene)
         agent = LearnedAgent(agent_name, env)
     observation, info = env.reset(seed=seed)
     agent.reset(observation, info)

@@ -217,3 +217,21 @@ def test_the_default_protocols_cover_every_registered_benchmark(protocol):
     for task in BENCHMARKS:
         expected = BENCHMARK_SEEDS[task][1 if protocol else 0]
         assert {spec.seed for spec in specs if spec.task == task and spec.agent == "random"} == set(range(expected))
+
+
+def test_a_heightmap_policy_plays_the_other_scenes_of_its_task():
+    """push_grasp_dqn (trained on packed layouts) plays VPG's random heaps, in the heap env with its own spaces;
+    a policy that cannot see or act in another scene of its task is skipped with the reason."""
+    from panda_grasp_env.agents.evaluation import learned_env, skip_reason
+    from panda_grasp_env.agents.learned import Checkpoint
+
+    assert skip_reason("push_grasp_dqn", "GraspClutter") is None
+    assert skip_reason("grasp_clutter_dqn", "GraspAdversarial") is None
+    assert "other level of action" in skip_reason("tower_build_dqn", "Stack")
+    assert "observation space differs" in skip_reason("tower_break_dqn", "TowerBreakDirectional")
+    assert "trained for Push" in skip_reason("push_sac_her", "Lift")
+    checkpoint = Checkpoint("push_grasp_dqn")
+    with checkpoint.make_env() as trained, learned_env(checkpoint, "GraspClutter") as heaps:
+        assert heaps.spec.id == "PandaGraspClutter-v0" and heaps.spec.max_episode_steps == 60
+        assert heaps.unwrapped.task.clutter and heaps.unwrapped.task.packed is None
+        assert heaps.observation_space == trained.observation_space and heaps.action_space == trained.action_space

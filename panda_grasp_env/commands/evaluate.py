@@ -11,9 +11,10 @@
 
 Agents: random, planned (perception-based planned baselines), oracle (the same, on
 true poses), expert (scripted ee_delta state machines for Lift, Push and Stack), and every shipped
-learned checkpoint by name (agents/checkpoints/).
+learned checkpoint by name (agents/checkpoints/): on its own task, and on the other scenes of that
+task its observation and action spaces fit (a heightmap grasping policy on heaps and packed layouts).
 Tasks: the benchmarks the task modules register (``panda_grasp_env.registration.BENCHMARKS``): Grasp,
-GraspClutter, TowerBuild, TowerBreak, TowerBreakDirectional, BuildAndBreak, PutInBin (primitive actions),
+GraspClutter, GraspAdversarial, TowerBuild, TowerBreak, TowerBreakDirectional, BuildAndBreak, PutInBin (primitive actions),
 Push, Lift, Stack (low-level ee_delta).  An agent that does not apply to a task is skipped (one line lists them;
 the report gives each reason).
 Outputs (``--out``, default results/quick or results/full): results.json and
