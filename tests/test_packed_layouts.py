@@ -33,6 +33,23 @@ def test_same_seed_same_jitter_and_random_layouts_vary():
     assert len(counts) > 1
 
 
+def test_heap_share_drops_heaps_instead_of_some_packed_layouts():
+    """PandaGraspMixed-v0: about half its episodes are heaps of HEAP_OBJECTS with the spare slots parked, the
+    rest hand-designed layouts; the seed decides which, and a heap is the heap ``clutter`` drops."""
+    from panda_grasp_env.tasks.grasp import HEAP_OBJECTS
+
+    env = gym.make("panda_grasp_env:PandaGraspMixed-v0", obs_mode="state")
+    cell = env.unwrapped.cell
+    layouts = [env.reset(seed=seed)[1]["layout"] for seed in range(12)]
+    assert 3 <= layouts.count("heap") <= 9 and set(layouts) - {"heap"} <= set(ADVERSARIAL_LAYOUTS)
+    seed = layouts.index("heap")
+    _, info = env.reset(seed=seed)
+    assert info["layout"] == "heap" and len(info["shapes"]) == HEAP_OBJECTS
+    assert all(cell.is_parked(int(body)) for body in cell.object_ids[HEAP_OBJECTS:])
+    assert 0 < info["objects_remaining"] <= HEAP_OBJECTS
+    assert env.reset(seed=seed)[1]["layout"] == "heap"
+
+
 def test_random_packed_grids_stand_gap_apart_at_their_widest_objects():
     """Training grids are packed at the pitch of their widest objects (4 cm cube grids at theirs, not at the
     5 cm cubes'), and grids of 4 cm cubes alone are drawn.  Layout frame, before jitter."""
@@ -58,6 +75,8 @@ def test_random_packed_grids_stand_gap_apart_at_their_widest_objects():
         ({"packed": "adversarial", "layout": "pyramid"}, "layout"),
         ({"packed": "adversarial", "n_objects": 3}, "n_objects"),
         ({"packed": "random", "clutter": True}, "clutter"),
+        ({"heap_share": 0.5}, "heap_share"),
+        ({"packed": "random", "heap_share": 1.5}, "heap_share"),
     ],
 )
 def test_bad_packed_options_raise_naming_the_option(options, message):

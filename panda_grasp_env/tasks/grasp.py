@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.geometry import is_number
 from panda_grasp_env.model.objects import SHAPES, ObjectShape, ObjectSpec
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
@@ -25,6 +26,8 @@ from panda_grasp_env.tasks.packed_layouts import (
 
 #: VPG drops its clutter into the middle of the workspace; a 0.2 m square here.
 CLUTTER_REGION = np.array([[0.4, 0.6], [-0.1, 0.1]])
+#: Objects in a heap that stands in for a packed layout (``heap_share``): as many as ``clutter`` drops.
+HEAP_OBJECTS = 10
 #: A push "changed the scene" if some object moved at least this far (metres): VPG's push reward condition.
 SCENE_CHANGE = 0.01
 #: Objects are in play inside this xy region (metres): the 0.448 m square the default heightmap covers,
@@ -88,7 +91,11 @@ class Grasp(Task):
     until a push frees one; ``layout``: its index or name, default drawn per
     episode; pose jitter drawn per episode), ``"random"`` a random packed grid
     (``packed_layouts.random_packed_layout``, for training); the reset
-    ``info["layout"]`` names it; ``max_failures``:
+    ``info["layout"]`` names it; ``heap_share`` (with ``packed``): the share
+    of episodes (0-1) that drop a heap of ``HEAP_OBJECTS`` as ``clutter`` does
+    instead (``info["layout"]`` "heap"): a policy trained on packed layouts
+    alone never sees objects near the workspace's edge or lying on others;
+    ``max_failures``:
     consecutive failed attempts that end the episode (VPG's rule, default 10);
     ``objects``: a list of ``objects.ObjectSpec`` (or dicts of its fields), one
     per object -- shape, size, mass, friction, colour, resting pose and yaw,
@@ -141,6 +148,8 @@ class Grasp(Task):
             },
         ),
         "PandaGraspPacked-v0": EnvId(40, {"packed": "random"}),
+        # The hand-designed packed layouts and VPG's heaps, half each: one validation for both.
+        "PandaGraspMixed-v0": EnvId(60, {"packed": "adversarial", "heap_share": 0.5}),
     }
     primitives = ("grasp", "push")
     goal_conditioned = True
@@ -156,10 +165,14 @@ class Grasp(Task):
         objects: list[ObjectSpec | dict] | None = None,
         packed: str | None = None,
         layout: int | str | None = None,
+        heap_share: float = 0.0,
     ) -> None:
         check_option("clutter", clutter, isinstance(clutter, bool), "a bool")
         check_option("packed", packed, packed in (None, "adversarial", "random"), 'None, "adversarial" or "random"')
         self.packed, self.layout = packed, self._checked_layout(packed, layout)
+        valid = is_number(heap_share) and 0 <= heap_share <= 1 and (packed is not None or heap_share == 0)
+        check_option("heap_share", heap_share, valid, "a share in [0, 1], given with packed only")
+        self.heap_share = float(heap_share)
         if packed is not None:
             given = {"n_objects": n_objects, "shapes": shapes, "size_ranges": size_ranges, "objects": objects}
             clashing = sorted(name for name, value in given.items() if value is not None) + ["clutter"] * clutter
@@ -182,7 +195,7 @@ class Grasp(Task):
                     specs.append(ObjectSpec.of(value))
                 except (TypeError, ValueError) as error:
                     raise ValueError(f"task option objects[{index}]: {error}") from None
-        default = len(specs) if len(specs) > 1 else (10 if clutter else 1)
+        default = len(specs) if len(specs) > 1 else (HEAP_OBJECTS if clutter else 1)
         n_objects = default if n_objects is None else n_objects
         check_option("n_objects", n_objects, isinstance(n_objects, int) and 1 <= n_objects <= 30, "an int in [1, 30]")
         if len(specs) not in (1, n_objects):
@@ -229,19 +242,23 @@ class Grasp(Task):
             layout = random_packed_layout(rng)
             centre = rng.uniform(RANDOM_PACKED_REGION[:, 0], RANDOM_PACKED_REGION[:, 1])
             placed = jittered(layout, rng, centre, rng.uniform(-np.pi, np.pi))
-        # Slots the layout leaves unused get one fixed shape and stay parked: what they held in the previous
-        # episode must not show in this one's state.
         shapes = [shape for shape, _, _ in placed]
-        spare = ObjectShape(*SPARE_SHAPE)
-        cell.set_object_shapes(
-            {int(body): shapes[i] if i < len(shapes) else spare for i, body in enumerate(cell.object_ids)}
-        )
-        for body in cell.object_ids[len(placed) :]:
-            cell.park(int(body))
+        self._set_shapes(cell, shapes)
         for body, (shape, xy, yaw) in zip(cell.object_ids, placed):
             cell.set_body_pose(body, [*xy, shape.resting_half_height + 0.0005], shape.resting_quaternion(yaw))
         cell.settle(0.3)
         return name, shapes
+
+    @staticmethod
+    def _set_shapes(cell: Workcell, shapes: list[ObjectShape]) -> None:
+        """Give the first object slots ``shapes``; the slots left over get one fixed shape and stay parked:
+        what they held in the previous episode must not show in this one's state."""
+        spare = ObjectShape(*SPARE_SHAPE)
+        cell.set_object_shapes(
+            {int(body): shapes[i] if i < len(shapes) else spare for i, body in enumerate(cell.object_ids)}
+        )
+        for body in cell.object_ids[len(shapes) :]:
+            cell.park(int(body))
 
     @property
     def ideal_actions(self) -> int:
@@ -250,13 +267,17 @@ class Grasp(Task):
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
         cell.clear()
         layout = None
-        if self.packed is not None:
+        heap = self.clutter or (self.heap_share > 0 and rng.random() < self.heap_share)
+        if self.packed is not None and not heap:
             layout, shapes = self._lay_out_packed(cell, rng)
             self.drawn = shapes
         else:
-            shapes = self.drawn = [spec.sample(rng) for spec in self.specs]
-            cell.set_object_shapes(dict(zip(cell.object_ids.tolist(), shapes)))
-            if self.clutter:
+            if self.packed is not None:  # a heap instead of the packed layout (heap_share)
+                layout = "heap"
+            count = HEAP_OBJECTS if self.packed is not None else self.n_objects
+            shapes = self.drawn = [spec.sample(rng) for spec in self.specs[:count]]
+            self._set_shapes(cell, shapes)
+            if heap:
                 for level, (body, shape) in enumerate(zip(cell.object_ids, shapes)):
                     xy = [rng.uniform(*CLUTTER_REGION[0]), rng.uniform(*CLUTTER_REGION[1])]
                     height = shape.bounding_radius + 0.01 + 0.06 * level  # staggered, so they fall onto each other
