@@ -8,7 +8,6 @@ bit for bit, in any process, in any order.
 
 from __future__ import annotations
 
-import functools
 import inspect
 import json
 import time
@@ -87,7 +86,6 @@ def skip_reason(agent: str, task: str) -> str | None:
     return learned_skip_reason(agent, task)
 
 
-@functools.cache
 def learned_skip_reason(agent: str, task: str) -> str | None:
     """Why checkpoint ``agent`` does not play ``task`` (None if it does).
 
@@ -95,7 +93,7 @@ def learned_skip_reason(agent: str, task: str) -> str | None:
     at the same level of action (motion primitives or 25 Hz control) whose env, made with the checkpoint's
     env options, has the observation and action spaces it was trained on: a heightmap grasping policy
     trained on packed layouts plays random heaps and single objects too.  Checking the spaces makes both envs
-    once per (checkpoint, task)."""
+    (a second or so for the heightmap tasks)."""
     from panda_grasp_env.agents.learned import Checkpoint
 
     checkpoint = Checkpoint(agent)
