@@ -8,7 +8,7 @@ bit for bit, in any process, in any order.
 
 from __future__ import annotations
 
-import inspect
+import functools
 import json
 import time
 from collections import Counter
@@ -32,7 +32,7 @@ from panda_grasp_env.agents.towers import (
     TowerBreakerAgent,
     TowerBuilderAgent,
 )
-from panda_grasp_env.env import PandaEnv
+from panda_grasp_env.env import AGENT_OPTIONS
 from panda_grasp_env.registration import BENCHMARKS, ENV_IDS, TASKS
 
 if TYPE_CHECKING:
@@ -90,17 +90,27 @@ def learned_skip_reason(agent: str, task: str) -> str | None:
     """Why checkpoint ``agent`` does not play ``task`` (None if it does).
 
     A checkpoint plays the task it was trained for, and any other benchmark task of the same registered task
-    at the same level of action (motion primitives or 25 Hz control) whose env, made with the checkpoint's
-    env options, has the observation and action spaces it was trained on: a heightmap grasping policy
-    trained on packed layouts plays random heaps and single objects too.  Checking the spaces makes both envs
-    (a second or so for the heightmap tasks)."""
+    at the same level of action (motion primitives or 25 Hz control) whose env, seen and acted on as the
+    checkpoint was trained (``learned_env``), has the observation and action spaces it was trained on: a
+    heightmap grasping policy trained on packed layouts plays random heaps and single objects too."""
     from panda_grasp_env.agents.learned import Checkpoint
 
     checkpoint = Checkpoint(agent)
-    config = checkpoint.config
     if checkpoint.task == task:
         return None
-    trained_for = f"checkpoint {agent} was trained for {checkpoint.task} ({config.env_id})"
+    card = (checkpoint.path / "checkpoint.json").read_text()
+    return _other_task_skip_reason(checkpoint.path.resolve(), card, checkpoint.provenance()["policy_sha256"], task)
+
+
+@functools.cache
+def _other_task_skip_reason(path: Path, card: str, weights: str, task: str) -> str | None:
+    """``learned_skip_reason`` on another task, once per checkpoint folder, card, weights and task: checking the
+    spaces makes two envs."""
+    from panda_grasp_env.agents.learned import Checkpoint
+
+    checkpoint = Checkpoint(path)
+    config = checkpoint.config
+    trained_for = f"checkpoint {checkpoint.name} was trained for {checkpoint.task} ({config.env_id})"
     env_id, options = BENCHMARKS[task]
     if ENV_IDS[env_id][0]["task"] != ENV_IDS[config.env_id][0]["task"]:
         return trained_for
@@ -113,20 +123,16 @@ def learned_skip_reason(agent: str, task: str) -> str | None:
     return None
 
 
-#: ``PandaEnv`` options: how an agent sees and acts.  A benchmark's other ``make`` options set its scene and
-#: protocol (task options, ``max_episode_steps``).
-ENV_OPTIONS = frozenset(inspect.signature(PandaEnv.__init__).parameters) - {"self", "task", "task_options"}
-
-
 def learned_env(checkpoint: Checkpoint, task: str, **options: Any) -> gym.Env:
-    """The env a shipped checkpoint plays benchmark ``task`` in: on its own task the env it was trained on;
-    on another, that task's id and scene options, seen and acted on through the checkpoint's env options;
-    ``options`` on top of either."""
+    """The env a shipped checkpoint plays benchmark ``task`` in: on its own task the env it was trained on
+    (``Checkpoint.make_env``); on another, that task's id with its scene and protocol options, seen and acted
+    on as the checkpoint was trained (its ``AGENT_OPTIONS``); ``options`` on top of either."""
     if task == checkpoint.task:
         return checkpoint.make_env(**options)
-    env_id, protocol = BENCHMARKS[task]
-    protocol = {key: value for key, value in protocol.items() if key not in ENV_OPTIONS}
-    return gym.make(f"panda_grasp_env:{env_id}", **(protocol | checkpoint.config.env_kwargs | options))
+    env_id, benchmark = BENCHMARKS[task]
+    scene = {key: value for key, value in benchmark.items() if key not in AGENT_OPTIONS}
+    agent = {key: value for key, value in checkpoint.config.env_kwargs.items() if key in AGENT_OPTIONS}
+    return gym.make(f"panda_grasp_env:{env_id}", **(scene | agent | options))
 
 
 PERCEPTION = {"obs_mode": "rgbd", "cameras": ("overhead", "front"), "image_size": (640, 480)}

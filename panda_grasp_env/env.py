@@ -119,6 +119,14 @@ def advertised_render_modes() -> list[str]:
     return [mode for mode in RENDER_MODES if mode != "human" or display_available()]
 
 
+#: The ``PandaEnv`` options that set how an agent sees and acts (observation, action mode and their
+#: resolutions); the others, and the task options, set the scene and the protocol.
+AGENT_OPTIONS = frozenset(
+    {"obs_mode", "action_mode", "cameras", "image_size", "heightmap_resolution", "heightmap_bounds", "rotations",
+     "primitive_z", "push_distance", "block_gripper", "planner"}
+)  # fmt: skip
+
+
 class PandaEnv(gym.Env):
     """A Franka Panda building, breaking and grasping in MuJoCo.
 

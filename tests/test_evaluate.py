@@ -222,8 +222,13 @@ def test_the_default_protocols_cover_every_registered_benchmark(protocol):
 def test_a_heightmap_policy_plays_the_other_scenes_of_its_task():
     """push_grasp_dqn (trained on packed layouts) plays VPG's random heaps, in the heap env with its own spaces;
     a policy that cannot see or act in another scene of its task is skipped with the reason."""
+    import inspect
+
     from panda_grasp_env.agents.evaluation import learned_env, skip_reason
     from panda_grasp_env.agents.learned import Checkpoint
+    from panda_grasp_env.env import AGENT_OPTIONS, PandaEnv
+
+    assert AGENT_OPTIONS <= set(inspect.signature(PandaEnv.__init__).parameters)
 
     assert skip_reason("push_grasp_dqn", "GraspClutter") is None
     assert skip_reason("grasp_clutter_dqn", "GraspAdversarial") is None

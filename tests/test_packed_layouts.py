@@ -36,7 +36,8 @@ def test_same_seed_same_jitter_and_random_layouts_vary():
 def test_heap_share_drops_heaps_instead_of_some_packed_layouts():
     """PandaGraspMixed-v0: about half its episodes are heaps of HEAP_OBJECTS with the spare slots parked, the
     rest hand-designed layouts; the seed decides which, and a heap is the heap ``clutter`` drops."""
-    from panda_grasp_env.tasks.grasp import HEAP_OBJECTS
+    from panda_grasp_env.model.objects import ObjectShape
+    from panda_grasp_env.tasks.grasp import HEAP_OBJECTS, SPARE_SHAPE
 
     env = gym.make("panda_grasp_env:PandaGraspMixed-v0", obs_mode="state")
     cell = env.unwrapped.cell
@@ -45,9 +46,20 @@ def test_heap_share_drops_heaps_instead_of_some_packed_layouts():
     seed = layouts.index("heap")
     _, info = env.reset(seed=seed)
     assert info["layout"] == "heap" and len(info["shapes"]) == HEAP_OBJECTS
-    assert all(cell.is_parked(int(body)) for body in cell.object_ids[HEAP_OBJECTS:])
     assert 0 < info["objects_remaining"] <= HEAP_OBJECTS
     assert env.reset(seed=seed)[1]["layout"] == "heap"
+    # After the largest layout, a heap's spare slots hold the spare shape again, parked.
+    largest = max(ADVERSARIAL_LAYOUTS, key=lambda name: len(ADVERSARIAL_LAYOUTS[name]))
+    assert len(ADVERSARIAL_LAYOUTS[largest]) > HEAP_OBJECTS
+    env = gym.make("panda_grasp_env:PandaGraspMixed-v0", obs_mode="state", layout=largest)
+    cell = env.unwrapped.cell
+    layouts = [env.reset(seed=seed)[1]["layout"] for seed in range(12)]
+    env.reset(seed=layouts.index(largest))
+    env.reset(seed=layouts.index("heap"))
+    spare = ObjectShape(*SPARE_SHAPE).geom_size
+    for body in cell.object_ids[HEAP_OBJECTS:]:
+        assert cell.is_parked(int(body))
+        assert np.allclose(cell.model.geom_size[cell.model.body_geomadr[body]], spare)
 
 
 def test_random_packed_grids_stand_gap_apart_at_their_widest_objects():
@@ -75,8 +87,9 @@ def test_random_packed_grids_stand_gap_apart_at_their_widest_objects():
         ({"packed": "adversarial", "layout": "pyramid"}, "layout"),
         ({"packed": "adversarial", "n_objects": 3}, "n_objects"),
         ({"packed": "random", "clutter": True}, "clutter"),
-        ({"heap_share": 0.5}, "heap_share"),
-        ({"packed": "random", "heap_share": 1.5}, "heap_share"),
+        ({"heap_share": 0.5}, "'heap_share' must be"),
+        ({"packed": "random", "heap_share": 1.5}, "'heap_share' must be"),
+        ({"packed": "random", "heap_share": True}, "'heap_share' must be"),
     ],
 )
 def test_bad_packed_options_raise_naming_the_option(options, message):

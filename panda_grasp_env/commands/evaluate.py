@@ -558,8 +558,8 @@ def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: 
         "",
         f"- seeds per (agent, task): {json.dumps({t: describe_seeds(chosen_seeds(args, t)) for t in args.tasks})}",
         f"- options on top of each task's (--task-options): {json.dumps(args.task_options) if args.task_options else 'none'}",
-        f"- env ids and options: {json.dumps({t: BENCHMARKS[t] for t in args.tasks})}; learned checkpoints see and act "
-        "with the env options they were trained with instead (the task's scene options stay)",
+        f"- env ids and options: {json.dumps({t: BENCHMARKS[t] for t in args.tasks})}; a learned checkpoint plays its own task in "
+        "the env it was trained in, and another in that task's scene, seeing and acting as it was trained",
         f"- commit {commit()}; versions: {', '.join(f'{k} {v}' for k, v in versions().items())}",
         f"- workers: {args.workers}",
         *(f"- skipped {pair}: {reason}" for pair, reason in args.skipped.items()),
