@@ -34,13 +34,12 @@ def test_same_seed_same_jitter_and_random_layouts_vary():
 
 
 def test_heap_share_drops_heaps_instead_of_some_packed_layouts():
-    """PandaGraspMixed-v0: about half its episodes are heaps of HEAP_OBJECTS with the spare slots parked, the
-    rest hand-designed layouts; the seed decides which, and a heap is the heap ``clutter`` drops."""
+    """PandaGraspMixed-v0: about half its episodes are heaps of HEAP_OBJECTS, the rest hand-designed layouts; the
+    seed decides which, and the slots a layout left spare get the heap's shapes."""
     from panda_grasp_env.model.objects import ObjectShape
     from panda_grasp_env.tasks.grasp import HEAP_OBJECTS, SPARE_SHAPE
 
     env = gym.make("panda_grasp_env:PandaGraspMixed-v0", obs_mode="state")
-    cell = env.unwrapped.cell
     layouts = [env.reset(seed=seed)[1]["layout"] for seed in range(12)]
     assert 3 <= layouts.count("heap") <= 9 and set(layouts) - {"heap"} <= set(ADVERSARIAL_LAYOUTS)
     seed = layouts.index("heap")
@@ -48,18 +47,19 @@ def test_heap_share_drops_heaps_instead_of_some_packed_layouts():
     assert info["layout"] == "heap" and len(info["shapes"]) == HEAP_OBJECTS
     assert 0 < info["objects_remaining"] <= HEAP_OBJECTS
     assert env.reset(seed=seed)[1]["layout"] == "heap"
-    # After the largest layout, a heap's spare slots hold the spare shape again, parked.
-    largest = max(ADVERSARIAL_LAYOUTS, key=lambda name: len(ADVERSARIAL_LAYOUTS[name]))
-    assert len(ADVERSARIAL_LAYOUTS[largest]) > HEAP_OBJECTS
-    env = gym.make("panda_grasp_env:PandaGraspMixed-v0", obs_mode="state", layout=largest)
-    cell = env.unwrapped.cell
+    # After a layout that leaves a slot spare (parked, with the spare shape), a heap gives every slot its shape.
+    smallest = min(ADVERSARIAL_LAYOUTS, key=lambda name: len(ADVERSARIAL_LAYOUTS[name]))
+    env = gym.make("panda_grasp_env:PandaGraspMixed-v0", obs_mode="state", layout=smallest)
+    cell, task = env.unwrapped.cell, env.unwrapped.task
     layouts = [env.reset(seed=seed)[1]["layout"] for seed in range(12)]
-    env.reset(seed=layouts.index(largest))
+    env.reset(seed=layouts.index(smallest))
+    spare = cell.object_ids[len(ADVERSARIAL_LAYOUTS[smallest]) :]
+    assert len(spare) and all(cell.is_parked(int(body)) for body in spare)
+    assert np.allclose(cell.model.geom_size[cell.model.body_geomadr[spare]], ObjectShape(*SPARE_SHAPE).geom_size)
     env.reset(seed=layouts.index("heap"))
-    spare = ObjectShape(*SPARE_SHAPE).geom_size
-    for body in cell.object_ids[HEAP_OBJECTS:]:
-        assert cell.is_parked(int(body))
-        assert np.allclose(cell.model.geom_size[cell.model.body_geomadr[body]], spare)
+    assert len(task.drawn) == HEAP_OBJECTS
+    for body, shape in zip(cell.object_ids, task.drawn):
+        assert np.allclose(cell.model.geom_size[cell.model.body_geomadr[body]], shape.geom_size)
 
 
 def test_random_packed_grids_stand_gap_apart_at_their_widest_objects():
