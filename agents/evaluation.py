@@ -96,30 +96,31 @@ def learned_skip_reason(agent: str, task: str) -> str | None:
     from panda_grasp_env.agents.learned import Checkpoint
 
     checkpoint = Checkpoint(agent)
+    config = checkpoint.config
     if checkpoint.task == task:
         return None
-    card = (checkpoint.path / "checkpoint.json").read_text()
-    return _other_task_skip_reason(checkpoint.path.resolve(), card, checkpoint.provenance()["policy_sha256"], task)
-
-
-@functools.cache
-def _other_task_skip_reason(path: Path, card: str, weights: str, task: str) -> str | None:
-    """``learned_skip_reason`` on another task, once per checkpoint folder, card, weights and task: checking the
-    spaces makes two envs."""
-    from panda_grasp_env.agents.learned import Checkpoint
-
-    checkpoint = Checkpoint(path)
-    config = checkpoint.config
-    trained_for = f"checkpoint {checkpoint.name} was trained for {checkpoint.task} ({config.env_id})"
+    trained_for = f"checkpoint {agent} was trained for {checkpoint.task} ({config.env_id})"
     env_id, options = BENCHMARKS[task]
     if ENV_IDS[env_id][0]["task"] != ENV_IDS[config.env_id][0]["task"]:
         return trained_for
     if is_low_level(env_id, options) != is_low_level(config.env_id, config.env_kwargs):
         return f"{trained_for}, at the other level of action"
+    card = (checkpoint.path / "checkpoint.json").read_text()
+    differs = _space_differing(checkpoint.path.resolve(), card, checkpoint.provenance()["policy_sha256"], task)
+    return None if differs is None else f"{trained_for}; {task}'s {differs} differs with its env options"
+
+
+@functools.cache
+def _space_differing(path: Path, card: str, weights: str, task: str) -> str | None:
+    """The space (observation or action) in which ``task``'s env for the checkpoint at ``path`` differs from the
+    one it was trained on, or None; once per checkpoint folder, card, weights and task: it makes two envs."""
+    from panda_grasp_env.agents.learned import Checkpoint
+
+    checkpoint = Checkpoint(path)
     with checkpoint.make_env() as trained, learned_env(checkpoint, task) as benchmark:
         for name in ("observation_space", "action_space"):
             if getattr(trained, name) != getattr(benchmark, name):
-                return f"{trained_for}; {task}'s {name.replace('_', ' ')} differs with its env options"
+                return name.replace("_", " ")
     return None
 
 
