@@ -240,3 +240,18 @@ def test_a_heightmap_policy_plays_the_other_scenes_of_its_task():
         assert heaps.spec.id == "PandaGraspClutter-v0" and heaps.spec.max_episode_steps == 60
         assert heaps.unwrapped.task.clutter and heaps.unwrapped.task.packed is None
         assert heaps.observation_space == trained.observation_space and heaps.action_space == trained.action_space
+
+
+def test_the_env_kept_from_the_last_episode_plays_the_episode_a_new_env_plays():
+    from panda_grasp_env.agents.evaluation import EpisodeSpec, close_kept_env, episode_env, run_episode
+
+    later = EpisodeSpec("expert", "Stack", 2)
+    close_kept_env()
+    fresh = run_episode(later)["result"]
+    env = episode_env(later)
+    run_episode(EpisodeSpec("expert", "Stack", 1))  # the same env plays another seed in between
+    assert episode_env(later) is env
+    assert run_episode(later)["result"] == fresh
+    run_episode(EpisodeSpec("random", "Stack", 1))  # another agent gets an env of its own
+    assert episode_env(later) is not env
+    close_kept_env()

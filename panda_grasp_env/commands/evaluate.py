@@ -42,6 +42,7 @@ from panda_grasp_env.agents.evaluation import (
     EpisodeSpec,
     aggregate,
     all_agents,
+    close_kept_env,
     is_low_level,
     run_episode,
     skip_reason,
@@ -590,10 +591,15 @@ def main(argv: list[str] | None = None) -> int:
         records = run_episodes(specs, args, args.out / "episodes.jsonl")
     except KeyboardInterrupt:
         return 130
+    finally:
+        close_kept_env()
     summary = write_outputs(records, args)
     table_md = print_table(summary)
     plots(summary, args.out)
-    video_paths = [] if args.no_video else videos(specs, args.out)
+    try:
+        video_paths = [] if args.no_video else videos(specs, args.out)
+    finally:
+        close_kept_env()
     report(summary, table_md, args, video_paths)
     print(f"{len(specs)} episodes in {time.perf_counter() - started:.0f} s; report: {args.out / 'report.md'}")
     return 0
