@@ -8,6 +8,7 @@ bit for bit, in any process, in any order.
 
 from __future__ import annotations
 
+import atexit
 import functools
 import json
 import time
@@ -268,6 +269,9 @@ def close_kept_env() -> None:
     """Close the env kept for the next episode, if any."""
     while _kept_env:
         _kept_env.popitem()[1].close()
+
+
+atexit.register(close_kept_env)  # a caller that never closes it (its renderers included) does so at exit
 
 
 def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:

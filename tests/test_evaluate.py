@@ -242,16 +242,49 @@ def test_a_heightmap_policy_plays_the_other_scenes_of_its_task():
         assert heaps.observation_space == trained.observation_space and heaps.action_space == trained.action_space
 
 
-def test_the_env_kept_from_the_last_episode_plays_the_episode_a_new_env_plays():
-    from panda_grasp_env.agents.evaluation import EpisodeSpec, close_kept_env, episode_env, run_episode
+def _states(env, spec):
+    """Hashes of every step's observation and simulator state while ``spec``'s agent plays ``spec.seed``."""
+    import hashlib
 
-    later = EpisodeSpec("expert", "Stack", 2)
+    import numpy as np
+
+    from panda_grasp_env.agents.evaluation import make_agent
+
+    def digest(observation):
+        parts = observation.values() if isinstance(observation, dict) else [observation]
+        data = env.unwrapped.cell.data
+        arrays = [*parts, data.qpos, data.qvel, data.qacc_warmstart]
+        return hashlib.sha256(b"".join(np.ascontiguousarray(a).tobytes() for a in arrays)).hexdigest()
+
+    agent = make_agent(spec, env)
+    observation, info = env.reset(seed=spec.seed)
+    agent.reset(observation, info)
+    states = [digest(observation)]
+    for _ in range(60):
+        observation, _, terminated, truncated, info = env.step(agent.act(observation, info))
+        states.append(digest(observation))
+        if terminated or truncated:
+            break
+    return states
+
+
+@pytest.mark.parametrize("agent,task", [("expert", "Push"), ("expert", "Stack"), ("oracle", "TowerBreak")])
+def test_the_env_kept_from_the_last_episode_plays_the_episode_a_new_env_plays(agent, task):
+    from panda_grasp_env.agents.evaluation import EpisodeSpec, close_kept_env, episode_env, make_env, run_episode
+
+    later = EpisodeSpec(agent, task, 2)
+    new_env = make_env(later)
+    try:
+        fresh = _states(new_env, later)
+    finally:
+        new_env.close()
     close_kept_env()
-    fresh = run_episode(later)["result"]
-    env = episode_env(later)
-    run_episode(EpisodeSpec("expert", "Stack", 1))  # the same env plays another seed in between
-    assert episode_env(later) is env
-    assert run_episode(later)["result"] == fresh
-    run_episode(EpisodeSpec("random", "Stack", 1))  # another agent gets an env of its own
-    assert episode_env(later) is not env
-    close_kept_env()
+    try:
+        run_episode(EpisodeSpec(agent, task, 1))  # the kept env plays another seed first
+        kept = episode_env(later)
+        assert _states(kept, later) == fresh
+        assert episode_env(later) is kept
+        run_episode(EpisodeSpec("random", task, 1))  # another agent gets an env of its own
+        assert episode_env(later) is not kept
+    finally:
+        close_kept_env()
