@@ -591,12 +591,10 @@ def main(argv: list[str] | None = None) -> int:
         records = run_episodes(specs, args, args.out / "episodes.jsonl")
     except KeyboardInterrupt:
         return 130
-    finally:
-        close_kept_env()
     summary = write_outputs(records, args)
     table_md = print_table(summary)
     plots(summary, args.out)
-    try:
+    try:  # the videos replay episodes in the env the last episode left open (a one-worker run's)
         video_paths = [] if args.no_video else videos(specs, args.out)
     finally:
         close_kept_env()
