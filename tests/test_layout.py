@@ -162,3 +162,17 @@ def test_a_runs_commit_label_sees_changes_anywhere_in_the_repository(monkeypatch
     monkeypatch.setattr(runs.subprocess, "run", fake_git)
     assert runs.commit.__wrapped__() == "abc1234+changes"
     assert all(Path(command[command.index("-C") + 1]) == ROOT for command in calls)
+
+
+def test_importing_the_env_leaves_jax_out_while_qpsolvers_keeps_its_solvers():
+    """qpsolvers' jaxopt backend imports jax before finding jaxopt missing; the package skips that import."""
+    code = (
+        "import importlib.util, sys, panda_grasp_env, qpsolvers; "
+        "print(importlib.util.find_spec('jaxopt') is None, 'jax' in sys.modules, 'daqp' in qpsolvers.available_solvers)"
+    )
+    without_jaxopt, jax_imported, daqp = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.split()
+    assert daqp == "True"
+    if without_jaxopt == "True":
+        assert jax_imported == "False"
