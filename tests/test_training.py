@@ -302,10 +302,11 @@ def test_exploration_samples_only_allowed_actions():
         def step(self, action):
             return blob_observation()[0], 0.0, True, False, {}
 
+    small = 100  # transitions: SB3's default million would reserve ~13 GB for 4x40x40 observations
     model = HeightmapDQN(
         HeightmapQPolicy,
         Blob(),
-        buffer_size=100,  # SB3's default million transitions would reserve ~13 GB for 4x40x40 observations
+        buffer_size=small,
         policy_kwargs={"primitives": ("grasp", "push"), "rotations": 4, "cell_size": 0.01},
     )
     model.exploration_rate = 1.0
@@ -323,7 +324,9 @@ def test_exploration_samples_only_allowed_actions():
     gaps = np.abs(starts[:, None, :] - blob[None, :, :]).max(axis=2).min(axis=1)
     assert len(starts) and gaps.max() <= near_cells
     # The warm-up before learning_starts draws among the allowed actions too (SB3's draws from the whole space).
-    warm = HeightmapDQN(HeightmapQPolicy, Blob(), learning_starts=100, policy_kwargs=model.policy_kwargs, seed=0)
+    warm = HeightmapDQN(
+        HeightmapQPolicy, Blob(), buffer_size=small, learning_starts=100, policy_kwargs=model.policy_kwargs, seed=0
+    )
     warm.learn(20)
     allowed = warm.q_net.allowed(th.as_tensor(observation[None]))[0].numpy()
     assert warm.replay_buffer.size() == 20 and allowed[warm.replay_buffer.actions[:20, 0, 0]].all()
@@ -552,7 +555,7 @@ def test_config_dataclass_lists_its_keys():
 
 @pytest.mark.slow
 def test_smoke_training_learns_to_grasp(tmp_path):
-    """CI's smoke training (~3 min on 2 cores): 300 grasps in the pixel mode lift grasp success on held-out seeds."""
+    """CI's smoke training (~4 min on 2 cores): 300 grasps in the pixel mode lift grasp success on held-out seeds."""
     config = str(CONFIGS / "smoke_grasp_dqn.yaml")
     assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress"]) == 0
     run = tmp_path / "smoke_grasp_dqn-seed0"
