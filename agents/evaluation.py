@@ -247,9 +247,9 @@ def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
     return BASELINES[spec.task](env, spec.seed, spec.agent == "oracle")
 
 
-#: The env of this process's last episode, by (agent, task, options): the next episode reuses it if it needs the
-#: same env (``episode_env``).
-_kept_env: dict[tuple[str, str, tuple[tuple[str, Any], ...]], gym.Env] = {}
+#: The env of this process's last episode and what it was made for (agent, task, options), or None: the next
+#: episode reuses it if it needs the same env (``episode_env``).
+_kept: tuple[tuple[str, str, tuple[tuple[str, Any], ...]], gym.Env] | None = None
 
 
 def episode_env(spec: EpisodeSpec) -> gym.Env:
@@ -258,17 +258,20 @@ def episode_env(spec: EpisodeSpec) -> gym.Env:
     does.  Making an env takes about 0.1 s, as long as a whole Push episode, and the memory a closed env
     frees mostly stays with the process (glibc's heap): a new env per episode made long runs slow, and
     several GB large."""
+    global _kept
     key = (spec.agent, spec.task, spec.options)
-    if key not in _kept_env:
+    if _kept is None or _kept[0] != key:
         close_kept_env()
-        _kept_env[key] = make_env(spec)
-    return _kept_env[key]
+        _kept = (key, make_env(spec))
+    return _kept[1]
 
 
 def close_kept_env() -> None:
     """Close the env kept for the next episode, if any."""
-    while _kept_env:
-        _kept_env.popitem()[1].close()
+    global _kept
+    if _kept is not None:
+        env, _kept = _kept[1], None
+        env.close()
 
 
 atexit.register(close_kept_env)  # a caller that never closes it (its renderers included) does so at exit
