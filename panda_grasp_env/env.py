@@ -313,24 +313,25 @@ class PandaEnv(gym.Env):
         self._next_frame_time = np.inf  # rgb_array_list: no frames of the scene being laid out and settled
         if self.randomizer is not None:
             self.randomizer.restore()  # the task lays out its scene on the nominal model
-        task_info = self.task.reset(self.cell, self.np_random)
+        rng = self._episode_stream()
+        task_info = self.task.reset(self.cell, rng)
         start = "ready"
         if self.actions.low_level:
             tallest = max((float(body_top) for body_top in self._object_tops()), default=0.0)
             ready = np.array([*READY_XY, max(READY_MIN_HEIGHT, tallest + READY_CLEARANCE)])
             self.cell.teleport_hand(ready, HOME_YAW)
             if self.start_curriculum:  # no draw without one
-                draw, body = self.np_random.random(), self.task.start_object(self.cell)
+                draw, body = rng.random(), self.task.start_object(self.cell)
                 starts = {"in_hand": self._start_holding, "above_object": self._start_above,
                           "behind_object": self._start_behind}  # fmt: skip
                 for state, probability in self.start_curriculum.items():
                     if draw < probability:
-                        start = state if starts[state](body, ready) else "ready"
+                        start = state if starts[state](body, ready, rng) else "ready"
                         break
                     draw -= probability
-        self.actions.reset(self.cell, self.np_random)
+        self.actions.reset(self.cell, rng)
         if self.randomizer is not None:  # drawn last: the scene and the rest of the stream are as without it
-            task_info["randomization"] = self.randomizer.apply(self.np_random)
+            task_info["randomization"] = self.randomizer.apply(rng)
         self.sensors.invalidate()
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0
@@ -350,6 +351,15 @@ class PandaEnv(gym.Env):
             self._motion_frames = [self._rgb_frame()]
             self._next_frame_time = self.cell.sim_time + 1.0 / self.metadata["render_fps"]
         return self._observe(), info
+
+    def _episode_stream(self) -> np.random.Generator:
+        """The generator an episode's reset draws from (layout, start state, planner seed, randomisation): a
+        child spawned from ``np_random``'s seed sequence.  Never ``np_random``'s own first draws: Gymnasium
+        seeds an action space given the same integer (``action_space.seed(s)``) from the same
+        ``SeedSequence(s)``, so a random agent seeded the usual way would repeat the scene's draws -- and aim
+        its first push at the tower.  Each reset spawns the next child, so episodes after a seeded reset
+        differ and stay reproducible."""
+        return self.np_random.spawn(1)[0]
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         command, clipped = self.actions.validate(action)
@@ -394,7 +404,7 @@ class PandaEnv(gym.Env):
             facts["action_layout"] = layout
         return facts
 
-    def _start_holding(self, body: int, ready: np.ndarray) -> bool:
+    def _start_holding(self, body: int, ready: np.ndarray, rng: np.random.Generator) -> bool:
         """Close the fingers on ``body`` where it lies (grasp site at its centre, the low-level heading) and
         restart the clock.  If the open hand put there touches it (too wide for the fingers at this heading)
         or closing does not hold it, put the object and the hand back (the hand at ``ready``, open) and
@@ -415,19 +425,19 @@ class PandaEnv(gym.Env):
         cell.settle(0.0)
         return held
 
-    def _start_above(self, body: int, ready: np.ndarray) -> bool:
+    def _start_above(self, body: int, ready: np.ndarray, rng: np.random.Generator) -> bool:
         """Put the open hand straight above ``body``, the grasp site anywhere (uniform) from the object's centre
         up to the height of ``ready``; if it touches the object there, back to ``ready`` and return False."""
         cell = self.cell
         position = cell.data.xpos[body]
         low = max(position[2], LOW_LEVEL_BOUNDS[2, 0])
-        cell.teleport_hand(np.array([*position[:2], low + self.np_random.random() * (ready[2] - low)]), HOME_YAW)
+        cell.teleport_hand(np.array([*position[:2], low + rng.random() * (ready[2] - low)]), HOME_YAW)
         if cell.touches_robot(body):
             cell.teleport_hand(ready, HOME_YAW)
             return False
         return True
 
-    def _start_behind(self, body: int, ready: np.ndarray) -> bool:
+    def _start_behind(self, body: int, ready: np.ndarray, rng: np.random.Generator) -> bool:
         """Put the hand at ``body``'s height on the far side from the goal (``Task.desired_goal``): first the
         nearest grasp-site distance (1 cm steps out from the object's bounding radius) at which it does not
         touch the object, then 0-10 cm (uniform) further back.  If no such place is found within 8 cm, or the
@@ -443,7 +453,7 @@ class PandaEnv(gym.Env):
         def site(distance: float) -> np.ndarray:
             return np.array([*(position[:2] + distance * away), height])
 
-        further = 0.1 * self.np_random.random()
+        further = 0.1 * rng.random()
         cell.robot.teleport_fingers(FINGER_CLOSED)  # a fist: a pushed block cannot slip between the fingers
         for clear in np.arange(radius, radius + 0.085, 0.01):
             start = site(clear + further)

@@ -11,6 +11,7 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 from panda_grasp_env import ENV_IDS
+from panda_grasp_env.sim.workcell import SPAWN_REGION
 
 ACTION_MODES = ("primitive", "pixel", "ee_delta", "joint")
 #: The mode combinations docs/environments.md lists as supported, checked on every id.
@@ -451,3 +452,37 @@ def test_fuzzed_env_options_raise_value_errors_naming_them():
                 wrong.append((option, value, repr(error)))
     assert cases >= 100 and not wrong, wrong
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak < 1024**2
+
+
+def test_the_scene_does_not_repeat_the_draws_of_an_action_space_seeded_alike():
+    # Gymnasium seeds ``reset(seed=s)`` and ``action_space.seed(s)`` from the same SeedSequence(s): a layout
+    # drawn from the env generator's first draws put the tower where a random agent's first push aimed.
+    env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
+    repeats = 0
+    for seed in range(20):
+        env.reset(seed=seed)
+        env.action_space.seed(seed)
+        first = env.action_space.np_random.random(2)  # what the action space's generator draws first
+        tower = env.unwrapped.cell.block_positions()[0, :2]
+        spread = (tower - SPAWN_REGION[:, 0]) / (SPAWN_REGION[:, 1] - SPAWN_REGION[:, 0])
+        repeats += bool(np.allclose(spread, first, atol=1e-3))  # the blocks settle by micrometres
+    env.close()
+    assert repeats == 0
+
+
+@pytest.mark.slow
+def test_a_random_agent_seeded_the_usual_way_rarely_breaks_the_tower():
+    # With the scene drawn from the generator's first draws, this loop broke 17 of these 40 towers (8 on the
+    # first push).  Seeds 80000-80039: held out from every selection here.
+    env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
+    broken = 0
+    for seed in range(80_000, 80_040):
+        env.reset(seed=seed)
+        env.action_space.seed(seed)
+        done = False
+        while not done:
+            _, _, terminated, truncated, info = env.step(env.action_space.sample())
+            done = terminated or truncated
+        broken += info["is_success"]
+    env.close()
+    assert broken <= 4  # 10 %
