@@ -9,7 +9,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from panda_grasp_env.model.objects import SHAPES, ObjectSpec
-from panda_grasp_env.model.scene import PAD_SOLREF
+from panda_grasp_env.model.scene import CONTACT_SOLREF
 from panda_grasp_env.tasks.grasp import OBJECT_PROPERTIES
 
 
@@ -51,7 +51,7 @@ def test_mass_and_friction_are_in_the_model_and_in_effect_against_table_and_fing
     _, _, _, _, info = env.step(env.unwrapped.actions.encode("grasp", position[0], position[1], yaw))
     assert info["primitive_success"]  # 0.4 kg held by 20 N pads at friction 0.5
     assert held and set(held) == {0.5}
-    assert tuple(cell.model.geom_solref[geom]) == PAD_SOLREF  # the pads' softness, which the priority also picks
+    assert tuple(cell.model.geom_solref[geom]) == CONTACT_SOLREF
 
 
 def test_a_lying_cylinder_rests_with_its_axis_horizontal():

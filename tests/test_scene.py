@@ -2,7 +2,15 @@ import mujoco
 import numpy as np
 import pytest
 
-from panda_grasp_env.model.scene import CAMERA_NAMES, GRASP_SITE, SceneConfig, build_model, franka_asset_dir
+from panda_grasp_env.model.scene import (
+    CAMERA_NAMES,
+    CONTACT_SOLIMP,
+    CONTACT_SOLREF,
+    GRASP_SITE,
+    SceneConfig,
+    build_model,
+    franka_asset_dir,
+)
 
 
 def test_panda_is_loaded_from_installed_gymnasium_robotics():
@@ -77,3 +85,32 @@ def test_no_object_is_launched_when_pinched_between_the_finger_capsules():
         done = terminated or truncated
     env.close()
     assert peak.speed < 2.0  # m/s, fastest free body; carried objects move at well under 1 m/s
+
+
+def test_a_block_pressed_with_100_newtons_sinks_at_most_a_millimetre(cell):
+    # MuJoCo's default contact softness let this 5 cm, 0.1 kg block sink 5.05 mm into the table (a pushed
+    # block's leading edge dug in 12 mm), which stalled pushes; 100 N is about the most a push applies.
+    cell.clear()
+    block = int(cell.block_ids[0])
+    cell.set_body_pose(block, np.array([0.5, 0.0, 0.025]))
+    cell.settle(0.2)
+    cell.data.xfrc_applied[block, 2] = -100.0
+    try:
+        cell.wait(1.0)
+        bottom = cell.data.xpos[block][2] - 0.025
+    finally:
+        cell.data.xfrc_applied[block] = 0.0
+    assert -0.001 <= bottom <= 0.0005
+
+
+def test_every_contact_takes_the_scene_softness_fixtures_included():
+    def fixtures(spec: mujoco.MjSpec) -> None:
+        wall = spec.worldbody.add_geom()
+        wall.name, wall.type, wall.size, wall.pos = "wall", mujoco.mjtGeom.mjGEOM_BOX, [0.01, 0.1, 0.05], [0.6, 0, 0.05]
+
+    model = build_model(SceneConfig(fixtures=fixtures))
+    colliding = [g for g in range(model.ngeom) if model.geom_contype[g] or model.geom_conaffinity[g]]
+    assert model.geom("wall").id in colliding
+    for geom in colliding:
+        assert tuple(model.geom_solref[geom]) == CONTACT_SOLREF, model.geom(geom).name
+        assert tuple(model.geom_solimp[geom]) == CONTACT_SOLIMP, model.geom(geom).name

@@ -34,10 +34,17 @@ GRASP_SITE_OFFSET = 0.2454
 PAD_PROTRUSION = 0.0035
 #: Maximum distance between the finger pads when fully open (each finger slides 0-0.04 m).
 MAX_FINGER_GAP = 0.08 - 2 * PAD_PROTRUSION
-#: Contact softness of the finger pads (time constant s, damping ratio; impedance): stiffer and harder than
-#: MuJoCo's defaults, which let a held block creep.  An object with its own friction takes these too.
-PAD_SOLREF = (0.004, 1.0)
-PAD_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)
+#: Softness of every contact in the scene (time constant s, damping ratio; impedance from 0.95 to 0.99 over
+#: 1 mm of penetration): as stiff as MuJoCo allows at the 2 ms step (a time constant of two steps).  MuJoCo's
+#: defaults (0.02 s; 0.9-0.95) let a 5 cm block pressed with 100 N sink 5 mm into the table, a pushed block's
+#: leading edge dig in 12 mm, and a held block creep in the fingers; these keep each under 1 mm
+#: (``benchmarks/physics_conformance.py``).
+CONTACT_SOLREF = (0.004, 1.0)
+CONTACT_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)
+#: Each finger's push face, a box in the finger's frame (metres; x along a push, y the closing axis, z towards
+#: the tip): half sizes and centre (y outward from the inner face, mirrored for the right finger).
+PUSH_FACE_HALF_SIZE = (0.0201, 0.006, 0.03375)
+PUSH_FACE_CENTRE = (0.0, 0.010, 0.05875)
 #: Geom priorities: a contact takes the friction, solref and solimp of its higher-priority geom.
 PAD_PRIORITY, OWN_FRICTION_PRIORITY = 1, 2
 CAMERA_NAMES = ("overhead", "front", "wrist")
@@ -274,11 +281,25 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
         pad.rgba = [0.2, 0.2, 0.2, 1.0]
         pad.mass = 0.0
         pad.priority = PAD_PRIORITY
-        # Stiffer and harder than the asset's finger class (solimp 0.8-0.9 let a
-        # held block creep several mm during fast moves); no contact margin.
         pad.margin = 0.0
-        pad.solref = list(PAD_SOLREF)
-        pad.solimp = list(PAD_SOLIMP)
+
+    # Push faces: a flat box over the front and back of each finger's outer half.  The asset's finger is a
+    # stack of capsules that widens by 4 mm towards the hand, so a pushing finger met a block with the capsule
+    # at its top edge, pressed it into the table (up to 150 N) and stalled, or tipped it; the box makes the
+    # fingers' side a vertical plane from 2 mm above the tips up.  It stays 4 mm clear of the inner face, so
+    # grasps still close on the pads.
+    for finger in FINGER_BODIES:
+        face = spec.body(finger).add_geom()
+        face.name = f"{finger}_push_face"
+        face.type = mujoco.mjtGeom.mjGEOM_BOX
+        face.size = list(PUSH_FACE_HALF_SIZE)
+        face.pos = [0.0, PUSH_FACE_CENTRE[1] if finger.startswith("panda0_left") else -PUSH_FACE_CENTRE[1],
+                    PUSH_FACE_CENTRE[2]]  # fmt: skip
+        face.contype, face.conaffinity = 1, 0
+        face.friction = [1.0, config.block_friction[1], config.block_friction[2]]  # not the finger class's 0.5 m
+        face.rgba = [0.2, 0.2, 0.2, 1.0]
+        face.mass = 0.0
+        face.margin = 0.0
 
     # Wrist camera looking along the approach direction, image up = hand +x.
     wrist = hand.add_camera()
@@ -286,6 +307,14 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
     wrist.pos = [0.05, 0.0, 0.11]
     wrist.quat = [0.0, 0.0, 1.0, 0.0]  # rotate pi about y: look along +z of the hand
     wrist.fovy = config.cameras.get("wrist", CameraConfig()).fovy
+
+    # Every contact as stiff as the step allows (CONTACT_SOLREF): the robot's collision geoms here, and through
+    # the default class everything added later -- table, objects and a task's fixtures.
+    spec.default.geom.solref = list(CONTACT_SOLREF)
+    spec.default.geom.solimp = list(CONTACT_SOLIMP)
+    for geom in spec.geoms:
+        if geom.contype or geom.conaffinity:
+            geom.solref, geom.solimp = list(CONTACT_SOLREF), list(CONTACT_SOLIMP)
 
     # Geom groups: 0 world, 1 robot visual meshes (pretty renders), 2 robot
     # collision geoms (fast renders: 2.3 k instead of 134 k triangles), 4 sites.

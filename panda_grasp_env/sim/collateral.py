@@ -3,7 +3,7 @@
 Every primitive is split into *transit* (rising to the transit height,
 crossing at it, going home) and one *work segment* (the last approach to the
 work point, the work itself and the retreat straight up).  The monitor watches
-every control step:
+every physics step's contacts and every control step's poses:
 
 * ``transit_contacts``: objects that the robot, or the object it carries,
   touched during transit (the robot should touch nothing there);
@@ -125,7 +125,7 @@ class CollateralMonitor:
         return self.cell.model.geom_bodyid[np.stack([data.contact.geom1[:n], data.contact.geom2[:n]], axis=1)]
 
     def after_step(self) -> None:
-        """Record the robot-object contacts of the current state (called after every control step)."""
+        """Record the robot-object contacts of the current state (called after every physics step)."""
         if not self.active or self.cell.data.ncon == 0:
             return
         bodies = self._contact_bodies()

@@ -18,7 +18,7 @@ from panda_grasp_env.control.controller import CartesianController, ControllerLi
 from panda_grasp_env.geometry import half_extent_along, yaw_quaternion
 from panda_grasp_env.model.objects import ObjectShape, apply_shape
 from panda_grasp_env.model.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
-from panda_grasp_env.model.scene import OWN_FRICTION_PRIORITY, PAD_SOLIMP, PAD_SOLREF, SceneConfig, build_spec
+from panda_grasp_env.model.scene import OWN_FRICTION_PRIORITY, SceneConfig, build_spec
 from panda_grasp_env.sim.collateral import CollateralMonitor
 
 #: Reachable region for primitive targets: x, y, z bounds of the grasp site, metres.
@@ -133,17 +133,10 @@ class Workcell:
         self.object_names = self.block_names + self.config.object_names
         self.object_ids = np.array([self.model.body(n).id for n in self.object_names], dtype=int)
         self._qpos_adr = {b: self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.object_ids}
-        #: Free object geom -> its compiled (friction, solref, solimp, priority), restored for objects without
-        #: their own friction.
-        model = self.model
+        #: Free object geom -> its compiled (friction, priority), restored for objects without their own friction.
         self._slot_contacts = {
-            int(g): (
-                model.geom_friction[g].copy(),
-                model.geom_solref[g].copy(),
-                model.geom_solimp[g].copy(),
-                int(model.geom_priority[g]),
-            )  # fmt: skip
-            for g in model.body_geomadr[self.object_ids]
+            int(g): (self.model.geom_friction[g].copy(), int(self.model.geom_priority[g]))
+            for g in self.model.body_geomadr[self.object_ids]
         }
         self._dof_adr = {b: self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.object_ids}
         #: Objects faster than this (m/s) end the step with ``PhysicsError``; see ``allowing_object_speed``.
@@ -222,7 +215,14 @@ class Workcell:
     # --- stepping ----------------------------------------------------------
     def step_physics(self, n_steps: int) -> None:
         """Advance the physics ``n_steps`` steps with the current controls; raise PhysicsError on divergence."""
-        mujoco.mj_step(self.model, self.data, nstep=n_steps)
+        if self.collateral.active:
+            # While a primitive is watched its contacts are recorded after every physics step: a stiff contact
+            # with a struck object can begin and end within one control step.
+            for _ in range(n_steps):
+                mujoco.mj_step(self.model, self.data)
+                self.collateral.after_step()
+        else:
+            mujoco.mj_step(self.model, self.data, nstep=n_steps)
         self.physics_steps += n_steps
         # MuJoCo's own checks catch NaN/inf and runaway values (and reset the data when they fire).
         if np.count_nonzero(self.data.warning.number[_WARNINGS]):
@@ -231,7 +231,6 @@ class Workcell:
         if fastest > self.max_object_speed:
             raise PhysicsError(f"the contact solver threw an object at {fastest:.1f} m/s "
                                f"(no object here moves faster than {self.max_object_speed:g} m/s)")  # fmt: skip
-        self.collateral.after_step()
         for hook in self.step_hooks:
             hook(self)
 
@@ -286,6 +285,19 @@ class Workcell:
                 break
         error = float(np.linalg.norm(self.robot.ee_position - goal))
         return MoveOutcome(reached=error < tolerance, error=error)
+
+    @contextmanager
+    def one_heading(self, *points: np.ndarray) -> Iterator[None]:
+        """Within the block every move turns the hand to the same half-turn branch of its goal heading: the one
+        that puts joint 7 mid-range over the centre of ``points`` (world, metres), chosen once.  A primitive
+        runs in one so that its hand does not turn half a revolution between goals whose own joint-7 windows
+        differ (a push stroke across the line where they meet did)."""
+        previous = self.controller.heading_window_at
+        self.controller.heading_window_at = np.mean([np.asarray(p, dtype=float)[:2] for p in points], axis=0)
+        try:
+            yield
+        finally:
+            self.controller.heading_window_at = previous
 
     def _fixture_tops(self) -> list[tuple[float, float, float, float]]:
         model, data = self.model, self.data
@@ -454,16 +466,15 @@ class Workcell:
         pads and fixtures; None restores the compiled one (a contact then takes the larger of its pair's).
 
         An object with its own friction gets the highest geom priority, so that its coefficient is the one
-        used, and the pads' contact softness, which the priority also decides against them."""
+        used (every contact has the same softness, ``CONTACT_SOLREF``, so the priority changes nothing else)."""
         model = self.model
         geom = int(model.body_geomadr[body_id])
-        compiled_friction, solref, solimp, priority = self._slot_contacts[geom]
+        compiled_friction, priority = self._slot_contacts[geom]
         sliding = compiled_friction
         if friction is not None:
             sliding = np.array([friction, *compiled_friction[1:]])
-            solref, solimp, priority = PAD_SOLREF, PAD_SOLIMP, OWN_FRICTION_PRIORITY
-        model.geom_friction[geom], model.geom_solref[geom], model.geom_solimp[geom] = sliding, solref, solimp
-        model.geom_priority[geom] = priority
+            priority = OWN_FRICTION_PRIORITY
+        model.geom_friction[geom], model.geom_priority[geom] = sliding, priority
 
     def refresh_constants(self) -> None:
         """Recompute the model's derived constants after masses or inertias changed, keeping the state."""
