@@ -8,6 +8,8 @@
   from scattered blocks, yaw-aligned to the base (goal >= 95 %);
 * a push aimed at a standing tower displacing >= 2 blocks by at least one block
   size from the footprint, per direction (goal >= 95 % each);
+* a 20 cm push of one block from a random spot, heading and yaw: stalls, error across the stroke, how close
+  the hand comes to the stroke's end, the block's tilt and springback, the hand's turn during the stroke;
 * determinism: the same seed and primitive sequence twice -> bit-identical state.
 
 Rates are printed with a 95 % Wilson interval.  Results go to one JSON file,
@@ -28,11 +30,14 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede th
 import numpy as np  # noqa: E402
 
 from benchmarks._common import Results, rate  # noqa: E402
-from panda_grasp_env.agents.towers import build_tower, push_tower
+from panda_grasp_env.actions import PrimitiveSettings, primitive_parameters  # noqa: E402
+from panda_grasp_env.agents.towers import build_tower, push_tower  # noqa: E402
+from panda_grasp_env.control.controller import wrap_gripper_yaw  # noqa: E402
+from panda_grasp_env.geometry import yaw_quaternion  # noqa: E402
 from panda_grasp_env.model.scene import SceneConfig  # noqa: E402
-from panda_grasp_env.primitives.top_down import grasp  # noqa: E402
+from panda_grasp_env.primitives.top_down import grasp, push  # noqa: E402
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
-from panda_grasp_env.sim.workcell import Workcell  # noqa: E402
+from panda_grasp_env.sim.workcell import SPAWN_REGION, WORKSPACE, Workcell  # noqa: E402
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS  # noqa: E402
 
 
@@ -95,6 +100,94 @@ def pushes(trials: int) -> dict:
     return figures
 
 
+def watched_push(cell: Workcell, block: int, start: np.ndarray, z: float, heading: float, distance: float) -> dict:
+    """One push of ``block`` from ``start`` (x, y) at height ``z``, watched: the figures of ``push_precision``."""
+    along = np.array([np.cos(heading), np.sin(heading), 0.0])
+    end = np.array([*(start[:2] + distance * along[:2]), z])
+    before = cell.data.xpos[block].copy()
+    stroke: dict = {"on": False, "tilt": 0.0, "yaws": [], "end_error": None, "block_at_end": None}
+    move_to = cell.move_to
+
+    def watched_move(position: np.ndarray, yaw: float, **options: object) -> object:
+        stroke["on"] = bool(np.allclose(np.asarray(position)[:2], end[:2], atol=0.01))  # the stroke, corrections too
+        outcome = move_to(position, yaw, **options)
+        if stroke["on"]:
+            stroke["end_error"] = float(np.linalg.norm((cell.robot.ee_position - end)[:2]))
+            stroke["block_at_end"] = cell.data.xpos[block].copy()
+        stroke["on"] = False
+        return outcome
+
+    def watch(cell: Workcell) -> None:
+        if stroke["on"]:
+            stroke["tilt"] = max(stroke["tilt"], float(np.arccos(np.clip(cell.data.xmat[block][8], -1, 1))))
+            stroke["yaws"].append(cell.robot.ee_yaw)
+
+    cell.move_to = watched_move
+    cell.step_hooks.append(watch)
+    try:
+        result = push(cell, *start[:2], z, heading, distance)
+    finally:
+        del cell.move_to
+        cell.step_hooks.remove(watch)
+    moved = cell.data.xpos[block] - before
+    grip_heading = heading + np.pi / 2
+    return {
+        "reason": result.reason,
+        "along_mm": 1e3 * float(moved @ along),
+        "lateral_mm": 1e3 * float(moved @ [-along[1], along[0], 0.0]),
+        "end_error_mm": None if stroke["end_error"] is None else 1e3 * stroke["end_error"],
+        "tilt_deg": float(np.degrees(stroke["tilt"])),
+        "springback_mm": None if stroke["block_at_end"] is None
+        else 1e3 * float((stroke["block_at_end"] - cell.data.xpos[block]) @ along),
+        "hand_turn_deg": float(np.degrees(np.ptp(np.unwrap(stroke["yaws"])))) if stroke["yaws"] else 0.0,
+        # Where the heading's half-turn branch at the start and at the end differ (by a half turn).
+        "crosses_joint7_window": bool(abs(wrap_gripper_yaw(grip_heading, start) - wrap_gripper_yaw(grip_heading, end))
+                                      > np.pi / 2),
+    }  # fmt: skip
+
+
+def push_precision(trials: int, distance: float = 0.2, gap: float = 0.06) -> dict:
+    """Pushes of one block: a 5 cm cube at a random spot and yaw of the spawn region, pushed ``distance`` metres
+    along a random heading from ``gap`` behind its centre at the automatic push height.  Per trial: how far
+    the block moved along the stroke and across it, how close the hand came to the stroke's end (horizontally),
+    the block's largest tilt during the stroke, how far it sprang back after, and how far the hand turned."""
+    cell = Workcell(SceneConfig(n_blocks=1))
+    block = int(cell.block_ids[0])
+    settings = PrimitiveSettings(primitives=("push",), push_distance=distance)
+    rows = []
+    for seed in range(trials):
+        rng = np.random.default_rng(20_000 + seed)
+        while True:  # a stroke inside the workspace
+            centre, yaw, heading = rng.uniform(*SPAWN_REGION.T), rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi, np.pi)
+            start = centre - gap * np.array([np.cos(heading), np.sin(heading)])
+            end = start + distance * np.array([np.cos(heading), np.sin(heading)])
+            if all(np.all((p >= WORKSPACE[:2, 0]) & (p <= WORKSPACE[:2, 1])) for p in (start, end)):
+                break
+        cell.clear()
+        cell.set_body_pose(block, np.array([*centre, cell.config.block_size / 2]), yaw_quaternion(yaw))
+        cell.settle(0.2)
+        z = primitive_parameters(cell, settings, "push", *start, heading, None)[2]
+        rows.append(watched_push(cell, block, start, z, heading, distance))
+    # The block should end up the stroke less the gap, plus the block's and the fingers' half thickness ahead.
+    expected = 1e3 * (distance - gap + cell.config.block_size / 2)
+    keys = ("lateral_mm", "end_error_mm", "tilt_deg", "springback_mm", "hand_turn_deg")
+
+    def values(key: str) -> list[float]:
+        return [abs(row[key]) for row in rows if row[key] is not None] or [float("nan")]
+
+    return {
+        "n": trials,
+        "stalled": rate(sum(row["along_mm"] < 0.5 * expected for row in rows), trials),
+        "lateral_within_10mm": rate(sum(abs(row["lateral_mm"]) <= 10 for row in rows), trials),
+        "end_within_2mm": rate(sum(row["end_error_mm"] is not None and row["end_error_mm"] <= 2 for row in rows), trials),
+        "crossing_trials": sum(row["crosses_joint7_window"] for row in rows),
+        **{f"median_{key}": float(np.median(values(key))) for key in keys},
+        **{f"worst_{key}": float(np.max(values(key))) for key in keys},
+        "reasons": dict(Counter(row["reason"] for row in rows)),
+        "rows": rows,
+    }  # fmt: skip
+
+
 def determinism() -> dict:
     cell = Workcell()
 
@@ -118,6 +211,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--towers", type=int, default=100)
     parser.add_argument("--drift", type=int, default=20)
     parser.add_argument("--pushes", type=int, default=50, help="trials per direction")
+    parser.add_argument("--push-trials", type=int, default=100, help="single-block pushes (push precision)")
     parser.add_argument("--out", type=Path, default=Path("results/benchmarks/primitive_quality.json"))
     parser.add_argument("--resume", action="store_true", help="keep sections already in --out")
     args = parser.parse_args(argv)
@@ -139,6 +233,17 @@ def main(argv: list[str] | None = None) -> None:
         print(
             f"push {direction} displaces >= 2:    {_fmt(figures)}  mean displaced {figures['mean_blocks_displaced']:.2f}   (goal >= 95 %)"
         )
+    q = results.section("push_precision", lambda: push_precision(args.push_trials))
+    print(
+        f"push one block 20 cm:          stalled {_fmt(q['stalled'])}; lateral <= 1 cm {_fmt(q['lateral_within_10mm'])}; "
+        f"hand within 2 mm of the stroke's end {_fmt(q['end_within_2mm'])}"
+    )
+    print(
+        "                               median / worst: "
+        + ", ".join(f"{key} {q['median_' + key]:.1f} / {q['worst_' + key]:.1f}"
+                    for key in ("lateral_mm", "end_error_mm", "tilt_deg", "springback_mm", "hand_turn_deg"))
+        + f"; {q['crossing_trials']} strokes cross a joint-7 window edge; reasons {q['reasons']}"
+    )  # fmt: skip
     det = results.section("determinism", determinism)
     print(f"same seed -> bit-identical state: {det['bit_identical']}")
     print(f"saved {args.out}")

@@ -45,7 +45,13 @@ if TYPE_CHECKING:
 
 #: Where a grasp closes below the top surface it aims at, metres.
 GRASP_DEPTH = 0.02
-#: Heights (metres) between which a push runs: half the height of what is in its path.
+#: A push through nothing taller than this (metres) runs as low as the fingers go (``MIN_GRASP_HEIGHT``:
+#: fingertips 5 mm above the table, the flat push faces from 7.5 mm up), below the height w / (2 mu) above
+#: which a pushed object of width w and table friction mu tips over its leading edge instead of sliding
+#: (7.5 mm for a 3 cm cube at the largest friction, 2, that objects take; 25 mm for a 5 cm block at 1).
+LOW_PUSH_MAX_HEIGHT = 0.075
+#: Heights (metres) between which a push through something taller runs: half its height, so that a tower
+#: topples rather than its bottom block sliding out.
 PUSH_HEIGHT_RANGE = (0.03, 0.12)
 #: Largest end-effector displacement per ee_delta step (metres; 25 Hz -> 0.75 m/s).
 EE_STEP = 0.03
@@ -83,8 +89,10 @@ def primitive_parameters(
     """Full parameter vector of primitive ``name`` at (x, y) with heading ``yaw``; ``z=None`` picks it from the scene.
 
     Automatic heights: ``grasp`` closes ``GRASP_DEPTH`` below the surface at
-    (x, y); ``place`` puts the object on that surface; ``push`` runs at half
-    the height of what lies in its path (within ``PUSH_HEIGHT_RANGE``);
+    (x, y); ``place`` puts the object on that surface; ``push`` runs as low as
+    the fingers go through things up to ``LOW_PUSH_MAX_HEIGHT`` tall (they
+    slide rather than tip), at half the height of anything taller in its path
+    (within ``PUSH_HEIGHT_RANGE``: a tower topples);
     ``impulse`` strikes the top object at (x, y).
     """
     held = cell.robot.body_between_fingers()
@@ -98,7 +106,12 @@ def primitive_parameters(
         if z is None:
             ahead = np.linspace(0.0, settings.push_distance, 6)
             heights = [surface_height(cell, x + d * np.cos(yaw), y + d * np.sin(yaw)) for d in ahead]
-            z = float(np.clip(max(heights) / 2 + 0.01, *PUSH_HEIGHT_RANGE))
+            tallest = max(heights)
+            z = (
+                MIN_GRASP_HEIGHT
+                if tallest <= LOW_PUSH_MAX_HEIGHT
+                else float(np.clip(tallest / 2 + 0.01, *PUSH_HEIGHT_RANGE))
+            )
         return [x, y, z, yaw, settings.push_distance]
     if name == "impulse":
         z = surface_height(cell, x, y) - 0.02 if z is None else z

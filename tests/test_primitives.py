@@ -2,10 +2,14 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from panda_grasp_env.actions import PrimitiveSettings, primitive_parameters
 from panda_grasp_env.agents.towers import build_tower, push_tower
+from panda_grasp_env.control.controller import wrap_gripper_yaw
+from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.model.robot import HOME_QPOS
+from panda_grasp_env.model.scene import PUSH_FACE_HALF_SIZE
 from panda_grasp_env.primitives.result import REASONS
-from panda_grasp_env.primitives.top_down import grasp, place, push, run_primitive
+from panda_grasp_env.primitives.top_down import MIN_GRASP_HEIGHT, grasp, place, push, run_primitive
 from panda_grasp_env.sim.stacking import blocks_displaced, wrap_quarter_turn
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
@@ -166,3 +170,55 @@ def test_collateral_names_what_a_push_moved_besides_its_pile(cell):
     top = cell.block_positions()[2]
     result = grasp(cell, *top, float(cell.block_yaws()[2]))
     assert result.reason == "ok" and result.disturbed == []
+
+
+def _lone_block(cell, position, yaw=0.0):
+    """Only the red block on the table, standing at ``position`` (x, y) with ``yaw``, at rest."""
+    cell.clear()
+    block = int(cell.block_ids[0])
+    cell.set_body_pose(block, np.array([*position, cell.config.block_size / 2]), yaw_quaternion(yaw))
+    cell.settle(0.2)
+    return block
+
+
+def test_a_push_across_the_edge_of_two_joint7_windows_keeps_the_hand_turned_one_way(cell):
+    # Heading +y past x = 0.5 on the robot's axis: the closing-axis heading's half-turn branch that keeps joint 7
+    # mid-range differs at the start (y < 0) and at the end (y > 0).  Re-chosen per goal, the hand turned half
+    # a revolution mid-stroke and swept the block sideways (2.7 cm).
+    start, heading, distance = np.array([0.5, -0.09, 0.0]), np.pi / 2, 0.2
+    end = start + distance * np.array([0.0, 1.0, 0.0])
+    assert abs(wrap_gripper_yaw(heading + np.pi / 2, start) - wrap_gripper_yaw(heading + np.pi / 2, end)) > 3.0
+    block = _lone_block(cell, (0.5, -0.03))
+    headings = []
+    cell.step_hooks.append(lambda c: headings.append(c.robot.ee_yaw))
+    try:
+        result = push(cell, *start[:2], 0.02, heading, distance)
+    finally:
+        cell.step_hooks.clear()
+    moved = cell.data.xpos[block][:2] - [0.5, -0.03]
+    assert result.reason == "ok"
+    assert moved[1] > 0.15 and abs(moved[0]) <= 0.01  # along the commanded line, <= 1 cm across it
+    assert np.ptp(np.unwrap(headings)) < np.pi / 2 + 0.2  # the transit's turn from home, no half turn on top
+
+
+@pytest.mark.parametrize("heading", [0.3, 2.0, -2.5])
+def test_a_push_slides_a_block_to_where_the_stroke_ends_without_tipping_it(cell, heading):
+    along = np.array([np.cos(heading), np.sin(heading)])
+    centre, gap, distance = np.array([0.5, 0.0]), 0.06, 0.15
+    block = _lone_block(cell, centre, yaw=0.4)
+    tilts = []
+    cell.step_hooks.append(lambda c: tilts.append(np.arccos(np.clip(c.data.xmat[block][8], -1.0, 1.0))))
+    try:
+        settings = PrimitiveSettings(primitives=("push",), push_distance=distance)
+        params = primitive_parameters(cell, settings, "push", *(centre - gap * along), heading, None)
+        result = push(cell, *params)
+    finally:
+        cell.step_hooks.clear()
+    assert result.reason == "ok" and params[2] == MIN_GRASP_HEIGHT  # a lone block: pushed as low as the fingers go
+    assert np.degrees(max(tilts)) < 5.0  # it slid; it did not tip onto its leading edge
+    # The hand stopped within 2 mm of the stroke's end and the block did not spring back: it rests against
+    # where the push faces stopped (the block's half width and the face's ahead of the grasp site), but for
+    # its turn about the contact (a block pushed off its centre line yaws, and so sits up to ~3 mm further).
+    reach = distance - gap + cell.config.block_size / 2 + PUSH_FACE_HALF_SIZE[0]
+    ahead = (cell.data.xpos[block][:2] - centre) @ along
+    assert reach - 0.002 <= ahead <= reach + 0.005

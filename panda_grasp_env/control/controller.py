@@ -79,6 +79,8 @@ class CartesianController:
         self.reference_yaw = 0.0
         self.goal_position = np.zeros(3)
         self.goal_yaw = 0.0
+        #: Where goal headings pick their joint-7 window (world x, y metres); None: at each goal.
+        self.heading_window_at: np.ndarray | None = None
         self.goal_speed = self.limits.linear_speed
         #: Whether the last IK step barely moved: with an unchanged reference, further solves are skipped.
         self._at_rest = False
@@ -113,10 +115,13 @@ class CartesianController:
 
         The reference travels there at ``speed`` m/s (default and cap: ``limits.linear_speed``).
         A parallel gripper is symmetric under a half turn, so ``yaw`` is wrapped
-        into the half-turn window that keeps joint 7 near the middle of its range.
+        into the half-turn window that keeps joint 7 near the middle of its range
+        with the hand over the goal -- or over ``heading_window_at`` while a
+        motion holds one heading through several goals (``Workcell.one_heading``).
         """
         self.goal_position = np.asarray(position, dtype=float).copy()
-        self.goal_yaw = wrap_gripper_yaw(yaw, self.goal_position)
+        window = self.goal_position if self.heading_window_at is None else self.heading_window_at
+        self.goal_yaw = wrap_gripper_yaw(yaw, window)
         self.goal_speed = self.limits.linear_speed if speed is None else min(speed, self.limits.linear_speed)
         self._hold_start = None
 

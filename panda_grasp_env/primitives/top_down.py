@@ -30,6 +30,10 @@ SLOW_SPEED = 0.12  # m/s for the last approach and pushes
 PLACE_SPEED = 0.04  # m/s while lowering a held object to contact
 IMPULSE_SETTLE = 1.5  # seconds the scene runs after an impulse
 PUSH_SLOW_DESCENT = 0.03  # a push's last approach runs at SLOW_SPEED over at least this many metres
+PUSH_END_TOLERANCE = 0.002  # metres: the stroke runs until the grasp site is this close to its end
+PUSH_END_SETTLE = 0.3  # seconds the stroke may take past its planned time to get there
+PUSH_END_CORRECTIONS = 3  # times the stroke's goal moves on by what the hand still lacks (see ``_stroke``)
+PUSH_BACK_OFF = 0.015  # metres the fingers back away along the stroke before rising
 
 
 def _check_number(primitive: str, name: str, value: float) -> float:
@@ -97,7 +101,7 @@ def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
         cell.move_home()
         return PrimitiveResult("grasp", False, "unreachable", targets=_body_ids(aimed))
     body, reason = None, "ok"
-    with cell.collateral.work():
+    with cell.one_heading(target), cell.collateral.work():  # the transit's heading: both are over (x, y)
         cell.move_to(above, yaw, tolerance=0.01)
         # If the fingers land on something the grasp is still attempted where they stopped.
         cell.move_to(target, yaw, speed=SLOW_SPEED, settle_timeout=0.3)
@@ -152,7 +156,7 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     if not cell.transit(above[0], above[1], yaw).reached:
         cell.move_home()
         return PrimitiveResult("place", False, "unreachable", object=name, targets={body})
-    with cell.collateral.work():
+    with cell.one_heading(above), cell.collateral.work():  # the transit's heading, kept while re-aiming
         cell.move_to(above, yaw, tolerance=0.01)
         # The object may have shifted in the fingers while travelling: re-aim from where it hangs now.
         cell.move_to(site_goal(0.01), yaw, speed=SLOW_SPEED, settle_timeout=0.3)
@@ -178,52 +182,70 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
 def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: float) -> PrimitiveResult:
     """Push with the closed gripper from (x, y, z) in a straight line ``distance`` metres along heading ``yaw``.
 
-    The fingers' flat side faces the motion.  Transit above the start at the
-    transit height; the work segment: come straight down slowly to the start,
-    stop at the first touch -- ``"collision"``: the start is taken by something
-    -- push, retreat straight up; then home.  The push acts on the piles
-    (towers, heaps) of the objects its closed fingers sweep over the stroke
-    (``push_line_targets``); the stroke stops with ``"collision"`` as soon as
-    the robot touches anything else -- the hand is ~20 cm wide across the
-    fingers' line and would otherwise topple a tower the line misses by 10 cm.
-    ``"no_contact"``: the stroke touched nothing.  The targets are the piles
-    the robot struck.
+    The fingers' flat side faces the motion, and the hand keeps one heading from the transit to the retreat
+    (``Workcell.one_heading``).  Transit above the start at the transit height; the work segment: come
+    straight down slowly to the start, stop at the first touch -- ``"collision"``: the start is taken by
+    something -- push until the grasp site is within ``PUSH_END_TOLERANCE`` of the stroke's end, back off
+    ``PUSH_BACK_OFF`` along the stroke (so that the fingers leave the block's face instead of dragging it
+    up), rise; then home.  The push acts on the piles (towers, heaps) of the objects its closed fingers sweep
+    over the stroke (``push_line_targets``); the stroke stops with ``"collision"`` as soon as the robot
+    touches anything else -- the hand is ~20 cm wide across the fingers' line and would otherwise topple a
+    tower the line misses by 10 cm.  ``"no_contact"``: the stroke touched nothing.  The targets are the
+    piles the robot struck.
     """
     if distance <= 0 or distance > 0.3:
         raise ValueError(f"push: argument 'distance' must be in (0, 0.3] m, got {distance}")
     z = max(z, MIN_GRASP_HEIGHT)
+    along = np.array([np.cos(yaw), np.sin(yaw), 0.0])
     start = np.array([x, y, z])
-    end = start + distance * np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    end = start + distance * along
     if not _in_workspace(start, end):
         return PrimitiveResult("push", False, "out_of_workspace")
     grip_yaw = yaw + np.pi / 2
     cell.actuate_gripper(close=True, timeout=0.4)
     reason = "ok"
-    if not cell.transit(x, y, grip_yaw).reached:
-        reason = "unreachable"
-    else:
-        struck = cell.collateral.record.work_contacts
-        on_line = push_line_targets(cell, start, end)
-        with cell.collateral.work():
-            # Quickly down to where the hand still clears everything around the start, then slowly.
-            clear = max(cell.clear_height_near(x, y), z + PUSH_SLOW_DESCENT)
-            if clear < cell.robot.ee_position[2]:
-                cell.move_to(np.array([x, y, clear]), grip_yaw, settle_timeout=0.1, tolerance=0.02,
-                             stop_when=lambda: bool(struck))  # fmt: skip
-            down = cell.move_to(
-                start, grip_yaw, speed=SLOW_SPEED, settle_timeout=0.3, tolerance=0.01, stop_when=lambda: bool(struck)
-            )
-            if struck or not down.reached:
-                reason = "collision"
-            else:
-                strays = lambda: bool(struck - on_line)  # noqa: E731
-                cell.move_to(end, grip_yaw, speed=SLOW_SPEED, settle_timeout=0.2, tolerance=0.02, stop_when=strays)
-                reason = "collision" if strays() else "ok" if struck else "no_contact"
-            cell.rise()
-        targets = cell.collateral.pile(struck & on_line)
+    with cell.one_heading(start, end):
+        if not cell.transit(x, y, grip_yaw).reached:
+            reason = "unreachable"
+        else:
+            struck = cell.collateral.record.work_contacts
+            on_line = push_line_targets(cell, start, end)
+            with cell.collateral.work():
+                # Quickly down to where the hand still clears everything around the start, then slowly.
+                clear = max(cell.clear_height_near(x, y), z + PUSH_SLOW_DESCENT)
+                if clear < cell.robot.ee_position[2]:
+                    cell.move_to(np.array([x, y, clear]), grip_yaw, settle_timeout=0.1, tolerance=0.02,
+                                 stop_when=lambda: bool(struck))  # fmt: skip
+                down = cell.move_to(start, grip_yaw, speed=SLOW_SPEED, settle_timeout=0.3, tolerance=0.01,
+                                    stop_when=lambda: bool(struck))  # fmt: skip
+                if struck or not down.reached:
+                    reason = "collision"
+                else:
+                    strays = lambda: bool(struck - on_line)  # noqa: E731
+                    _stroke(cell, end, grip_yaw, strays)
+                    reason = "collision" if strays() else "ok" if struck else "no_contact"
+                    cell.move_to(cell.robot.ee_position - PUSH_BACK_OFF * along, grip_yaw, speed=SLOW_SPEED,
+                                 settle_timeout=0.1, tolerance=0.005)  # fmt: skip
+                cell.rise()
+            targets = cell.collateral.pile(struck & on_line)
     cell.move_home()
     cell.actuate_gripper(close=False, timeout=0.3)
     return PrimitiveResult("push", reason == "ok", reason, targets=targets if reason != "unreachable" else set())
+
+
+def _stroke(cell: Workcell, end: np.ndarray, grip_yaw: float, stop_when: Callable[[], bool]) -> None:
+    """Drive the grasp site to the push stroke's ``end`` until it is within ``PUSH_END_TOLERANCE`` horizontally.
+    What the hand pushes holds it back a few millimetres behind its commanded position (the arm's servos
+    are stiff, not rigid), so the goal moves on by what is still missing, up to ``PUSH_END_CORRECTIONS``
+    times; the stroke stops at once when ``stop_when()`` is true."""
+    goal = end.copy()
+    for _ in range(1 + PUSH_END_CORRECTIONS):
+        cell.move_to(goal, grip_yaw, speed=SLOW_SPEED, settle_timeout=PUSH_END_SETTLE, tolerance=PUSH_END_TOLERANCE,
+                     stop_when=stop_when)  # fmt: skip
+        short = (end - cell.robot.ee_position)[:2]
+        if stop_when() or np.linalg.norm(short) <= PUSH_END_TOLERANCE:
+            return
+        goal[:2] += short
 
 
 def push_line_targets(cell: Workcell, start: np.ndarray, end: np.ndarray) -> set[int]:
