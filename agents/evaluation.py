@@ -26,8 +26,11 @@ import gymnasium as gym
 import numpy as np
 
 # The built-in planned agents and experts register themselves (``registry``) when their modules are imported.
+import panda_grasp_env.agents.experts
+import panda_grasp_env.agents.grasping
+import panda_grasp_env.agents.put_in_bin
+import panda_grasp_env.agents.towers  # noqa: F401
 from panda_grasp_env.actions import ACTION_MODES
-from panda_grasp_env.agents import experts, grasping, put_in_bin, towers  # noqa: F401
 from panda_grasp_env.agents.random_agent import RandomAgent
 from panda_grasp_env.agents.registry import BASELINES, EXPERTS
 from panda_grasp_env.env import AGENT_OPTIONS

@@ -320,7 +320,9 @@ class Workcell:
         recompiled, and heights, ray casts, transit clearance and the motion planner's model follow."""
         position = np.asarray(position, dtype=float)
         if position.shape != (3,) or not np.all(np.isfinite(position)) or not np.isfinite(yaw):
-            raise ValueError(f"fixture {name!r}: position must be 3 finite metres and yaw finite, got {position}, {yaw}")
+            raise ValueError(
+                f"fixture {name!r}: position must be 3 finite metres and yaw finite, got {position}, {yaw}"
+            )
         orientation = yaw_quaternion(yaw) if quaternion is None else np.asarray(quaternion, dtype=float)
         if orientation.shape != (4,) or not np.isclose(np.linalg.norm(orientation), 1.0):
             raise ValueError(f"fixture {name!r}: quaternion must be a unit (w, x, y, z), got {quaternion!r}")
