@@ -2,6 +2,7 @@
 
 import json
 import sys
+import warnings
 from pathlib import Path
 
 import gymnasium as gym
@@ -125,5 +126,19 @@ def test_the_shelf_moves_per_seed_and_the_place_on_it_is_aimed_not_a_collision(s
         assert touched[0][:3] == ("grasp", "ok", []) and touched[1][:3] == ("place", "ok", [])
         assert "shelf" in touched[1][3]  # the block set down on the shelf it was aimed at
         assert terminated and reward == 1.0 and info["is_success"]
+    finally:
+        env.close()
+
+
+def test_the_shelf_example_passes_both_env_checkers(shelf_example):
+    from gymnasium.utils.env_checker import check_env as gym_check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.make("ShelfPlace-v0")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # clean, not just passing
+            gym_check_env(env.unwrapped, skip_render_check=True)
+        sb3_check_env(env.unwrapped, warn=False)
     finally:
         env.close()
