@@ -10,29 +10,29 @@ from __future__ import annotations
 
 import atexit
 import functools
+import importlib
+import importlib.util
 import json
+import os
+import sys
 import time
 from collections import Counter
-from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
 
+# The built-in planned agents and experts register themselves (``registry``) when their modules are imported.
+import panda_grasp_env.agents.experts
+import panda_grasp_env.agents.grasping
+import panda_grasp_env.agents.put_in_bin
+import panda_grasp_env.agents.towers  # noqa: F401
 from panda_grasp_env.actions import ACTION_MODES
-from panda_grasp_env.agents.experts import LiftExpert, PushExpert, StackExpert
-from panda_grasp_env.agents.grasping import OracleGraspAgent, PackedGraspOracle, PlannedGraspAgent
-from panda_grasp_env.agents.put_in_bin import PutInBinAgent
 from panda_grasp_env.agents.random_agent import RandomAgent
-from panda_grasp_env.agents.towers import (
-    BuildAndBreakAgent,
-    CameraBlocks,
-    OracleBlocks,
-    TowerBreakerAgent,
-    TowerBuilderAgent,
-)
+from panda_grasp_env.agents.registry import BASELINES, EXPERTS
 from panda_grasp_env.env import AGENT_OPTIONS
 from panda_grasp_env.registration import BENCHMARKS, ENV_IDS, TASKS
 
@@ -42,6 +42,35 @@ if TYPE_CHECKING:
 #: Perception agents get RGB-D from both cameras at 640 x 480 (``PERCEPTION``).
 #: The built-in agents; every shipped checkpoint (``panda_grasp_env.agents.learned.available_checkpoints``) is an agent too.
 AGENTS = ("random", "planned", "oracle", "expert")
+
+
+def import_modules(names: Iterable[str]) -> None:
+    """Import the modules that register tasks and agents from outside the package (``evaluate.py --import``):
+    dotted module names, looked up on the Python path and in the current folder, or paths of ``.py`` files.
+    ``ValueError`` names one that does not import.  Worker processes call it too, before their first episode."""
+    if os.getcwd() not in sys.path:
+        sys.path.append(os.getcwd())
+    for name in names:
+        try:
+            if name.endswith(".py"):
+                path = Path(name).resolve()
+                module_name = path.stem
+                if getattr(sys.modules.get(module_name), "__file__", None) == str(path):
+                    continue  # imported already: its tasks and agents are registered
+                spec = importlib.util.spec_from_file_location(module_name, path)
+                if spec is None or spec.loader is None or not path.is_file():
+                    raise ImportError(f"no Python file at {path}")
+                module = importlib.util.module_from_spec(spec)
+                sys.modules[module_name] = module
+                try:
+                    spec.loader.exec_module(module)
+                except BaseException:
+                    del sys.modules[module_name]
+                    raise
+            else:
+                importlib.import_module(name)
+        except (ImportError, ValueError) as error:
+            raise ValueError(f"--import {name}: {type(error).__name__}: {error}") from None
 
 
 def action_mode_of(env_id: str, options: dict[str, Any]) -> str:
@@ -140,6 +169,37 @@ def learned_env(checkpoint: Checkpoint, task: str, **options: Any) -> gym.Env:
 PERCEPTION = {"obs_mode": "rgbd", "cameras": ("overhead", "front"), "image_size": (640, 480)}
 
 
+class FrozenMapping(tuple):
+    """A mapping option value (an ``objects`` spec, ``randomization``, ``size_ranges``) as sorted (key, value)
+    pairs: hashable, so that it can be part of an episode's spec."""
+
+
+def frozen(value: Any) -> Any:
+    """An option value made hashable: lists and tuples as tuples, mappings as ``FrozenMapping``, all the way
+    down; ``ValueError`` for a value that cannot be."""
+    if isinstance(value, FrozenMapping):
+        return value
+    if isinstance(value, (list, tuple)):
+        return tuple(frozen(v) for v in value)
+    if isinstance(value, Mapping):
+        return FrozenMapping(sorted((str(k), frozen(v)) for k, v in value.items()))
+    try:
+        hash(value)
+    except TypeError:
+        raise ValueError(f"option values must be YAML scalars, lists or mappings, got {value!r}") from None
+    return value
+
+
+def thawed(value: Any) -> Any:
+    """An option value as ``gymnasium.make`` and JSON take it: ``frozen`` undone (mappings as dicts, sequences
+    as lists)."""
+    if isinstance(value, FrozenMapping):
+        return {k: thawed(v) for k, v in value}
+    if isinstance(value, tuple):
+        return [thawed(v) for v in value]
+    return value
+
+
 @dataclass(frozen=True)
 class EpisodeSpec:
     """One benchmark episode: which agent plays which task on which seed, with which extra env options."""
@@ -147,22 +207,28 @@ class EpisodeSpec:
     agent: str
     task: str
     seed: int
-    #: ``gymnasium.make`` options on top of the task's (``evaluate.py --task-options``): sorted (key, value) pairs.
+    #: ``gymnasium.make`` options on top of the task's (``evaluate.py --task-options``): (key, value) pairs
+    #: sorted by key, values ``frozen`` (given as lists or mappings, they are frozen here).
     options: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "options", tuple(sorted((str(k), frozen(v)) for k, v in self.options)))
+
+    @property
+    def make_options(self) -> dict[str, Any]:
+        """The options as ``gymnasium.make`` takes them (``thawed``)."""
+        return {key: thawed(value) for key, value in self.options}
 
     @property
     def key(self) -> str:
+        """``agent/task/seed``, and the options as JSON if any (nested lists and mappings written out)."""
         key = f"{self.agent}/{self.task}/{self.seed}"
-        return f"{key}/{json.dumps(dict(self.options), sort_keys=True)}" if self.options else key
+        return f"{key}/{json.dumps(self.make_options, sort_keys=True)}" if self.options else key
 
-
-def _hashable(value: Any) -> Any:
-    """YAML lists as tuples (an episode's options are part of its hashable spec)."""
-    if isinstance(value, list):
-        return tuple(_hashable(v) for v in value)
-    if isinstance(value, dict):
-        raise ValueError("mappings are not supported as option values")
-    return value
+    def record(self) -> dict[str, Any]:
+        """The spec as an episode record holds it: the options as [key, value] pairs, values as JSON."""
+        options = [[key, thawed(value)] for key, value in self.options]
+        return {"agent": self.agent, "task": self.task, "seed": self.seed, "options": options}
 
 
 def task_options_from_pairs(pairs: list[str], tasks: list[str]) -> dict[str, Any]:
@@ -176,13 +242,15 @@ def task_options_from_pairs(pairs: list[str], tasks: list[str]) -> dict[str, Any
         if not sep or not key.strip():
             raise ValueError(f"--task-options: {pair!r} is not KEY=VALUE")
         try:
-            options[key.strip()] = _hashable(yaml.safe_load(text))
+            value = yaml.safe_load(text)
+            frozen(value)  # a value an episode's spec can hold
         except (yaml.YAMLError, ValueError) as error:
             raise ValueError(f"--task-options {key}: {error}") from None
+        options[key.strip()] = value
     for task in tasks if options else ():
         env_id, task_defaults = BENCHMARKS[task]
-        try:
-            gym.make(f"panda_grasp_env:{env_id}", **task_defaults, **options).close()
+        try:  # an option the protocol sets too (max_episode_steps on BuildAndBreak) is overridden
+            gym.make(f"panda_grasp_env:{env_id}", **(task_defaults | options)).close()
         except (ValueError, TypeError) as error:
             raise ValueError(f"--task-options on {task} ({env_id}): {error}") from None
     return options
@@ -192,47 +260,12 @@ def make_env(spec: EpisodeSpec) -> gym.Env:
     if spec.agent not in AGENTS:  # a learned checkpoint: its env options on the task's scene
         from panda_grasp_env.agents.learned import Checkpoint
 
-        return learned_env(Checkpoint(spec.agent), spec.task, **dict(spec.options))
+        return learned_env(Checkpoint(spec.agent), spec.task, **spec.make_options)
     env_id, options = BENCHMARKS[spec.task]
     options = dict(options)
     if spec.agent in ("planned", "oracle"):  # they see the scene through cameras
         options |= PERCEPTION
-    return gym.make(f"panda_grasp_env:{env_id}", **(options | dict(spec.options)))  # the spec's options win
-
-
-def grasp_baseline(env: gym.Env, seed: int, oracle: bool) -> Any:
-    """The planned grasping agent (RGB-D grasp detection, noise and restarts seeded), or the oracle."""
-    return OracleGraspAgent(env, seed=seed) if oracle else PlannedGraspAgent(noise_seed=seed, seed=seed)
-
-
-def packed_grasp_baseline(env: gym.Env, seed: int, oracle: bool) -> Any:
-    """The planned grasping agent (it pushes at random when no grasp is detected), or the push-aware oracle."""
-    return PackedGraspOracle(env, seed=seed) if oracle else PlannedGraspAgent(noise_seed=seed, seed=seed)
-
-
-def block_baseline(agent: Callable[[CameraBlocks | OracleBlocks], Any]) -> Callable[[gym.Env, int, bool], Any]:
-    """Makes ``agent`` over block poses from RGB-D (noise seeded), or with ``oracle`` the true poses."""
-
-    def make(env: gym.Env, seed: int, oracle: bool) -> Any:
-        return agent(OracleBlocks(env) if oracle else CameraBlocks(noise_seed=seed))
-
-    return make
-
-
-#: Low-level benchmark task -> its scripted expert (agent ``expert``: ee_delta actions from the observation).
-EXPERTS: dict[str, Callable[[], Any]] = {"Lift": LiftExpert, "Push": PushExpert, "Stack": StackExpert}
-
-#: Benchmark task -> its planned agent, or oracle variant: ``BASELINES[task](env, seed, oracle)``.
-BASELINES: dict[str, Callable[[gym.Env, int, bool], Any]] = {
-    "Grasp": grasp_baseline,
-    "GraspClutter": grasp_baseline,
-    "GraspAdversarial": packed_grasp_baseline,
-    "TowerBuild": block_baseline(TowerBuilderAgent),
-    "TowerBreak": block_baseline(TowerBreakerAgent),
-    "TowerBreakDirectional": block_baseline(TowerBreakerAgent),
-    "BuildAndBreak": block_baseline(BuildAndBreakAgent),
-    "PutInBin": block_baseline(PutInBinAgent),
-}
+    return gym.make(f"panda_grasp_env:{env_id}", **(options | spec.make_options))  # the spec's options win
 
 
 def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
@@ -328,7 +361,7 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
     success = bool(info["is_success"])
     grasping = spec.task.startswith("Grasp") and "primitive_reason" in task_facts
     result = {
-        "spec": asdict(spec),
+        "spec": spec.record(),
         "success": success,
         "completion": bool(task_facts.get("objects_remaining", 1) == 0) if grasping else success,
         "actions": actions,

@@ -17,6 +17,7 @@ import numpy as np
 
 from panda_grasp_env.actions import EE_STEP, LOW_LEVEL_BOUNDS, EEDeltaActions
 from panda_grasp_env.agents.base import require
+from panda_grasp_env.agents.registry import register_expert
 
 #: Gripper commands of the ee_delta mode.
 OPEN, CLOSED = -1.0, 1.0
@@ -129,12 +130,14 @@ class PickAndPlaceExpert(LowLevelExpert):
         return self.steer(hand, goal + [0.0, 0.0, HOVER], OPEN)
 
 
+@register_expert("Lift")
 class LiftExpert(PickAndPlaceExpert):
     """Lift: grasp the object at its centre and hold it at the goal above the table."""
 
     name = "lift_expert"
 
 
+@register_expert("Stack")
 class StackExpert(PickAndPlaceExpert):
     """PandaStack-v0: grasp the loose block, carry it over the base and set it down where the goal is."""
 
@@ -142,6 +145,7 @@ class StackExpert(PickAndPlaceExpert):
     release = True
 
 
+@register_expert("Push")
 class PushExpert(LowLevelExpert):
     """Push: the closed hand comes down behind the block on the line from the goal through it, then pushes
     along that line, re-aimed every step: the waypoint is the contact point behind the block, moved forward

@@ -21,6 +21,7 @@ import numpy as np
 
 from panda_grasp_env.actions import encode_grasp_pose
 from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure
+from panda_grasp_env.agents.registry import register_baseline
 from panda_grasp_env.geometry import top_down_rotation
 from panda_grasp_env.perception.grasps import GraspCandidate, GripperGeometry, detect_grasps_rgbd
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
@@ -368,3 +369,15 @@ class PackedGraspOracle(OracleGraspAgent):
             action = self._grasp_action(self.last)
         self.compute_seconds.append(time.perf_counter() - start)
         return action
+
+
+@register_baseline("Grasp", "GraspClutter")
+def grasp_baseline(env: gym.Env, seed: int, oracle: bool) -> PlannedGraspAgent:
+    """The planned grasping agent (RGB-D grasp detection, noise and restarts seeded), or the oracle."""
+    return OracleGraspAgent(env, seed=seed) if oracle else PlannedGraspAgent(noise_seed=seed, seed=seed)
+
+
+@register_baseline("GraspAdversarial")
+def packed_grasp_baseline(env: gym.Env, seed: int, oracle: bool) -> PlannedGraspAgent:
+    """The planned grasping agent (it pushes at random when no grasp is detected), or the push-aware oracle."""
+    return PackedGraspOracle(env, seed=seed) if oracle else PlannedGraspAgent(noise_seed=seed, seed=seed)

@@ -13,7 +13,8 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.agents.base import PrimitiveActionWriter, record_failure, require
-from panda_grasp_env.agents.towers import CameraBlocks, OracleBlocks
+from panda_grasp_env.agents.registry import register_baseline
+from panda_grasp_env.agents.towers import CameraBlocks, OracleBlocks, block_baseline
 from panda_grasp_env.sim.stacking import clearest_grasp_heading
 
 
@@ -53,3 +54,6 @@ class PutInBinAgent:
         block = blocks[self.target]
         self.pending_heading = clearest_grasp_heading(positions, names.index(self.target), block.yaw)
         return self.write("grasp", block.position[0], block.position[1], self.pending_heading, block.position[2])
+
+
+register_baseline("PutInBin")(block_baseline(PutInBinAgent))

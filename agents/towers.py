@@ -10,6 +10,7 @@ are the primitives' own.  World frame, metres, radians.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,6 +18,7 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
+from panda_grasp_env.agents.registry import BaselineFactory, register_baseline
 from panda_grasp_env.perception.pose import detect_towers, estimate_block_poses, wrap_quarter
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.primitives.top_down import grasp, place, push
@@ -204,6 +206,21 @@ class BuildAndBreakAgent:
             self.builder.observe(info)  # the builder must know its last place or grasp landed
             return self.breaker.act(observation, info)
         return self.builder.act(observation, info)
+
+
+def block_baseline(agent: Callable[[CameraBlocks | OracleBlocks], Any]) -> BaselineFactory:
+    """A planned baseline's factory: ``agent`` over block poses from RGB-D (noise seeded), or with ``oracle``
+    over the true poses."""
+
+    def make(env: gym.Env, seed: int, oracle: bool) -> Any:
+        return agent(OracleBlocks(env) if oracle else CameraBlocks(noise_seed=seed))
+
+    return make
+
+
+register_baseline("TowerBuild")(block_baseline(TowerBuilderAgent))
+register_baseline("TowerBreak", "TowerBreakDirectional")(block_baseline(TowerBreakerAgent))
+register_baseline("BuildAndBreak")(block_baseline(BuildAndBreakAgent))
 
 
 # --- scripts on a bare workcell (true poses) ---------------------------------------------------

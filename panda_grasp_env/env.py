@@ -501,6 +501,10 @@ class PandaEnv(gym.Env):
             "transit_disturbed": len(result.transit_disturbed),
             "disturbed": len(result.disturbed),
             "disturbed_objects": list(result.disturbed),
+            # What the robot or its load touched, objects then fixtures, by name: in transit (never wanted) and
+            # in the work segment (a fixture there other than the one aimed at is a "collision").
+            "transit_touched": list(result.transit_contacts),
+            "work_touched": list(result.work_contacts),
         }
 
     def _goals(self) -> tuple[np.ndarray, np.ndarray] | None:

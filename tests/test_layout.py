@@ -136,18 +136,6 @@ def test_outside_the_repository_only_panda_grasp_env_is_importable(tmp_path):
     assert found == '{"agents": false, "perception": false}'
 
 
-def test_the_docs_snippet_directives_are_intact_and_name_files():
-    """The task page shows a task's source through ``--8<-- "path"``; a formatter once rewrote that as Python."""
-    import re
-
-    directives = [line for page in (ROOT / "docs").rglob("*.md") for line in page.read_text().splitlines()
-                  if "8<" in line or "8 <" in line]  # fmt: skip
-    assert directives
-    for line in directives:
-        match = re.fullmatch(r'--8<-- "([^"]+)"', line.strip())
-        assert match and (ROOT / match.group(1)).is_file(), line
-
-
 def test_a_runs_commit_label_sees_changes_anywhere_in_the_repository(monkeypatch):
     # The label a card carries ("+changes": code no commit holds) must look at agents/, perception/ and the
     # entry scripts too, not only at the panda_grasp_env/ folder that holds the function.

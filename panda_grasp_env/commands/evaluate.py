@@ -6,6 +6,7 @@
     python evaluate.py --tasks GraspClutter --seed-list 5000,5001,5002 --task-options n_objects=1
                                             # any seeds, any env/task options (a held-out protocol)
     python evaluate.py --config protocol.yaml   # the same from one file (agents, tasks, seeds, options)
+    python evaluate.py --import my_lab.shelf --tasks Shelf   # tasks and agents registered outside the package
     python evaluate.py --resume             # finish an interrupted run without redoing episodes
     python evaluate.py --demo [--seed 0]    # the simulation-core demo: an oracle builds and breaks a tower
 
@@ -43,6 +44,7 @@ from panda_grasp_env.agents.evaluation import (
     aggregate,
     all_agents,
     close_kept_env,
+    import_modules,
     is_low_level,
     run_episode,
     skip_reason,
@@ -100,7 +102,8 @@ def demo(args: argparse.Namespace) -> int:
 #: ``--config`` file keys and the flags they stand for: a protocol (who plays what, on which seeds, with which
 #: options) in one YAML file.
 PROTOCOL_KEYS = {"agents": "--agents", "tasks": "--tasks", "full": "--full", "seeds": "--seeds",
-                 "seed_start": "--seed-start", "seed_list": "--seed-list", "task_options": "--task-options"}  # fmt: skip
+                 "seed_start": "--seed-start", "seed_list": "--seed-list", "task_options": "--task-options",
+                 "import": "--import"}  # fmt: skip
 
 
 def protocol_argv(path: Path) -> list[str]:
@@ -127,6 +130,11 @@ def protocol_argv(path: Path) -> list[str]:
             if not isinstance(value, dict) or not value:
                 raise ValueError(f"{path}: task_options must be a non-empty mapping, got {value!r}")
             argv += [flag, *(f"{k}={json.dumps(v)}" for k, v in value.items())]  # JSON is YAML
+        elif key == "import":
+            modules = [value] if isinstance(value, str) else value
+            if not isinstance(modules, list) or not modules or not all(isinstance(m, str) and m for m in modules):
+                raise ValueError(f"{path}: import must be a module name or a list of them, got {value!r}")
+            argv += [part for module in modules for part in (flag, module)]
         elif isinstance(value, list):
             argv += [flag, ",".join(map(str, value))]
         else:
@@ -145,9 +153,19 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         except ValueError as error:
             print(f"error: {error}", file=sys.stderr)
             raise SystemExit(2) from None
+    imports = argparse.ArgumentParser(add_help=False)
+    imports.add_argument("--import", action="append", default=[], dest="imports")
+    try:  # before the choices of agents and tasks are listed: the modules add to them
+        import_modules(imports.parse_known_args(argv)[0].imports)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", type=Path, default=None,
                         help=f"a YAML protocol file with keys {list(PROTOCOL_KEYS)} (command-line flags win)")  # fmt: skip
+    parser.add_argument("--import", action="append", default=[], dest="imports", metavar="MODULE",
+                        help="import a module (a dotted name, or a .py file) that registers tasks and agents; "
+                             "repeatable; worker processes import it too")  # fmt: skip
     parser.add_argument("--full", action="store_true", help="the publication protocol instead of the quick one")
     agents = all_agents()
     parser.add_argument("--agents", default=",".join(agents), help=f"comma-separated, from {list(agents)}")
@@ -267,15 +285,16 @@ def _run_job(spec: EpisodeSpec) -> dict:
     return {"key": spec.key, **run_episode(spec)}
 
 
-def _ray_records(specs: list[EpisodeSpec], address: str):
+def _ray_records(specs: list[EpisodeSpec], address: str, imports: list[str]):
     """Episodes as Ray tasks, yielded as they finish (results are the same as local ones: episodes are
-    determined by their spec alone)."""
+    determined by their spec alone); each task imports the ``--import`` modules first."""
     import ray
 
+    from panda_grasp_env.agents.evaluation import import_modules as load
     from panda_grasp_env.agents.evaluation import run_episode as run
 
     ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False)
-    remote = ray.remote(lambda spec: {"key": spec.key, **run(spec)})
+    remote = ray.remote(lambda spec: load(imports) or {"key": spec.key, **run(spec)})
     pending = [remote.remote(spec) for spec in specs]
     try:
         while pending:
@@ -308,11 +327,11 @@ def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) 
     try:
         pool = None
         if args.ray is not None:
-            records = _ray_records(todo, args.ray)
+            records = _ray_records(todo, args.ray, args.imports)
         elif args.workers == 1:
             records = (_run_job(spec) for spec in todo)
         else:
-            pool = multiprocessing.get_context("spawn").Pool(args.workers)
+            pool = multiprocessing.get_context("spawn").Pool(args.workers, import_modules, (args.imports,))
             records = pool.imap_unordered(_run_job, todo)
         for record in records:
             record["commit"] = code
@@ -358,6 +377,7 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
         "env_ids": {t: BENCHMARKS[t][0] for t in args.tasks},
         "seeds": {t: chosen_seeds(args, t) for t in args.tasks},
         "task_options": args.task_options,
+        "imports": args.imports,
     }
     payload = {
         "protocol": protocol,

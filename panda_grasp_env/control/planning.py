@@ -4,8 +4,9 @@ The planning model is the simulation's workcell with the robot's links allowed
 to collide with each other (the simulation leaves link-link contacts off), plus
 any extra box obstacles.  A configuration is valid when no robot geom touches
 anything -- the world, an object, an obstacle or another link (MuJoCo already
-skips a link and its parent).  Objects are copied from the live simulation
-with ``sync_objects``.  Paths are simplified with OMPL's shortcutting.
+skips a link and its parent).  Objects, and the fixtures' poses and sizes (which
+a task may change per episode), are copied from the live simulation with
+``sync_objects`` and ``sync_fixtures``.  Paths are simplified with OMPL's shortcutting.
 
 Joint angles in radians; obstacle sizes are half-extents in metres, world frame.
 """
@@ -22,7 +23,7 @@ from ompl import geometric as og
 from ompl import util as ou
 
 from panda_grasp_env.model.robot import FINGER_OPEN, PandaRobot
-from panda_grasp_env.model.scene import ARM_JOINTS, SceneConfig, build_spec
+from panda_grasp_env.model.scene import ARM_JOINTS, SceneConfig, build_spec, fixture_elements
 
 #: The OMPL planners this module can run, by name.
 PLANNERS = {
@@ -87,6 +88,10 @@ class MotionPlanner:
         self.data.qpos[self.robot.finger_qpos_idx] = FINGER_OPEN
         self._robot_geom = np.isin(self.model.geom_bodyid, sorted(self.robot.body_ids))
         self.planner_name = planner
+        bodies, geoms = fixture_elements(self.model)
+        names = [self.model.geom(g).name for g in geoms]
+        self._fixture_bodies = bodies
+        self._fixture_geoms = np.array([g for g, n in zip(geoms, names) if not n.startswith("obstacle_")], dtype=int)
         # OMPL seeds every planner's generator from one global seed, once per process.
         ou.RNG.setSeed(seed)
         lower = self.model.jnt_range[[self.model.joint(n).id for n in ARM_JOINTS], 0]
@@ -108,6 +113,16 @@ class MotionPlanner:
             source = model.jnt_qposadr[model.body_jntadr[model.body(name).id]]
             target = self.model.jnt_qposadr[self.model.body_jntadr[self.model.body(name).id]]
             self.data.qpos[target : target + 7] = data.qpos[source : source + 7]
+
+    def sync_fixtures(self, model: mujoco.MjModel) -> None:
+        """Copy the fixtures' poses and sizes from the live simulation's model (built from the same scene, so
+        its fixtures are the same entries: ``ValueError`` otherwise)."""
+        bodies, geoms = fixture_elements(model)
+        if not np.array_equal(bodies, self._fixture_bodies) or len(geoms) != len(self._fixture_geoms):
+            raise ValueError("the planner's scene has other fixtures than the model it is synced from")
+        self.model.body_pos[bodies], self.model.body_quat[bodies] = model.body_pos[bodies], model.body_quat[bodies]
+        for name in ("geom_pos", "geom_quat", "geom_size", "geom_rbound", "geom_aabb"):
+            getattr(self.model, name)[self._fixture_geoms] = getattr(model, name)[geoms]  # in the same order
 
     def is_valid(self, arm_qpos: np.ndarray) -> bool:
         """No robot geom in contact with anything at ``arm_qpos`` (radians, (7,))."""

@@ -424,6 +424,44 @@ def _add_free_cube(
     return geom
 
 
+#: The scene's own static collision geoms: everything else static outside the robot is a task's fixture.
+SCENE_GEOMS = ("table", "floor")
+
+
+def fixture_geoms(model: mujoco.MjModel) -> np.ndarray:
+    """Ids of the fixtures' collision geoms (a task's ``add_fixtures``): static (welded to the world), not
+    the robot's, not the table or the floor."""
+    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in range(model.ngeom)]
+    bodies = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(b)) or "" for b in model.geom_bodyid]
+    return np.array(
+        [
+            g
+            for g in range(model.ngeom)
+            if model.body_weldid[model.geom_bodyid[g]] == 0
+            and not bodies[g].startswith("panda0_")
+            and names[g] not in SCENE_GEOMS
+            and (model.geom_contype[g] or model.geom_conaffinity[g])
+        ],
+        dtype=int,
+    )
+
+
+def fixture_name(model: mujoco.MjModel, geom: int) -> str:
+    """What a fixture geom belongs to, by name: its body's (a body of the world's), else its own (a geom
+    added to the world body), else ``fixture_<geom id>``."""
+    body = int(model.geom_bodyid[geom])
+    named = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, body) if body else None
+    return named or mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, geom) or f"fixture_{geom}"
+
+
+def fixture_elements(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """(fixture bodies other than the world, fixture geoms): the model entries whose pose and size a task may
+    change per episode, and that a copy of the scene (the motion planner's) takes over."""
+    geoms = fixture_geoms(model)
+    bodies = np.unique(model.geom_bodyid[geoms])
+    return bodies[bodies > 0], geoms
+
+
 def build_model(config: SceneConfig | None = None) -> mujoco.MjModel:
     """Compile the workcell into an ``MjModel``."""
     return build_spec(config or SceneConfig()).compile()

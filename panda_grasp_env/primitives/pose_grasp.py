@@ -83,7 +83,8 @@ class MotionStack:
     def grasp(self, cell: Workcell, position: np.ndarray, rotation: np.ndarray) -> PrimitiveResult:
         """Grasp with the grasp site at ``position`` (world, metres) and orientation ``rotation`` (3, 3)."""
         start_time, start_steps = cell.sim_time, cell.physics_steps
-        cell.collateral.begin()
+        below = cell.fixture_below(float(position[0]), float(position[1]))
+        cell.collateral.begin(() if below is None else (below,))
         try:
             result = self._grasp(cell, np.asarray(position, float), np.asarray(rotation, float))
         except PhysicsError:
@@ -111,6 +112,7 @@ class MotionStack:
         if at_pre is None or at_lift is None:
             return PrimitiveResult("grasp", False, "no_ik_solution")
         self.planner.sync_objects(cell.model, cell.data, cell.object_names)
+        self.planner.sync_fixtures(cell.model)
         plan = self.planner.plan(current, at_pre.qpos, self.time_limit)
         if not plan.success:
             return PrimitiveResult("grasp", False, "no_plan")

@@ -42,8 +42,10 @@ class PrimitiveResult:
     #: Body ids of what the primitive acted on: the object grasped (or aimed at) or placed; for pushes and
     #: impulses the piles (towers, heaps) of the objects struck.  Their motion is not collateral.
     targets: set[int] = field(default_factory=set)
-    #: Names of the objects the robot or its load touched in transit (see ``collateral``).
+    #: Names of the objects, then of the fixtures, the robot or its load touched in transit (see ``collateral``).
     transit_contacts: list[str] = field(default_factory=list)
+    #: Names of the objects, then of the fixtures, the robot or its load touched in the work segment.
+    work_contacts: list[str] = field(default_factory=list)
     #: Names of the objects at rest that moved or tipped during transit.
     transit_disturbed: list[str] = field(default_factory=list)
     #: Names of the objects other than the targets that moved (> 1 cm) or tipped over during the primitive.
@@ -64,8 +66,12 @@ def lifted_and_held(cell: Workcell, body: int, start_height: float) -> bool:
 
 
 def record_collateral(cell: Workcell, result: PrimitiveResult) -> None:
-    """End the workcell's collateral watch of a primitive and copy what it saw into ``result`` (names)."""
+    """End the workcell's collateral watch of a primitive and copy what it saw into ``result`` (names).  A work
+    segment that touched a fixture the primitive was not aimed at makes it a failure with ``"collision"``."""
     record = cell.collateral.finish(result.targets)
-    result.transit_contacts = sorted(map(cell.name_of, record.transit_contacts))
+    result.transit_contacts = sorted(map(cell.name_of, record.transit_contacts)) + sorted(record.transit_fixtures)
+    result.work_contacts = sorted(map(cell.name_of, record.work_contacts)) + sorted(record.work_fixtures)
+    if record.fixture_collisions and result.reason != "physics_error":
+        result.success, result.reason = False, "collision"
     result.transit_disturbed = sorted(map(cell.name_of, record.transit_disturbed))
     result.disturbed = sorted(map(cell.name_of, record.disturbed))

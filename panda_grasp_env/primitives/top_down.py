@@ -56,7 +56,7 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
             raise ValueError(f"{fn.__name__} takes {len(names)} arguments {list(names)}, got {len(args)}")
         values = [_check_number(fn.__name__, n, v) for n, v in zip(names, args)]
         start_time, start_steps = cell.sim_time, cell.physics_steps
-        cell.collateral.begin()
+        cell.collateral.begin(_aimed_fixtures(cell, *values[:2]))
         try:
             result = fn(cell, *values)
         except PhysicsError:
@@ -71,6 +71,12 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
         return result
 
     return wrapper
+
+
+def _aimed_fixtures(cell: Workcell, x: float, y: float) -> set[str]:
+    """The fixture a primitive at (x, y) works on or over (``Workcell.fixture_below``): touching it is no collision."""
+    fixture = cell.fixture_below(x, y)
+    return set() if fixture is None else {fixture}
 
 
 def _body_ids(*bodies: int | None) -> set[int]:
@@ -221,7 +227,8 @@ def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: flo
                 if struck or not down.reached:
                     reason = "collision"
                 else:
-                    strays = lambda: bool(struck - on_line)  # noqa: E731
+                    record = cell.collateral.record  # something off the line, or a fixture, touched: stop
+                    strays = lambda: bool(struck - on_line or record.fixture_collisions)  # noqa: E731
                     _stroke(cell, end, grip_yaw, strays)
                     reason = "collision" if strays() else "ok" if struck else "no_contact"
                     cell.move_to(cell.robot.ee_position - PUSH_BACK_OFF * along, grip_yaw, speed=SLOW_SPEED,

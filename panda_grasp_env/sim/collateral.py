@@ -6,7 +6,13 @@ work point, the work itself and the retreat straight up).  The monitor watches
 every physics step's contacts and every control step's poses:
 
 * ``transit_contacts``: objects that the robot, or the object it carries,
-  touched during transit (the robot should touch nothing there);
+  touched during transit (the robot should touch nothing there), and
+  ``transit_fixtures``: the fixtures (a task's bin, wall, shelf) it touched then;
+* ``work_contacts`` / ``work_fixtures``: the same during the work segment.  A
+  primitive is aimed at the fixture straight below its work point (a place on a
+  shelf, a grasp in a bin); touching any other fixture in the work segment is a
+  collision: the motion stops at the first touch (``new_fixture_hit``) and the
+  primitive reports ``"collision"``;
 * ``transit_disturbed``: objects at rest when a transit segment began that
   moved more than ``MOVE_LIMIT`` or tipped during it;
 * ``disturbed``: objects other than the primitive's targets that moved more than
@@ -18,7 +24,7 @@ Metres, radians, world frame.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -45,6 +51,16 @@ class Collateral:
     #: Objects the robot or its load touched during the work segment.
     work_contacts: set[int] = field(default_factory=set)
     disturbed: set[int] = field(default_factory=set)
+    #: Fixtures (by name) the robot or its load touched in transit, and in the work segment.
+    transit_fixtures: set[str] = field(default_factory=set)
+    work_fixtures: set[str] = field(default_factory=set)
+    #: The fixtures the primitive was aimed at (straight below its work point): touching them is its work.
+    aimed_fixtures: frozenset[str] = frozenset()
+
+    @property
+    def fixture_collisions(self) -> set[str]:
+        """Fixtures touched in the work segment that the primitive was not aimed at."""
+        return self.work_fixtures - self.aimed_fixtures
 
 
 class MonitoredCell(Protocol):
@@ -54,6 +70,8 @@ class MonitoredCell(Protocol):
     data: mujoco.MjData
     robot: PandaRobot
     object_ids: np.ndarray
+    #: Fixture collision geom id -> the fixture's name.
+    fixture_names: dict[int, str]
 
 
 class CollateralMonitor:
@@ -66,7 +84,12 @@ class CollateralMonitor:
         self._is_robot[sorted(cell.robot.body_ids)] = True
         self._is_object = np.zeros(model.nbody, dtype=bool)
         self._is_object[cell.object_ids] = True
+        self._is_fixture_geom = np.zeros(model.ngeom, dtype=bool)
+        self._is_fixture_geom[list(cell.fixture_names)] = True
         self.active = False
+        #: Whether the last control step's contacts included a first touch, in the work segment, of a fixture
+        #: the primitive was not aimed at (``Workcell.move_to`` stops there).
+        self.new_fixture_hit = False
         self.in_work = False
         self.record = Collateral()
         self._load = -1  # the carried object during this segment (-1: none)
@@ -85,9 +108,12 @@ class CollateralMonitor:
         turned = np.einsum("ij,ij->i", z_axes, start[1]) < np.cos(TIP_ANGLE)
         return shifted | turned
 
-    def begin(self) -> None:
-        """Start watching a primitive: it starts in transit."""
+    def begin(self, aimed_fixtures: Iterable[str] = ()) -> None:
+        """Start watching a primitive aimed at ``aimed_fixtures`` (names; see the module docstring): it starts
+        in transit."""
         self.active, self.record, self._transit_start = True, Collateral(), None
+        self.record.aimed_fixtures = frozenset(aimed_fixtures)
+        self.new_fixture_hit = False
         self._primitive_start = self._poses()
         self._start_neighbours = self._object_neighbours()
         self._start_segment(work=False)
@@ -118,17 +144,23 @@ class CollateralMonitor:
         finally:
             self._start_segment(work=False)
 
-    def _contact_bodies(self) -> np.ndarray:
-        """Body ids (ncon, 2) of the two sides of every current contact."""
+    def _contact_geoms(self) -> np.ndarray:
+        """Geom ids (ncon, 2) of the two sides of every current contact."""
         data = self.cell.data
         n = data.ncon
-        return self.cell.model.geom_bodyid[np.stack([data.contact.geom1[:n], data.contact.geom2[:n]], axis=1)]
+        return np.stack([data.contact.geom1[:n], data.contact.geom2[:n]], axis=1)
+
+    def _contact_bodies(self) -> np.ndarray:
+        """Body ids (ncon, 2) of the two sides of every current contact."""
+        return self.cell.model.geom_bodyid[self._contact_geoms()]
 
     def after_step(self) -> None:
-        """Record the robot-object contacts of the current state (called after every physics step)."""
+        """Record the robot-object and robot-fixture contacts of the current state (called after every physics
+        step; ``Workcell.step_physics`` clears ``new_fixture_hit`` at each control step)."""
         if not self.active or self.cell.data.ncon == 0:
             return
-        bodies = self._contact_bodies()
+        geoms = self._contact_geoms()
+        bodies = self.cell.model.geom_bodyid[geoms]
         robot_side = self._is_robot[bodies] | (bodies == self._load)
         objects = self._is_object[bodies] & (bodies != self._load)
         touched = np.concatenate(
@@ -137,6 +169,15 @@ class CollateralMonitor:
         if touched.size:
             target = self.record.work_contacts if self.in_work else self.record.transit_contacts
             target.update(int(b) for b in touched)
+        fixtures = self._is_fixture_geom[geoms]
+        hit = np.concatenate([geoms[robot_side[:, 0] & fixtures[:, 1], 1], geoms[robot_side[:, 1] & fixtures[:, 0], 0]])
+        if hit.size:
+            names = {self.cell.fixture_names[int(g)] for g in hit}
+            if self.in_work:
+                self.new_fixture_hit |= bool(names - self.record.aimed_fixtures - self.record.work_fixtures)
+                self.record.work_fixtures |= names
+            else:
+                self.record.transit_fixtures |= names
 
     def finish(self, targets: set[int]) -> Collateral:
         """Stop watching; the record with ``disturbed`` = objects moved or tipped, other than ``targets``.
@@ -150,11 +191,13 @@ class CollateralMonitor:
             self.record.disturbed = {int(b) for b in moved} - targets
         self.record.transit_disturbed -= targets - self.record.transit_contacts
         self.active, self.in_work, self._primitive_start = False, False, None
+        self.new_fixture_hit = False
         return self.record
 
     def cancel(self) -> None:
         """Stop watching without a record (the primitive raised)."""
         self.active, self.in_work, self._primitive_start, self._transit_start = False, False, None, None
+        self.new_fixture_hit = False
 
     def pile(self, bodies: set[int]) -> set[int]:
         """``bodies`` and every object connected to them through object-object contacts at the primitive's

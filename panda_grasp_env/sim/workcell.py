@@ -18,7 +18,13 @@ from panda_grasp_env.control.controller import CartesianController, ControllerLi
 from panda_grasp_env.geometry import half_extent_along, yaw_quaternion
 from panda_grasp_env.model.objects import ObjectShape, apply_shape
 from panda_grasp_env.model.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
-from panda_grasp_env.model.scene import OWN_FRICTION_PRIORITY, SceneConfig, build_spec
+from panda_grasp_env.model.scene import (
+    OWN_FRICTION_PRIORITY,
+    SceneConfig,
+    build_spec,
+    fixture_geoms,
+    fixture_name,
+)
 from panda_grasp_env.sim.collateral import CollateralMonitor
 
 #: Reachable region for primitive targets: x, y, z bounds of the grasp site, metres.
@@ -145,12 +151,16 @@ class Workcell:
         self._teleport_solutions: dict[tuple, np.ndarray] = {}
         #: Called with the workcell after every control step (video recording, logging).
         self.step_hooks: list[Callable[[Workcell], None]] = []
+        #: A task's fixtures (``Task.add_fixtures``): their collision geoms, and each one's fixture name (its
+        #: body's, or its own for a geom of the world body).
+        self.fixture_geom_ids = fixture_geoms(self.model)
+        self.fixture_names = {int(g): fixture_name(self.model, g) for g in self.fixture_geom_ids}
         #: Transit and collateral accounting of the primitive running now (see ``collateral``).
         self.collateral = CollateralMonitor(self)
         self._scratch = mujoco.MjData(self.model)  # kinematics checks that must not touch the live state
         self.reset_robot()
-        #: Static collision geoms standing on the table (a task's fixtures: a bin, walls), as (x, y, reach,
-        #: top) in metres: transit heights clear them as they clear objects.
+        #: The fixtures' collision geoms standing on the table, as (x, y, reach, top) in metres: transit
+        #: heights clear them as they clear objects (kept current by ``set_fixture_pose``/``set_fixture_size``).
         self.fixture_tops = self._fixture_tops()
 
     # --- state -------------------------------------------------------------
@@ -218,6 +228,7 @@ class Workcell:
         if self.collateral.active:
             # While a primitive is watched its contacts are recorded after every physics step: a stiff contact
             # with a struck object can begin and end within one control step.
+            self.collateral.new_fixture_hit = False
             for _ in range(n_steps):
                 mujoco.mj_step(self.model, self.data)
                 self.collateral.after_step()
@@ -269,7 +280,9 @@ class Workcell:
 
         The reference moves at ``speed`` m/s (default and cap: the controller's limit).
         Returns once within ``tolerance`` metres of the goal at rest, after the
-        settle timeout, or as soon as ``stop_when()`` is true.
+        settle timeout, or as soon as ``stop_when()`` is true -- or, in a primitive's
+        work segment, as soon as the robot first touches a fixture the primitive was not
+        aimed at (a protective stop; ``collateral``).
         """
         self.controller.set_goal(position, yaw, speed)
         goal = self.controller.goal_position
@@ -277,7 +290,7 @@ class Workcell:
         settle_steps = int(np.ceil(settle_timeout / self.control_dt))
         for i in range(travel_steps + 4 + settle_steps):
             self.control_step()
-            if stop_when is not None and stop_when():
+            if self.collateral.new_fixture_hit or (stop_when is not None and stop_when()):
                 self.controller.stop()  # don't keep driving towards the goal after stopping
                 break
             error = float(np.linalg.norm(self.robot.ee_position - goal))
@@ -301,16 +314,84 @@ class Workcell:
 
     def _fixture_tops(self) -> list[tuple[float, float, float, float]]:
         model, data = self.model, self.data
-        robot = set(self.robot.body_ids)
         fixtures = []
-        for g in range(model.ngeom):
-            body = int(model.geom_bodyid[g])
-            static = model.body_weldid[body] == 0 and body not in robot
-            if static and (model.geom_contype[g] or model.geom_conaffinity[g]):
-                top = geom_extent_along(model, data, g, np.array([0.0, 0.0, 1.0]))[1]
-                if top > 1e-6:  # the table's top is the zero of heights
-                    fixtures.append((*map(float, data.geom_xpos[g][:2]), float(model.geom_rbound[g]), top))
+        for g in self.fixture_geom_ids:
+            top = geom_extent_along(model, data, g, np.array([0.0, 0.0, 1.0]))[1]
+            if top > 1e-6:  # the table's top is the zero of heights: a fixture below it is out of the way
+                fixtures.append((*map(float, data.geom_xpos[g][:2]), float(model.geom_rbound[g]), top))
         return fixtures
+
+    # --- fixtures with state -------------------------------------------------
+    def set_fixture_pose(
+        self, name: str, position: Sequence[float], yaw: float = 0.0, quaternion: Sequence[float] | None = None
+    ) -> None:
+        """Move fixture ``name`` (a fixture body, or a fixture geom of the world body) to ``position`` (world,
+        metres: the body's frame, or the geom's centre) turned by ``yaw`` about world z (radians), or to
+        ``quaternion`` (w, x, y, z) if given.  For a task's ``reset``: the model changes, nothing is
+        recompiled, and heights, ray casts, transit clearance and the motion planner's model follow."""
+        position = np.asarray(position, dtype=float)
+        if position.shape != (3,) or not np.all(np.isfinite(position)) or not np.isfinite(yaw):
+            raise ValueError(
+                f"fixture {name!r}: position must be 3 finite metres and yaw finite, got {position}, {yaw}"
+            )
+        orientation = yaw_quaternion(yaw) if quaternion is None else np.asarray(quaternion, dtype=float)
+        if orientation.shape != (4,) or not np.isclose(np.linalg.norm(orientation), 1.0):
+            raise ValueError(f"fixture {name!r}: quaternion must be a unit (w, x, y, z), got {quaternion!r}")
+        body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name)
+        if body > 0 and self.model.body_weldid[body] == 0 and body not in self.robot.body_ids:  # a static body
+            self.model.body_pos[body], self.model.body_quat[body] = position, orientation
+        else:
+            geom = self._world_fixture_geom(name)
+            self.model.geom_pos[geom], self.model.geom_quat[geom] = position, orientation
+        self._fixtures_changed()
+
+    def set_fixture_size(self, geom_name: str, size: Sequence[float]) -> None:
+        """Resize a fixture's collision geom ``geom_name`` (box, sphere, capsule, cylinder or ellipsoid: MuJoCo's
+        ``size`` of that type, metres) without recompiling; its bounding sphere and box follow.  For a task's
+        ``reset``, like ``set_fixture_pose``."""
+        geom = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, geom_name)
+        if geom not in self.fixture_names:
+            raise ValueError(f"unknown fixture geom {geom_name!r}; valid: {self._named_fixture_geoms()}")
+        bounds = _primitive_bounds(int(self.model.geom_type[geom]), size)
+        if bounds is None:
+            raise ValueError(
+                f"fixture geom {geom_name!r}: a size of 1-3 positive metres fitting its type is needed, and only "
+                f"boxes, spheres, capsules, cylinders and ellipsoids resize without recompiling; got {size!r}"
+            )
+        self.model.geom_size[geom], self.model.geom_rbound[geom], self.model.geom_aabb[geom, 3:] = bounds
+        self._fixtures_changed()
+
+    def _world_fixture_geom(self, name: str) -> int:
+        geom = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, name)
+        if geom not in self.fixture_names or self.model.geom_bodyid[geom] != 0:
+            bodies = sorted({n for g, n in self.fixture_names.items() if self.model.geom_bodyid[g] != 0})
+            world = [n for n in self._named_fixture_geoms() if self.model.geom(n).bodyid[0] == 0]
+            raise ValueError(f"unknown fixture {name!r}; fixture bodies: {bodies}, fixture geoms of the world: {world}")
+        return geom
+
+    def _named_fixture_geoms(self) -> list[str]:
+        names = (mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_GEOM, int(g)) for g in self.fixture_geom_ids)
+        return sorted(n for n in names if n)
+
+    def _fixtures_changed(self) -> None:
+        mujoco.mj_kinematics(self.model, self.data)  # geom poses (ray casts, heights) as the model now says
+        self.fixture_tops = self._fixture_tops()
+
+    def fixture_below(self, x: float, y: float) -> str | None:
+        """The fixture whose surface is the first one straight below (x, y) once free objects are seen through
+        (what a primitive at (x, y) works on or over), or None (the table or nothing)."""
+        geom = np.zeros(1, dtype=np.int32)
+        start, down = np.array([x, y, 1.0]), np.array([0.0, 0.0, -1.0])
+        exclude = -1
+        for _ in range(len(self.object_ids) + 1):
+            distance = mujoco.mj_ray(self.model, self.data, start, down, _WORLD_GROUP, 1, exclude, geom)
+            if distance < 0:
+                return None
+            body = int(self.model.geom_bodyid[geom[0]])
+            if body not in self._qpos_adr:
+                return self.fixture_names.get(int(geom[0]))
+            start, exclude = start + distance * down, body  # an object: look on below it
+        return None
 
     def tallest_top(self, exclude: int | None = None, near: tuple[float, float, float] | None = None) -> float:
         """Highest top (world z, metres; 0 if none) of the objects on the table and the fixtures, leaving out
@@ -528,6 +609,29 @@ class Workcell:
         self.clear()
         self.place_blocks(rng, layout)
         self.settle(settle)
+
+
+def _primitive_bounds(geom_type: int, size: Sequence[float]) -> tuple[np.ndarray, float, np.ndarray] | None:
+    """MuJoCo's (size, bounding-sphere radius, local bounding-box half sizes) of a box, sphere, capsule,
+    cylinder or ellipsoid of ``size`` (metres: as many as the type uses), or None for another type or a bad
+    size."""
+    values = np.asarray(size, dtype=float).ravel()
+    used = {int(mujoco.mjtGeom.mjGEOM_BOX): 3, int(mujoco.mjtGeom.mjGEOM_ELLIPSOID): 3,
+            int(mujoco.mjtGeom.mjGEOM_SPHERE): 1, int(mujoco.mjtGeom.mjGEOM_CAPSULE): 2,
+            int(mujoco.mjtGeom.mjGEOM_CYLINDER): 2}.get(geom_type)  # fmt: skip
+    if used is None or values.size != used or not np.all(np.isfinite(values) & (values > 0)):
+        return None
+    full = np.zeros(3)
+    full[:used] = values
+    if used == 3:
+        return full, float(np.linalg.norm(full) if geom_type == mujoco.mjtGeom.mjGEOM_BOX else full.max()), full
+    radius = full[0]
+    if used == 1:
+        return full, radius, np.full(3, radius)
+    half = full[1]
+    if geom_type == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        return full, radius + half, np.array([radius, radius, radius + half])
+    return full, float(np.hypot(radius, half)), np.array([radius, radius, half])
 
 
 def scattered_layout(

@@ -87,7 +87,12 @@ class Task(ABC):
     def add_fixtures(self, spec: mujoco.MjSpec) -> None:  # noqa: B027 (an optional hook)
         """Add the task's static fixtures (a bin, a wall, a shelf) to the scene's ``spec``: world frame,
         metres, geoms in group 0 (seen by cameras and ray casts).  Called on every model of the scene (the
-        simulation's and the motion planner's), so collision checks and transit heights see them."""
+        simulation's and the motion planner's), so collision checks and transit heights see them.
+
+        Fixtures have state: ``reset`` may move them (``cell.set_fixture_pose``) and resize their primitive
+        geoms (``cell.set_fixture_size``) for each episode, from its ``rng``; heights, ray casts, transit
+        clearance and the planner's model follow.  The robot's contacts with them count (``collateral``):
+        in transit, and in a work segment as a ``collision`` unless the primitive was aimed at the fixture."""
 
     @abstractmethod
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
