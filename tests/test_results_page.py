@@ -149,3 +149,15 @@ def test_the_heatmap_of_published_tables(tmp_path):
     assert html.count("<td class='cell'") == 1 and html.count("<td class='absent'") == 1
     assert "100 %<small>72–100 · n 10</small>" in html
 
+
+
+def test_the_results_page_reads_the_published_quick_table():
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "benchmark.md").read_text()
+    cells = results_page.published_cells(text)
+    assert cells[("stack_bc", "Stack")] == {"rate": 0.2, "successes": 4, "n": 20, "ci95": [0.0807, 0.416]}
+    assert cells[("grasp_clutter_dqn", "GraspAdversarial")]["successes"] == 2  # "**name** (learned)" read as name
+    assert len(cells) == sum(1 for line in text.splitlines() if re.match(r"\| (\*\*)?\w+(\*\* \(learned\))? \| \w+ \| \d", line))
+    with pytest.raises(ValueError, match="no results table"):
+        results_page.published_cells("# nothing here")

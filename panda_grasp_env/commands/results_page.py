@@ -104,6 +104,31 @@ def heatmap_html(
     )
 
 
+def published_cells(markdown: str) -> dict[tuple[str, str], dict[str, Any]]:
+    """(agent, task) -> trial success (``rate``-shaped) read from the first results table in ``markdown``: the
+    table evaluate.py writes into report.md (columns agent, task, N, "trial success (95 % CI)", ...), as the
+    docs publish it (agent names may be bold and tagged "(learned)").  The counts are exact: a whole percent
+    of N <= 100 episodes names one count; the interval is Wilson's, recomputed from them."""
+    from panda_grasp_env.agents.evaluation import rate
+
+    cells, in_table = {}, False
+    for line in markdown.splitlines():
+        columns = [c.strip() for c in line.strip().strip("|").split("|")]
+        if columns[:4] == ["agent", "task", "N", "trial success (95 % CI)"]:
+            in_table = True
+        elif in_table and not line.startswith("|"):
+            break
+        elif in_table and not set(columns[0]) <= set("-: "):
+            agent = columns[0].replace("*", "").removesuffix("(learned)").strip()
+            n, percent = int(columns[2]), float(columns[3].split("%")[0])
+            if n > 100:
+                raise ValueError(f"{agent}/{columns[1]}: {n} episodes; a whole percent does not name the count")
+            cells[(agent, columns[1])] = rate(round(percent * n / 100), n)
+    if not cells:
+        raise ValueError("no results table (| agent | task | N | trial success (95 % CI) | ...) found")
+    return cells
+
+
 # --- charts ----------------------------------------------------------------------------------------------------
 
 
@@ -266,15 +291,20 @@ def counts_text(counts: dict[str, int]) -> str:
     return ", ".join(f"{reason} {n}" for reason, n in counts.items()) or "—"
 
 
-STYLE = """
+#: The heatmap's styles (the docs' Results page uses them too).
+HEATMAP_STYLE = """
+.results-heatmap,.scroll{overflow-x:auto}table.heatmap th{white-space:nowrap}
+table.heatmap td{text-align:center;min-width:4.2rem;font-weight:600}
+table.heatmap td small{display:block;font-weight:400;font-size:.7rem;opacity:.85;white-space:nowrap}
+table.heatmap td.absent{background:#f3f3f3;color:#bbb}
+.swatch{display:inline-block;width:.7rem;height:.7rem;margin-right:.4rem;border-radius:2px}
+"""
+STYLE = HEATMAP_STYLE + """
 body{font:14px/1.45 system-ui,sans-serif;margin:1.5rem auto;max-width:1200px;padding:0 1rem;color:#222}
 h1{font-size:1.5rem}h2{font-size:1.2rem;margin-top:2rem;border-bottom:1px solid #ddd}
 table{border-collapse:collapse;margin:.5rem 0}th,td{padding:.25rem .5rem;border:1px solid #ddd;text-align:left}
-table.heatmap td{text-align:center;min-width:4.2rem;font-weight:600}
-table.heatmap td small{display:block;font-weight:400;font-size:.7rem;opacity:.85}
-table.heatmap td.absent{background:#f3f3f3;color:#bbb}caption{text-align:left;color:#555;padding:.25rem 0}
-.swatch{display:inline-block;width:.7rem;height:.7rem;margin-right:.4rem;border-radius:2px}
-.scroll{overflow-x:auto}svg{max-width:100%;height:auto}
+caption{text-align:left;color:#555;padding:.25rem 0}
+svg{max-width:100%;height:auto}
 .clips{display:flex;flex-wrap:wrap;gap:.75rem}.clips figure{margin:0;width:192px;font-size:.75rem}
 .clips img{display:block;width:192px;border:1px solid #ccc}
 .better{color:#0a7a2f;font-weight:600}.worse{color:#b00020;font-weight:600}.warn{background:#fff3cd;padding:.5rem}
