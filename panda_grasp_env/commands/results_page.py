@@ -71,7 +71,7 @@ def heatmap_html(
     tasks: list[str],
     agents: Iterable[str] = (),
     absent: Callable[[str, str], str] = lambda agent, task: "not run",
-    caption: str = "Trial success (95 % Wilson interval) of each agent on each task",
+    caption: str = "Trial success (95 % Wilson interval, n) of each agent on each task",
 ) -> str:
     """An agents × ``tasks`` table of trial success: one ``td.cell`` per (agent, task) in ``cells`` (a rate:
     successes, n, ci95), shaded by its rate, with its interval; other pairs (of ``agents`` too, which may
@@ -98,6 +98,7 @@ def heatmap_html(
             )
         swatch = f"<span class='swatch' style='background:{FAMILY_COLOURS[family(agent)]}'></span>"
         rows.append(f"<tr><th scope='row'>{swatch}{html.escape(agent)}</th>{''.join(tds)}</tr>")
+    caption += "; shade from dark purple (0 %) to yellow (100 %), grey: not run (hover for why)"
     return (
         f"<table class='heatmap'><caption>{html.escape(caption)}</caption>"
         f"<thead><tr><th></th>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
