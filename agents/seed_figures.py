@@ -60,10 +60,16 @@ def aggregate_runs(scores: np.ndarray) -> dict[str, Any]:
     # fraction of runs whose score exceeds each tau.
     profile, bands = estimates(lambda x: rly.score_distributions(x, taus))
     return {
-        "aggregates": {name: [round(float(points[i]), 4), round(float(intervals[0, i]), 4),
-                              round(float(intervals[1, i]), 4)] for i, name in enumerate(functions)},  # fmt: skip
-        "profile": {"tau": taus.round(2).tolist(), "fraction": np.round(profile, 4).tolist(),
-                    "low": np.round(bands[0], 4).tolist(), "high": np.round(bands[1], 4).tolist()},  # fmt: skip
+        "aggregates": {
+            name: [round(float(points[i]), 4), round(float(intervals[0, i]), 4), round(float(intervals[1, i]), 4)]
+            for i, name in enumerate(functions)
+        },  # fmt: skip
+        "profile": {
+            "tau": taus.round(2).tolist(),
+            "fraction": np.round(profile, 4).tolist(),
+            "low": np.round(bands[0], 4).tolist(),
+            "high": np.round(bands[1], 4).tolist(),
+        },  # fmt: skip
     }
 
 
@@ -87,8 +93,12 @@ def study_summary(config: TrainConfig, outcomes: list[dict[str, Any]]) -> dict[s
         "config": shared,
         "runs": runs,
         "metrics": by_metric,
-        "bootstrap": {"method": "rliable stratified bootstrap, percentile intervals", "confidence": 0.95,
-                      "reps": BOOTSTRAP_REPS, "seed": BOOTSTRAP_SEED},  # fmt: skip
+        "bootstrap": {
+            "method": "rliable stratified bootstrap, percentile intervals",
+            "confidence": 0.95,
+            "reps": BOOTSTRAP_REPS,
+            "seed": BOOTSTRAP_SEED,
+        },  # fmt: skip
         "commit": commit(),
         "versions": versions(("rliable", "stable-baselines3", "torch", "mujoco")),
     }
@@ -121,7 +131,11 @@ def study_markdown(study: dict[str, Any]) -> str:
     """The study as Markdown: what it is, the aggregate table and the per-run table."""
 
     def table(header: list[str], rows: list[list[str]]) -> list[str]:
-        return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header), *("| " + " | ".join(r) + " |" for r in rows)]
+        return [
+            "| " + " | ".join(header) + " |",
+            "|" + "---|" * len(header),
+            *("| " + " | ".join(r) + " |" for r in rows),
+        ]
 
     test = study["runs"][0]["test_seeds"]
     lines = [

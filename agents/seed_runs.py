@@ -111,5 +111,3 @@ def write_study(config: TrainConfig, outcomes: list[dict[str, Any]], runs_dir: P
     write_atomically(folder / "study.md", f"# {config.name} over training seeds\n\n" + study_markdown(study) + "\n")
     profile_figure(study).savefig(folder / "profile.png", dpi=100)
     return folder
-
-

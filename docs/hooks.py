@@ -121,12 +121,16 @@ def results_heatmaps() -> dict[str, str]:
     held_out = {}
     for card in sorted((ROOT / "agents" / "checkpoints").glob("*/card.md")):
         task = json.loads((card.parent / "checkpoint.json").read_text())["task"]
-        held_out[(card.parent.name, task)] = json.loads((card.parent / "final.json").read_text())["metrics"]["trial_success"]
+        final = json.loads((card.parent / "final.json").read_text())
+        held_out[(card.parent.name, task)] = final["metrics"]["trial_success"]
     return {
         QUICK_RESULTS: f"<style>{HEATMAP_STYLE}</style>"
         + heatmap_html(quick, tasks, caption="Quick protocol: trial success (95 % Wilson interval, n)"),
-        HELD_OUT_RESULTS: heatmap_html(held_out, [t for t in BENCHMARKS if any(task == t for _, task in held_out)],
-                                       caption="Held-out final tests: trial success (95 % Wilson interval, n)"),
+        HELD_OUT_RESULTS: heatmap_html(
+            held_out,
+            [t for t in BENCHMARKS if any(task == t for _, task in held_out)],
+            caption="Held-out final tests: trial success (95 % Wilson interval, n)",
+        ),
     }
 
 

@@ -43,7 +43,9 @@ def test_the_page_holds_every_part_and_needs_nothing_outside_it(run):
     out, _ = run
     page = (out / "report.html").read_text()
     cells = re.findall(r"<td class='cell' data-agent='([^']+)' data-task='([^']+)'", page)
-    assert sorted(cells) == sorted((a, t) for a in ("random", "oracle") for t in ("TowerBreak", "TowerBreakDirectional"))
+    assert sorted(cells) == sorted(
+        (a, t) for a in ("random", "oracle") for t in ("TowerBreak", "TowerBreakDirectional")
+    )
     assert page.count("<td class='absent'") >= 2  # expert does not apply to the tower tasks: greyed, with why
     assert "skipped: no scripted low-level expert is written for TowerBreak" in page
     for part in ("Trial success per task", "Failures", "Decision time", "Clips", "Protocol", "commit", "machine"):
@@ -66,6 +68,25 @@ def test_every_failed_episode_names_why(run):
 
 
 def test_a_tower_toppled_the_wrong_way_is_a_failure_with_its_reason():
+    """The oracle breaker told the opposite of the commanded direction: the tower falls, the wrong way."""
+    import gymnasium as gym
+    import numpy as np
+
+    from panda_grasp_env.agents.evaluation import BENCHMARKS, EpisodeSpec, play_episode
+    from panda_grasp_env.agents.towers import OracleBlocks, TowerBreakerAgent
+
+    class Contrary(TowerBreakerAgent):
+        def act(self, observation, info):  # +x <-> -x, +y <-> -y
+            return super().act({**observation, "command": np.roll(observation["command"], 2)}, info)
+
+    env_id, options = BENCHMARKS["TowerBreakDirectional"]
+    with gym.make(f"panda_grasp_env:{env_id}", **options) as env:
+        result = play_episode(env, Contrary(OracleBlocks(env)), EpisodeSpec("contrary", "TowerBreakDirectional", 0))
+    assert not result["result"]["success"] and result["result"]["failure"] == "wrong_direction"
+    assert result["result"]["failures"] == {}  # every primitive did what it reported: no failed action
+
+
+def test_episode_failure_names_each_way_to_fail():
     fell_wrong = {"wrong_direction": True, "broken_by_failure": False, "physics_error": False}
     assert episode_failure(False, True, False, fell_wrong, out_of_steps=False) == "wrong_direction"
     assert episode_failure(True, True, False, {}, out_of_steps=False) is None
@@ -150,7 +171,6 @@ def test_the_heatmap_of_published_tables(tmp_path):
     assert "100 %<small>72–100 · n 10</small>" in html
 
 
-
 def test_the_results_page_reads_the_published_quick_table():
     from pathlib import Path
 
@@ -158,6 +178,8 @@ def test_the_results_page_reads_the_published_quick_table():
     cells = results_page.published_cells(text)
     assert cells[("stack_bc", "Stack")] == {"rate": 0.2, "successes": 4, "n": 20, "ci95": [0.0807, 0.416]}
     assert cells[("grasp_clutter_dqn", "GraspAdversarial")]["successes"] == 2  # "**name** (learned)" read as name
-    assert len(cells) == sum(1 for line in text.splitlines() if re.match(r"\| (\*\*)?\w+(\*\* \(learned\))? \| \w+ \| \d", line))
+    assert len(cells) == sum(
+        1 for line in text.splitlines() if re.match(r"\| (\*\*)?\w+(\*\* \(learned\))? \| \w+ \| \d", line)
+    )
     with pytest.raises(ValueError, match="no results table"):
         results_page.published_cells("# nothing here")

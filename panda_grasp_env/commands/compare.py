@@ -77,14 +77,24 @@ def protocol_differences(a: dict[str, Any], b: dict[str, Any]) -> tuple[list[str
     refuse = []
     for task in sorted(set(pa["tasks"]) & set(pb["tasks"])):
         if pa["seeds"][task] != pb["seeds"][task]:
-            refuse.append(f"{task} ran on other seeds: {_seeds(pa['seeds'][task])} in A, {_seeds(pb['seeds'][task])} in B")
+            refuse.append(
+                f"{task} ran on other seeds: {_seeds(pa['seeds'][task])} in A, {_seeds(pb['seeds'][task])} in B"
+            )
         if pa.get("env_ids", {}).get(task) != pb.get("env_ids", {}).get(task):
-            refuse.append(f"{task} ran in other envs: {pa.get('env_ids', {}).get(task)} / {pb.get('env_ids', {}).get(task)}")
+            refuse.append(
+                f"{task} ran in other envs: {pa.get('env_ids', {}).get(task)} / {pb.get('env_ids', {}).get(task)}"
+            )
     if pa.get("task_options", {}) != pb.get("task_options", {}):
-        refuse.append(f"other task options: {json.dumps(pa.get('task_options'))} in A, {json.dumps(pb.get('task_options'))} in B")
+        refuse.append(
+            f"other task options: {json.dumps(pa.get('task_options'))} in A, {json.dumps(pb.get('task_options'))} in B"
+        )
     warn = []
     va, vb = a.get("provenance", {}).get("versions", {}), b.get("provenance", {}).get("versions", {})
-    changed = [f"{k} {va.get(k, 'absent')} -> {vb.get(k, 'absent')}" for k in sorted(set(va) | set(vb)) if va.get(k) != vb.get(k)]
+    changed = [
+        f"{k} {va.get(k, 'absent')} -> {vb.get(k, 'absent')}"
+        for k in sorted(set(va) | set(vb))
+        if va.get(k) != vb.get(k)
+    ]
     if changed:
         warn.append("other package versions (the comparison measures them too): " + ", ".join(changed))
     if not va or not vb:
@@ -182,7 +192,9 @@ def compare(a: dict[str, Any], b: dict[str, Any], alpha: float = 0.05, method: s
     adjusted = adjust([t.p for t in tests], method)
     verdicts = []
     for t, p in zip(tests, adjusted):
-        verdict = "no detectable change" if p >= alpha or t.difference == 0 else "better" if t.difference > 0 else "worse"
+        verdict = (
+            "no detectable change" if p >= alpha or t.difference == 0 else "better" if t.difference > 0 else "worse"
+        )
         verdicts.append(Test(**{**t.__dict__, "p_adjusted": p, "verdict": verdict}))
     return verdicts
 

@@ -551,7 +551,9 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     specs = episode_specs(args)
     if args.skipped:  # the pairs and their reasons are in the report
-        print(f"skipped {len(args.skipped)} agent/task pairs that do not apply (which and why: {args.out / 'report.html'})")
+        print(
+            f"skipped {len(args.skipped)} agent/task pairs that do not apply (which and why: {args.out / 'report.html'})"
+        )
     if not specs:
         print("nothing to run: no chosen agent applies to a chosen task", file=sys.stderr)
         return 2

@@ -300,7 +300,9 @@ table.heatmap td small{display:block;font-weight:400;font-size:.7rem;opacity:.85
 table.heatmap td.absent{background:#f3f3f3;color:#bbb}
 .swatch{display:inline-block;width:.7rem;height:.7rem;margin-right:.4rem;border-radius:2px}
 """
-STYLE = HEATMAP_STYLE + """
+STYLE = (
+    HEATMAP_STYLE
+    + """
 body{font:14px/1.45 system-ui,sans-serif;margin:1.5rem auto;max-width:1200px;padding:0 1rem;color:#222}
 h1{font-size:1.5rem}h2{font-size:1.2rem;margin-top:2rem;border-bottom:1px solid #ddd}
 table{border-collapse:collapse;margin:.5rem 0}th,td{padding:.25rem .5rem;border:1px solid #ddd;text-align:left}
@@ -310,6 +312,7 @@ svg{max-width:100%;height:auto}
 .clips img{display:block;width:192px;border:1px solid #ccc}
 .better{color:#0a7a2f;font-weight:600}.worse{color:#b00020;font-weight:600}.warn{background:#fff3cd;padding:.5rem}
 """
+)
 
 
 def page_html(title: str, sections: list[tuple[str, str]], intro: str = "") -> str:
@@ -383,7 +386,9 @@ def _clips(out: Path, table: dict[str, dict]) -> str:
                        f"<figcaption>{html.escape(agent)} / {html.escape(task)}</figcaption></figure>")  # fmt: skip
     if not figures:
         return "<p>No videos in this run (<code>--no-video</code>).</p>"
-    return f"<p>Each picture links to its video (the first seed, replayed).</p><div class='clips'>{''.join(figures)}</div>"
+    return (
+        f"<p>Each picture links to its video (the first seed, replayed).</p><div class='clips'>{''.join(figures)}</div>"
+    )
 
 
 def _curves(out: Path) -> str:
@@ -461,4 +466,3 @@ def write_page(out: Path) -> Path:
     path = out / "report.html"
     write_atomically(path, build_page(out))
     return path
-
