@@ -73,7 +73,9 @@ def test_a_weakened_agent_is_worse_and_no_other(tmp_path, capsys):
     changed = [line for line in out.splitlines() if line.startswith(("WORSE", "BETTER"))]
     assert changed and all(" tower_build_dqn/TowerBuild " in line for line in changed)
     assert any("trial_success" in line for line in changed)
-    assert "class='worse'" in (tmp_path / "c.html").read_text()
+    page = (tmp_path / "c.html").read_text()
+    assert "class='worse'" in page
+    assert page.count("data-verdict='worse'") == 1 and page.count("data-verdict='no detectable change'") == 4
     # the same two runs the other way round: better
     assert "1 better, 0 worse" in verdicts(capsys, b, a, "--out", tmp_path / "d.html")
 

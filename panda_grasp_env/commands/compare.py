@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.agents.evaluation import is_low_level
-from panda_grasp_env.commands.results_page import page_html, split_key, table_html
+from panda_grasp_env.commands.results_page import agent_order, page_html, split_key, table_html
 from panda_grasp_env.registration import BENCHMARKS
 from panda_grasp_env.tooling.runs import write_atomically
 
@@ -246,7 +246,39 @@ def compare_page(tests: list[Test], run_a: Path, run_b: Path, alpha: float, meth
              f"A verdict other than “no detectable change” needs a corrected p-value under {alpha} "
              f"({CORRECTIONS[method]} over all {len(tests)} tests).</p>")  # fmt: skip
     intro += "".join(f"<p class='warn'>{html.escape(n)}</p>" for n in notes)
-    return page_html("Comparison of two runs", [("Per (agent, task) and metric", table)], intro)
+    sections = [("Verdict per (agent, task)", verdict_grid(tests)), ("Per (agent, task) and metric", table)]
+    return page_html("Comparison of two runs", sections, intro)
+
+
+#: Cell colours of the verdict grid (Okabe–Ito bluish green and vermillion; grey for no detectable change).
+VERDICT_COLOURS = {"better": "#009E73", "worse": "#D55E00", "no detectable change": "#e8e8e8"}
+
+
+def verdict_grid(tests: list[Test]) -> str:
+    """An agents × tasks table of the cells' verdicts (``cell_verdicts``), each with its trial success A -> B."""
+    cells = cell_verdicts(tests)
+    success = {(t.agent, t.task): t for t in tests if t.metric == "trial_success"}
+    tasks = list(dict.fromkeys(t.task for t in tests))
+    rows = []
+    for agent in agent_order(t.agent for t in tests):
+        tds = []
+        for task in tasks:
+            verdict = cells.get(f"{agent}/{task}")
+            if verdict is None:
+                tds.append("<td class='absent'>·</td>")
+                continue
+            t = success[(agent, task)]
+            ink = "#000" if verdict == "no detectable change" else "#fff"
+            tds.append(f"<td class='cell' data-verdict='{verdict}' style='background:{VERDICT_COLOURS[verdict]};"
+                       f"color:{ink}'>{html.escape(verdict)}<small>{_figure(t.metric, t.a)} → "
+                       f"{_figure(t.metric, t.b)}</small></td>")  # fmt: skip
+        rows.append(f"<tr><th scope='row'>{html.escape(agent)}</th>{''.join(tds)}</tr>")
+    head = "".join(f"<th>{html.escape(task)}</th>" for task in tasks)
+    return (
+        "<div class='scroll'><table class='heatmap'><caption>A cell is worse if any of its metrics is, else better "
+        "if any is (trial success A → B shown)</caption>"
+        f"<thead><tr><th></th>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table></div>"
+    )
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
