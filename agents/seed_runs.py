@@ -19,13 +19,14 @@ from __future__ import annotations
 import dataclasses
 import json
 import multiprocessing
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from panda_grasp_env.agents.config import TrainConfig, config_from_dict
-from panda_grasp_env.agents.seed_figures import profile_figure, study_markdown, study_summary
+from panda_grasp_env.agents.seed_figures import profile_figure, score, study_markdown, study_summary
 from panda_grasp_env.tooling.runs import write_atomically, write_json
 
 
@@ -69,32 +70,60 @@ def train_seed(raw: dict[str, Any], runs_dir: str) -> dict[str, Any]:
     return {"seed": config.seed, "run_dir": str(run_dir), "final": json.loads((run_dir / "final.json").read_text())}
 
 
-def _ray_train(raws: list[dict[str, Any]], runs_dir: str, address: str) -> list[dict[str, Any]]:
+def _ray_train(raws: list[dict[str, Any]], runs_dir: str, address: str) -> Iterator[dict[str, Any]]:
+    """The seeds' runs as Ray tasks, yielded as they finish."""
     import ray
 
     ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False)
     try:
         remote = ray.remote(num_cpus=1)(train_seed)
-        return ray.get([remote.remote(raw, runs_dir) for raw in raws])
+        pending = [remote.remote(raw, runs_dir) for raw in raws]
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            yield ray.get(ready[0])
     finally:
         ray.shutdown()
 
 
+def _train_seed(arguments: tuple[dict[str, Any], str]) -> dict[str, Any]:
+    return train_seed(*arguments)
+
+
 def train_seeds(
-    config: TrainConfig, seeds: list[int], runs_dir: Path, workers: int = 1, ray_address: str | None = None
+    config: TrainConfig,
+    seeds: list[int],
+    runs_dir: Path,
+    workers: int = 1,
+    ray_address: str | None = None,
+    progress_bar: bool = True,
 ) -> Path:
     """Train ``config`` on each of ``seeds`` (``workers`` local processes, or Ray tasks on ``ray_address``),
-    then write the study folder (``write_study``); returns it."""
+    then write the study folder (``write_study``); returns it.  The progress bar counts finished runs."""
+    from tqdm import tqdm
+
     runs_dir = runs_dir.resolve()
     runs_dir.mkdir(parents=True, exist_ok=True)
-    raws = [dataclasses.asdict(dataclasses.replace(config, seed=s)) for s in seeds]
+    jobs = [(dataclasses.asdict(dataclasses.replace(config, seed=s)), str(runs_dir)) for s in seeds]
+    pool = None
     if ray_address is not None:
-        outcomes = _ray_train(raws, str(runs_dir), ray_address)
+        finished = _ray_train([raw for raw, _ in jobs], str(runs_dir), ray_address)
     elif workers == 1:
-        outcomes = [train_seed(raw, str(runs_dir)) for raw in raws]
+        finished = map(_train_seed, jobs)
     else:
-        with multiprocessing.get_context("spawn").Pool(workers) as pool:
-            outcomes = pool.starmap(train_seed, [(raw, str(runs_dir)) for raw in raws])
+        pool = multiprocessing.get_context("spawn").Pool(workers)
+        finished = pool.imap_unordered(_train_seed, jobs)
+    outcomes = []
+    bar = tqdm(total=len(seeds), desc=f"{config.name} seeds", unit="run", disable=not progress_bar)
+    try:
+        for outcome in finished:
+            outcomes.append(outcome)
+            bar.update(1)
+            bar.set_postfix_str(f"seed {outcome['seed']}: test success {score(outcome['final'], 'trial_success'):.2f}")
+    finally:
+        bar.close()
+        if pool is not None:
+            pool.terminate()  # after Ctrl-C the workers have checkpointed their runs
+            pool.join()
     return write_study(config, sorted(outcomes, key=lambda o: o["seed"]), runs_dir)
 
 
@@ -109,5 +138,9 @@ def write_study(config: TrainConfig, outcomes: list[dict[str, Any]], runs_dir: P
     folder.mkdir(parents=True, exist_ok=True)
     write_json(folder / "study.json", study)
     write_atomically(folder / "study.md", f"# {config.name} over training seeds\n\n" + study_markdown(study) + "\n")
-    profile_figure(study).savefig(folder / "profile.png", dpi=100)
+    import matplotlib.pyplot as plt
+
+    figure = profile_figure(study)
+    figure.savefig(folder / "profile.png", dpi=100)
+    plt.close(figure)
     return folder

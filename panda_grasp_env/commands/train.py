@@ -204,7 +204,7 @@ def train_over_seeds(config, kind: str, args: argparse.Namespace) -> int:
     where = f"Ray tasks on {args.ray}" if args.ray else f"{args.workers} local process(es)"
     print(f"training {config.name} on seeds {args.seeds} in {where}; each run folder under {args.runs}")
     try:
-        study = train_seeds(config, args.seeds, args.runs, args.workers, args.ray)
+        study = train_seeds(config, args.seeds, args.runs, args.workers, args.ray, not args.no_progress)
     except KeyboardInterrupt:
         print("\ninterrupted: finished and checkpointed runs are kept; the same command continues", file=sys.stderr)
         return 130
