@@ -354,7 +354,8 @@ def episode_failure(
     """Why an episode ended without success (None if it succeeded), from its last step's ``info``: the
     simulation diverged; a directional break toppled the tower the wrong way; a failed primitive knocked the
     tower over; a built tower fell; objects left the workspace; the step limit (``out_of_steps``) ran out;
-    the task gave up (Grasp's K consecutive failures); or the MDP ended lost (a block set aside or out of reach)."""
+    the task gave up (Grasp's K consecutive failures); or else the MDP ended lost (a block set aside or out of
+    reach)."""
     if success:
         return None
     for flag, reason in (
@@ -368,9 +369,7 @@ def episode_failure(
             return reason
     if out_of_steps:
         return "step_limit"
-    if truncated:
-        return "gave_up"
-    return "lost" if terminated else "ended_early"
+    return "gave_up" if truncated else "lost"
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> list[float]:
