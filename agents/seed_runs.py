@@ -7,7 +7,7 @@ the aggregate needs).  A seed whose run folder already holds a finished run of t
 trained again, and one interrupted is resumed, so a study stopped by Ctrl-C continues where it stood.
 
 The runs' held-out test figures (``final.json``) are aggregated with ``rliable`` (Agarwal et al. 2021):
-interquartile mean, mean, median and optimality gap with 95 % stratified-bootstrap intervals, and the
+interquartile mean, mean and optimality gap with 95 % stratified-bootstrap intervals, and the
 performance profile (the fraction of runs scoring above each threshold tau, with its bootstrap band).  A
 study folder ``runs/<name>-seeds-<s1>-<s2>-...`` holds study.json, study.md and profile.png;
 ``train.py --ship STUDY --name N`` attaches it to shipped checkpoint N (same config but the seed) as
