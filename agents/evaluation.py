@@ -359,6 +359,7 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
     if spec.task == "BuildAndBreak":  # the ideal is per build-and-break cycle
         ideal = ideal * int(task_facts.get("cycles", 0))
     success = bool(info["is_success"])
+    limit = env.spec.max_episode_steps if env.spec is not None else None
     grasping = spec.task.startswith("Grasp") and "primitive_reason" in task_facts
     result = {
         "spec": spec.record(),
@@ -371,12 +372,37 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
         "cycles": int(task_facts.get("cycles", 0)),
         "sim_seconds": round(float(info["sim_time"]), 6),
         "failures": dict(sorted(failures.items())),
+        "failure": episode_failure(success, terminated, truncated, info, limit is not None and actions >= limit),
         "physics_error": bool(info["physics_error"]),
         "disturbed": int(disturbed),
         "transit_contacts": int(transit_contacts),
     }
     timing = {"wall_seconds": time.perf_counter() - began, "decision_seconds_median": float(np.median(decisions))}
     return {"result": result, "timing": timing}
+
+
+def episode_failure(
+    success: bool, terminated: bool, truncated: bool, info: dict[str, Any], out_of_steps: bool
+) -> str | None:
+    """Why an episode ended without success (None if it succeeded), from its last step's ``info``: the
+    simulation diverged; a directional break toppled the tower the wrong way; a failed primitive knocked the
+    tower over; a built tower fell; objects left the workspace; the step limit (``out_of_steps``) ran out;
+    the task gave up (Grasp's K consecutive failures); or else the MDP ended lost (a block set aside or out of
+    reach)."""
+    if success:
+        return None
+    for flag, reason in (
+        ("physics_error", "physics_error"),
+        ("wrong_direction", "wrong_direction"),
+        ("broken_by_failure", "knocked_over_by_failed_primitive"),
+        ("tower_fell", "tower_fell"),
+        ("objects_lost", "objects_lost"),
+    ):
+        if info.get(flag):
+            return reason
+    if out_of_steps:
+        return "step_limit"
+    return "gave_up" if truncated else "lost"
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> list[float]:
@@ -435,6 +461,8 @@ def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
         failures: Counter[str] = Counter()
         for r in episodes:
             failures.update(r["failures"])
+        # An episode recorded before episodes named their failure counts as "unrecorded".
+        why = Counter(r.get("failure", "unrecorded") for r in episodes if not r["success"])
         table[key] = {
             "episodes": n,
             "seeds": [r["spec"]["seed"] for r in episodes],
@@ -446,6 +474,7 @@ def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             "action_efficiency": round(ideal_done / actions, 4) if actions else 0.0,
             "cycles_per_sim_hour": round(sum(r["cycles"] for r in episodes) / sim_hours, 2) if sim_hours else 0.0,
             "failures": dict(sorted(failures.items())),
+            "episode_failures": dict(sorted(why.items())),
             "sim_seconds_per_episode": round(sim_hours * 3600 / n, 3),
             "physics_errors": sum(r["physics_error"] for r in episodes),
             # Objects moved or tipped besides each primitive's targets, per action (see panda_grasp_env.sim.collateral).

@@ -1,5 +1,6 @@
 """What a training run leaves behind, and how it ships: the evaluation log, the learning curve, the best
-policy (as data: ``policy_files``), the model card, and the shipped checkpoint folder."""
+policy (as data: ``policy_files``), the model card, and the shipped checkpoint folder (with, attached, its
+config's figures over training seeds: ``attach_study``)."""
 
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ from panda_grasp_env.agents.evaluation import describe_rate, is_low_level, task_
 from panda_grasp_env.agents.imitation import Demonstrations
 from panda_grasp_env.agents.learned import SHIPPED_FILES
 from panda_grasp_env.agents.policy_files import load_policy, policy_paths, save_policy
-from panda_grasp_env.tooling.runs import atomic_path, resume_summary, write_json
+from panda_grasp_env.agents.seed_figures import study_markdown
+from panda_grasp_env.tooling.runs import atomic_path, resume_summary, write_atomically, write_json
 
 
 def read_evaluations(run_dir: Path) -> list[dict[str, Any]]:
@@ -55,9 +57,10 @@ def plot_curve(run_dir: Path, title: str, steps: str = "environment steps") -> N
         axis.set_ylim(-0.02, 1.02)
         axis.grid(alpha=0.3)
     axes[0].set_ylabel("rate")
-    axes[0].legend(loc="lower right")
+    handles, labels = axes[0].get_legend_handles_labels()
     figure.suptitle(title)
-    figure.tight_layout()
+    figure.tight_layout(rect=(0, 0.08, 1, 1))  # the legend sits in a strip below the plots, over no point
+    figure.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False)
     with atomic_path(run_dir / "curve.png") as tmp:
         figure.savefig(tmp, dpi=100, format="png")
     plt.close(figure)
@@ -165,6 +168,7 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: 
                 else []
             ),  # fmt: skip
             f"- failures: {json.dumps(m['failures'])}",
+            *([f"- failed episodes, why: {json.dumps(m['episode_failures'])}"] if "episode_failures" in m else []),
         ]
 
     earlier = []
@@ -239,6 +243,7 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: 
         "",
         "![learning curve](curve.png)",
         "",
+        *seeds_section(run_dir),
         "## Config" + (" (as of the last session)" if meta.get("resumed") else ""),
         "",
         "```yaml",
@@ -247,6 +252,15 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: 
         "",
     ]
     return "\n".join(lines)
+
+
+def seeds_section(folder: Path) -> list[str]:
+    """The card's section on the config's figures over training seeds (seeds.json, from ``train.py --seeds``
+    attached with ``attach_study``), or nothing."""
+    if not (folder / "seeds.json").is_file():
+        return []
+    study = json.loads((folder / "seeds.json").read_text())
+    return ["## Over training seeds", "", study_markdown(study), "", "![performance profile](seeds_profile.png)", ""]
 
 
 def ship(run_dir: Path, name: str, avoid_failures: bool = False) -> Path:
@@ -297,3 +311,19 @@ def ship(run_dir: Path, name: str, avoid_failures: bool = False) -> Path:
     else:
         os.replace(staging, target)
     return target
+
+
+def attach_study(study_dir: Path, checkpoint: Path) -> Path:
+    """Give shipped ``checkpoint`` the study in ``study_dir`` (seeds.json, seeds_profile.png) and rewrite its
+    card; ``ValueError`` unless the study trained the checkpoint's config (its seed aside)."""
+    study = json.loads((study_dir / "study.json").read_text())
+    config = load_run(checkpoint)
+    own = {k: v for k, v in dataclasses.asdict(config).items() if k != "seed"}
+    differing = sorted(k for k in own.keys() | study["config"].keys() if own.get(k) != study["config"].get(k))
+    if differing:
+        raise ValueError(f"{study_dir} trained another config than {checkpoint.name}'s: {differing} differ")
+    shutil.copyfile(study_dir / "study.json", checkpoint / "seeds.json")
+    shutil.copyfile(study_dir / "profile.png", checkpoint / "seeds_profile.png")
+    final = json.loads((checkpoint / "final.json").read_text())
+    write_atomically(checkpoint / "card.md", model_card(config, checkpoint, final, checkpoint.name))
+    return checkpoint

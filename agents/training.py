@@ -226,7 +226,6 @@ def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_b
 
         def _on_training_start(self) -> None:
             self.started = time.perf_counter()
-            self.start_steps = self.num_timesteps
             self.next_eval = (self.num_timesteps // config.eval_every + 1) * config.eval_every
             self.next_checkpoint = (self.num_timesteps // config.checkpoint_every + 1) * config.checkpoint_every
             self.eval_env = make_env(config)
@@ -251,8 +250,7 @@ def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_b
             if self.num_timesteps >= self.next_checkpoint:
                 self.next_checkpoint += config.checkpoint_every
                 save_checkpoint(self.model, run_dir, self.wall())
-            rate = (self.num_timesteps - self.start_steps) / max(time.perf_counter() - self.started, 1e-9)
-            self.bar.set_postfix_str(f"{rate:.1f} steps/s, eval success {self.latest or '-'}", refresh=False)
+            self.bar.set_postfix_str(f"eval success {self.latest or '-'}", refresh=False)  # tqdm shows the speed
             return config.max_minutes is None or self.wall() < 60 * config.max_minutes
 
         def evaluate(self) -> None:

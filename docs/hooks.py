@@ -1,5 +1,6 @@
 """MkDocs hooks: a source tree laid out as the package installs (for the API reference), one page per
-registered id generated from the env itself, and one page per checkpoint card (with its figures).
+registered id generated from the env itself, one page per checkpoint card (with its figures), and the
+Results page's heatmaps.
 
 ``agents/`` and ``perception/`` install as ``panda_grasp_env.agents`` and ``panda_grasp_env.perception``
 (pyproject's package-dir); griffe reads sources by path, so it is given ``build/api-src/panda_grasp_env``:
@@ -17,6 +18,9 @@ ENV_IDS_SECTION = "Env ids (generated from the envs themselves)"
 CARDS_SECTION = "Checkpoint cards"
 #: Replaced in index.md by a link to every registered id's page.
 ENV_ID_LINKS = "<!-- env id links -->"
+#: Replaced in results.md by the heatmaps of the published quick results and of the checkpoints' held-out tests.
+QUICK_RESULTS = "<!-- quick results heatmap -->"
+HELD_OUT_RESULTS = "<!-- held-out results heatmap -->"
 
 
 def checkpoint_folders() -> list[Path]:
@@ -104,10 +108,43 @@ def on_config(config, **kwargs):  # MkDocs hook: the signature is MkDocs'
     return config
 
 
+def results_heatmaps() -> dict[str, str]:
+    """The Results page's heatmaps by marker: the quick table that benchmark.md publishes, and the held-out
+    final tests of the shipped checkpoints (their final.json)."""
+    import json
+
+    from panda_grasp_env.commands.results_page import HEATMAP_STYLE, heatmap_html, published_cells
+    from panda_grasp_env.registration import BENCHMARKS
+
+    quick = published_cells((ROOT / "docs" / "benchmark.md").read_text())
+    tasks = [t for t in BENCHMARKS if any(task == t for _, task in quick)]
+    held_out = {}
+    for card in sorted((ROOT / "agents" / "checkpoints").glob("*/card.md")):
+        task = json.loads((card.parent / "checkpoint.json").read_text())["task"]
+        final = json.loads((card.parent / "final.json").read_text())
+        held_out[(card.parent.name, task)] = final["metrics"]["trial_success"]
+    return {
+        QUICK_RESULTS: f"<style>{HEATMAP_STYLE}</style>"
+        + heatmap_html(quick, tasks, caption="Quick protocol: trial success (95 % Wilson interval, n)"),
+        HELD_OUT_RESULTS: heatmap_html(
+            held_out,
+            [t for t in BENCHMARKS if any(task == t for _, task in held_out)],
+            caption="Held-out final tests: trial success (95 % Wilson interval, n)",
+        ),
+    }
+
+
 def on_page_markdown(markdown, page, config, files, **kwargs):  # MkDocs hook: the signature is MkDocs'
-    """The home page's list of id pages, from the registry (a hand-kept list missed new ids)."""
+    """The home page's list of id pages, from the registry (a hand-kept list missed new ids); the Results
+    page's heatmaps."""
     from panda_grasp_env.registration import ENV_IDS
 
+    if page.file.src_uri == "results.md":
+        for marker, table in results_heatmaps().items():
+            if marker not in markdown:
+                raise ValueError(f"docs/results.md lost its {marker} marker")
+            markdown = markdown.replace(marker, f"<div class='results-heatmap'>{table}</div>")
+        return markdown
     if page.file.src_uri != "index.md":
         return markdown
     if ENV_ID_LINKS not in markdown:

@@ -9,6 +9,7 @@
     python evaluate.py --import my_lab.shelf --tasks Shelf   # tasks and agents registered outside the package
     python evaluate.py --resume             # finish an interrupted run without redoing episodes
     python evaluate.py --demo [--seed 0]    # the simulation-core demo: an oracle builds and breaks a tower
+    python evaluate.py compare RUN_A RUN_B  # did a change matter? tested differences per (agent, task)
 
 Agents: random, planned (perception-based planned baselines), oracle (the same, on
 true poses), expert (scripted ee_delta state machines for Lift, Push and Stack), and every shipped
@@ -16,11 +17,12 @@ learned checkpoint by name (agents/checkpoints/): on its own task, and on the ot
 task its observation and action spaces fit (a heightmap grasping policy on heaps and packed layouts).
 Tasks: the benchmarks the task modules register (``panda_grasp_env.registration.BENCHMARKS``): Grasp,
 GraspClutter, GraspAdversarial, TowerBuild, TowerBreak, TowerBreakDirectional, BuildAndBreak, PutInBin (primitive actions),
-Push, Lift, Stack (low-level ee_delta).  An agent that does not apply to a task is skipped (one line lists them;
-the report gives each reason).
+Push, Lift, Stack (low-level ee_delta).  An agent that does not apply to a task is skipped (one line counts them;
+the reports give each pair and reason).
 Outputs (``--out``, default results/quick or results/full): results.json and
 results.csv (deterministic: same seeds give identical files), timing.json,
-report.md, success.png, failures.png and one MP4 per (agent, task).
+report.md, report.html (one static page: heatmap, charts, failures, decision times, clips, protocol;
+``commands/results_page.py``), success.png, failures.png and one MP4 per (agent, task).
 """
 
 from __future__ import annotations
@@ -51,10 +53,11 @@ from panda_grasp_env.agents.evaluation import (
     task_options_from_pairs,
 )
 from panda_grasp_env.agents.towers import build_tower, push_tower
+from panda_grasp_env.commands.results_page import describe_seeds, save_pngs, write_page
 from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre
 from panda_grasp_env.sim.workcell import Workcell
-from panda_grasp_env.tooling.runs import commit, interrupt_on_signals, versions, write_atomically
+from panda_grasp_env.tooling.runs import commit, interrupt_on_signals, machine, versions, write_atomically
 from panda_grasp_env.tooling.video import VideoRecorder
 
 
@@ -322,7 +325,7 @@ def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) 
     if log.exists():  # keep only whole records (an interruption can cut the last line short)
         write_atomically(log, "".join(json.dumps(r, sort_keys=True) + "\n" for r in done.values()))
     todo = [s for s in specs if s.key not in done]
-    wins: Counter[str] = Counter()
+    wins: Counter[bool] = Counter()
     bar = tqdm(total=len(specs), initial=len(specs) - len(todo), desc="episodes", unit="ep")
     try:
         pool = None
@@ -337,10 +340,9 @@ def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) 
             record["commit"] = code
             _append(log, record)
             done[record["key"]] = record
-            agent = record["result"]["spec"]["agent"]
-            wins[agent] += record["result"]["success"]
+            wins[bool(record["result"]["success"])] += 1
             bar.update(1)
-            bar.set_postfix_str(" ".join(f"{a} {wins[a]}" for a in args.agents) + " successes")
+            bar.set_postfix_str(f"{wins[True]}/{wins.total()} succeeded")
         if pool is not None:
             pool.close()
             pool.join()
@@ -378,9 +380,11 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
         "seeds": {t: chosen_seeds(args, t) for t in args.tasks},
         "task_options": args.task_options,
         "imports": args.imports,
+        "skipped": args.skipped,
     }
     payload = {
         "protocol": protocol,
+        "provenance": {"commit": commit(), "versions": versions(), "machine": machine()},
         "metrics": table,
         "episodes": sorted(results, key=lambda r: (r["spec"]["agent"], r["spec"]["task"], r["spec"]["seed"])),
     }
@@ -399,6 +403,7 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
             "cycles_per_sim_hour",
             "collateral_per_action",
             "failures",
+            "episode_failures",
         ]
     ]
     for key, m in table.items():
@@ -414,6 +419,7 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
                 m["completion"]["rate"],
                 *applicable(task, m).values(),  # None: an empty cell
                 json.dumps(m["failures"]),
+                json.dumps(m["episode_failures"]),
             ]
         )
     buffer = io.StringIO()
@@ -436,10 +442,17 @@ def write_outputs(records: dict[str, dict], args: argparse.Namespace) -> dict:
     return {"table": table, "timing": timing, "protocol": protocol}
 
 
+def failures_text(m: dict) -> str:
+    """The failures cell: why episodes failed (``episode_failures``), then the failed actions by reason."""
+    why = ", ".join(f"{k} {v}" for k, v in m.get("episode_failures", {}).items())
+    actions = ", ".join(f"{k} {v}" for k, v in m["failures"].items())
+    return "; ".join(part for part in (why and f"episodes: {why}", actions and f"actions: {actions}") if part) or "-"
+
+
 def print_table(summary: dict) -> str:
     lines = [
         "| agent | task | N | trial success (95 % CI) | completion | grasp success | action efficiency | cycles / sim h "
-        "| collateral / action | ms / decision | failures |",
+        "| collateral / action | ms / decision | failures (why episodes failed; failed actions) |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for key, m in summary["table"].items():
@@ -457,55 +470,11 @@ def print_table(summary: dict) -> str:
             f"| {agent} | {task} | {m['episodes']} | {100 * s['rate']:.0f} % ({100 * s['ci95'][0]:.0f}-{100 * s['ci95'][1]:.0f}) "
             f"| {100 * m['completion']['rate']:.0f} % | {grasps} "
             f"| {efficiency} | {cycles} | {collateral} | {t['ms_per_decision']:.1f} "
-            f"| {', '.join(f'{k} {v}' for k, v in m['failures'].items()) or '-'} |"
+            f"| {failures_text(m)} |"
         )
     table = "\n".join(lines)
     print(table)
     return table
-
-
-def plots(summary: dict, out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    table = summary["table"]
-    tasks = list(dict.fromkeys(k.split("/")[1] for k in table))
-    agents = list(dict.fromkeys(k.split("/")[0] for k in table))
-    figure, axis = plt.subplots(figsize=(1.8 * len(tasks) + 2, 4))
-    width = 0.8 / len(agents)
-    for i, agent in enumerate(agents):
-        rates, low, high, xs = [], [], [], []
-        for j, task in enumerate(tasks):
-            if f"{agent}/{task}" in table:
-                s = table[f"{agent}/{task}"]["trial_success"]
-                xs.append(j + i * width)
-                rates.append(s["rate"])
-                low.append(s["rate"] - s["ci95"][0])
-                high.append(s["ci95"][1] - s["rate"])
-        axis.bar(xs, rates, width, yerr=[low, high], capsize=3, label=agent)
-    axis.set_xticks(np.arange(len(tasks)) + 0.4 - width / 2, tasks)
-    axis.set_ylabel("trial success (95 % Wilson CI)")
-    axis.set_ylim(0, 1.05)
-    axis.legend()
-    figure.tight_layout()
-    figure.savefig(out / "success.png", dpi=120)
-    plt.close(figure)
-    figure, axis = plt.subplots(figsize=(max(6, 0.9 * len(table)), 4))
-    reasons = sorted({r for m in table.values() for r in m["failures"]})
-    bottom = np.zeros(len(table))
-    for reason in reasons:
-        counts = np.array([m["failures"].get(reason, 0) for m in table.values()], dtype=float)
-        axis.bar(range(len(table)), counts, bottom=bottom, label=reason)
-        bottom += counts
-    axis.set_xticks(range(len(table)), list(table), rotation=45, ha="right", fontsize=7)
-    axis.set_ylabel("failed actions")
-    if reasons:
-        axis.legend(fontsize=7)
-    figure.tight_layout()
-    figure.savefig(out / "failures.png", dpi=120)
-    plt.close(figure)
 
 
 def videos(specs: list[EpisodeSpec], out: Path) -> list[Path]:
@@ -549,13 +518,6 @@ def learning_curves(args: argparse.Namespace) -> list[str]:
     return lines
 
 
-def describe_seeds(seeds: list[int]) -> str:
-    """``"a..b"`` for a run of consecutive seeds, else the list."""
-    if seeds == list(range(seeds[0], seeds[0] + len(seeds))):
-        return f"{seeds[0]}..{seeds[-1]} ({len(seeds)})"
-    return ",".join(map(str, seeds))
-
-
 def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: list[Path]) -> None:
     lines = [
         f"# {'Full' if args.full else 'Quick'} benchmark",
@@ -565,6 +527,8 @@ def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: 
         "Rates carry 95 % Wilson intervals; action efficiency = ideal actions of completed episodes / actions used.",
         "",
         table_md,
+        "",
+        "The same with a heatmap, per-task charts, failure reasons, decision times and clips: [report.html](report.html).",
         "",
         "![success](success.png)",
         "",
@@ -589,6 +553,11 @@ def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: 
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["compare"]:  # evaluate.py compare RUN_A RUN_B
+        from panda_grasp_env.commands.compare import main as compare
+
+        return compare(argv[1:])
     args = parse_args(argv)
     interrupt_on_signals()
     if args.demo:
@@ -601,8 +570,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     specs = episode_specs(args)
-    if args.skipped:  # the reasons are in the report
-        print(f"skipped {len(args.skipped)} agent/task pairs that do not apply: {', '.join(args.skipped)}")
+    if args.skipped:  # the pairs and their reasons are in the report
+        print(
+            f"skipped {len(args.skipped)} agent/task pairs that do not apply (which and why: {args.out / 'report.html'})"
+        )
     if not specs:
         print("nothing to run: no chosen agent applies to a chosen task", file=sys.stderr)
         return 2
@@ -613,13 +584,14 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     summary = write_outputs(records, args)
     table_md = print_table(summary)
-    plots(summary, args.out)
+    save_pngs(summary["table"], args.out)
     try:  # the videos replay episodes in the env the last episode left open (a one-worker run's)
         video_paths = [] if args.no_video else videos(specs, args.out)
     finally:
         close_kept_env()
     report(summary, table_md, args, video_paths)
-    print(f"{len(specs)} episodes in {time.perf_counter() - started:.0f} s; report: {args.out / 'report.md'}")
+    page = write_page(args.out)
+    print(f"{len(specs)} episodes in {time.perf_counter() - started:.0f} s; report: {args.out / 'report.md'}, {page}")
     return 0
 
 

@@ -7,7 +7,11 @@ Policies (SB3: ``heightmap_dqn``, ``sac``, ``tqc``, ``ppo``, and from demonstrat
 Overrides use dotted keys into mappings (``algo_kwargs.learning_rate=3e-4``,
 ``env_kwargs.rotations=8``); values are read as YAML.  Every run writes one
 folder under ``--runs`` (see ``agents/training.py``); Ctrl-C checkpoints it, and
-``--resume <run folder>`` continues it.  ``--ship <run folder> --name N`` copies
+``--resume <run folder>`` continues it.  ``--seeds 0,1,2`` trains the config on each seed (in ``--workers``
+local processes, or as Ray tasks with ``--ray ADDRESS``) and aggregates the runs' held-out figures with
+rliable (IQM, stratified-bootstrap CIs, performance profiles) in a study folder
+(``panda_grasp_env/agents/seed_runs.py``); ``--ship <study folder> --name N`` attaches it to checkpoint N's
+card.  ``--ship <run folder> --name N`` copies
 a finished run's model, card and curve to ``agents/checkpoints/N`` where
 ``panda_grasp_env.agents.learned.LearnedAgent`` and ``evaluate.py`` find it (fall-dynamics runs:
 ``panda_grasp_env/falls/checkpoints/N``).  ``--retest <run or checkpoint folder>`` runs a policy's final
@@ -21,6 +25,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -69,6 +74,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="with --resume: load latest.zip / replay.pkl / latest.pt even if this user's job did not "
                              "sign them in this folder (a run copied or moved here)")  # fmt: skip
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--seeds", default=None,
+                        help="with --config: train it on each of these comma-separated seeds and aggregate the "
+                             "runs (rliable) in runs/<name>-seeds-...")  # fmt: skip
+    parser.add_argument("--workers", type=int, default=None,
+                        help="--seeds: local training processes (default: one per seed, at most the cores)")  # fmt: skip
+    parser.add_argument("--ray", default=None,
+                        help="--seeds: train each seed as a Ray task on this cluster address ('local' starts one)")  # fmt: skip
     args = parser.parse_args(argv)
     chosen = sum(x is not None for x in (args.config, args.resume, args.ship, args.retest))
     if chosen != 1:
@@ -79,6 +91,29 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("--avoid-failures goes with --ship")
     if args.trust and args.resume is None:
         parser.error("--trust goes with --resume")
+    if (args.workers is not None or args.ray is not None) and args.seeds is None:
+        parser.error("--workers and --ray go with --seeds")
+    if args.seeds is not None:
+        from panda_grasp_env.agents.seed_runs import parse_seeds
+
+        if args.config is None:
+            parser.error("--seeds goes with --config")
+        try:
+            import rliable  # noqa: F401
+        except ImportError:
+            parser.error("--seeds aggregates with rliable: pip install -e '.[seeds]'")
+        try:
+            args.seeds = parse_seeds(args.seeds)
+        except ValueError as error:
+            parser.error(str(error))
+        if args.workers is not None and args.workers < 1:
+            parser.error(f"--workers must be >= 1, got {args.workers}")
+        args.workers = args.workers or min(len(args.seeds), os.cpu_count() or 1)
+        if args.ray is not None:
+            try:
+                import ray  # noqa: F401
+            except ImportError:
+                parser.error("--ray needs Ray: pip install -e '.[ray]'")
     return args
 
 
@@ -87,6 +122,14 @@ def main(argv: list[str] | None = None) -> int:
     interrupt_on_signals()
     try:
         if args.ship is not None:
+            if (args.ship / "study.json").is_file():  # a study over seeds: onto the checkpoint's card
+                from panda_grasp_env.agents.learned import CHECKPOINTS
+                from panda_grasp_env.agents.records import attach_study
+
+                if not (CHECKPOINTS / args.name / "checkpoint.json").is_file():
+                    raise ValueError(f"no shipped checkpoint {args.name!r} to attach {args.ship} to")
+                print(f"attached to {attach_study(args.ship, CHECKPOINTS / args.name)}")
+                return 0
             if (args.ship / "best.pt").exists():
                 from panda_grasp_env.falls.training import ship_fall_run
 
@@ -123,6 +166,8 @@ def main(argv: list[str] | None = None) -> int:
             record_resume(run_dir, args.overrides)
         else:
             config, kind = load_any(args.config, args.overrides, str(args.config))
+            if args.seeds is not None:
+                return train_over_seeds(config, kind, args)
             run_dir = start_fall_run(config, args.runs) if kind == "fall_dynamics" else start_run(config, args.runs)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
@@ -148,6 +193,24 @@ def main(argv: list[str] | None = None) -> int:
             f"time budget spent at {outcome['steps']} steps; more with  python train.py --resume {run_dir} max_minutes=M"
         )
     return report(outcome, run_dir)
+
+
+def train_over_seeds(config, kind: str, args: argparse.Namespace) -> int:
+    """``--seeds``: the config trained on each seed, then the study folder's aggregate printed."""
+    from panda_grasp_env.agents.seed_runs import train_seeds
+
+    if kind != "policy":
+        raise ValueError("--seeds trains policies; a fall-dynamics config has one dataset split, not seeds")
+    where = f"Ray tasks on {args.ray}" if args.ray else f"{args.workers} local process(es)"
+    print(f"training {config.name} on seeds {args.seeds} in {where}; each run folder under {args.runs}")
+    try:
+        study = train_seeds(config, args.seeds, args.runs, args.workers, args.ray, not args.no_progress)
+    except KeyboardInterrupt:
+        print("\ninterrupted: finished and checkpointed runs are kept; the same command continues", file=sys.stderr)
+        return 130
+    print((study / "study.md").read_text())
+    print(f"study: {study} (attach to a shipped checkpoint: python train.py --ship {study} --name NAME)")
+    return 0
 
 
 def report(outcome: dict, run_dir: Path) -> int:
