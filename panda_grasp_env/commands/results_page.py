@@ -66,6 +66,25 @@ def success_cells(table: dict[str, dict]) -> dict[tuple[str, str], dict[str, Any
     return {split_key(key): m["trial_success"] for key, m in table.items()}
 
 
+def _grid_table(
+    agents: list[str],
+    tasks: list[str],
+    cell: Callable[[str, str], str],
+    row_head: Callable[[str], str],
+    kind: str,
+    caption: str,
+) -> str:
+    """An agents × ``tasks`` HTML table: ``cell(agent, task)`` gives each ``<td>``, ``row_head(agent)`` each row's
+    heading; ``kind`` is the table's CSS class after ``heatmap``."""
+    head = "".join(f"<th scope='col'>{html.escape(t)}</th>" for t in tasks)
+    rows = [f"<tr><th scope='row'>{row_head(agent)}</th>{''.join(cell(agent, task) for task in tasks)}</tr>"
+            for agent in agents]  # fmt: skip
+    return (
+        f"<table class='heatmap{kind}'><caption>{html.escape(caption)}</caption>"
+        f"<thead><tr><th></th>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
+    )
+
+
 def heatmap_html(
     cells: dict[tuple[str, str], dict[str, Any]],
     tasks: list[str],
@@ -76,33 +95,26 @@ def heatmap_html(
     """An agents × ``tasks`` table of trial success: one ``td.cell`` per (agent, task) in ``cells`` (a rate:
     successes, n, ci95), shaded by its rate, with its interval; other pairs (of ``agents`` too, which may
     have no cell) are grey ``td.absent`` cells whose tooltip is ``absent(agent, task)``."""
-    agents = agent_order([*agents, *(agent for agent, _ in cells)])
-    head = "".join(f"<th scope='col'>{html.escape(t)}</th>" for t in tasks)
-    rows = []
-    for agent in agents:
-        tds = []
-        for task in tasks:
-            r = cells.get((agent, task))
-            if r is None:
-                tip = html.escape(absent(agent, task))
-                tds.append(f"<td class='absent' title='{tip}'>·</td>")
-                continue
-            low, high = r["ci95"]
-            background, ink = _shade(r["rate"])
-            tip = html.escape(f"{agent} on {task}: {r['successes']}/{r['n']} trials succeeded, "
-                              f"95 % interval {100 * low:.0f}–{100 * high:.0f} %")  # fmt: skip
-            tds.append(
-                f"<td class='cell' data-agent='{html.escape(agent)}' data-task='{html.escape(task)}' "
-                f"data-rate='{r['rate']}' title='{tip}' style='background:{background};color:{ink}'>"
-                f"{100 * r['rate']:.0f} %<small>{100 * low:.0f}–{100 * high:.0f} · n {r['n']}</small></td>"
-            )
-        swatch = f"<span class='swatch' style='background:{FAMILY_COLOURS[family(agent)]}'></span>"
-        rows.append(f"<tr><th scope='row'>{swatch}{html.escape(agent)}</th>{''.join(tds)}</tr>")
+
+    def cell(agent: str, task: str) -> str:
+        r = cells.get((agent, task))
+        if r is None:
+            return f"<td class='absent' title='{html.escape(absent(agent, task))}'>·</td>"
+        low, high = r["ci95"]
+        background, ink = _shade(r["rate"])
+        tip = html.escape(f"{agent} on {task}: {r['successes']}/{r['n']} trials succeeded, "
+                          f"95 % interval {100 * low:.0f}–{100 * high:.0f} %")  # fmt: skip
+        return (
+            f"<td class='cell' data-agent='{html.escape(agent)}' data-task='{html.escape(task)}' "
+            f"data-rate='{r['rate']}' title='{tip}' style='background:{background};color:{ink}'>"
+            f"{100 * r['rate']:.0f} %<small>{100 * low:.0f}–{100 * high:.0f} · n {r['n']}</small></td>"
+        )
+
+    def row_head(agent: str) -> str:
+        return f"<span class='swatch' style='background:{FAMILY_COLOURS[family(agent)]}'></span>{html.escape(agent)}"
+
     caption += "; shade from dark purple (0 %) to yellow (100 %), grey: not run (hover for why)"
-    return (
-        f"<table class='heatmap'><caption>{html.escape(caption)}</caption>"
-        f"<thead><tr><th></th>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
-    )
+    return _grid_table(agent_order([*agents, *(agent for agent, _ in cells)]), tasks, cell, row_head, "", caption)
 
 
 def published_cells(markdown: str) -> dict[tuple[str, str], dict[str, Any]]:
@@ -348,29 +360,18 @@ def _per_pair_table(table: dict[str, dict], timing: dict[str, dict]) -> str:
 
 def _decision_heatmap(table: dict[str, dict], timing: dict[str, dict], tasks: list[str]) -> str:
     """ms per decision per (agent, task), shaded on a log scale (1 ms .. 10 s)."""
-    cells = {}
-    for key in table:
-        if key in timing:
-            ms = timing[key]["ms_per_decision"]
-            cells[split_key(key)] = ms
-    agents = agent_order(a for a, _ in cells)
-    head = "".join(f"<th>{html.escape(t)}</th>" for t in tasks)
-    rows = []
-    for agent in agents:
-        tds = []
-        for task in tasks:
-            ms = cells.get((agent, task))
-            if ms is None:
-                tds.append("<td class='absent'>·</td>")
-                continue
-            background, ink = _shade(1 - np.clip(np.log10(max(ms, 1e-3)) / 4, 0, 1))
-            tds.append(f"<td style='background:{background};color:{ink}'>{ms:.3g}</td>")
-        rows.append(f"<tr><th scope='row'>{html.escape(agent)}</th>{''.join(tds)}</tr>")
-    return (
-        "<table class='heatmap decisions'><caption>Median milliseconds per decision (darker: slower; wall clock, "
-        "so it depends on the machine and its load)</caption>"
-        f"<thead><tr><th></th>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
-    )
+    cells = {split_key(key): timing[key]["ms_per_decision"] for key in table if key in timing}
+
+    def cell(agent: str, task: str) -> str:
+        ms = cells.get((agent, task))
+        if ms is None:
+            return "<td class='absent'>·</td>"
+        background, ink = _shade(1 - np.clip(np.log10(max(ms, 1e-3)) / 4, 0, 1))
+        return f"<td style='background:{background};color:{ink}'>{ms:.3g}</td>"
+
+    caption = ("Median milliseconds per decision (darker: slower; wall clock, so it depends on the machine and "
+               "its load)")  # fmt: skip
+    return _grid_table(agent_order(a for a, _ in cells), tasks, cell, html.escape, " decisions", caption)
 
 
 def _clips(out: Path, table: dict[str, dict]) -> str:
