@@ -28,6 +28,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.utils import polyak_update
 from torch.nn import functional
 
+from panda_grasp_env.agents.datasets import open_dataset
 from panda_grasp_env.agents.heightmap_policy import DIRECTED_PRIMITIVES, HeightmapDQN, encode_heightmap
 from panda_grasp_env.geometry import is_number
 
@@ -61,15 +62,13 @@ class Demonstrations:
 
     def episodes_data(self) -> list[Any]:
         """The chosen episodes (Minari ``EpisodeData``), in recorded order; ``ValueError`` if the dataset is
-        missing or holds too few."""
-        import minari
-
+        missing, holds too few, or is not data alone (``datasets.open_dataset``)."""
         folder = Path(self.path) / self.dataset / "data"
         if not folder.is_dir():
             raise ValueError(f"demonstrations: no Minari dataset {self.dataset!r} under {self.path} (record it with "
                              f"python -m panda_grasp_env.agents.demonstrations)")  # fmt: skip
         chosen = []
-        for episode in minari.MinariDataset(folder).iterate_episodes():
+        for episode in open_dataset(folder).iterate_episodes():
             success = bool(np.asarray(episode.infos.get("is_success", [False]))[-1]) if episode.infos else False
             if success or not self.successful_only:
                 chosen.append(episode)

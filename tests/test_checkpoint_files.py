@@ -227,3 +227,61 @@ def test_unknown_space_descriptions_are_refused():
         space_from_json({"Graph": {}})
     with pytest.raises(ValueError, match="malformed Box"):
         space_from_json({"Box": {"low": 0}})
+
+
+# --- the run-signing key: a key someone else could know makes every signature forgeable -----------------
+
+
+@pytest.fixture
+def key_home(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    from panda_grasp_env.tooling import runs
+
+    return runs
+
+
+def test_the_signing_key_is_made_private_and_then_reused(key_home):
+    key = key_home.run_key()
+    path = key_home.run_key_path()
+    assert len(key) == 32 and path.stat().st_mode & 0o777 == 0o600
+    assert key_home.run_key() == key
+
+
+@pytest.mark.parametrize("flaw", ["world-readable", "group-readable", "empty", "short", "long", "symlink",
+                                  "dangling symlink", "directory"])  # fmt: skip
+def test_a_signing_key_others_could_know_is_refused_with_the_mend(key_home, tmp_path, flaw):
+    import os
+
+    path = key_home.run_key_path()
+    path.parent.mkdir(parents=True)
+    real = tmp_path / "planted"
+    real.write_bytes(os.urandom(32))
+    real.chmod(0o600)
+    if flaw in ("symlink", "dangling symlink"):
+        path.symlink_to(real if flaw == "symlink" else tmp_path / "nothing")
+    elif flaw == "directory":
+        path.mkdir()
+    else:
+        size = {"empty": 0, "short": 16, "long": 64}.get(flaw, 32)
+        path.write_bytes(os.urandom(size))
+        path.chmod({"world-readable": 0o644, "group-readable": 0o640}.get(flaw, 0o600))
+    with pytest.raises(ValueError, match=rf"run-signing key {path} .*delete it \(rm {path}\)") as refused:
+        key_home.run_key()
+    why = {"world-readable": "mode 0644", "group-readable": "mode 0640", "empty": "holds 0 bytes",
+           "short": "holds 16 bytes", "long": "more than 32 bytes", "symlink": "is a symlink",
+           "dangling symlink": "is a symlink", "directory": "is not a regular file"}  # fmt: skip
+    assert why[flaw] in str(refused.value)
+    # Nothing is signed or checked with it.
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "latest.zip").write_bytes(b"x")
+    with pytest.raises(ValueError, match="run-signing key"):
+        sign_run_files(tmp_path / "run", ["latest.zip"])
+
+
+def test_a_signing_key_of_another_user_is_refused(key_home, monkeypatch):
+    import os
+
+    key_home.run_key()
+    monkeypatch.setattr(os, "getuid", lambda: os.stat(key_home.run_key_path()).st_uid + 1)
+    with pytest.raises(ValueError, match=r"belongs to user id \d+, not to you"):
+        key_home.run_key()

@@ -50,6 +50,7 @@ from panda_grasp_env.tooling.runs import (
     commit,
     config_from_mapping,
     new_run_folder,
+    run_key,
     resume_summary,
     sign_run_files,
     write_atomically,
@@ -196,6 +197,7 @@ def train_fall_model(
     from tqdm import tqdm
 
     torch.set_num_threads(config.torch_threads)
+    run_key()  # the key that signs its checkpoints: one others could know stops the run now, not at its first save
     train = load_split(config.dataset, "train", config.label_source, depth=config.use_depth)
     val = load_split(config.dataset, "val", config.label_source, verify=False, depth=config.use_depth)
     n_classes, size = len(train.classes), train.image_size
