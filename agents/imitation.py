@@ -30,7 +30,7 @@ from torch.nn import functional
 
 from panda_grasp_env.agents.datasets import open_dataset
 from panda_grasp_env.agents.heightmap_policy import DIRECTED_PRIMITIVES, HeightmapDQN, encode_heightmap
-from panda_grasp_env.geometry import is_number
+from panda_grasp_env.geometry import is_count, is_number
 
 
 @dataclass(frozen=True)
@@ -249,7 +249,7 @@ class BehaviourCloning(DemonstrationMixin, SAC):
     ) -> None:
         if _init_setup_model:
             _check_demonstrations(demonstrations, "bc")
-        if not (isinstance(batch_size, int) and batch_size >= 1):
+        if not (is_count(batch_size) and batch_size >= 1):
             raise ValueError(f"bc: batch_size must be an int >= 1, got {batch_size!r}")
         if not (is_number(observation_noise) and observation_noise >= 0):
             raise ValueError(f"bc: observation_noise must be a number >= 0, got {observation_noise!r}")

@@ -288,6 +288,10 @@ def test_bad_pixel_actions_raise():
         ({"render_mode": "ascii"}, "render_mode"),
         ({"image_size": (0, 10)}, "image_size"),
         ({"image_size": (True, True)}, "image_size"),
+        ({"obs_mode": "state+state"}, "obs_mode part 'state' appears twice in 'state\\+state'"),
+        ({"obs_mode": "rgbd+rgb"}, "obs_mode part 'rgb' appears twice in 'rgbd\\+rgb'"),
+        ({"n_blocks": True}, "task option 'n_blocks' must be an int"),
+        ({"action_mode": "pixel", "rotations": True}, "rotations"),
         ({"push_distance": "far"}, "push_distance"),
         ({"start_in_hand": "half"}, "start_in_hand must be a probability"),
         ({"start_in_hand": 1.5}, "start_in_hand must be a probability in \\[0, 1\\], got 1.5"),
@@ -323,6 +327,10 @@ def test_reset_options_must_be_a_mapping():
         ("PandaPush-v0", {"goal_distance": (0.1, float("nan"))}),
         ("PandaTowerBreak-v0", {"impulse_magnitude": "strong"}),
         ("PandaTowerBreak-v0", {"impulse_magnitude": True}),
+        ("PandaGrasp-v0", {"n_objects": True}),  # a bool is no count: True was read as 1
+        ("PandaGraspClutter-v0", {"max_failures": True}),
+        ("PandaTowerBreak-v0", {"k": True}),
+        ("PandaPutInBin-v0", {"n_blocks": True}),
     ],
 )
 def test_task_options_of_the_wrong_type_raise_value_errors_naming_them(env_id, kwargs):
