@@ -169,7 +169,11 @@ class PandaEnv(gym.Env):
         **task_options: passed to the task (see each task's docstring).
     """
 
-    metadata = {"render_modes": advertised_render_modes(), "render_fps": 25}
+    # The class names every mode, "human" included: ``gymnasium.make`` reads the class's metadata, and where
+    # "human" is missing it wraps an ``rgb_array`` env in its pygame ``HumanRendering`` instead of passing the
+    # mode on, so the env's own refusal without a display would never run.  An instance advertises the modes
+    # that work here (``advertised_render_modes``), which is what checkers read.
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 25}
 
     def __init__(
         self,
@@ -208,6 +212,7 @@ class PandaEnv(gym.Env):
         if render_mode == "human" and not display_available():
             raise ValueError("render_mode='human' needs a display (neither DISPLAY nor WAYLAND_DISPLAY is set); "
                              "use 'rgb_array' and save the frames, e.g. with gymnasium's RecordVideo")  # fmt: skip
+        self.metadata = {**PandaEnv.metadata, "render_modes": advertised_render_modes()}
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"unknown render_mode {render_mode!r}; valid: {self.metadata['render_modes']} or None")
         cameras = checked_cameras(cameras)

@@ -409,9 +409,7 @@ def test_physics_divergence_truncates_and_reset_recovers():
 @pytest.mark.parametrize("env_id", sorted(ENV_IDS))
 def test_render_check_passes_without_a_display(monkeypatch, env_id):
     # Gymnasium's default check_env builds every advertised render mode; "human" would end the process
-    # from C (GLFW) on a server, so without a display it is neither advertised nor accepted.  (gym.make
-    # then wraps an rgb_array env in its own HumanRendering, which raises a Python error without pygame
-    # or a display.)
+    # from C (GLFW) on a server, so without a display an env neither advertises nor accepts it.
     from panda_grasp_env import env as env_module
 
     monkeypatch.delenv("DISPLAY", raising=False)
@@ -420,8 +418,8 @@ def test_render_check_passes_without_a_display(monkeypatch, env_id):
         env_module.PandaEnv(task="TowerBreak", render_mode="human")
     advertised = env_module.advertised_render_modes()
     assert "human" not in advertised and "rgb_array" in advertised
-    monkeypatch.setitem(env_module.PandaEnv.metadata, "render_modes", advertised)  # as imported on a server
     env = gym.make(f"panda_grasp_env:{env_id}", render_mode="rgb_array", render_size=(64, 48))
+    assert env.unwrapped.metadata["render_modes"] == advertised
     gym_check_env(env.unwrapped)  # also builds and renders every advertised mode
     env.close()
 
@@ -459,3 +457,28 @@ def test_fuzzed_env_options_raise_value_errors_naming_them():
                 wrong.append((option, value, repr(error)))
     assert cases >= 100 and not wrong, wrong
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak < 1024**2
+
+
+@pytest.mark.parametrize("env_id", ["PandaTowerBuild-v0", "PandaPush-v0"])
+def test_human_rendering_through_gym_make_without_a_display_is_the_documented_value_error(monkeypatch, env_id):
+    """gymnasium.make wraps an env whose class lacks "human" in Gymnasium's pygame HumanRendering, which failed
+    only at reset (DependencyNotInstalled: pygame); the env's own refusal runs at make instead."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(ValueError, match="render_mode='human' needs a display .* use 'rgb_array'"):
+        gym.make(f"panda_grasp_env:{env_id}", render_mode="human")
+
+
+def test_human_rendering_through_gym_make_with_a_display_is_the_mujoco_viewer(monkeypatch):
+    from gymnasium.wrappers import HumanRendering
+
+    monkeypatch.setenv("DISPLAY", ":55")  # made, not reset: reset opens the viewer, which needs a real display
+    env = gym.make("panda_grasp_env:PandaTowerBuild-v0", render_mode="human")
+    wrappers = []
+    layer = env
+    while isinstance(layer, gym.Wrapper):
+        wrappers.append(type(layer))
+        layer = layer.env
+    assert HumanRendering not in wrappers and env.unwrapped.render_mode == "human"
+    assert "human" in env.unwrapped.metadata["render_modes"]
+    env.close()
