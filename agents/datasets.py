@@ -16,6 +16,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from panda_grasp_env.geometry import is_count
 from panda_grasp_env.registration import ENTRY_POINT, ENV_IDS
 from panda_grasp_env.tooling.runs import read_json
 
@@ -63,7 +64,7 @@ def env_spec(metadata: dict[str, Any], key: str, source: Path | str) -> tuple[st
     kwargs, steps = spec.get("kwargs") or {}, spec.get("max_episode_steps")
     if not isinstance(kwargs, dict) or not all(isinstance(k, str) for k in kwargs):
         raise ValueError(f"{source}: {key} keyword arguments must be a mapping, got {kwargs!r}")
-    if steps is not None and (not isinstance(steps, int) or isinstance(steps, bool) or steps < 1):
+    if steps is not None and (not is_count(steps) or steps < 1):
         raise ValueError(f"{source}: {key} max_episode_steps must be a positive int, got {steps!r}")
     return env_id, kwargs, steps
 

@@ -20,6 +20,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from panda_grasp_env.geometry import is_count
 from panda_grasp_env.tooling.runs import atomic_path, read_json, sha256, write_json
 
 #: The file format written by ``save_policy``; ``load_policy`` refuses others.
@@ -117,7 +118,7 @@ def space_to_json(space: gym.Space) -> dict[str, Any]:
 
 
 def _whole(value: Any, field: str, low: int, high: int) -> int:
-    if not isinstance(value, int) or isinstance(value, bool) or not low <= value <= high:
+    if not is_count(value) or not low <= value <= high:
         raise ValueError(f"{field} must be a whole number from {low} to {high}, got {_short(value)}")
     return value
 
@@ -226,13 +227,13 @@ def _decode(value: Any, source: Path, field: str = "arguments") -> Any:
         if len(value) > MAX_ENTRIES:
             raise ValueError(f"{source}: {field} has {len(value)} entries, more than {MAX_ENTRIES}")
         decoded = [_decode(v, source, f"{field}[{i}]") for i, v in enumerate(value)]
-        if all(isinstance(v, int) and not isinstance(v, bool) for v in decoded):  # layer widths: a quick floor
+        if all(is_count(v) for v in decoded):  # layer widths: a quick floor
             least = sum(a * b for a, b in zip(decoded, decoded[1:]))
             if least > MAX_PARAMETERS:
                 raise ValueError(f"{source}: {field} {decoded} makes layers of at least {least} parameters, more "
                                  f"than the {MAX_PARAMETERS} this project loads")  # fmt: skip
         return decoded
-    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > MAX_WIDTH:
+    if is_count(value) and abs(value) > MAX_WIDTH:
         raise ValueError(f"{source}: {field} is {_short(value)}; network sizes and counts stay within {MAX_WIDTH}")
     if isinstance(value, float) and not np.isfinite(value):
         raise ValueError(f"{source}: {field} is {value}, not a finite number")
