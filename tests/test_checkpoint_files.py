@@ -241,9 +241,13 @@ def key_home(tmp_path, monkeypatch):
     return runs
 
 
-def test_the_signing_key_is_made_private_and_then_reused(key_home):
+def key_path(tmp_path):
+    return tmp_path / "state" / "panda_grasp_env" / "run_key"
+
+
+def test_the_signing_key_is_made_private_and_then_reused(key_home, tmp_path):
     key = key_home.run_key()
-    path = key_home.run_key_path()
+    path = key_path(tmp_path)
     assert len(key) == 32 and path.stat().st_mode & 0o777 == 0o600
     assert key_home.run_key() == key
 
@@ -253,7 +257,7 @@ def test_the_signing_key_is_made_private_and_then_reused(key_home):
 def test_a_signing_key_others_could_know_is_refused_with_the_mend(key_home, tmp_path, flaw):
     import os
 
-    path = key_home.run_key_path()
+    path = key_path(tmp_path)
     path.parent.mkdir(parents=True)
     real = tmp_path / "planted"
     real.write_bytes(os.urandom(32))
@@ -279,11 +283,11 @@ def test_a_signing_key_others_could_know_is_refused_with_the_mend(key_home, tmp_
         sign_run_files(tmp_path / "run", ["latest.zip"])
 
 
-def test_a_signing_key_of_another_user_is_refused(key_home, monkeypatch):
+def test_a_signing_key_of_another_user_is_refused(key_home, tmp_path, monkeypatch):
     import os
 
     key_home.run_key()
-    monkeypatch.setattr(os, "getuid", lambda: os.stat(key_home.run_key_path()).st_uid + 1)
+    monkeypatch.setattr(os, "getuid", lambda: os.stat(key_path(tmp_path)).st_uid + 1)
     with pytest.raises(ValueError, match=r"belongs to user id \d+, not to you"):
         key_home.run_key()
 

@@ -62,8 +62,6 @@ def test_bad_arguments_stop_with_a_message(argv, capsys):
 import json  # noqa: E402
 import shutil  # noqa: E402
 
-from panda_grasp_env.agents import datasets  # noqa: E402
-
 
 def plant(metadata_path, marker, **spec_changes):
     """Rewrite a dataset's recorded env spec to run ``touch marker`` through ``os.system`` if anything builds it."""
@@ -83,6 +81,8 @@ def push_dataset(tmp_path_factory):
 
 @pytest.mark.parametrize("spec_changes", [{}, {"id": "PandaPush-v0"}, {"id": "Payload-v0"}])
 def test_replay_never_builds_the_env_a_datasets_entry_point_names(push_dataset, tmp_path, spec_changes):
+    from panda_grasp_env.agents import datasets
+
     folder = tmp_path / "data"
     shutil.copytree(push_dataset, folder)
     plant(folder / "metadata.json", tmp_path / "payload-ran", **spec_changes)
@@ -97,6 +97,8 @@ def test_replay_never_builds_the_env_a_datasets_entry_point_names(push_dataset, 
 
 
 def test_a_dataset_without_its_spaces_is_refused_before_minari_would_build_its_env(push_dataset, tmp_path):
+    from panda_grasp_env.agents import datasets
+
     folder = tmp_path / "data"
     shutil.copytree(push_dataset, folder)
     plant(folder / "metadata.json", tmp_path / "payload-ran", id="PandaPush-v0", entry_point="os:system")
@@ -111,16 +113,19 @@ def test_planted_shards_are_recorded_again_never_combined(tmp_path, capsys):
     argv = ("--agent", "random", "--task", "Push", "--episodes", "2", "--shard-size", "1", "--infos", "")
     record(tmp_path, *argv)
     shards = sorted((tmp_path / "panda_grasp_env").glob("push-random-shard*-v0"))
-    assert len(shards) == 2 and all((s / demonstrations.MANIFEST).is_file() for s in shards)
+    assert len(shards) == 2
     # Every shard swapped for one with the right episode count and a payload in its env spec; the second with
     # no manifest or signature at all.
     for shard in shards:
         plant(shard / "data" / "metadata.json", tmp_path / "payload-ran")
-    (shards[1] / demonstrations.MANIFEST).unlink()
-    (shards[1] / "signatures.json").unlink()
+    (shards[1] / "manifest.json").unlink(missing_ok=True)
+    (shards[1] / "signatures.json").unlink(missing_ok=True)
     capsys.readouterr()
     dataset = record(tmp_path, *argv)
     out = capsys.readouterr().out
+    try:
+        assert demonstrations.replay(dataset) and dataset.total_episodes == 2
+    finally:
+        assert not (tmp_path / "payload-ran").exists(), "a planted shard's payload ran"
     assert "0 of 2 shards already recorded" in out and out.count("recorded again") == 2
-    assert demonstrations.replay(dataset) and dataset.total_episodes == 2
-    assert not (tmp_path / "payload-ran").exists()
+    assert all((shard / demonstrations.MANIFEST).is_file() for shard in shards)
