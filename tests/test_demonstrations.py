@@ -81,14 +81,17 @@ def push_dataset(tmp_path_factory):
 
 @pytest.mark.parametrize("spec_changes", [{}, {"id": "PandaPush-v0"}, {"id": "Payload-v0"}])
 def test_replay_never_builds_the_env_a_datasets_entry_point_names(push_dataset, tmp_path, spec_changes):
-    from panda_grasp_env.agents import datasets
-
     folder = tmp_path / "data"
     shutil.copytree(push_dataset, folder)
     plant(folder / "metadata.json", tmp_path / "payload-ran", **spec_changes)
-    with pytest.raises(ValueError, match=r"metadata.json: env_spec (gives PandaPush-v0 the entry point 'os:system'"
-                                         r"|records env id 'Payload-v0', not one of this project's)"):  # fmt: skip
-        demonstrations.replay(minari.MinariDataset(folder))
+    try:
+        with pytest.raises(ValueError, match=r"metadata.json: env_spec (gives PandaPush-v0 the entry point "
+                                             r"'os:system'|records env id 'Payload-v0', not one of this project's)"):  # fmt: skip
+            demonstrations.replay(minari.MinariDataset(folder))
+    finally:
+        assert not (tmp_path / "payload-ran").exists(), "the dataset's payload ran"
+    from panda_grasp_env.agents import datasets
+
     with pytest.raises(ValueError, match="metadata.json: env_spec"):
         datasets.open_dataset(folder)
     assert not (tmp_path / "payload-ran").exists()

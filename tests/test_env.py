@@ -290,8 +290,6 @@ def test_bad_pixel_actions_raise():
         ({"image_size": (True, True)}, "image_size"),
         ({"obs_mode": "state+state"}, "obs_mode part 'state' appears twice in 'state\\+state'"),
         ({"obs_mode": "rgbd+rgb"}, "obs_mode part 'rgb' appears twice in 'rgbd\\+rgb'"),
-        ({"n_blocks": True}, "task option 'n_blocks' must be an int"),
-        ({"action_mode": "pixel", "rotations": True}, "rotations"),
         ({"push_distance": "far"}, "push_distance"),
         ({"start_in_hand": "half"}, "start_in_hand must be a probability"),
         ({"start_in_hand": 1.5}, "start_in_hand must be a probability in \\[0, 1\\], got 1.5"),
