@@ -311,12 +311,12 @@ def load_policy(stem: Path | str) -> Any:
         raise ValueError(f"{description}: arguments must be a mapping")
     arguments = _decode(facts["arguments"], description)
     if not weights.is_file():
-        raise ValueError(f"{weights} is missing (the weights {description} records)")
+        raise ValueError(f"{weights} is missing or is not the weights {description} records (no such file)")
     if weights.stat().st_size > MAX_WEIGHTS_BYTES:
         raise ValueError(f"{weights} holds {weights.stat().st_size} bytes, more than the {MAX_WEIGHTS_BYTES} a "
                          f"policy's weights may")  # fmt: skip
     if sha256(weights) != facts.get("weights_sha256"):
-        raise ValueError(f"{weights} is not the weights {description} records (SHA-256 differs)")
+        raise ValueError(f"{weights} is missing or is not the weights {description} records (SHA-256 differs)")
     try:
         parameters = count_parameters(policy_class, arguments)
     except Exception as error:  # arguments of another version or of no policy: say which file
