@@ -15,7 +15,7 @@ import gymnasium as gym
 import numpy as np
 import yaml
 
-from panda_grasp_env.geometry import is_number
+from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.tooling.runs import check_resume_changes, config_from_mapping
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
@@ -116,15 +116,15 @@ class TrainConfig:
                     "torch_threads"):  # fmt: skip
             value = getattr(self, key)
             check(isinstance(value, int) and not isinstance(value, bool) and value >= 1, key, "an int >= 1")
-        check(isinstance(self.seed, int) and self.seed >= 0, "seed", "an int >= 0")
+        check(is_count(self.seed) and self.seed >= 0, "seed", "an int >= 0")
         check(isinstance(self.selection_episodes, int) and not isinstance(self.selection_episodes, bool)
               and 0 <= self.selection_episodes <= MOST_SELECTION_EPISODES, "selection_episodes",
               f"an int in [0, {MOST_SELECTION_EPISODES}] (clear of the test seeds)")  # fmt: skip
-        check(isinstance(self.eval_seed, int) and self.eval_seed >= 0, "eval_seed", "an int >= 0")
+        check(is_count(self.eval_seed) and self.eval_seed >= 0, "eval_seed", "an int >= 0")
         check(self.vec_env in ("dummy", "subproc"), "vec_env", "'dummy' or 'subproc'")
         check(self.max_minutes is None or (isinstance(self.max_minutes, (int, float)) and self.max_minutes > 0),
               "max_minutes", "a positive number or null")  # fmt: skip
-        check(self.max_episode_steps is None or (isinstance(self.max_episode_steps, int) and self.max_episode_steps > 0),
+        check(self.max_episode_steps is None or (is_count(self.max_episode_steps) and self.max_episode_steps > 0),
               "max_episode_steps", "a positive int or null")  # fmt: skip
         for key in ("env_kwargs", "train_env_kwargs", "algo_kwargs", "policy_kwargs"):
             check(isinstance(getattr(self, key), dict), key, "a mapping")

@@ -12,15 +12,18 @@ every step.  Images are JPEG-encoded by Minari unless ``--lossless``, which exac
 observations need.
 
 ``--workers`` processes record shards of ``--shard-size`` episodes, each its own Minari dataset
-(``<name without version>-shardNNNNN-v0``).  A rerun keeps the shards that hold all their episodes and records
-the rest, so Ctrl-C loses at most the shards in progress.  At the end the shards are combined into ``<name>``,
-and the episodes per second are printed.  Datasets live under ``--out`` (Minari's ``MINARI_DATASETS_PATH``):
+(``<name without version>-shardNNNNN-v0``) with a manifest (agent, task, options, seeds, episode count and
+the SHA-256 of every data file) that this user's key signs (``tooling.runs.sign_run_files``).  A rerun keeps
+the shards whose signed manifest matches their files and this recording, and records the rest, so Ctrl-C
+loses at most the shards in progress; a shard someone else put there is recorded again, never combined.
+At the end the shards are combined into ``<name>``, and the episodes per second are printed.  Datasets live under ``--out`` (Minari's ``MINARI_DATASETS_PATH``):
 ``minari.load_dataset(name)`` reads them there.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import multiprocessing
 import os
 import shutil
@@ -32,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.agents.datasets import open_dataset, recorded_env
 from panda_grasp_env.agents.evaluation import (
     EpisodeSpec,
     all_agents,
@@ -41,7 +45,10 @@ from panda_grasp_env.agents.evaluation import (
     task_options_from_pairs,
 )
 from panda_grasp_env.registration import BENCHMARKS
-from panda_grasp_env.tooling.runs import commit
+from panda_grasp_env.tooling.runs import commit, is_signed, read_json, sha256, sign_run_files, write_json
+
+#: A shard's manifest, in its dataset folder.
+MANIFEST = "manifest.json"
 
 
 def kept_infos(keys: tuple[str, ...]) -> type:
@@ -95,22 +102,39 @@ def record_shard(job: dict[str, Any]) -> int:
             description=f"{job['agent']} on {job['task']}, seeds {job['seeds'][0]}-{job['seeds'][-1]}",
         )
     collector.close()
+    folder = Path(job["out"]) / job["dataset_id"]
+    write_json(folder / MANIFEST, manifest(job, folder, dataset.total_episodes))
+    sign_run_files(folder, [MANIFEST])
     return dataset.total_episodes
 
 
-def finished(out: Path, dataset_id: str, episodes: int) -> bool:
-    """Whether a shard's dataset exists and holds all its episodes (else it is removed, to be recorded again)."""
-    import minari
+def manifest(job: dict[str, Any], folder: Path, episodes: int) -> dict[str, Any]:
+    """What a shard holds: the job that recorded it (agent, task, options, seeds, infos, image encoding), its
+    episode count and the SHA-256 of each file under ``folder`` / data, as JSON values."""
+    files = {str(p.relative_to(folder)): sha256(p) for p in sorted((folder / "data").rglob("*")) if p.is_file()}
+    facts = {k: job[k] for k in ("agent", "task", "options", "seeds", "infos", "lossless")}
+    return json.loads(json.dumps({**facts, "episodes": episodes, "files": files}))
 
-    path = out / dataset_id
-    if not path.exists():
+
+def finished(job: dict[str, Any]) -> bool:
+    """Whether the job's shard is recorded: its folder holds a manifest this user's key signed there, for this
+    job, whose hashes match the files and whose episodes are all there.  Any other shard folder (cut short by
+    Ctrl-C, recorded for other seeds, or put there by someone else) is removed, to be recorded again."""
+    folder = Path(job["out"]) / job["dataset_id"]
+    if not folder.exists():
         return False
+    why = "its manifest is not one this user's job signed there"
     try:
-        if minari.load_dataset(dataset_id).total_episodes == episodes:
-            return True
-    except Exception:  # noqa: BLE001  (a shard cut short by Ctrl-C: any read error means record it again)
-        pass
-    shutil.rmtree(path)
+        if is_signed(folder, MANIFEST):
+            recorded = read_json(folder / MANIFEST, 64 << 20)
+            expected = manifest(job, folder, len(job["seeds"]))
+            why = "its manifest does not match its files and this recording"
+            if recorded == expected and open_dataset(folder / "data").total_episodes == len(job["seeds"]):
+                return True
+    except ValueError as error:
+        why = str(error)
+    print(f"shard {job['dataset_id']} recorded again: {why}")
+    shutil.rmtree(folder)
     return False
 
 
@@ -133,7 +157,7 @@ def record(args: argparse.Namespace) -> Any:
     namespace = args.name.split("/")[0] if "/" in args.name else None
     if namespace is not None and namespace not in list_local_namespaces():
         create_namespace(namespace)
-    todo = [job for job in jobs if not finished(args.out.resolve(), job["dataset_id"], len(job["seeds"]))]
+    todo = [job for job in jobs if not finished(job)]
     print(f"{len(jobs) - len(todo)} of {len(jobs)} shards already recorded; recording {len(todo)}")
     start, done = time.perf_counter(), 0
     if args.workers > 1 and len(todo) > 1:
@@ -148,7 +172,8 @@ def record(args: argparse.Namespace) -> Any:
               f"{done / (time.perf_counter() - start):.1f} episodes/s")  # fmt: skip
     if (args.out.resolve() / args.name).exists():
         minari.delete_dataset(args.name)
-    dataset = minari.combine_datasets([minari.load_dataset(job["dataset_id"]) for job in jobs], args.name)
+    shards = [open_dataset(args.out.resolve() / job["dataset_id"] / "data") for job in jobs]
+    dataset = minari.combine_datasets(shards, args.name)
     # Combining keeps the episodes but not their seeds, which replaying needs: put them back, in order.
     dataset.storage.update_episode_metadata([{"seed": seed} for seed in seeds])
     print(f"dataset {args.name}: {dataset.total_episodes} episodes, {dataset.total_steps} steps, under {args.out}")
@@ -157,10 +182,11 @@ def record(args: argparse.Namespace) -> Any:
 
 def replay(dataset: Any, episode: int = 0) -> bool:
     """Whether resetting the dataset's env with an episode's seed and stepping its actions reproduces its
-    observations (exactly for state; images only when recorded losslessly)."""
+    observations (exactly for state; images only when recorded losslessly).  The env is this project's own
+    registration of the id the dataset records (``datasets.recorded_env``), never the entry point it names."""
     data = next(dataset.iterate_episodes([episode]))
     seed = next(iter(dataset.storage.get_episode_metadata([episode])))["seed"]
-    env = dataset.recover_environment()
+    env = recorded_env(dataset)
     observation, _ = env.reset(seed=int(seed))
     same = [_equal(observation, data.observations, 0)]
     actions = data.actions

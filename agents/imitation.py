@@ -28,8 +28,9 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.utils import polyak_update
 from torch.nn import functional
 
+from panda_grasp_env.agents.datasets import open_dataset
 from panda_grasp_env.agents.heightmap_policy import DIRECTED_PRIMITIVES, HeightmapDQN, encode_heightmap
-from panda_grasp_env.geometry import is_number
+from panda_grasp_env.geometry import is_count, is_number
 
 
 @dataclass(frozen=True)
@@ -61,15 +62,13 @@ class Demonstrations:
 
     def episodes_data(self) -> list[Any]:
         """The chosen episodes (Minari ``EpisodeData``), in recorded order; ``ValueError`` if the dataset is
-        missing or holds too few."""
-        import minari
-
+        missing, holds too few, or is not data alone (``datasets.open_dataset``)."""
         folder = Path(self.path) / self.dataset / "data"
         if not folder.is_dir():
             raise ValueError(f"demonstrations: no Minari dataset {self.dataset!r} under {self.path} (record it with "
                              f"python -m panda_grasp_env.agents.demonstrations)")  # fmt: skip
         chosen = []
-        for episode in minari.MinariDataset(folder).iterate_episodes():
+        for episode in open_dataset(folder).iterate_episodes():
             success = bool(np.asarray(episode.infos.get("is_success", [False]))[-1]) if episode.infos else False
             if success or not self.successful_only:
                 chosen.append(episode)
@@ -250,7 +249,7 @@ class BehaviourCloning(DemonstrationMixin, SAC):
     ) -> None:
         if _init_setup_model:
             _check_demonstrations(demonstrations, "bc")
-        if not (isinstance(batch_size, int) and batch_size >= 1):
+        if not (is_count(batch_size) and batch_size >= 1):
             raise ValueError(f"bc: batch_size must be an int >= 1, got {batch_size!r}")
         if not (is_number(observation_noise) and observation_noise >= 0):
             raise ValueError(f"bc: observation_noise must be a number >= 0, got {observation_noise!r}")

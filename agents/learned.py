@@ -18,7 +18,6 @@ loading it runs any code it holds) loads only with ``trust=True``; ``Checkpoint.
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +27,7 @@ import numpy as np
 from panda_grasp_env.agents.config import TrainConfig, config_from_dict, make_env, observation_transform
 from panda_grasp_env.agents.policy_agent import PolicyAgent
 from panda_grasp_env.agents.policy_files import export_sb3, load_policy, load_sb3, policy_paths
-from panda_grasp_env.tooling.runs import sha256
+from panda_grasp_env.tooling.runs import read_json, sha256
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
 SHIPPED_FILES = (
@@ -51,6 +50,56 @@ def available_checkpoints() -> list[str]:
     return sorted(p.name for p in CHECKPOINTS.iterdir() if (p / "checkpoint.json").is_file())
 
 
+#: checkpoint.json's keys and their JSON types (``task`` and ``steps`` required); a value of another type
+#: (``"avoid_failures": "no"``) is refused, not read by Python's truthiness.
+CHECKPOINT_FACTS: dict[str, type | tuple[type, ...]] = {
+    "task": str, "steps": int, "policy_class": str, "env_id": str, "algo": str, "avoid_failures": bool,
+}  # fmt: skip
+#: Largest checkpoint.json and config.yaml read, in bytes.
+MAX_FACTS_BYTES = 64 << 10
+MAX_CONFIG_BYTES = 1 << 20
+
+
+def read_checkpoint_facts(path: Path) -> dict[str, Any]:
+    """checkpoint.json, checked: a JSON mapping of ``CHECKPOINT_FACTS`` with exactly their types (``steps`` a
+    whole number >= 0); ``ValueError`` naming the file and the key otherwise."""
+    facts = read_json(path, MAX_FACTS_BYTES)
+    if not isinstance(facts, dict):
+        raise ValueError(f"{path} must be a JSON mapping of {list(CHECKPOINT_FACTS)}, got a {type(facts).__name__}")
+    unknown = sorted(set(facts) - set(CHECKPOINT_FACTS))
+    missing = [k for k in ("task", "steps") if k not in facts]
+    if unknown or missing:
+        raise ValueError(f"{path}: unknown key(s) {unknown}, missing key(s) {missing}; valid: {list(CHECKPOINT_FACTS)}")
+    for key, value in facts.items():
+        kind = CHECKPOINT_FACTS[key]
+        if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+            raise ValueError(f"{path}: {key} must be a JSON {'boolean' if kind is bool else kind.__name__}, "
+                             f"got {value!r:.80}")  # fmt: skip
+    if facts["steps"] < 0:
+        raise ValueError(f"{path}: steps must be >= 0, got {facts['steps']}")
+    return facts
+
+
+def read_config(path: Path) -> TrainConfig:
+    """A checkpoint's config.yaml (YAML's safe subset, at most ``MAX_CONFIG_BYTES``); ``ValueError`` naming it."""
+    import yaml
+
+    try:
+        if path.stat().st_size > MAX_CONFIG_BYTES:
+            raise ValueError(f"{path} holds {path.stat().st_size} bytes, more than the {MAX_CONFIG_BYTES} it may")
+        raw = yaml.safe_load(path.read_text())
+    except OSError as error:
+        raise ValueError(f"cannot read {path}: {error.strerror or error}") from None
+    except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as error:
+        raise ValueError(f"{path} is not valid YAML: {error}") from None
+    if not isinstance(raw, dict) or not all(isinstance(k, str) for k in raw):
+        raise ValueError(f"{path} must be a mapping of training config keys")
+    try:
+        return config_from_dict(raw, str(path))
+    except TypeError as error:  # a value of the wrong type, met by the config's own checks
+        raise ValueError(f"{path}: {error}") from None
+
+
 class Checkpoint:
     """A shipped checkpoint folder (or any folder laid out the same way)."""
 
@@ -63,10 +112,8 @@ class Checkpoint:
             raise ValueError(f"unknown checkpoint {str(name_or_path)!r}; available: {available_checkpoints()}")
         self.path = path
         self.name = path.name
-        self.meta = json.loads((path / "checkpoint.json").read_text())
-        import yaml
-
-        self.config: TrainConfig = config_from_dict(yaml.safe_load((path / "config.yaml").read_text()), str(path))
+        self.meta = read_checkpoint_facts(path / "checkpoint.json")
+        self.config: TrainConfig = read_config(path / "config.yaml")
         self.trust = trust
         if not policy_paths(path / "policy")[0].is_file() and not (path / "policy.zip").is_file():
             raise ValueError(f"checkpoint {self.name} is incomplete: policy.json missing in {path}")
@@ -79,7 +126,7 @@ class Checkpoint:
     def avoid_failures(self) -> bool:
         """Whether the policy acts with a ``FailureMemory`` as shipped: a choice made on selection seeds
         (``benchmarks/failure_memory.py --seeds selection``), not part of its training."""
-        return bool(self.meta.get("avoid_failures", False))
+        return self.meta.get("avoid_failures", False)
 
     def load_policy(self) -> Any:
         """The policy, from policy.json + policy.safetensors; from an SB3 policy.zip only if ``trust``."""

@@ -13,7 +13,6 @@ one for SB3 users; ``load_sb3`` reads one only with ``trust=True``.
 
 from __future__ import annotations
 
-import json
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -21,10 +20,33 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from panda_grasp_env.tooling.runs import atomic_path, sha256, write_json
+from panda_grasp_env.geometry import is_count
+from panda_grasp_env.tooling.runs import atomic_path, read_json, sha256, write_json
 
 #: The file format written by ``save_policy``; ``load_policy`` refuses others.
 FORMAT = 1
+
+# Limits ``load_policy`` checks before it allocates anything (a policy file is data someone else may have
+# written; the largest shipped policy has 4.5 M parameters, 18 MB of weights and a 3 kB policy.json).
+#: Largest policy.json, in bytes.
+MAX_DESCRIPTION_BYTES = 1 << 20
+#: Deepest nesting of lists and mappings in policy.json.
+MAX_DEPTH = 16
+#: Largest safetensors file, in bytes.
+MAX_WEIGHTS_BYTES = 256 << 20
+#: Largest whole number among the constructor arguments (layer widths, channels, critics, rotations).
+MAX_WIDTH = 4096
+#: Most entries in one list or mapping among the constructor arguments (layers of a ``net_arch`` ...).
+MAX_ENTRIES = 32
+#: Tighter limits on arguments that multiply whole networks (SB3 defaults to 2 critics, TQC's paper used 5).
+ARGUMENT_LIMITS = {"n_critics": 10}
+#: Most parameters a policy may have (counted on PyTorch's meta device, which allocates nothing).
+MAX_PARAMETERS = 64_000_000
+#: Most elements of one Box space, and most sub-spaces of a Dict space.
+MAX_SPACE_ELEMENTS = 1 << 22
+MAX_SPACE_KEYS = 64
+#: The dtypes a Box space may have.
+SPACE_DTYPES = ("uint8", "int8", "int16", "int32", "int64", "float16", "float32", "float64", "bool")
 
 
 def class_name(cls: type) -> str:
@@ -95,27 +117,71 @@ def space_to_json(space: gym.Space) -> dict[str, Any]:
     raise ValueError(f"cannot describe a {type(space).__name__} space in a policy file")
 
 
-def space_from_json(description: Any) -> gym.Space:
-    """The space ``space_to_json`` described; ``ValueError`` for anything else."""
+def _whole(value: Any, field: str, low: int, high: int) -> int:
+    if not is_count(value) or not low <= value <= high:
+        raise ValueError(f"{field} must be a whole number from {low} to {high}, got {_short(value)}")
+    return value
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def space_from_json(description: Any, field: str = "space") -> gym.Space:
+    """The space ``space_to_json`` described; ``ValueError`` naming ``field`` (where the description sits) for
+    anything else, and for shapes, counts or dtypes beyond ``MAX_SPACE_ELEMENTS``, ``MAX_SPACE_KEYS`` and
+    ``SPACE_DTYPES``, before anything is allocated."""
     if not isinstance(description, dict) or len(description) != 1:
-        raise ValueError(f"not a space description: {description!r}")
+        raise ValueError(f"{field}: not a space description: {_short(description)}")
     (kind, fields), = description.items()  # fmt: skip
+    field = f"{field}.{kind}"
+    if kind not in ("Box", "Discrete", "MultiDiscrete", "MultiBinary", "Dict"):
+        raise ValueError(f"{field}: unknown space kind {kind!r}")
+    if not isinstance(fields, dict):
+        raise ValueError(f"{field}: malformed {kind} space description {_short(fields)}")
     try:
         if kind == "Box":
-            dtype, shape = np.dtype(fields["dtype"]), tuple(fields["shape"])
-            low, high = (np.broadcast_to(np.asarray(fields[k], dtype), shape).copy() for k in ("low", "high"))
-            return gym.spaces.Box(low, high, shape, dtype)
+            shape = fields["shape"]
+            if not isinstance(shape, list) or len(shape) > 8:
+                raise ValueError(f"{field}.shape must be a list of at most 8 sizes, got {_short(shape)}")
+            shape = tuple(_whole(n, f"{field}.shape", 1, MAX_SPACE_ELEMENTS) for n in shape)
+            if int(np.prod(shape)) > MAX_SPACE_ELEMENTS:
+                raise ValueError(f"{field}.shape {list(shape)} has more than {MAX_SPACE_ELEMENTS} elements")
+            if fields["dtype"] not in SPACE_DTYPES:
+                raise ValueError(f"{field}.dtype must be one of {list(SPACE_DTYPES)}, got {_short(fields['dtype'])}")
+            dtype = np.dtype(fields["dtype"])
+            bounds = []
+            for key in ("low", "high"):
+                bound = np.asarray(fields[key])
+                if bound.dtype.kind not in "biuf" or bound.size not in (1, int(np.prod(shape))):
+                    raise ValueError(f"{field}.{key} must be a number or numbers of shape {list(shape)}")
+                bounds.append(np.broadcast_to(bound.astype(dtype), shape).copy())
+            return gym.spaces.Box(bounds[0], bounds[1], shape, dtype)
         if kind == "Discrete":
-            return gym.spaces.Discrete(int(fields["n"]), start=int(fields["start"]))
+            n = _whole(fields["n"], f"{field}.n", 1, 2**31 - 1)
+            return gym.spaces.Discrete(n, start=_whole(fields["start"], f"{field}.start", -(2**31), 2**31 - 1))
         if kind == "MultiDiscrete":
-            return gym.spaces.MultiDiscrete(fields["nvec"], start=fields["start"])
+            nvec, start = fields["nvec"], fields["start"]
+            if not isinstance(nvec, list) or not isinstance(start, list) or not 1 <= len(nvec) <= MAX_SPACE_KEYS:
+                raise ValueError(f"{field}.nvec and .start must be lists of 1 to {MAX_SPACE_KEYS} counts")
+            nvec = [_whole(n, f"{field}.nvec", 1, 2**31 - 1) for n in nvec]
+            start = [_whole(n, f"{field}.start", -(2**31), 2**31 - 1) for n in start]
+            return gym.spaces.MultiDiscrete(nvec, start=start)
         if kind == "MultiBinary":
-            return gym.spaces.MultiBinary(fields["n"])
-        if kind == "Dict":
-            return gym.spaces.Dict({key: space_from_json(sub) for key, sub in fields.items()})
-    except (KeyError, TypeError, ValueError) as error:
-        raise ValueError(f"malformed {kind} space description {fields!r}: {error}") from None
-    raise ValueError(f"unknown space kind {kind!r}")
+            n = fields["n"]
+            sizes = n if isinstance(n, list) else [n]
+            sizes = [_whole(k, f"{field}.n", 1, MAX_SPACE_ELEMENTS) for k in sizes]
+            if not sizes or len(sizes) > 8 or int(np.prod(sizes)) > MAX_SPACE_ELEMENTS:
+                raise ValueError(f"{field}.n must be 1 to 8 sizes of at most {MAX_SPACE_ELEMENTS} elements in all")
+            return gym.spaces.MultiBinary(sizes if isinstance(n, list) else sizes[0])
+        if len(fields) > MAX_SPACE_KEYS:
+            raise ValueError(f"{field} has {len(fields)} sub-spaces, more than {MAX_SPACE_KEYS}")
+        return gym.spaces.Dict({key: space_from_json(sub, f"{field}.{key}") for key, sub in fields.items()})
+    except KeyError as error:
+        raise ValueError(f"{field}: malformed {kind} space description, no {error}") from None
+    except (TypeError, OverflowError, AssertionError) as error:
+        raise ValueError(f"{field}: malformed {kind} space description {_short(fields)}: {error}") from None
 
 
 # --- constructor arguments ------------------------------------------------------------------------------
@@ -140,16 +206,53 @@ def _encode(value: Any, key: str) -> Any:
     raise ValueError(f"argument {key}: cannot store a {type(value).__name__} in a policy file")
 
 
-def _decode(value: Any, source: Path) -> Any:
+def _decode(value: Any, source: Path, field: str = "arguments") -> Any:
+    """Constructor arguments from their JSON form: spaces and allowed classes rebuilt, every whole number at
+    most ``MAX_WIDTH`` and every list or mapping at most ``MAX_ENTRIES`` long (``ValueError`` naming the field)."""
     if isinstance(value, dict):
         if set(value) == {"__space__"}:
-            return space_from_json(value["__space__"])
+            try:
+                return space_from_json(value["__space__"], field)
+            except ValueError as error:
+                raise ValueError(f"{source}: {error}") from None
         if set(value) == {"__class__"}:
             return _allowed(value["__class__"], argument_classes(), "argument class", source)
-        return {k: _decode(v, source) for k, v in value.items()}
+        if len(value) > MAX_ENTRIES:
+            raise ValueError(f"{source}: {field} has {len(value)} entries, more than {MAX_ENTRIES}")
+        for key, limit in ARGUMENT_LIMITS.items():
+            if isinstance(value.get(key), int) and value[key] > limit:
+                raise ValueError(f"{source}: {field}.{key} is {value[key]}, more than the {limit} this project loads")
+        return {k: _decode(v, source, f"{field}.{k}") for k, v in value.items()}
     if isinstance(value, list):
-        return [_decode(v, source) for v in value]
+        if len(value) > MAX_ENTRIES:
+            raise ValueError(f"{source}: {field} has {len(value)} entries, more than {MAX_ENTRIES}")
+        decoded = [_decode(v, source, f"{field}[{i}]") for i, v in enumerate(value)]
+        if all(is_count(v) for v in decoded):  # layer widths: a quick floor
+            least = sum(a * b for a, b in zip(decoded, decoded[1:]))
+            if least > MAX_PARAMETERS:
+                raise ValueError(f"{source}: {field} {decoded} makes layers of at least {least} parameters, more "
+                                 f"than the {MAX_PARAMETERS} this project loads")  # fmt: skip
+        return decoded
+    if is_count(value) and abs(value) > MAX_WIDTH:
+        raise ValueError(f"{source}: {field} is {_short(value)}; network sizes and counts stay within {MAX_WIDTH}")
+    if isinstance(value, float) and not np.isfinite(value):
+        raise ValueError(f"{source}: {field} is {value}, not a finite number")
     return value
+
+
+def count_parameters(policy_class: type, arguments: dict[str, Any]) -> int:
+    """The parameters ``policy_class(**arguments)`` would have, built on PyTorch's meta device: shapes without
+    storage, so a policy of any size costs nothing to count."""
+    from unittest import mock
+
+    import torch as th
+    from stable_baselines3.common.policies import BaseModel, BasePolicy
+
+    # SB3 moves each part to ``self.device`` as it builds it (the CPU while no part holds parameters); here
+    # every part stays on the meta device.
+    with th.device("meta"), mock.patch.object(BaseModel, "device", property(lambda self: th.device("meta"))):
+        policy = policy_class(**arguments, lr_schedule=BasePolicy._dummy_schedule)
+    return sum(p.numel() for p in policy.parameters())
 
 
 # --- files ----------------------------------------------------------------------------------------------
@@ -190,23 +293,37 @@ def save_policy(policy: Any, stem: Path | str) -> None:
 
 def load_policy(stem: Path | str) -> Any:
     """The policy ``save_policy`` wrote at ``stem``, on the CPU, in evaluation mode; ``ValueError`` naming the
-    file for an unknown format, a class outside the allow-lists, or weights that are not the ones recorded."""
+    file (and the field) for malformed JSON, an unknown format, a class outside the allow-lists, a size beyond
+    the limits above (checked before anything is allocated), or weights that are not the ones recorded.
+
+    The SHA-256 in policy.json ties the weights to that description, against a swapped or damaged weights
+    file; it is no signature: whoever can edit the folder can rewrite both, so the limits and allow-lists,
+    not the digest, are what make a folder from elsewhere safe to load."""
     from safetensors.torch import load_model
     from stable_baselines3.common.policies import BasePolicy
 
     description, weights = policy_paths(stem)
-    try:
-        facts = json.loads(description.read_text())
-    except (OSError, json.JSONDecodeError) as error:
-        raise ValueError(f"cannot read policy file {description}: {error}") from None
-    if not isinstance(facts, dict) or facts.get("format") != FORMAT:
+    facts = read_json(description, MAX_DESCRIPTION_BYTES, MAX_DEPTH)
+    if not isinstance(facts, dict) or facts.get("format") != FORMAT or isinstance(facts.get("format"), bool):
         raise ValueError(f"{description} is not a policy file of format {FORMAT}")
     policy_class = _allowed(facts.get("policy_class"), policy_classes(), "policy class", description)
-    if not weights.is_file() or sha256(weights) != facts.get("weights_sha256"):
-        raise ValueError(f"{weights} is missing or is not the weights {description} records (SHA-256 differs)")
-    arguments = _decode(facts.get("arguments"), description)
-    if not isinstance(arguments, dict):
+    if not isinstance(facts.get("arguments"), dict):
         raise ValueError(f"{description}: arguments must be a mapping")
+    arguments = _decode(facts["arguments"], description)
+    if not weights.is_file():
+        raise ValueError(f"{weights} is missing or is not the weights {description} records (no such file)")
+    if weights.stat().st_size > MAX_WEIGHTS_BYTES:
+        raise ValueError(f"{weights} holds {weights.stat().st_size} bytes, more than the {MAX_WEIGHTS_BYTES} a "
+                         f"policy's weights may")  # fmt: skip
+    if sha256(weights) != facts.get("weights_sha256"):
+        raise ValueError(f"{weights} is missing or is not the weights {description} records (SHA-256 differs)")
+    try:
+        parameters = count_parameters(policy_class, arguments)
+    except Exception as error:  # arguments of another version or of no policy: say which file
+        raise ValueError(f"cannot build the policy of {description}: {error}") from None
+    if parameters > MAX_PARAMETERS:
+        raise ValueError(f"{description}: arguments build a policy of {parameters} parameters, more than the "
+                         f"{MAX_PARAMETERS} this project loads")  # fmt: skip
     try:
         policy = policy_class(**arguments, lr_schedule=BasePolicy._dummy_schedule)
         load_model(policy, str(weights), strict=True, device="cpu")

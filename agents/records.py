@@ -20,7 +20,7 @@ from panda_grasp_env.agents.imitation import Demonstrations
 from panda_grasp_env.agents.learned import SHIPPED_FILES
 from panda_grasp_env.agents.policy_files import load_policy, policy_paths, save_policy
 from panda_grasp_env.agents.seed_figures import study_markdown
-from panda_grasp_env.tooling.runs import atomic_path, resume_summary, write_atomically, write_json
+from panda_grasp_env.tooling.runs import atomic_path, read_json, resume_summary, write_atomically, write_json
 
 
 def read_evaluations(run_dir: Path) -> list[dict[str, Any]]:
@@ -109,9 +109,11 @@ def load_best_policy(run_dir: Path) -> tuple[Any, dict[str, Any]]:
         raise ValueError(f"cannot load the best policy of {run_dir}: no best_policy.json (a run saved before "
                          f"policies were stored as data keeps a pickled best_policy.zip, which is not loaded)")  # fmt: skip
     try:
-        best = json.loads((run_dir / "best.json").read_text())
-    except (OSError, json.JSONDecodeError) as error:
-        raise ValueError(f"cannot load the best policy of {run_dir} (best.json): {error}") from None
+        best = read_json(run_dir / "best.json", 1 << 20)
+    except ValueError as error:
+        raise ValueError(f"cannot load the best policy of {run_dir}: {error}") from None
+    if not isinstance(best, dict):
+        raise ValueError(f"cannot load the best policy of {run_dir}: best.json is not a JSON mapping")
     try:
         return load_policy(stem), best
     except ValueError as error:

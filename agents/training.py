@@ -62,6 +62,7 @@ from panda_grasp_env.tooling.runs import (
     check_run_files,
     commit,
     new_run_folder,
+    run_key,
     sign_run_files,
     write_atomically,
     write_json,
@@ -298,6 +299,7 @@ def train(
     import torch
 
     torch.set_num_threads(config.torch_threads)
+    run_key()  # the key that signs its checkpoints: one others could know stops the run now, not at its first save
     progress = json.loads((run_dir / "progress.json").read_text()) if resume else {"steps": 0, "wall_seconds": 0.0}
     budget_left = config.max_minutes is None or progress["wall_seconds"] < 60 * config.max_minutes
     will_learn = progress["steps"] < config.total_steps and budget_left

@@ -34,6 +34,7 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.control.controller import JacobianServo
+from panda_grasp_env.geometry import is_count
 from panda_grasp_env.model.robot import FINGER_OPEN, HOME_YAW
 from panda_grasp_env.perception.heightmap import HeightmapGrid
 from panda_grasp_env.primitives.result import PrimitiveResult
@@ -281,7 +282,7 @@ class PixelActions(ActionMode):
     def __init__(
         self, settings: PrimitiveSettings, grid: HeightmapGrid, rotations: int, heightmap: Callable[[], np.ndarray]
     ) -> None:
-        if not isinstance(rotations, int) or rotations < 1:
+        if not is_count(rotations) or rotations < 1:
             raise ValueError(f"rotations must be a positive int, got {rotations!r}")
         self.settings, self.grid, self.rotations = settings, grid, rotations
         self.heightmap = heightmap

@@ -37,7 +37,7 @@ from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
 from panda_grasp_env.sim.rendering import CameraRenderer, display_available
 from panda_grasp_env.sim.workcell import PhysicsError, Workcell
-from panda_grasp_env.tasks import Task, TaskStep
+from panda_grasp_env.tasks import REWARD_TYPES, Task, TaskStep, dense_reward
 
 #: Low-level modes start each episode with the hand here (x, y metres), pointing down, this high above
 #: the tallest object (at least ``READY_MIN_HEIGHT``): close to the work, like Fetch and panda-gym.
@@ -166,10 +166,18 @@ class PandaEnv(gym.Env):
         randomization: domain randomisation at each reset (``randomization.Randomization``, a dict of its
             fields, or True for its defaults): lights, fixed camera poses, object hues, table colour, object
             mass and friction, depth-observation noise.  None (default): off, and nothing is drawn.
+        reward_type: the low-level reward of a goal-conditioned task (``ee_delta``/``joint`` modes of Push,
+            Lift, Stack): ``sparse`` (default; Fetch's 0 when every goal point is within 5 cm, else -1) or
+            ``dense`` (panda-gym's: minus the distance, metres, between achieved and desired goal).
+            ``compute_reward`` gives the same, so HER relabels either.  A diverged step earns -1 in both.
         **task_options: passed to the task (see each task's docstring).
     """
 
-    metadata = {"render_modes": advertised_render_modes(), "render_fps": 25}
+    # The class names every mode, "human" included: ``gymnasium.make`` reads the class's metadata, and where
+    # "human" is missing it wraps an ``rgb_array`` env in its pygame ``HumanRendering`` instead of passing the
+    # mode on, so the env's own refusal without a display would never run.  An instance advertises the modes
+    # that work here (``advertised_render_modes``), which is what checkers read.
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 25}
 
     def __init__(
         self,
@@ -192,6 +200,7 @@ class PandaEnv(gym.Env):
         start_above_object: float = 0.0,
         start_behind_object: float = 0.0,
         randomization: Randomization | dict[str, Any] | bool | None = None,
+        reward_type: str = "sparse",
         **task_options: Any,
     ) -> None:
         try:
@@ -208,6 +217,7 @@ class PandaEnv(gym.Env):
         if render_mode == "human" and not display_available():
             raise ValueError("render_mode='human' needs a display (neither DISPLAY nor WAYLAND_DISPLAY is set); "
                              "use 'rgb_array' and save the frames, e.g. with gymnasium's RecordVideo")  # fmt: skip
+        self.metadata = {**PandaEnv.metadata, "render_modes": advertised_render_modes()}
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"unknown render_mode {render_mode!r}; valid: {self.metadata['render_modes']} or None")
         cameras = checked_cameras(cameras)
@@ -261,9 +271,15 @@ class PandaEnv(gym.Env):
             )  # fmt: skip
         )
         self.goal_conditioned = mode.low_level and self.task.goal_conditioned
+        if reward_type not in REWARD_TYPES:
+            raise ValueError(f"unknown reward_type {reward_type!r}; valid: {list(REWARD_TYPES)}")
+        if reward_type == "dense" and not self.goal_conditioned:
+            raise ValueError(f"reward_type='dense' is the goal distance of a goal-conditioned task in a low-level "
+                             f"action mode; {task!r} in {action_mode!r} mode has no goal reward to make dense")  # fmt: skip
+        self.reward_type = reward_type
         if self.goal_conditioned:
             # Only goal envs have compute_reward (vectorised, for HER): checkers treat its presence as "GoalEnv".
-            self.compute_reward = self.task.compute_reward
+            self.compute_reward = self.task.compute_reward if reward_type == "sparse" else dense_reward
         # Primitive-mode agents of goal tasks see the goal at the end of the state vector.
         self._goal_in_state = self.task.goal_conditioned and not mode.low_level
         self.observations = ObservationBuilder(
@@ -389,7 +405,10 @@ class PandaEnv(gym.Env):
         if self.render_mode == "human":
             self.render()
         truncated = physics_error or verdict.truncated
-        return self._observe(physics_error), verdict.reward, verdict.terminated, truncated, info
+        observation, reward = self._observe(physics_error), verdict.reward
+        if self.reward_type == "dense" and not physics_error:  # from the goals the learner sees, as HER will
+            reward = float(self.compute_reward(observation["achieved_goal"], observation["desired_goal"], info))
+        return observation, reward, verdict.terminated, truncated, info
 
     # --- helpers ------------------------------------------------------------------
     def _published_facts(self) -> dict[str, Any]:

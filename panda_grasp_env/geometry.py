@@ -9,6 +9,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 
+def is_count(value: Any) -> bool:
+    """Whether ``value`` is a whole number (a Python or NumPy int, not a bool: ``True`` is no count of 1)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
 def is_number(value: Any) -> bool:
     """Whether ``value`` is a finite real number (an int or float, not a bool): test it before comparing."""
     return (

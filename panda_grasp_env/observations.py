@@ -54,15 +54,17 @@ def bounded(values: np.ndarray) -> np.ndarray:
 
 
 def parse_obs_mode(obs_mode: str) -> tuple[str, ...]:
-    """Modalities of an ``obs_mode`` string; ``ValueError`` listing the valid ones if unknown."""
+    """Modalities of an ``obs_mode`` string; ``ValueError`` listing the valid ones if unknown, or naming a
+    part given twice (as duplicate cameras are refused)."""
     if not isinstance(obs_mode, str) or not obs_mode:
         raise ValueError(f"obs_mode must be a non-empty string, got {obs_mode!r}; valid modalities: {list(MODALITIES)}")
     parts: list[str] = []
     for part in obs_mode.replace("rgbd", "rgb+depth").split("+"):
         if part not in MODALITIES:
             raise ValueError(f"unknown obs_mode part {part!r} in {obs_mode!r}; valid: {list(MODALITIES)} or 'rgbd'")
-        if part not in parts:
-            parts.append(part)
+        if part in parts:
+            raise ValueError(f"obs_mode part {part!r} appears twice in {obs_mode!r} (rgbd is rgb+depth)")
+        parts.append(part)
     return tuple(parts)
 
 

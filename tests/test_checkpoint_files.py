@@ -11,6 +11,7 @@ import json
 import pickle
 import shutil
 import sys
+from collections import Counter
 
 import gymnasium as gym
 import numpy as np
@@ -227,3 +228,240 @@ def test_unknown_space_descriptions_are_refused():
         space_from_json({"Graph": {}})
     with pytest.raises(ValueError, match="malformed Box"):
         space_from_json({"Box": {"low": 0}})
+
+
+# --- the run-signing key: a key someone else could know makes every signature forgeable -----------------
+
+
+@pytest.fixture
+def key_home(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    from panda_grasp_env.tooling import runs
+
+    return runs
+
+
+def key_path(tmp_path):
+    return tmp_path / "state" / "panda_grasp_env" / "run_key"
+
+
+def test_the_signing_key_is_made_private_and_then_reused(key_home, tmp_path):
+    key = key_home.run_key()
+    path = key_path(tmp_path)
+    assert len(key) == 32 and path.stat().st_mode & 0o777 == 0o600
+    assert key_home.run_key() == key
+
+
+@pytest.mark.parametrize("flaw", ["world-readable", "group-readable", "empty", "short", "long", "symlink",
+                                  "dangling symlink", "directory"])  # fmt: skip
+def test_a_signing_key_others_could_know_is_refused_with_the_mend(key_home, tmp_path, flaw):
+    import os
+
+    path = key_path(tmp_path)
+    path.parent.mkdir(parents=True)
+    real = tmp_path / "planted"
+    real.write_bytes(os.urandom(32))
+    real.chmod(0o600)
+    if flaw in ("symlink", "dangling symlink"):
+        path.symlink_to(real if flaw == "symlink" else tmp_path / "nothing")
+    elif flaw == "directory":
+        path.mkdir()
+    else:
+        size = {"empty": 0, "short": 16, "long": 64}.get(flaw, 32)
+        path.write_bytes(os.urandom(size))
+        path.chmod({"world-readable": 0o644, "group-readable": 0o640}.get(flaw, 0o600))
+    with pytest.raises(ValueError, match=rf"run-signing key {path} .*delete it \(rm {path}\)") as refused:
+        key_home.run_key()
+    why = {"world-readable": "mode 0644", "group-readable": "mode 0640", "empty": "holds 0 bytes",
+           "short": "holds 16 bytes", "long": "more than 32 bytes", "symlink": "is a symlink",
+           "dangling symlink": "is a symlink", "directory": "is not a regular file"}  # fmt: skip
+    assert why[flaw] in str(refused.value)
+    # Nothing is signed or checked with it.
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "latest.zip").write_bytes(b"x")
+    with pytest.raises(ValueError, match="run-signing key"):
+        sign_run_files(tmp_path / "run", ["latest.zip"])
+
+
+def test_a_signing_key_of_another_user_is_refused(key_home, tmp_path, monkeypatch):
+    import os
+
+    key_home.run_key()
+    monkeypatch.setattr(os, "getuid", lambda: os.stat(key_path(tmp_path)).st_uid + 1)
+    with pytest.raises(ValueError, match=r"belongs to user id \d+, not to you"):
+        key_home.run_key()
+
+
+# --- checkpoints are bounded before anything is allocated, and malformed files name themselves -----------
+
+
+@pytest.fixture
+def sac_folder(tmp_path):
+    """A copy of a shipped SB3 checkpoint (SAC MultiInputPolicy, net_arch [256, 256])."""
+    folder = tmp_path / "lift"
+    shutil.copytree(learned.CHECKPOINTS / "lift_sac_her", folder)
+    return folder
+
+
+#: A value ``dump`` writes as lists nested 5,000 deep (more than Python's JSON parser can read back).
+DEEP = "__nested 5000 deep__"
+
+
+def dump(facts) -> str:
+    return json.dumps(facts).replace(json.dumps(DEEP), "[" * 5000 + "]" * 5000)
+
+
+def edit_json(path, change):
+    facts = json.loads(path.read_text())
+    change(facts)
+    path.write_text(dump(facts))
+
+
+def set_box_shape(facts, shape):
+    facts["arguments"]["observation_space"]["__space__"]["Dict"]["observation"]["Box"]["shape"] = shape
+
+
+BOUNDS = {
+    "wide layers": (
+        lambda f: f["arguments"].update(net_arch=[20000, 20000]),
+        r"arguments.net_arch\[0\] is 20000; network sizes and counts stay within 4096",
+    ),
+    "many parameters": (
+        lambda f: f["arguments"].update(net_arch=[4096] * 8),
+        r"arguments.net_arch \[4096, .*\] makes layers of at least \d+ parameters, more than",
+    ),
+    "parameters counted": (
+        lambda f: f["arguments"].update(net_arch={"pi": [4000] * 3, "qf": [4000] * 3}, n_critics=10),
+        r"arguments build a policy of \d+ parameters, more than the 64000000",
+    ),
+    "many critics": (lambda f: f["arguments"].update(n_critics=4096), r"arguments.n_critics is 4096, more than"),
+    "long lists": (lambda f: f["arguments"].update(net_arch=[8] * 10_000), r"arguments.net_arch has 10000 entries"),
+    "huge box": (
+        lambda f: set_box_shape(f, [2_000_000_000]),
+        r"arguments.observation_space.Dict.observation.Box.shape must be a whole number from 1 to",
+    ),
+    "big box": (lambda f: set_box_shape(f, [4096, 4096]), r"Box.shape \[4096, 4096\] has more than 4194304 elements"),
+    "box of strings": (lambda f: set_box_shape(f, ["37"]), r"Box.shape must be a whole number"),
+    "object dtype": (
+        lambda f: f["arguments"]["action_space"]["__space__"]["Box"].update(dtype="object"),
+        r"arguments.action_space.Box.dtype must be one of",
+    ),
+    "deep nesting": (lambda f: f["arguments"].update(net_arch=DEEP), r"nests 5002 levels deep, more than the 16"),
+    "big file": (lambda f: f.update(padding="x" * (2 << 20)), r"policy.json holds \d+ bytes, more than the 1048576"),
+    "format as a bool": (lambda f: f.update(format=True), r"policy.json is not a policy file of format 1"),
+    "arguments as a list": (lambda f: f.update(arguments=[1, 2]), r"policy.json: arguments must be a mapping"),
+}
+
+
+@pytest.mark.parametrize("bound", list(BOUNDS))
+def test_policy_files_beyond_a_bound_are_refused_naming_the_file_and_the_field(sac_folder, bound):
+    change, message = BOUNDS[bound]
+    edit_json(sac_folder / "policy.json", change)
+    with pytest.raises(ValueError, match=message) as refused:
+        learned.LearnedAgent(sac_folder)
+    assert str(sac_folder / "policy.json") in str(refused.value)
+
+
+def test_weights_beyond_the_size_limit_are_refused_before_they_are_read(sac_folder, monkeypatch):
+    from panda_grasp_env.agents import policy_files
+
+    monkeypatch.setattr(policy_files, "MAX_WEIGHTS_BYTES", 1000)
+    with pytest.raises(ValueError, match=r"policy.safetensors holds \d+ bytes, more than the 1000"):
+        learned.LearnedAgent(sac_folder)
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "message"),
+    [("policy.json", "{not json", r"policy.json is not valid JSON"),
+     ("policy.json", b"\xff\xfe{}", r"policy.json is not UTF-8 text"),
+     ("checkpoint.json", "[1, 2]", r"checkpoint.json must be a JSON mapping of .* got a list"),
+     ("checkpoint.json", "{\"task\": ", r"checkpoint.json is not valid JSON"),
+     ("checkpoint.json", "{\"task\": \"Lift\"}", r"checkpoint.json: .*missing key\(s\) \['steps'\]"),
+     ("checkpoint.json", "{\"task\": \"Lift\", \"steps\": true}", r"checkpoint.json: steps must be a JSON int"),
+     ("checkpoint.json", "{\"task\": \"Lift\", \"steps\": 1, \"avoid_failures\": \"no\"}",
+      r"checkpoint.json: avoid_failures must be a JSON boolean, got 'no'"),
+     ("checkpoint.json", "{\"task\": \"Lift\", \"steps\": 1, \"avoid_failures\": 0}",
+      r"checkpoint.json: avoid_failures must be a JSON boolean"),
+     ("config.yaml", "- a list", r"config.yaml must be a mapping"),
+     ("config.yaml", "a: [", r"config.yaml is not valid YAML")],
+)  # fmt: skip
+def test_malformed_checkpoint_files_raise_a_value_error_naming_the_file(sac_folder, name, text, message):
+    path = sac_folder / name
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    with pytest.raises(ValueError, match=message) as refused:
+        learned.LearnedAgent(sac_folder)
+    assert str(path) in str(refused.value)
+
+
+def random_json(rng, depth=0):
+    """A JSON value of a random type, size and depth: what a fuzzer writes into a checkpoint's metadata."""
+    kind = rng.integers(0, 11 if depth < 6 else 7)
+    if kind == 0:
+        return None
+    if kind == 1:
+        return bool(rng.integers(2))
+    if kind == 2:
+        return int(rng.choice([0, 1, -1, 2, 37, 4096, 4097, 2**31, 2**63, 10**30, -(10**9)]))
+    if kind == 3:
+        return float(rng.choice([0.0, -1.5, 1e-300, 1e300, 3.25]))
+    if kind == 4:
+        return "".join(rng.choice(list('ab:._Box[]{}\\"é'), rng.integers(0, 12)))
+    if kind == 5:
+        return "x" * int(rng.choice([0, 10, 100_000]))
+    if kind == 6:
+        return DEEP if rng.random() < 0.3 else [[[[[[[[[[[[[[[[[[[1]]]]]]]]]]]]]]]]]]]
+    if kind in (7, 8):
+        return [random_json(rng, depth + 1) for _ in range(rng.integers(0, 5))]
+    keys = ["Box", "Dict", "Discrete", "shape", "dtype", "low", "high", "n", "__space__", "__class__", "pi", "x"]
+    return {str(rng.choice(keys)): random_json(rng, depth + 1) for _ in range(rng.integers(0, 4))}
+
+
+def json_paths(value, path=()):
+    yield path
+    if isinstance(value, dict):
+        for key, sub in value.items():
+            yield from json_paths(sub, (*path, key))
+    elif isinstance(value, list):
+        for index, sub in enumerate(value):
+            yield from json_paths(sub, (*path, index))
+
+
+def fuzzed(facts, rng):
+    """``facts`` with one value (anywhere: the root, a key, a list entry) replaced by a random one, or made deep."""
+    paths = list(json_paths(facts))
+    path = paths[rng.integers(len(paths))]
+    new = random_json(rng)
+    if not path:
+        return new
+    parent = facts
+    for key in path[:-1]:
+        parent = parent[key]
+    parent[path[-1]] = new
+    return facts
+
+
+def test_fuzzed_checkpoint_metadata_gives_only_value_errors_each_quickly(sac_folder):
+    """Checkpoint metadata with random JSON values anywhere: loading succeeds or raises ValueError, nothing
+    else, and each case is bounded (the limits refuse before anything large is allocated or built; the loose
+    time bound below only catches a hang, such as the 30 s that net_arch [20000, 20000] took before)."""
+    import time
+
+    rng = np.random.default_rng(55)
+    originals = {name: (sac_folder / name).read_text() for name in ("policy.json", "checkpoint.json")}
+    outcomes, slowest = Counter(), 0.0
+    for case in range(150):
+        name = "policy.json" if case % 3 else "checkpoint.json"
+        for original_name, text in originals.items():
+            (sac_folder / original_name).write_text(text)
+        (sac_folder / name).write_text(dump(fuzzed(json.loads(originals[name]), rng)))
+        start = time.perf_counter()
+        try:
+            learned.LearnedAgent(sac_folder)
+            outcomes["loaded"] += 1
+        except ValueError as error:
+            outcomes["ValueError"] += 1
+            assert str(sac_folder) in str(error), error
+        slowest = max(slowest, time.perf_counter() - start)
+    print(f"fuzzed checkpoint metadata: {dict(outcomes)}, slowest case {slowest:.2f} s")
+    assert outcomes["ValueError"] >= 100
+    assert slowest < 10  # loose: a hang, not a speed

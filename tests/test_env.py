@@ -289,6 +289,8 @@ def test_bad_pixel_actions_raise():
         ({"render_mode": "ascii"}, "render_mode"),
         ({"image_size": (0, 10)}, "image_size"),
         ({"image_size": (True, True)}, "image_size"),
+        ({"obs_mode": "state+state"}, "obs_mode part 'state' appears twice in 'state\\+state'"),
+        ({"obs_mode": "rgbd+rgb"}, "obs_mode part 'rgb' appears twice in 'rgbd\\+rgb'"),
         ({"push_distance": "far"}, "push_distance"),
         ({"start_in_hand": "half"}, "start_in_hand must be a probability"),
         ({"start_in_hand": 1.5}, "start_in_hand must be a probability in \\[0, 1\\], got 1.5"),
@@ -324,6 +326,10 @@ def test_reset_options_must_be_a_mapping():
         ("PandaPush-v0", {"goal_distance": (0.1, float("nan"))}),
         ("PandaTowerBreak-v0", {"impulse_magnitude": "strong"}),
         ("PandaTowerBreak-v0", {"impulse_magnitude": True}),
+        ("PandaGrasp-v0", {"n_objects": True}),  # a bool is no count: True was read as 1
+        ("PandaGraspClutter-v0", {"max_failures": True}),
+        ("PandaTowerBreak-v0", {"k": True}),
+        ("PandaPutInBin-v0", {"n_blocks": True}),
     ],
 )
 def test_task_options_of_the_wrong_type_raise_value_errors_naming_them(env_id, kwargs):
@@ -402,9 +408,7 @@ def test_physics_divergence_truncates_and_reset_recovers():
 @pytest.mark.parametrize("env_id", sorted(ENV_IDS))
 def test_render_check_passes_without_a_display(monkeypatch, env_id):
     # Gymnasium's default check_env builds every advertised render mode; "human" would end the process
-    # from C (GLFW) on a server, so without a display it is neither advertised nor accepted.  (gym.make
-    # then wraps an rgb_array env in its own HumanRendering, which raises a Python error without pygame
-    # or a display.)
+    # from C (GLFW) on a server, so without a display an env neither advertises nor accepts it.
     from panda_grasp_env import env as env_module
 
     monkeypatch.delenv("DISPLAY", raising=False)
@@ -413,8 +417,8 @@ def test_render_check_passes_without_a_display(monkeypatch, env_id):
         env_module.PandaEnv(task="TowerBreak", render_mode="human")
     advertised = env_module.advertised_render_modes()
     assert "human" not in advertised and "rgb_array" in advertised
-    monkeypatch.setitem(env_module.PandaEnv.metadata, "render_modes", advertised)  # as imported on a server
     env = gym.make(f"panda_grasp_env:{env_id}", render_mode="rgb_array", render_size=(64, 48))
+    assert env.unwrapped.metadata["render_modes"] == advertised
     gym_check_env(env.unwrapped)  # also builds and renders every advertised mode
     env.close()
 
@@ -488,3 +492,28 @@ def test_a_random_agent_seeded_the_usual_way_rarely_breaks_the_tower():
         broken += info["is_success"]
     env.close()
     assert broken <= 10  # 25 %: the correlated streams' 42 % is far out
+
+
+@pytest.mark.parametrize("env_id", ["PandaTowerBuild-v0", "PandaPush-v0"])
+def test_human_rendering_through_gym_make_without_a_display_is_the_documented_value_error(monkeypatch, env_id):
+    """gymnasium.make wraps an env whose class lacks "human" in Gymnasium's pygame HumanRendering, which failed
+    only at reset (DependencyNotInstalled: pygame); the env's own refusal runs at make instead."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(ValueError, match="render_mode='human' needs a display .* use 'rgb_array'"):
+        gym.make(f"panda_grasp_env:{env_id}", render_mode="human")
+
+
+def test_human_rendering_through_gym_make_with_a_display_is_the_mujoco_viewer(monkeypatch):
+    from gymnasium.wrappers import HumanRendering
+
+    monkeypatch.setenv("DISPLAY", ":55")  # made, not reset: reset opens the viewer, which needs a real display
+    env = gym.make("panda_grasp_env:PandaTowerBuild-v0", render_mode="human")
+    wrappers = []
+    layer = env
+    while isinstance(layer, gym.Wrapper):
+        wrappers.append(type(layer))
+        layer = layer.env
+    assert HumanRendering not in wrappers and env.unwrapped.render_mode == "human"
+    assert "human" in env.unwrapped.metadata["render_modes"]
+    env.close()

@@ -1,6 +1,7 @@
 """The main job: deterministic results, identical across workers, resumable."""
 
 import json
+import re
 
 import pytest
 
@@ -288,3 +289,96 @@ def test_the_env_kept_from_the_last_episode_plays_the_episode_a_new_env_plays(ag
         assert episode_env(later) is not kept
     finally:
         close_kept_env()
+
+
+# --- bad input gets one clear line, before any episode runs -------------------------------------------
+
+
+def refused(argv, capsys, monkeypatch):
+    """``evaluate.main(argv)``'s exit code and error output; no episode may run."""
+    monkeypatch.setattr(evaluate, "_run_job", lambda spec: pytest.fail(f"episode {spec.key} ran"))
+    code = evaluate.main(argv)
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return code, err
+
+
+@pytest.mark.parametrize("where", ["a file", "below a file", "unwritable"])
+def test_a_bad_out_is_one_error_line_before_any_episode(tmp_path, capsys, monkeypatch, where):
+    (tmp_path / "file").write_text("x")
+    out = {
+        "a file": tmp_path / "file",
+        "below a file": tmp_path / "file" / "out",
+        "unwritable": "/sys/panda_grasp_env_out",
+    }[where]  # fmt: skip (/sys refuses even root)
+    code, err = refused([*ARGS, "--out", str(out)], capsys, monkeypatch)
+    assert code == 2 and err.count("\n") == 1 and err.startswith(f"error: --out {out}")
+    assert {"a file": "is a file, not a folder", "below a file": "cannot write results there (Not a directory)",
+            "unwritable": "cannot write results there"}[where] in err  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def finished_log(tmp_path_factory):
+    out = tmp_path_factory.mktemp("finished")
+    assert evaluate.main([*ARGS, "--out", str(out)]) == 0
+    return (out / "episodes.jsonl").read_text().splitlines()
+
+
+def tampered(records, change):
+    record = json.loads(records[1])
+    change(record)
+    return json.dumps(record)
+
+
+TAMPERINGS = {
+    "not an object": (lambda lines: "[1, 2]", "line 2 is not an episode record"),
+    "no key": (lambda lines: tampered(lines, lambda r: r.pop("key")), "line 2: keys .* are not key, commit"),
+    "success a string": (
+        lambda lines: tampered(lines, lambda r: r["result"].update(success="yes")),
+        "line 2: result.success must be a JSON boolean, got 'yes'",
+    ),
+    "actions negative": (
+        lambda lines: tampered(lines, lambda r: r["result"].update(actions=-3)),
+        "line 2: result.actions must be a number >= 0",
+    ),
+    "an extra field": (
+        lambda lines: tampered(lines, lambda r: r["result"].update(bonus=1)),
+        "line 2: result must hold exactly",
+    ),
+    "key of another spec": (
+        lambda lines: tampered(lines, lambda r: r.update(key=json.loads(lines[0])["key"])),
+        "line 2: key .* is not the key of its spec",
+    ),
+    "another protocol's": (
+        lambda lines: tampered(
+            lines, lambda r: (r["result"]["spec"].update(seed=99), r.update(key=r["key"].replace("/1", "/99")))
+        ),
+        "line 2: episode random/TowerBreak/99 is not one of this protocol's",
+    ),
+    "not JSON mid-file": (lambda lines: lines[1][:30], "line 2 is not JSON"),
+    "bad timing": (
+        lambda lines: tampered(lines, lambda r: r["timing"].update(wall_seconds="slow")),
+        "line 2: timing must hold",
+    ),
+}
+
+
+@pytest.mark.parametrize("tampering", list(TAMPERINGS))
+def test_resume_refuses_a_tampered_record_naming_its_line(tmp_path, capsys, monkeypatch, finished_log, tampering):
+    change, message = TAMPERINGS[tampering]
+    out = tmp_path / "out"
+    out.mkdir()
+    lines = [finished_log[0], change(finished_log), *finished_log[2:]]
+    (out / "episodes.jsonl").write_text("\n".join(lines) + "\n")
+    code, err = refused([*ARGS, "--out", str(out), "--resume"], capsys, monkeypatch)
+    assert code == 2 and err.count("\n") == 1
+    assert re.search(f"error: {re.escape(str(out / 'episodes.jsonl'))} {message}", err), err
+    assert not (out / "results.json").exists()
+
+
+def test_negative_seeds_get_the_projects_message(capsys):
+    for argv in (["--seed-list", "-1,2"], ["--seed-list", "-5"]):
+        with pytest.raises(SystemExit):
+            evaluate.parse_args(argv)
+        err = capsys.readouterr().err
+        assert "--seed-list must hold distinct seeds >= 0" in err and "expected one argument" not in err

@@ -279,10 +279,41 @@ def test_start_behind_object_puts_the_hand_where_a_push_to_the_goal_begins():
     env.close()
 
 
-def test_her_replay_buffer_trains_on_push():
+@pytest.mark.parametrize(("env_id", "options"), [("PandaPush-v0", {}), ("PandaGrasp-v0", {"action_mode": "ee_delta"}),
+                                                 ("PandaStack-v0", {})])  # fmt: skip
+def test_dense_reward_is_minus_the_goal_distance_at_every_step_and_in_compute_reward(env_id, options):
+    from gymnasium.utils.env_checker import check_env
+
+    env = make(env_id, reward_type="dense", **options)
+    observation, info = env.reset(seed=3)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        observation, reward, _, _, info = env.step(rng.uniform(-1, 1, env.action_space.shape))
+        distance = np.linalg.norm(observation["achieved_goal"] - observation["desired_goal"])
+        assert reward == pytest.approx(-distance, abs=1e-6) and reward < 0
+        assert reward == env.unwrapped.compute_reward(observation["achieved_goal"], observation["desired_goal"], info)
+    desired = observation["desired_goal"]
+    batch = env.unwrapped.compute_reward(np.stack([desired, desired + 0.1]), np.stack([desired] * 2), [info] * 2)
+    assert batch == pytest.approx([0.0, -0.1 * np.sqrt(desired.size)], abs=1e-6)
+    check_env(env.unwrapped)
+    env.close()
+
+
+@pytest.mark.parametrize(("env_id", "options", "message"), [
+    ("PandaPush-v0", {"reward_type": "shaped"}, r"unknown reward_type 'shaped'; valid: \['sparse', 'dense'\]"),
+    ("PandaTowerBuild-v0", {"reward_type": "dense"}, r"reward_type='dense' is the goal distance .* 'primitive' mode"),
+    ("PandaPush-v0", {"reward_type": "dense", "action_mode": "primitive"}, r"reward_type='dense'"),
+])  # fmt: skip
+def test_a_dense_reward_without_a_low_level_goal_is_refused(env_id, options, message):
+    with pytest.raises(ValueError, match=message):
+        make(env_id, **options)
+
+
+@pytest.mark.parametrize("reward_type", [None, "dense"])
+def test_her_replay_buffer_trains_on_push(reward_type):
     from stable_baselines3 import SAC, HerReplayBuffer
 
-    env = make("PandaPush-v0")
+    env = make("PandaPush-v0", **({} if reward_type is None else {"reward_type": reward_type}))
     model = SAC(
         "MultiInputPolicy",
         env,
@@ -296,6 +327,12 @@ def test_her_replay_buffer_trains_on_push():
     )
     model.learn(120)
     assert model.replay_buffer.size() > 0 and model.num_timesteps == 120
+    # HER's relabelled rewards come from compute_reward: 0 / -1 by default (sparse), minus distances if dense.
+    rewards = model.replay_buffer.sample(256).rewards.numpy().ravel()
+    if reward_type is None:
+        assert set(rewards.tolist()) <= {0.0, -1.0} and 0.0 in rewards  # some relabelled goals are reached
+    else:
+        assert np.all(rewards <= 0) and len(set(rewards.tolist())) > 10
     env.close()
 
 

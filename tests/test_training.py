@@ -711,3 +711,22 @@ def test_retest_runs_on_a_shipped_checkpoint_too(finished_run, tmp_path, monkeyp
     card = (shipped / "card.md").read_text()
     assert "It acts as shipped, with its `FailureMemory`" in card and ", with its `FailureMemory`:" in card
     assert "disturbed objects per action" in card  # collateral, for primitive tasks
+
+
+def test_maskable_ppo_cnn_policy_takes_the_encoded_heightmap_as_it_is():
+    """SB3's off-the-shelf CnnPolicy on pixel_factored, through the wrapper the docs name: uint8, channels first.
+    (benchmarks/cnn_policy.py runs it for 256 steps and prints its parameter count and peak memory.)"""
+    from sb3_contrib import MaskablePPO
+    from stable_baselines3.common.preprocessing import is_image_space
+
+    from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap
+
+    raw = gym.make("panda_grasp_env:PandaGrasp-v0", action_mode="pixel_factored", obs_mode="heightmap",
+                   heightmap_resolution=0.004, rotations=4)  # fmt: skip
+    assert not is_image_space(raw.observation_space)  # float32, channels last: CnnPolicy fails on it
+    env = EncodedHeightmap(raw)
+    assert env.observation_space.shape == (4, 112, 112) and is_image_space(env.observation_space)
+    model = MaskablePPO("CnnPolicy", env, n_steps=16, batch_size=8, n_epochs=1, seed=0, device="cpu")
+    model.learn(16)
+    assert model.num_timesteps == 16
+    env.close()

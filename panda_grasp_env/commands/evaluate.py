@@ -54,6 +54,7 @@ from panda_grasp_env.agents.evaluation import (
 )
 from panda_grasp_env.agents.towers import build_tower, push_tower
 from panda_grasp_env.commands.results_page import describe_seeds, save_pngs, write_page
+from panda_grasp_env.geometry import is_number
 from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre
 from panda_grasp_env.sim.workcell import Workcell
@@ -163,6 +164,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
+    if "--seed-list" in argv[:-1]:  # argparse reads "--seed-list -1,2" as a flag without its value
+        at = argv.index("--seed-list")
+        if argv[at + 1][:2].lstrip("-").isdigit() and argv[at + 1].startswith("-"):
+            argv[at : at + 2] = [f"--seed-list={argv[at + 1]}"]  # the seeds then reach their own check
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", type=Path, default=None,
                         help=f"a YAML protocol file with keys {list(PROTOCOL_KEYS)} (command-line flags win)")  # fmt: skip
@@ -266,21 +271,75 @@ def _append(path: Path, record: dict) -> None:
         os.fsync(handle.fileno())
 
 
-def _load(path: Path, code: str) -> tuple[dict[str, dict], list[str]]:
+#: An episode record's ``result`` fields and their JSON types (``run_episode`` writes them; ``--resume`` checks).
+RESULT_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "spec": dict, "success": bool, "completion": bool, "actions": int, "ideal_actions": int,
+    "grasps_attempted": int, "grasps_succeeded": int, "cycles": int, "sim_seconds": (int, float),
+    "failures": dict, "physics_error": bool, "disturbed": int, "transit_contacts": int,
+}  # fmt: skip
+
+
+def _record_problem(record: dict, keys: set[str]) -> str | None:
+    """What is wrong with an episode record this code wrote, for a protocol of episode ``keys``, or None."""
+    if set(record) != {"key", "commit", "result", "timing"}:
+        return f"keys {sorted(record)} are not key, commit, result, timing"
+    result, timing = record["result"], record["timing"]
+    if not isinstance(result, dict) or set(result) != set(RESULT_FIELDS):
+        return f"result must hold exactly {list(RESULT_FIELDS)}"
+    for name, kind in RESULT_FIELDS.items():
+        value = result[name]
+        if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
+            what = {bool: "boolean", dict: "object", int: "whole number"}.get(kind, "number")  # type: ignore[call-overload]
+            return f"result.{name} must be a JSON {what}, got {value!r:.60}"
+        if kind is not bool and not isinstance(value, dict) and not (np.isfinite(value) and value >= 0):
+            return f"result.{name} must be a number >= 0, got {value!r}"
+    if not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v >= 0
+               for k, v in result["failures"].items()):  # fmt: skip
+        return "result.failures must map reasons to counts"
+    numbers = [timing.get(k) for k in ("wall_seconds", "decision_seconds_median")] if isinstance(timing, dict) else []
+    if len(numbers) != 2 or len(timing) != 2 or not all(is_number(n) and n >= 0 for n in numbers):
+        return "timing must hold wall_seconds and decision_seconds_median, numbers >= 0"
+    spec = result["spec"]
+    try:
+        options = tuple((k, v) for k, v in spec["options"])
+        if set(spec) != {"agent", "task", "seed", "options"} or not all(isinstance(k, str) for k, _ in options):
+            raise TypeError
+        key = EpisodeSpec(spec["agent"], spec["task"], spec["seed"], options).key
+    except (KeyError, TypeError, ValueError):
+        return f"result.spec {spec!r:.80} is not an episode's spec"
+    if record["key"] != key:
+        return f"key {record['key']!r:.80} is not the key of its spec ({key})"
+    if key not in keys:
+        return f"episode {key} is not one of this protocol's (agents, tasks, seeds and options)"
+    return None
+
+
+def _load(path: Path, code: str, keys: set[str]) -> tuple[dict[str, dict], list[str]]:
     """The finished episodes in ``path`` that this code (``commit()``) ran, by key, and the lines of those
-    another commit ran (or that predate the commit field): mixing them would report neither.  A line cut
-    short by an interruption is in neither (that episode runs again)."""
+    another commit ran (or that predate the commit field): mixing them would report neither.  A last line cut
+    short by an interruption is in neither (that episode runs again).  Any other line that is not a record this
+    code wrote for this protocol (episode ``keys``), with the fields and types it writes, is a ``ValueError``
+    naming the line: an edited record is refused, never reported."""
     done, stale = {}, []
-    if path.exists():
-        for line in path.read_text().splitlines():
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError:
+    lines = path.read_text().splitlines() if path.exists() else []
+    for number, line in enumerate(lines, 1):
+        where = f"{path} line {number}"
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            if number == len(lines):
                 continue
-            if record.get("commit") == code:
-                done[record["key"]] = record
-            else:
-                stale.append(line)
+            raise ValueError(f"{where} is not JSON; --resume reads only records this program wrote") from None
+        if not isinstance(record, dict):
+            raise ValueError(f"{where} is not an episode record (a JSON object)")
+        if record.get("commit") == code:
+            problem = _record_problem(record, keys)
+            if problem is not None:
+                raise ValueError(f"{where}: {problem}; --resume keeps only records this program wrote for this "
+                                 f"protocol (run without --resume to start afresh)")  # fmt: skip
+            done[record["key"]] = record
+        else:
+            stale.append(line)
     return done, stale
 
 
@@ -312,7 +371,7 @@ def run_episodes(specs: list[EpisodeSpec], args: argparse.Namespace, log: Path) 
 
     code = commit()
     previous = log.with_name(log.name + ".prev")
-    done, stale = _load(log, code) if args.resume else ({}, [])
+    done, stale = _load(log, code, {s.key for s in specs}) if args.resume else ({}, [])
     if not args.resume and log.exists() and log.stat().st_size:  # a fresh run keeps the last one's episodes
         os.replace(log, previous)
         print(f"earlier episodes moved to {previous.name} (continue a run with --resume)")
@@ -552,6 +611,20 @@ def report(summary: dict, table_md: str, args: argparse.Namespace, video_paths: 
     write_atomically(args.out / "report.md", "\n".join(lines) + "\n")
 
 
+def prepare_out(out: Path) -> None:
+    """Make the results folder ``out`` and check that files can be written in it; ``ValueError`` saying why not."""
+    import tempfile
+
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file, not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as error:
+        raise ValueError(f"--out {out}: cannot write results there ({error.strerror or error})") from None
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:1] == ["compare"]:  # evaluate.py compare RUN_A RUN_B
@@ -560,6 +633,11 @@ def main(argv: list[str] | None = None) -> int:
         return compare(argv[1:])
     args = parse_args(argv)
     interrupt_on_signals()
+    try:
+        prepare_out(args.out)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     if args.demo:
         return demo(args)
     try:  # one that cannot load (or would need trust: panda_grasp_env.agents.learned.Checkpoint) stops the run before any episode
@@ -568,7 +646,6 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    args.out.mkdir(parents=True, exist_ok=True)
     specs = episode_specs(args)
     if args.skipped:  # the pairs and their reasons are in the report
         print(
@@ -582,6 +659,9 @@ def main(argv: list[str] | None = None) -> int:
         records = run_episodes(specs, args, args.out / "episodes.jsonl")
     except KeyboardInterrupt:
         return 130
+    except ValueError as error:  # a --resume record refused: before any episode ran
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     summary = write_outputs(records, args)
     table_md = print_table(summary)
     save_pngs(summary["table"], args.out)

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.falls.dataset import SHARD_ARRAYS, split_of
+from panda_grasp_env.geometry import is_count
 from panda_grasp_env.tooling.runs import atomic_path, interrupt_on_signals, sha256, write_atomically
 
 #: Block speed (m/s) above which the fall has begun.
@@ -53,7 +54,7 @@ class RecorderSettings:
 
     def validate(self) -> None:
         checks = [
-            (isinstance(self.frames, int) and 2 <= self.frames <= 100, "frames", "an int in [2, 100]"),
+            (is_count(self.frames) and 2 <= self.frames <= 100, "frames", "an int in [2, 100]"),
             (
                 0.04 <= self.frame_interval <= 1.0
                 and abs(self.frame_interval / 0.04 - round(self.frame_interval / 0.04)) < 1e-6,
@@ -61,14 +62,14 @@ class RecorderSettings:
                 "a multiple of the 0.04 s control step, up to 1 s",
             ),  # fmt: skip
             (
-                isinstance(self.crop, int) and 16 <= self.crop <= min(RENDER_SIZE),
+                is_count(self.crop) and 16 <= self.crop <= min(RENDER_SIZE),
                 "crop",
                 f"an int in [16, {min(RENDER_SIZE)}]",
             ),
             (self.breaker in BREAKERS, "breaker", f"one of {list(BREAKERS)}"),
             (0 < self.impulse[0] <= self.impulse[1] <= 1.0, "impulse", "(low, high) with 0 < low <= high <= 1 N s"),
-            (isinstance(self.shard_size, int) and self.shard_size >= 1, "shard_size", "an int >= 1"),
-            (isinstance(self.seed, int) and self.seed >= 0, "seed", "an int >= 0"),
+            (is_count(self.shard_size) and self.shard_size >= 1, "shard_size", "an int >= 1"),
+            (is_count(self.seed) and self.seed >= 0, "seed", "an int >= 0"),
         ]
         for ok, name, expected in checks:
             if not ok:

@@ -51,6 +51,7 @@ from panda_grasp_env.tooling.runs import (
     config_from_mapping,
     new_run_folder,
     resume_summary,
+    run_key,
     sign_run_files,
     write_atomically,
     write_json,
@@ -196,6 +197,7 @@ def train_fall_model(
     from tqdm import tqdm
 
     torch.set_num_threads(config.torch_threads)
+    run_key()  # the key that signs its checkpoints: one others could know stops the run now, not at its first save
     train = load_split(config.dataset, "train", config.label_source, depth=config.use_depth)
     val = load_split(config.dataset, "val", config.label_source, verify=False, depth=config.use_depth)
     n_classes, size = len(train.classes), train.image_size

@@ -20,6 +20,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from panda_grasp_env.geometry import is_count
+
 ARM_JOINTS = tuple(f"robot:panda0_joint{i}" for i in range(1, 8))
 FINGER_JOINTS = ("robot:panda0_finger_joint1", "robot:panda0_finger_joint2")
 ARM_ACTUATORS = tuple(f"panda0_joint{i}" for i in range(1, 8))
@@ -95,11 +97,11 @@ class SceneConfig:
     fixtures: Callable[[mujoco.MjSpec], None] | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.n_blocks, int) or not 0 <= self.n_blocks <= len(self.colours):
+        if not is_count(self.n_blocks) or not 0 <= self.n_blocks <= len(self.colours):
             raise ValueError(
                 f"n_blocks must be an int between 0 and the number of colours ({len(self.colours)}), got {self.n_blocks!r}"
             )
-        if not isinstance(self.n_objects, int) or not 0 <= self.n_objects <= MAX_OBJECTS:
+        if not is_count(self.n_objects) or not 0 <= self.n_objects <= MAX_OBJECTS:
             raise ValueError(f"n_objects must be an int between 0 and {MAX_OBJECTS}, got {self.n_objects!r}")
         if self.n_blocks + self.n_objects == 0:
             raise ValueError("the scene needs at least one block or object")

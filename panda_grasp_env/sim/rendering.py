@@ -22,6 +22,8 @@ import sys
 import mujoco
 import numpy as np
 
+from panda_grasp_env.geometry import is_count
+
 PROFILES = ("fast", "pretty")
 MODALITIES = ("rgb", "depth", "segmentation")
 _GEOM_GROUPS = {"fast": (0, 2), "pretty": (0, 1)}
@@ -42,7 +44,7 @@ class CameraRenderer:
         if profile not in PROFILES:
             raise ValueError(f"unknown render profile {profile!r}; valid: {list(PROFILES)}")
         for name, value in (("width", width), ("height", height)):
-            if not isinstance(value, (int, np.integer)) or value < 1:
+            if not is_count(value) or value < 1:
                 raise ValueError(f"{name} must be a positive int, got {value!r}")
         if width > model.vis.global_.offwidth or height > model.vis.global_.offheight:
             model.vis.global_.offwidth = max(width, model.vis.global_.offwidth)

@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.control.controller import CartesianController, ControllerLimits
-from panda_grasp_env.geometry import half_extent_along, yaw_quaternion
+from panda_grasp_env.geometry import half_extent_along, is_count, yaw_quaternion
 from panda_grasp_env.model.objects import ObjectShape, apply_shape
 from panda_grasp_env.model.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
 from panda_grasp_env.model.scene import (
@@ -124,7 +124,7 @@ class Workcell:
         limits: ControllerLimits | None = None,
     ) -> None:
         self.config = config or SceneConfig()
-        if not isinstance(control_substeps, int) or control_substeps < 1:
+        if not is_count(control_substeps) or control_substeps < 1:
             raise ValueError(f"control_substeps must be a positive int, got {control_substeps!r}")
         self.spec = build_spec(self.config)
         self.model = self.spec.compile()

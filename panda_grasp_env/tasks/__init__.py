@@ -4,9 +4,9 @@
 import importlib
 import pkgutil
 
-from panda_grasp_env.tasks.base import Task, TaskStep
+from panda_grasp_env.tasks.base import REWARD_TYPES, Task, TaskStep, dense_reward
 
 for _module in pkgutil.iter_modules(__path__):
     importlib.import_module(f"{__name__}.{_module.name}")
 
-__all__ = ["Task", "TaskStep"]
+__all__ = ["REWARD_TYPES", "Task", "TaskStep", "dense_reward"]

@@ -144,6 +144,18 @@ class Task(ABC):
         return goals_reached(achieved_goal, desired_goal).astype(np.float32) - 1.0
 
 
+#: The ``reward_type`` options of goal-conditioned low-level envs.
+REWARD_TYPES = ("sparse", "dense")
+
+
+def dense_reward(achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
+    """Dense goal reward (``reward_type="dense"``, panda-gym's): minus the distance, metres, between the
+    achieved and the desired goal vectors (all their points together).  Vectorised like ``compute_reward``."""
+    achieved = np.asarray(achieved_goal, dtype=float)
+    desired = np.asarray(desired_goal, dtype=float)
+    return -np.linalg.norm(achieved - desired, axis=-1).astype(np.float32)
+
+
 def goals_reached(achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.ndarray:
     """Whether every 3-D point of the goal is within ``GOAL_THRESHOLD``; goals are (..., 3k) arrays."""
     achieved = np.asarray(achieved_goal, dtype=float)

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.geometry import is_number
+from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.model.objects import SHAPES, ObjectShape, ObjectSpec
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
@@ -179,7 +179,7 @@ class Grasp(Task):
             if clashing:
                 raise ValueError(f"task option packed lays out its own objects: drop {clashing}")
             n_objects = MAX_OBJECTS
-        check_option("max_failures", max_failures, isinstance(max_failures, int) and max_failures >= 1, "an int >= 1")
+        check_option("max_failures", max_failures, is_count(max_failures) and max_failures >= 1, "an int >= 1")
         if objects is None:
             specs = [shorthand_spec(shapes, size_ranges)]
         else:
@@ -197,7 +197,7 @@ class Grasp(Task):
                     raise ValueError(f"task option objects[{index}]: {error}") from None
         default = len(specs) if len(specs) > 1 else (HEAP_OBJECTS if clutter else 1)
         n_objects = default if n_objects is None else n_objects
-        check_option("n_objects", n_objects, isinstance(n_objects, int) and 1 <= n_objects <= 30, "an int in [1, 30]")
+        check_option("n_objects", n_objects, is_count(n_objects) and 1 <= n_objects <= 30, "an int in [1, 30]")
         if len(specs) not in (1, n_objects):
             raise ValueError(f"task option n_objects={n_objects} does not match the {len(specs)} object specs")
         self.specs = specs * n_objects if len(specs) == 1 else specs

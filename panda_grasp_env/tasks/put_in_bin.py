@@ -11,7 +11,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from panda_grasp_env.geometry import is_number, yaw_quaternion
+from panda_grasp_env.geometry import is_count, is_number, yaw_quaternion
 from panda_grasp_env.model.scene import DEFAULT_COLOURS, SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
@@ -48,7 +48,7 @@ class PutInBin(Task):
     def __init__(
         self, n_blocks: int = 3, target: str | None = None, bin_position: tuple[float, float] = (0.6, 0.15)
     ) -> None:
-        check_option("n_blocks", n_blocks, isinstance(n_blocks, int) and 1 <= n_blocks <= 4, "an int in [1, 4]")
+        check_option("n_blocks", n_blocks, is_count(n_blocks) and 1 <= n_blocks <= 4, "an int in [1, 4]")
         colours = list(DEFAULT_COLOURS)[:n_blocks]
         check_option("target", target, target is None or target in colours, f"None or one of {colours}")
         position = tuple(bin_position) if isinstance(bin_position, (tuple, list)) else ()

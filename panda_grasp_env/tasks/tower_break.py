@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.geometry import is_number
+from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
@@ -58,9 +58,9 @@ class TowerBreak(Task):
         impulse_magnitude: float = 0.06,
         directional: bool = False,
     ) -> None:
-        check_option("n_blocks", n_blocks, isinstance(n_blocks, int) and 2 <= n_blocks <= 4, "an int in [2, 4]")
+        check_option("n_blocks", n_blocks, is_count(n_blocks) and 2 <= n_blocks <= 4, "an int in [2, 4]")
         k = n_blocks - 1 if k is None else k
-        check_option("k", k, isinstance(k, int) and 1 <= k <= n_blocks, f"an int in [1, {n_blocks}]")
+        check_option("k", k, is_count(k) and 1 <= k <= n_blocks, f"an int in [1, {n_blocks}]")
         check_option("allow_impulse", allow_impulse, isinstance(allow_impulse, bool), "a bool")
         valid = is_number(impulse_magnitude) and 0 < impulse_magnitude <= 1.0
         check_option("impulse_magnitude", impulse_magnitude, valid, "in (0, 1] N s")

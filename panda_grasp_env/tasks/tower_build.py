@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.geometry import is_count
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
@@ -60,7 +61,7 @@ class TowerBuild(Task):
     start_states = ("in_hand", "above_object")
 
     def __init__(self, n_blocks: int = 4, order: str = "any", tolerance: float | None = None) -> None:
-        check_option("n_blocks", n_blocks, isinstance(n_blocks, int) and 2 <= n_blocks <= 4, "an int in [2, 4]")
+        check_option("n_blocks", n_blocks, is_count(n_blocks) and 2 <= n_blocks <= 4, "an int in [2, 4]")
         check_option("order", order, order in ("any", "fixed"), "'any' or 'fixed'")
         check_option(
             "tolerance", tolerance, tolerance is None or 0 < float(tolerance) <= 0.025, "None or in (0, 0.025] m"

@@ -47,6 +47,39 @@ def sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+def read_json(path: Path, max_bytes: int, max_depth: int = 32) -> Any:
+    """The JSON value in ``path``, read as data from a file someone else may have written: ``ValueError`` naming
+    the file if it is larger than ``max_bytes``, not UTF-8, not JSON, or nested deeper than ``max_depth``
+    (before Python's recursion limit could be reached)."""
+    try:
+        size = path.stat().st_size
+        if size > max_bytes:
+            raise ValueError(f"{path} holds {size} bytes, more than the {max_bytes} such a file may")
+        text = path.read_bytes().decode("utf-8")
+    except OSError as error:
+        raise ValueError(f"cannot read {path}: {error.strerror or error}") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path} is not UTF-8 text") from None
+    depth = deepest = 0
+    in_string = escaped = False
+    for char in text:  # the nesting depth, counted outside strings, before the parser recurses into it
+        if in_string:
+            in_string, escaped = (in_string, False) if escaped else (char != '"', char == "\\")
+        elif char == '"':
+            in_string = True
+        elif char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth -= 1
+    if deepest > max_depth:
+        raise ValueError(f"{path} nests {deepest} levels deep, more than the {max_depth} such a file may")
+    try:
+        return json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as error:
+        raise ValueError(f"{path} is not valid JSON: {error}") from None
+
+
 def write_json(path: Path, payload: Any) -> None:
     write_atomically(path, json.dumps(payload, indent=2, sort_keys=True))
 
@@ -115,20 +148,54 @@ def interrupt_on_signals() -> None:
 SIGNATURES = "signatures.json"
 
 
-def run_key() -> bytes:
-    """This user's secret for signing run files: 32 random bytes in ``$XDG_STATE_HOME/panda_grasp_env/run_key``
-    (``~/.local/state/...``), made on first use, readable by the user alone."""
+#: The signing key's length in bytes.
+RUN_KEY_BYTES = 32
+
+
+def run_key_path() -> Path:
+    """Where ``run_key`` keeps this user's key: ``$XDG_STATE_HOME/panda_grasp_env/run_key`` (``~/.local/state/...``)."""
     state = Path(os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state")
-    path = state / "panda_grasp_env" / "run_key"
-    if not path.is_file():
-        path.parent.mkdir(parents=True, exist_ok=True)
+    return state / "panda_grasp_env" / "run_key"
+
+
+def run_key() -> bytes:
+    """This user's secret for signing run files: ``RUN_KEY_BYTES`` random bytes at ``run_key_path()``, made on
+    first use, readable by the user alone.  A key file that is a symlink, belongs to another user, is open to
+    group or others, or is not ``RUN_KEY_BYTES`` long could be known to someone else (and signatures forged
+    with it): ``ValueError`` says what is wrong and how to mend it."""
+    import stat
+
+    path = run_key_path()
+    if not path.exists() and not path.is_symlink():
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
         try:
-            descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
             with os.fdopen(descriptor, "wb") as key:
-                key.write(os.urandom(32))
+                key.write(os.urandom(RUN_KEY_BYTES))
         except FileExistsError:  # another job made it first
             pass
-    return path.read_bytes()
+    mend = f"delete it (rm {path}) and the next job makes a new one; runs signed with it then resume only with --trust"
+    try:  # O_NOFOLLOW: a symlink is refused by the open itself, not by a check another process could race
+        descriptor = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+    except OSError as error:
+        why = "is a symlink" if path.is_symlink() else f"cannot be read ({error.strerror})"
+        raise ValueError(f"run-signing key {path} {why}: {mend}") from None
+    facts = os.fstat(descriptor)
+    if not stat.S_ISREG(facts.st_mode):
+        os.close(descriptor)
+        raise ValueError(f"run-signing key {path} is not a regular file: {mend}")
+    with os.fdopen(descriptor, "rb") as handle:
+        if facts.st_uid != os.getuid():
+            raise ValueError(f"run-signing key {path} belongs to user id {facts.st_uid}, not to you "
+                             f"({os.getuid()}): {mend}")  # fmt: skip
+        if facts.st_mode & 0o077:
+            raise ValueError(f"run-signing key {path} has mode {stat.S_IMODE(facts.st_mode):04o}, not 0600: group or "
+                             f"others may have read it, so {mend}")  # fmt: skip
+        key = handle.read(RUN_KEY_BYTES + 1)
+    if len(key) != RUN_KEY_BYTES:
+        size = f"{len(key)} bytes" if len(key) <= RUN_KEY_BYTES else f"more than {RUN_KEY_BYTES} bytes"
+        raise ValueError(f"run-signing key {path} holds {size}, not {RUN_KEY_BYTES}: {mend}")
+    return key
 
 
 def _signature(run_dir: Path, name: str) -> str:
@@ -147,13 +214,20 @@ def sign_run_files(run_dir: Path, names: list[str]) -> None:
     write_json(path, signatures)
 
 
+def is_signed(run_dir: Path, name: str) -> bool:
+    """Whether ``sign_run_files`` signed file ``name`` of ``run_dir`` as it is now, in this folder."""
+    path = run_dir / SIGNATURES
+    signatures = read_json(path, 1 << 20) if path.is_file() else {}
+    signed = signatures.get(name) if isinstance(signatures, dict) else None
+    if not isinstance(signed, str) or not (run_dir / name).is_file():
+        return False
+    return hmac.compare_digest(signed, _signature(run_dir, name))
+
+
 def check_run_files(run_dir: Path, names: list[str]) -> None:
     """``ValueError`` naming the first of ``names`` that ``sign_run_files`` did not sign as it is now, here."""
-    path = run_dir / SIGNATURES
-    signatures = json.loads(path.read_text()) if path.is_file() else {}
     for name in names:
-        signed = signatures.get(name)
-        if signed is None or not hmac.compare_digest(signed, _signature(run_dir, name)):
+        if not is_signed(run_dir, name):
             raise ValueError(
                 f"{run_dir / name} was not written by this user's job in this folder, or has changed since: it is "
                 "a pickle, and loading it would run any code it holds (pass --trust to load it anyway)"

@@ -1,0 +1,91 @@
+"""Minari datasets read as data: nothing a dataset's files say is imported or run.
+
+A Minari dataset records the env that made it as a Gymnasium ``EnvSpec`` (JSON: id, ``entry_point``,
+keyword arguments, wrappers).  Minari's own ``recover_environment`` hands that spec to ``gymnasium.make``,
+which imports and calls whatever ``entry_point`` names -- so a dataset someone else wrote could run any
+code.  Minari even does so while *loading* a dataset whose metadata lacks its spaces.  This module reads
+``metadata.json`` first and refuses such a dataset; ``recorded_env`` rebuilds the env from this project's
+own registration of the recorded id, after checking that the id is one of ours.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from panda_grasp_env.geometry import is_count
+from panda_grasp_env.registration import ENTRY_POINT, ENV_IDS
+from panda_grasp_env.tooling.runs import read_json
+
+#: The largest ``metadata.json`` read (bytes): spaces and specs are small; a Box's bounds are listed in full.
+MAX_METADATA_BYTES = 16 << 20
+
+
+def dataset_metadata(folder: Path | str) -> dict[str, Any]:
+    """The checked ``metadata.json`` of the Minari dataset whose data folder is ``folder`` (``.../<id>/data``):
+    ``ValueError`` naming the file unless it is a bounded JSON mapping holding its observation and action spaces
+    (else Minari builds the env to learn them) and any env spec names one of this project's ids."""
+    path = Path(folder) / "metadata.json"
+    metadata = read_json(path, MAX_METADATA_BYTES)
+    if not isinstance(metadata, dict):
+        raise ValueError(f"{path} is not a Minari metadata mapping")
+    for key in ("observation_space", "action_space"):
+        if not isinstance(metadata.get(key), str):
+            raise ValueError(f"{path} lacks its {key}: Minari would build the recorded env to learn it, and this "
+                             f"project builds no env a dataset describes")  # fmt: skip
+    for key in ("env_spec", "eval_env_spec"):
+        if metadata.get(key) is not None:
+            env_spec(metadata, key, path)
+    return metadata
+
+
+def env_spec(metadata: dict[str, Any], key: str, source: Path | str) -> tuple[str, dict[str, Any], int | None]:
+    """(id, keyword arguments, max_episode_steps) of the env spec ``metadata[key]`` records, checked: the id
+    must be one this project registers, with this project's entry point and no extra wrappers."""
+    try:
+        spec = json.loads(metadata[key]) if isinstance(metadata[key], str) else None
+    except (json.JSONDecodeError, RecursionError):
+        spec = None
+    if not isinstance(spec, dict):
+        raise ValueError(f"{source}: {key} is not a JSON env spec")
+    env_id, entry_point = spec.get("id"), spec.get("entry_point")
+    if not isinstance(env_id, str) or env_id not in ENV_IDS:
+        raise ValueError(f"{source}: {key} records env id {env_id!r}, not one of this project's "
+                         f"({sorted(ENV_IDS)}); this project builds no other env from a dataset")  # fmt: skip
+    if entry_point != ENTRY_POINT:
+        raise ValueError(f"{source}: {key} gives {env_id} the entry point {entry_point!r}, not this project's "
+                         f"{ENTRY_POINT!r}: the dataset has been altered")  # fmt: skip
+    if spec.get("additional_wrappers"):
+        raise ValueError(f"{source}: {key} adds wrappers to {env_id} ({spec['additional_wrappers']!r}); this "
+                         f"project applies none a dataset names")  # fmt: skip
+    kwargs, steps = spec.get("kwargs") or {}, spec.get("max_episode_steps")
+    if not isinstance(kwargs, dict) or not all(isinstance(k, str) for k in kwargs):
+        raise ValueError(f"{source}: {key} keyword arguments must be a mapping, got {kwargs!r}")
+    if steps is not None and (not is_count(steps) or steps < 1):
+        raise ValueError(f"{source}: {key} max_episode_steps must be a positive int, got {steps!r}")
+    return env_id, kwargs, steps
+
+
+def open_dataset(folder: Path | str) -> Any:
+    """The ``minari.MinariDataset`` in data folder ``folder``, once ``dataset_metadata`` has checked it."""
+    import minari
+
+    dataset_metadata(folder)
+    try:
+        return minari.MinariDataset(Path(folder))
+    except (AssertionError, KeyError, TypeError, ValueError, OSError) as error:
+        raise ValueError(f"cannot read the Minari dataset in {folder}: {error}") from None
+
+
+def recorded_env(dataset: Any) -> gym.Env:
+    """The env that recorded ``dataset`` (a ``minari.MinariDataset``), built from this project's registration
+    of the id its metadata records, with the recorded options (which the env checks like any others)."""
+    folder = Path(dataset.storage._data_path)  # Minari keeps no public name for it
+    metadata = dataset_metadata(folder)
+    if metadata.get("env_spec") is None:
+        raise ValueError(f"{folder / 'metadata.json'} records no env spec to replay in")
+    env_id, kwargs, steps = env_spec(metadata, "env_spec", folder / "metadata.json")
+    return gym.make(env_id, **kwargs, **({} if steps is None else {"max_episode_steps": steps}))
