@@ -103,14 +103,16 @@ def test_a_block_pressed_with_100_newtons_sinks_at_most_a_millimetre(cell):
     assert -0.001 <= bottom <= 0.0005
 
 
-def test_every_contact_takes_the_scene_softness_fixtures_included():
+def test_the_world_and_the_pads_take_the_stiff_softness_fixtures_included():
     def fixtures(spec: mujoco.MjSpec) -> None:
         wall = spec.worldbody.add_geom()
         wall.name, wall.type, wall.size, wall.pos = "wall", mujoco.mjtGeom.mjGEOM_BOX, [0.01, 0.1, 0.05], [0.6, 0, 0.05]
 
     model = build_model(SceneConfig(fixtures=fixtures))
+    robot = {b for b in range(model.nbody) if model.body(b).name.startswith("panda0_")}
     colliding = [g for g in range(model.ngeom) if model.geom_contype[g] or model.geom_conaffinity[g]]
-    assert model.geom("wall").id in colliding
-    for geom in colliding:
+    stiff = [g for g in colliding if model.geom_bodyid[g] not in robot or model.geom(g).name.endswith("_pad")]
+    assert model.geom("wall").id in stiff and model.geom("table").id in stiff
+    for geom in stiff:
         assert tuple(model.geom_solref[geom]) == CONTACT_SOLREF, model.geom(geom).name
         assert tuple(model.geom_solimp[geom]) == CONTACT_SOLIMP, model.geom(geom).name
