@@ -1,6 +1,6 @@
 """Physics conformance: the workcell's contacts measured against what rigid-body mechanics predicts.
 
-    python benchmarks/physics_conformance.py [--force 100] [--json out.json]
+    python benchmarks/physics_conformance.py [--force 100] [--stiff-contacts] [--json out.json]
 
 Each row is one experiment on the env's own scene (``Workcell``, a 5 cm, 0.1 kg block on the table), printed
 beside its analytic value:
@@ -191,10 +191,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--force", type=float, default=100.0, help="load of the penetration rows, newtons")
     parser.add_argument("--json", type=Path, help="also write the rows here (atomically)")
+    parser.add_argument("--stiff-contacts", action="store_true", help="the scene with SceneConfig(stiff_contacts=True)")
     args = parser.parse_args()
     if not 0 < args.force <= 1000:
         parser.error("--force must be in (0, 1000] N")
-    cell = Workcell(SceneConfig(n_blocks=4))
+    cell = Workcell(SceneConfig(n_blocks=4, stiff_contacts=args.stiff_contacts))
     size, mu, g = cell.config.block_size, float(cell.config.block_friction[0]), 9.81
     drop, incline_friction = 0.3, 0.5
     height_error, drift = settled_tower(cell)

@@ -46,7 +46,8 @@ if TYPE_CHECKING:
 
 #: Where a grasp closes below the top surface it aims at, metres.
 GRASP_DEPTH = 0.02
-#: A push through nothing taller than this (metres) runs as low as the fingers go (``MIN_GRASP_HEIGHT``:
+#: With push faces (``SceneConfig.push_faces``), a push through nothing taller than this (metres) runs as low
+#: as the fingers go (``MIN_GRASP_HEIGHT``:
 #: fingertips 5 mm above the table, the flat push faces from 7.5 mm up), below the height w / (2 mu) above
 #: which a pushed object of width w and table friction mu tips over its leading edge instead of sliding
 #: (7.5 mm for a 3 cm cube at the largest friction, 2, that objects take; 25 mm for a 5 cm block at 1).
@@ -90,10 +91,10 @@ def primitive_parameters(
     """Full parameter vector of primitive ``name`` at (x, y) with heading ``yaw``; ``z=None`` picks it from the scene.
 
     Automatic heights: ``grasp`` closes ``GRASP_DEPTH`` below the surface at
-    (x, y); ``place`` puts the object on that surface; ``push`` runs as low as
-    the fingers go through things up to ``LOW_PUSH_MAX_HEIGHT`` tall (they
-    slide rather than tip), at half the height of anything taller in its path
-    (within ``PUSH_HEIGHT_RANGE``: a tower topples);
+    (x, y); ``place`` puts the object on that surface; ``push`` runs at half
+    the height of what lies in its path + 1 cm (within ``PUSH_HEIGHT_RANGE``: a
+    tower topples), or, with push faces, as low as the fingers go through
+    things up to ``LOW_PUSH_MAX_HEIGHT`` tall (they slide rather than tip);
     ``impulse`` strikes the top object at (x, y).
     """
     held = cell.robot.body_between_fingers()
@@ -108,11 +109,8 @@ def primitive_parameters(
             ahead = np.linspace(0.0, settings.push_distance, 6)
             heights = [surface_height(cell, x + d * np.cos(yaw), y + d * np.sin(yaw)) for d in ahead]
             tallest = max(heights)
-            z = (
-                MIN_GRASP_HEIGHT
-                if tallest <= LOW_PUSH_MAX_HEIGHT
-                else float(np.clip(tallest / 2 + 0.01, *PUSH_HEIGHT_RANGE))
-            )
+            low = cell.config.push_faces and tallest <= LOW_PUSH_MAX_HEIGHT
+            z = MIN_GRASP_HEIGHT if low else float(np.clip(tallest / 2 + 0.01, *PUSH_HEIGHT_RANGE))
         return [x, y, z, yaw, settings.push_distance]
     if name == "impulse":
         z = surface_height(cell, x, y) - 0.02 if z is None else z

@@ -347,7 +347,8 @@ def test_an_object_thrown_faster_than_anything_here_moves_is_a_physics_error():
     assert not truncated and not info["physics_error"]
     body = int(cell.object_ids[0])
     linear = cell.model.jnt_dofadr[cell.model.body_jntadr[body]]
-    cell.data.qvel[linear + 2] = 2 * MAX_OBJECT_SPEED  # straight up, as a solver blow-up throws it
+    away = cell.data.xpos[body][:2] - cell.robot.ee_position[:2]  # clear of the hand, which would stop it
+    cell.data.qvel[linear : linear + 2] = 2 * MAX_OBJECT_SPEED * away / np.linalg.norm(away)  # as a blow-up throws
     observation, reward, terminated, truncated, info = env.step(np.zeros(4))
     assert truncated and not terminated and info["physics_error"] and reward == -1.0
     env.close()

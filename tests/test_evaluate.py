@@ -131,8 +131,9 @@ def test_grasp_success_interval_widens_when_an_episodes_grasps_fail_together():
 
 
 def test_random_agent_does_not_replay_the_scene_draws():
-    # Seeded with the episode's seed, a bare action space draws the same uniforms as the env's scene
-    # generator: its pushes would start where the tower was placed.  The agent's stream is its own.
+    # Seeded with the episode's seed, a bare action space drew the same uniforms as the env's scene generator
+    # (its pushes started where the tower was placed) until the scene drew from a spawned child stream.  The
+    # agent's stream is its own either way.
     import gymnasium as gym
     import numpy as np
 
@@ -152,7 +153,7 @@ def test_random_agent_does_not_replay_the_scene_draws():
         assert np.array_equal(agent.act(observation, info), first)  # still seeded: same seed, same actions
         agent_actions.append(first[0])
     env.close()
-    assert np.corrcoef(towers, bare)[0, 1] > 0.9  # the trap this guards against
+    assert abs(np.corrcoef(towers, bare)[0, 1]) < 0.5  # the trap this guarded against is gone
     assert abs(np.corrcoef(towers, agent_actions)[0, 1]) < 0.5
 
 

@@ -7,10 +7,11 @@ from panda_grasp_env.agents.towers import build_tower, push_tower
 from panda_grasp_env.control.controller import wrap_gripper_yaw
 from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.model.robot import HOME_QPOS
-from panda_grasp_env.model.scene import PUSH_FACE_HALF_SIZE
+from panda_grasp_env.model.scene import PUSH_FACE_HALF_SIZE, SceneConfig
 from panda_grasp_env.primitives.result import REASONS
 from panda_grasp_env.primitives.top_down import MIN_GRASP_HEIGHT, grasp, place, push, run_primitive
 from panda_grasp_env.sim.stacking import blocks_displaced, wrap_quarter_turn
+from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
 
@@ -201,8 +202,15 @@ def test_a_push_across_the_edge_of_two_joint7_windows_keeps_the_hand_turned_one_
     assert np.ptp(np.unwrap(headings)) < np.pi / 2 + 0.2  # the transit's turn from home, no half turn on top
 
 
+@pytest.fixture(scope="module")
+def precise_cell():
+    """A workcell with the push faces and the stiff world contacts (``SceneConfig`` options)."""
+    return Workcell(SceneConfig(push_faces=True, stiff_contacts=True))
+
+
 @pytest.mark.parametrize("heading", [0.3, 2.0, -2.5])
-def test_a_push_slides_a_block_to_where_the_stroke_ends_without_tipping_it(cell, heading):
+def test_with_push_faces_a_push_slides_a_block_to_where_the_stroke_ends_without_tipping_it(precise_cell, heading):
+    cell = precise_cell
     along = np.array([np.cos(heading), np.sin(heading)])
     # Clear of the robot's base: closer in, a low stroke turns the hand's pitch under load (see primitive_quality).
     centre, gap, distance = np.array([0.56, 0.0]), 0.06, 0.15

@@ -11,6 +11,7 @@ from panda_grasp_env.model.scene import (
     build_model,
     franka_asset_dir,
 )
+from panda_grasp_env.sim.workcell import Workcell
 
 
 def test_panda_is_loaded_from_installed_gymnasium_robotics():
@@ -87,9 +88,10 @@ def test_no_object_is_launched_when_pinched_between_the_finger_capsules():
     assert peak.speed < 2.0  # m/s, fastest free body; carried objects move at well under 1 m/s
 
 
-def test_a_block_pressed_with_100_newtons_sinks_at_most_a_millimetre(cell):
-    # MuJoCo's default contact softness let this 5 cm, 0.1 kg block sink 5.05 mm into the table (a pushed
-    # block's leading edge dug in 12 mm), which stalled pushes; 100 N is about the most a push applies.
+def test_with_stiff_contacts_a_block_pressed_with_100_newtons_sinks_at_most_a_millimetre():
+    # MuJoCo's default contact softness lets this 5 cm, 0.1 kg block sink 5.05 mm into the table (a pushed
+    # block's leading edge dug in 12 mm); 100 N is about the most a push applies.
+    cell = Workcell(SceneConfig(stiff_contacts=True))
     cell.clear()
     block = int(cell.block_ids[0])
     cell.set_body_pose(block, np.array([0.5, 0.0, 0.025]))
@@ -103,12 +105,12 @@ def test_a_block_pressed_with_100_newtons_sinks_at_most_a_millimetre(cell):
     assert -0.001 <= bottom <= 0.0005
 
 
-def test_the_world_and_the_pads_take_the_stiff_softness_fixtures_included():
+def test_stiff_contacts_reach_the_world_and_the_pads_fixtures_included():
     def fixtures(spec: mujoco.MjSpec) -> None:
         wall = spec.worldbody.add_geom()
         wall.name, wall.type, wall.size, wall.pos = "wall", mujoco.mjtGeom.mjGEOM_BOX, [0.01, 0.1, 0.05], [0.6, 0, 0.05]
 
-    model = build_model(SceneConfig(fixtures=fixtures))
+    model = build_model(SceneConfig(fixtures=fixtures, stiff_contacts=True))
     robot = {b for b in range(model.nbody) if model.body(b).name.startswith("panda0_")}
     colliding = [g for g in range(model.ngeom) if model.geom_contype[g] or model.geom_conaffinity[g]]
     stiff = [g for g in colliding if model.geom_bodyid[g] not in robot or model.geom(g).name.endswith("_pad")]

@@ -277,6 +277,8 @@ RESULT_FIELDS: dict[str, type | tuple[type, ...]] = {
     "grasps_attempted": int, "grasps_succeeded": int, "cycles": int, "sim_seconds": (int, float),
     "failures": dict, "physics_error": bool, "disturbed": int, "transit_contacts": int,
 }  # fmt: skip
+#: Why an episode failed (``episode_failure``): a name, or None for a success.
+FAILURE_FIELD = "failure"
 
 
 def _record_problem(record: dict, keys: set[str]) -> str | None:
@@ -284,8 +286,11 @@ def _record_problem(record: dict, keys: set[str]) -> str | None:
     if set(record) != {"key", "commit", "result", "timing"}:
         return f"keys {sorted(record)} are not key, commit, result, timing"
     result, timing = record["result"], record["timing"]
-    if not isinstance(result, dict) or set(result) != set(RESULT_FIELDS):
-        return f"result must hold exactly {list(RESULT_FIELDS)}"
+    if not isinstance(result, dict) or set(result) != {*RESULT_FIELDS, FAILURE_FIELD}:
+        return f"result must hold exactly {[*RESULT_FIELDS, FAILURE_FIELD]}"
+    failure = result[FAILURE_FIELD]
+    if not (failure is None if result["success"] is True else isinstance(failure, str) and 0 < len(failure) <= 64):
+        return f"result.{FAILURE_FIELD} must be null for a success and a reason otherwise, got {failure!r:.60}"
     for name, kind in RESULT_FIELDS.items():
         value = result[name]
         if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):

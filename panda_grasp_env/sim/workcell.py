@@ -19,6 +19,8 @@ from panda_grasp_env.geometry import half_extent_along, is_count, yaw_quaternion
 from panda_grasp_env.model.objects import ObjectShape, apply_shape
 from panda_grasp_env.model.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
 from panda_grasp_env.model.scene import (
+    CONTACT_SOLIMP,
+    CONTACT_SOLREF,
     OWN_FRICTION_PRIORITY,
     SceneConfig,
     build_spec,
@@ -139,10 +141,17 @@ class Workcell:
         self.object_names = self.block_names + self.config.object_names
         self.object_ids = np.array([self.model.body(n).id for n in self.object_names], dtype=int)
         self._qpos_adr = {b: self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.object_ids}
-        #: Free object geom -> its compiled (friction, priority), restored for objects without their own friction.
+        #: Free object geom -> its compiled (friction, solref, solimp, priority), restored for objects without
+        #: their own friction.
+        model = self.model
         self._slot_contacts = {
-            int(g): (self.model.geom_friction[g].copy(), int(self.model.geom_priority[g]))
-            for g in self.model.body_geomadr[self.object_ids]
+            int(g): (
+                model.geom_friction[g].copy(),
+                model.geom_solref[g].copy(),
+                model.geom_solimp[g].copy(),
+                int(model.geom_priority[g]),
+            )  # fmt: skip
+            for g in model.body_geomadr[self.object_ids]
         }
         self._dof_adr = {b: self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.object_ids}
         #: Objects faster than this (m/s) end the step with ``PhysicsError``; see ``allowing_object_speed``.
@@ -547,15 +556,16 @@ class Workcell:
         pads and fixtures; None restores the compiled one (a contact then takes the larger of its pair's).
 
         An object with its own friction gets the highest geom priority, so that its coefficient is the one
-        used (every contact has the same softness, ``CONTACT_SOLREF``, so the priority changes nothing else)."""
+        used, and the pads' contact softness (``CONTACT_SOLREF``), which the priority also decides."""
         model = self.model
         geom = int(model.body_geomadr[body_id])
-        compiled_friction, priority = self._slot_contacts[geom]
+        compiled_friction, solref, solimp, priority = self._slot_contacts[geom]
         sliding = compiled_friction
         if friction is not None:
             sliding = np.array([friction, *compiled_friction[1:]])
-            priority = OWN_FRICTION_PRIORITY
-        model.geom_friction[geom], model.geom_priority[geom] = sliding, priority
+            solref, solimp, priority = CONTACT_SOLREF, CONTACT_SOLIMP, OWN_FRICTION_PRIORITY
+        model.geom_friction[geom], model.geom_solref[geom], model.geom_solimp[geom] = sliding, solref, solimp
+        model.geom_priority[geom] = priority
 
     def refresh_constants(self) -> None:
         """Recompute the model's derived constants after masses or inertias changed, keeping the state."""
