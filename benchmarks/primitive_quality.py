@@ -22,6 +22,7 @@ import argparse
 import os
 import sys
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -146,12 +147,12 @@ def watched_push(cell: Workcell, block: int, start: np.ndarray, z: float, headin
     }  # fmt: skip
 
 
-def push_precision(trials: int, distance: float = 0.2, gap: float = 0.06) -> dict:
+def push_precision(trials: int, scene: SceneConfig, distance: float = 0.2, gap: float = 0.06) -> dict:
     """Pushes of one block: a 5 cm cube at a random spot and yaw of the spawn region, pushed ``distance`` metres
     along a random heading from ``gap`` behind its centre at the automatic push height.  Per trial: how far
     the block moved along the stroke and across it, how close the hand came to the stroke's end (horizontally),
     the block's largest tilt during the stroke, how far it sprang back after, and how far the hand turned."""
-    cell = Workcell(SceneConfig(n_blocks=1))
+    cell = Workcell(replace(scene, n_blocks=1))
     block = int(cell.block_ids[0])
     settings = PrimitiveSettings(primitives=("push",), push_distance=distance)
     rows = []
@@ -212,6 +213,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--drift", type=int, default=20)
     parser.add_argument("--pushes", type=int, default=50, help="trials per direction")
     parser.add_argument("--push-trials", type=int, default=100, help="single-block pushes (push precision)")
+    parser.add_argument("--stiff-contacts", action="store_true", help="push precision with stiff world contacts")
+    parser.add_argument("--push-faces", action="store_true", help="push precision with the fingers' push faces")
     parser.add_argument("--out", type=Path, default=Path("results/benchmarks/primitive_quality.json"))
     parser.add_argument("--resume", action="store_true", help="keep sections already in --out")
     args = parser.parse_args(argv)
@@ -233,7 +236,8 @@ def main(argv: list[str] | None = None) -> None:
         print(
             f"push {direction} displaces >= 2:    {_fmt(figures)}  mean displaced {figures['mean_blocks_displaced']:.2f}   (goal >= 95 %)"
         )
-    q = results.section("push_precision", lambda: push_precision(args.push_trials))
+    scene = SceneConfig(stiff_contacts=args.stiff_contacts, push_faces=args.push_faces)
+    q = results.section("push_precision", lambda: push_precision(args.push_trials, scene))
     print(
         f"push one block 20 cm:          stalled {_fmt(q['stalled'])}; lateral <= 1 cm {_fmt(q['lateral_within_10mm'])}; "
         f"hand within 2 mm of the stroke's end {_fmt(q['end_within_2mm'])}"
