@@ -3,7 +3,7 @@
 Every primitive is split into *transit* (rising to the transit height,
 crossing at it, going home) and one *work segment* (the last approach to the
 work point, the work itself and the retreat straight up).  The monitor watches
-every physics step's contacts and every control step's poses:
+every control step:
 
 * ``transit_contacts``: objects that the robot, or the object it carries,
   touched during transit (the robot should touch nothing there), and
@@ -155,8 +155,8 @@ class CollateralMonitor:
         return self.cell.model.geom_bodyid[self._contact_geoms()]
 
     def after_step(self) -> None:
-        """Record the robot-object and robot-fixture contacts of the current state (called after every physics
-        step; ``Workcell.step_physics`` clears ``new_fixture_hit`` at each control step)."""
+        """Record the robot-object and robot-fixture contacts of the current state (called after every control
+        step; ``Workcell.step_physics`` clears ``new_fixture_hit`` before each)."""
         if not self.active or self.cell.data.ncon == 0:
             return
         geoms = self._contact_geoms()

@@ -234,15 +234,8 @@ class Workcell:
     # --- stepping ----------------------------------------------------------
     def step_physics(self, n_steps: int) -> None:
         """Advance the physics ``n_steps`` steps with the current controls; raise PhysicsError on divergence."""
-        if self.collateral.active:
-            # While a primitive is watched its contacts are recorded after every physics step: a stiff contact
-            # with a struck object can begin and end within one control step.
-            self.collateral.new_fixture_hit = False
-            for _ in range(n_steps):
-                mujoco.mj_step(self.model, self.data)
-                self.collateral.after_step()
-        else:
-            mujoco.mj_step(self.model, self.data, nstep=n_steps)
+        self.collateral.new_fixture_hit = False
+        mujoco.mj_step(self.model, self.data, nstep=n_steps)
         self.physics_steps += n_steps
         # MuJoCo's own checks catch NaN/inf and runaway values (and reset the data when they fire).
         if np.count_nonzero(self.data.warning.number[_WARNINGS]):
@@ -251,6 +244,7 @@ class Workcell:
         if fastest > self.max_object_speed:
             raise PhysicsError(f"the contact solver threw an object at {fastest:.1f} m/s "
                                f"(no object here moves faster than {self.max_object_speed:g} m/s)")  # fmt: skip
+        self.collateral.after_step()
         for hook in self.step_hooks:
             hook(self)
 
