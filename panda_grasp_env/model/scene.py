@@ -89,7 +89,8 @@ class SceneConfig:
     #: The world's contacts (table, objects, fixtures) at ``CONTACT_SOLREF`` / ``CONTACT_SOLIMP`` instead of
     #: MuJoCo's defaults: a block under 100 N sinks 0.2 mm instead of 5 mm.  Off by default until the shipped
     #: low-level policies are retested on it: the scripted Push expert fell from 98 % to 91 % of 300 held-out
-    #: seeds with it (``benchmarks/physics_conformance.py --stiff-contacts``, docs/measured-figures.md).
+    #: seeds with it (``benchmarks/physics_conformance.py --stiff-contacts``, docs/measured-figures.md), and a
+    #: brief touch can fall between the control steps at which primitives read contacts.
     stiff_contacts: bool = False
     #: A flat push face over each finger's front and back (``PUSH_FACE_HALF_SIZE``), so that a push meets a block
     #: with a vertical plane instead of the asset's capsule stack, whose widest capsule rides up the block's top
