@@ -274,7 +274,7 @@ def test_start_behind_object_puts_the_hand_where_a_push_to_the_goal_begins():
         assert not cell.touches_robot(cell.block_ids[0]) and observation["observation"][5] < 0.005  # a fist
         for _ in range(10):  # straight at the goal with the fingers closed: the block goes that way
             observation, _, _, _, info = env.step(np.array([*-away, 0.0, 1.0]))
-        assert (block - observation["achieved_goal"])[:2] @ away > 0.03
+        assert (block - observation["achieved_goal"])[:2] @ away > 0.02  # the hand starts 0-10 cm behind it
     assert starts.count("behind_object") >= 6
     env.close()
 
