@@ -156,7 +156,8 @@ class CollateralMonitor:
 
     def after_step(self) -> None:
         """Record the robot-object and robot-fixture contacts of the current state (called after every control
-        step; ``Workcell.step_physics`` clears ``new_fixture_hit`` before each)."""
+        step)."""
+        self.new_fixture_hit = False
         if not self.active or self.cell.data.ncon == 0:
             return
         geoms = self._contact_geoms()
@@ -174,7 +175,7 @@ class CollateralMonitor:
         if hit.size:
             names = {self.cell.fixture_names[int(g)] for g in hit}
             if self.in_work:
-                self.new_fixture_hit |= bool(names - self.record.aimed_fixtures - self.record.work_fixtures)
+                self.new_fixture_hit = bool(names - self.record.aimed_fixtures - self.record.work_fixtures)
                 self.record.work_fixtures |= names
             else:
                 self.record.transit_fixtures |= names

@@ -234,7 +234,6 @@ class Workcell:
     # --- stepping ----------------------------------------------------------
     def step_physics(self, n_steps: int) -> None:
         """Advance the physics ``n_steps`` steps with the current controls; raise PhysicsError on divergence."""
-        self.collateral.new_fixture_hit = False
         mujoco.mj_step(self.model, self.data, nstep=n_steps)
         self.physics_steps += n_steps
         # MuJoCo's own checks catch NaN/inf and runaway values (and reset the data when they fire).
