@@ -292,8 +292,11 @@ def test_start_behind_object_puts_the_hand_where_a_push_to_the_goal_begins():
     env.close()
 
 
-@pytest.mark.xfail(strict=True, reason="known limitation (issue 53): pushing low and outwards (+x) from within "
-                   "~0.35 m of the base, the hand pitches under load and presses the block into the table; it stalls")
+@pytest.mark.xfail(
+    strict=True,
+    reason="known limitation (issue 53): pushing low and outwards (+x) from within "
+    "~0.35 m of the base, the hand pitches under load and presses the block into the table; it stalls",
+)
 def test_a_low_push_outwards_from_near_the_base_moves_the_block():
     env = make("PandaPush-v0", start_behind_object=1.0)
     for seed in (7, 15):  # the hand starts at x = 0.26 and 0.35 m, pushing along +x
