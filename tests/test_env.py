@@ -478,8 +478,10 @@ def test_the_scene_does_not_repeat_the_draws_of_an_action_space_seeded_alike():
 @pytest.mark.slow
 def test_a_random_agent_seeded_the_usual_way_rarely_breaks_the_tower():
     # With the scene drawn from the generator's first draws, this loop broke 17 of these 40 towers (8 on the
-    # first push); drawn from an independent stream, 7 (3 on the first push; 19 of 120 over seeds
-    # 80000-80119, ~16 %: a random push line crosses the tower about once in 25, and an episode has 5).
+    # first push); drawn from an independent stream, 7 (3 on the first push).  That is the physics, not the
+    # streams: on seeds 81000-81119 it broke 2 / 5 / 10 / 11 / 13 of 120 within 1 / 2 / 3 / 4 / 5 pushes -- a
+    # random push line crosses the tower about once in 30.  Issue 53's <= 10 % is therefore not met; this
+    # bounds what the streams did.
     # Seeds 80000-80039: held out from every selection here.
     env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
     broken = 0
