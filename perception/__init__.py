@@ -1,1 +1,2 @@
-"""From pixels to geometry: camera model, heightmaps (and, later, segmentation, pose and grasp detection)."""
+"""From pixels to geometry: camera model, sensor noise, heightmaps, segmentation, block pose and tower detection,
+and model-free grasp detection."""

@@ -136,6 +136,33 @@ def test_outside_the_repository_only_panda_grasp_env_is_importable(tmp_path):
     assert found == '{"agents": false, "perception": false}'
 
 
+@pytest.mark.parametrize("installed", [True, False], ids=["beside-an-editable-install", "without-an-install"])
+def test_a_second_checkout_runs_its_own_code(tmp_path, installed):
+    """A copy of the checkout imports all three packages from itself: with this checkout installed editable,
+    the install's mapping of agents/ and perception/ must not win; without an install, both must import."""
+    import shutil
+
+    checkout = tmp_path / "other-checkout"
+    for folder in ("panda_grasp_env", "agents", "perception"):
+        shutil.copytree(ROOT / folder, checkout / folder, ignore=shutil.ignore_patterns("checkpoints", "__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", checkout)
+    forget_the_install = (
+        "sys.meta_path[:] = [f for f in sys.meta_path if 'editable' not in type(f).__module__]\n"
+        f"sys.path[:] = [p for p in sys.path if not p.startswith({str(ROOT)!r})]\n"
+    )
+    script = (
+        "import json, sys\n"
+        + ("" if installed else forget_the_install)
+        + "import panda_grasp_env, panda_grasp_env.agents.towers, panda_grasp_env.perception.heightmap\n"
+        "print(json.dumps([sys.modules[n].__file__ for n in ('panda_grasp_env', 'panda_grasp_env.agents',\n"
+        "    'panda_grasp_env.perception', 'panda_grasp_env.agents.towers')]))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], cwd=checkout, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    files = json.loads(done.stdout.strip().splitlines()[-1])
+    assert all(Path(f).is_relative_to(checkout) for f in files), files
+
+
 def test_a_runs_commit_label_sees_changes_anywhere_in_the_repository(monkeypatch):
     # The label a card carries ("+changes": code no commit holds) must look at agents/, perception/ and the
     # entry scripts too, not only at the panda_grasp_env/ folder that holds the function.
