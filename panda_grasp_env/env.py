@@ -28,7 +28,7 @@ from panda_grasp_env.actions import (
 from panda_grasp_env.control.controller import ControllerLimits
 from panda_grasp_env.geometry import is_number
 from panda_grasp_env.model.robot import FINGER_CLOSED, FINGER_OPEN, HOME_YAW
-from panda_grasp_env.model.scene import CAMERA_NAMES, SceneConfig
+from panda_grasp_env.model.scene import CAMERA_NAMES, PRIMITIVE_NOSLIP_ITERATIONS, SceneConfig
 from panda_grasp_env.observations import ObservationBuilder, Sensors, parse_obs_mode
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
@@ -247,9 +247,12 @@ class PandaEnv(gym.Env):
 
         self.obs_mode, self.action_mode, self.render_mode = obs_mode, action_mode, render_mode
         self.task.fixed_hand_yaw = HOME_YAW if mode.fixed_hand_yaw else None
-        # Low-level modes: no noslip pass by default.  It stops a held block creeping in the fingers
-        # during long primitive carries (place accuracy); at 25 Hz control it costs ~10 % of the rate.
-        scene_config = self.task.scene_config(scene or SceneConfig(noslip_iterations=0 if mode.low_level else 3))
+        # Low-level modes: no noslip pass unless the scene sets one.  It stops a held block creeping in the
+        # fingers during long primitive carries (place accuracy); at 25 Hz control it costs ~10 % of the rate.
+        base = scene or SceneConfig()
+        if base.noslip_iterations is None:
+            base = replace(base, noslip_iterations=0 if mode.low_level else PRIMITIVE_NOSLIP_ITERATIONS)
+        scene_config = self.task.scene_config(base)
         scene_config = replace(scene_config, fixtures=self._scene_fixtures(scene_config.fixtures))
         # Low-level modes let the reference move EE_STEP per control step; primitives keep their own speeds.
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if mode.low_level else None

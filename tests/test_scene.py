@@ -58,11 +58,28 @@ def test_scene_is_configurable():
         ({"block_size": 0.2}, "block_size"),
         ({"cameras": {"ceiling": None}}, "ceiling"),
         ({"block_friction": (1.0, 0.1)}, "block_friction"),
+        ({"noslip_iterations": -1}, "noslip_iterations"),
     ],
 )
 def test_bad_scene_config_names_the_culprit(kwargs, culprit):
     with pytest.raises(ValueError, match=culprit):
         SceneConfig(**kwargs)
+
+
+def test_a_scene_given_to_make_keeps_the_action_modes_noslip_pass_unless_it_sets_one():
+    # A scene given for another reason (stiff contacts, say) once turned the low-level modes' noslip pass on:
+    # scene=SceneConfig() alone then changed the physics (the Push expert failed seed 91023, which it passes).
+    import gymnasium as gym
+
+    def noslip(env_id: str, **options) -> int:
+        env = gym.make(f"panda_grasp_env:{env_id}", **options)
+        iterations = int(env.unwrapped.cell.model.opt.noslip_iterations)
+        env.close()
+        return iterations
+
+    assert noslip("PandaPush-v0") == noslip("PandaPush-v0", scene=SceneConfig()) == 0
+    assert noslip("PandaPush-v0", scene=SceneConfig(noslip_iterations=2)) == 2
+    assert noslip("PandaTowerBuild-v0") == noslip("PandaTowerBuild-v0", scene=SceneConfig()) == 3
 
 
 def test_no_object_is_launched_when_pinched_between_the_finger_capsules():

@@ -41,6 +41,8 @@ MAX_FINGER_GAP = 0.08 - 2 * PAD_PROTRUSION
 #: MuJoCo's defaults (0.02 s; 0.9-0.95) let a 5 cm block pressed with 100 N sink 5 mm into the table, a pushed
 #: block's leading edge dig in 12 mm, and a held block creep in the fingers; these keep each under 1 mm
 #: (``benchmarks/physics_conformance.py``).
+#: Noslip post-pass iterations of the primitive action modes (see ``build_spec``); low-level modes use none.
+PRIMITIVE_NOSLIP_ITERATIONS = 3
 CONTACT_SOLREF = (0.004, 1.0)
 CONTACT_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)
 #: Each finger's push face, a box in the finger's frame (metres; x along a push, y the closing axis, z towards
@@ -85,7 +87,10 @@ class SceneConfig:
     #: Maximum squeezing force of each finger, newtons (the real Panda hand holds 70 N).
     gripper_force: float = 20.0
     timestep: float = 0.002
-    noslip_iterations: int = 3
+    #: MuJoCo's noslip post-pass iterations.  None: the env's choice for its action mode (primitives
+    #: ``PRIMITIVE_NOSLIP_ITERATIONS``, low-level modes 0), and ``PRIMITIVE_NOSLIP_ITERATIONS`` for a scene
+    #: built directly; so a ``scene`` given to ``make`` for other reasons keeps the mode's physics.
+    noslip_iterations: int | None = None
     #: The world's contacts (table, objects, fixtures) at ``CONTACT_SOLREF`` / ``CONTACT_SOLIMP`` instead of
     #: MuJoCo's defaults: a block under 100 N sinks 0.2 mm instead of 5 mm.  Off by default until the shipped
     #: low-level policies are retested on it: the scripted Push expert fell from 98 % to 91 % of 300 held-out
@@ -122,6 +127,10 @@ class SceneConfig:
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
         if self.block_size > 0.07:
             raise ValueError(f"block_size must fit the gripper (<= 0.07 m), got {self.block_size}")
+        if self.noslip_iterations is not None and not (
+            is_count(self.noslip_iterations) and self.noslip_iterations >= 0
+        ):
+            raise ValueError(f"noslip_iterations must be an int >= 0 or None, got {self.noslip_iterations!r}")
         for name in ("stiff_contacts", "push_faces"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
@@ -233,7 +242,8 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
     # The noslip post-pass removes the residual creep of soft friction: without
     # it a held block drifted up to 9 mm in the fingers during a carry (place
     # error); with 3 passes <= 2.5 mm.  It costs ~25 % of mj_step's rate.
-    spec.option.noslip_iterations = config.noslip_iterations
+    noslip = config.noslip_iterations
+    spec.option.noslip_iterations = PRIMITIVE_NOSLIP_ITERATIONS if noslip is None else noslip
     spec.visual.quality.offsamples = 4
     spec.visual.map.znear = 0.01
     spec.stat.center = [0.4, 0.0, 0.2]
