@@ -564,3 +564,20 @@ def test_an_id_another_package_registered_is_a_clash():
         assert "Clash" not in TASKS
     finally:
         del gym.registry["TestTakenElsewhere-v0"]
+
+
+def test_a_grasp_that_brings_a_second_object_home_sets_both_aside():
+    # Seed 1300005 of the heap: grasp_clutter_dqn's first grasp closes on an object with another lying on it
+    # and brings both home.  Only the grasped one was set aside; the other fell by the robot's base: lost.
+    from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent
+
+    checkpoint = Checkpoint("grasp_clutter_dqn")
+    env = checkpoint.make_env()
+    agent = LearnedAgent("grasp_clutter_dqn", env)
+    observation, info = env.reset(seed=1_300_005)
+    agent.reset(observation, info)
+    _, reward, _, _, info = env.step(agent.act(observation, info))
+    assert info["primitive"] == "grasp" and info["primitive_success"]
+    assert info["objects_grasped"] == 2 and info["objects_lost"] == 0 and reward == 2.0
+    assert info["disturbed"] == 1  # the second object is still collateral: it was not the one aimed at
+    env.close()

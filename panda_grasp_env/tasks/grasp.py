@@ -30,6 +30,9 @@ CLUTTER_REGION = np.array([[0.4, 0.6], [-0.1, 0.1]])
 HEAP_OBJECTS = 10
 #: A push "changed the scene" if some object moved at least this far (metres): VPG's push reward condition.
 SCENE_CHANGE = 0.01
+#: After a grasp the hand is home, ~0.45 m up: an object touching the hand or the grasped one with its bottom
+#: this high (metres above the table) came up with them.
+CARRIED_MIN_HEIGHT = 0.15
 #: Objects are in play inside this xy region (metres): the 0.448 m square the default heightmap covers,
 #: VPG's workspace.  As in VPG, one pushed or rolled beyond it is out of the episode: no policy that sees
 #: the workspace through the heightmap could find it.
@@ -111,7 +114,8 @@ class Grasp(Task):
     is removed from the scene.  Terminates when none is left (success if every object in
     play after the reset drop was grasped) or after ``max_failures``
     consecutive failed attempts (failed grasps, and pushes that moved nothing or carried an object out of
-    play).  Reward: 1 per successful grasp, 0.5 for a push that moved something (VPG) and lost nothing,
+    play).  Reward: 1 per object a successful grasp carries out (two when it lifts one lying on the grasped
+    one: both are set aside), 0.5 for a push that moved something (VPG) and lost nothing,
     and -1 per object an action carries out of play (pushed, knocked or dropped outside the region, or off
     the table), so an episode's return is objects grasped less objects lost plus 0.5 per useful push.  VPG
     pays any push that changes the scene, and a policy trained so learns to push the objects it cannot
@@ -371,22 +375,41 @@ class Grasp(Task):
             "consecutive_failures": self.consecutive_failures,
         }
 
+    @staticmethod
+    def _carried(cell: Workcell, grasped: int) -> set[int]:
+        """The objects the hand holds at home after a grasp of ``grasped``: it, and every object touching it or
+        the hand (through contacts, one object on another) whose bottom is above ``CARRIED_MIN_HEIGHT``."""
+        carried, frontier = {grasped}, [grasped, *cell.robot.body_ids]
+        objects = {int(b) for b in cell.object_ids}
+        while frontier:
+            for other in cell.bodies_touching(frontier.pop()):
+                lifted = body_bottom_height(cell.model, cell.data, other) > CARRIED_MIN_HEIGHT
+                if other in objects and other not in carried and lifted:
+                    carried.add(other)
+                    frontier.append(other)
+        return carried
+
     def evaluate(self, cell: Workcell, result: PrimitiveResult | None) -> TaskStep:
         if result is None:
             reached = bool(goals_reached(self.achieved_goal(cell), self._goal))
             return TaskStep(0.0 if reached else -1.0, reached, False, self._info(cell))  # as compute_reward
         reward = 0.0
         grasped = result.primitive == "grasp" and result.success
+        carried = 0
         if grasped:
-            body = cell.model.body(result.object).id
-            cell.park(body)  # set the grasped object aside, then return home with an open hand
+            # Everything the hand brought home is set aside: a grasp into a heap can lift an object lying on
+            # the grasped one too, which the opening hand would drop by the robot's base, out of play.
+            held = self._carried(cell, cell.model.body(result.object).id)
+            for body in sorted(held):
+                cell.park(body)
             cell.actuate_gripper(close=False, timeout=0.4)
             cell.move_home()
-            self.grasped += 1
+            carried = len(held)
+            self.grasped += carried
             self.consecutive_failures = 0
-            reward = 1.0
+            reward = float(carried)
         remaining = len(self.on_table(cell))
-        lost = self._remaining - remaining - int(grasped)
+        lost = self._remaining - remaining - carried
         positions = cell.object_positions()
         if not grasped:
             moved = np.linalg.norm(positions - self._positions, axis=1).max()
