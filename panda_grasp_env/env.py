@@ -32,7 +32,7 @@ from panda_grasp_env.model.scene import CAMERA_NAMES, PRIMITIVE_NOSLIP_ITERATION
 from panda_grasp_env.observations import ObservationBuilder, Sensors, parse_obs_mode
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
-from panda_grasp_env.primitives.result import PrimitiveResult
+from panda_grasp_env.primitives.result import COUNTERS
 from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
 from panda_grasp_env.sim.rendering import CameraRenderer, display_available
@@ -47,7 +47,6 @@ READY_MIN_HEIGHT = 0.15
 #: ``start_in_hand``: an object that moved more than this (metres) while the fingers closed on it was not
 #: cleanly held; the episode starts normally instead.
 HOLD_START_DRIFT = 0.015
-COUNTERS = ("grasps_attempted", "grasps_succeeded", "places", "places_succeeded", "pushes", "impulses")
 #: Every render mode the env knows.
 RENDER_MODES = ("rgb_array", "rgb_array_list", "depth_array", "human")
 
@@ -394,11 +393,12 @@ class PandaEnv(gym.Env):
         if verdict is None:  # a diverged step earns nothing (sparse goal rewards: -1, since 0 is success)
             verdict = TaskStep(-1.0 if self.goal_conditioned else 0.0, False, False)
         self.sensors.invalidate()
-        self._count(result)
+        if result is not None:
+            result.count(self._counters)
         info = {
             "is_success": verdict.success,
             **verdict.info,
-            **self._primitive_info(result),
+            **(result.info() if result is not None else {}),
             **self._counters,
             "actions_clipped": clipped,
             "actions_clipped_total": self._clipped_total,
@@ -493,41 +493,6 @@ class PandaEnv(gym.Env):
     def _object_tops(self) -> list[float]:
         cell = self.cell
         return [cell.data.xpos[b][2] + cell.model.geom_rbound[cell.model.body_geomadr[b]] for b in cell.object_ids]
-
-    def _count(self, result: PrimitiveResult | None) -> None:
-        if result is None:
-            return
-        if result.primitive == "grasp":
-            self._counters["grasps_attempted"] += 1
-            self._counters["grasps_succeeded"] += int(result.success)
-        elif result.primitive == "place":
-            self._counters["places"] += 1
-            self._counters["places_succeeded"] += int(result.success)
-        elif result.primitive == "push":
-            self._counters["pushes"] += 1
-        elif result.primitive == "impulse":
-            self._counters["impulses"] += 1
-
-    @staticmethod
-    def _primitive_info(result: PrimitiveResult | None) -> dict[str, Any]:
-        if result is None:
-            return {}
-        return {
-            "primitive": result.primitive,
-            "primitive_success": result.success,
-            "primitive_reason": result.reason,
-            "primitive_object": result.object or "",
-            "primitive_sim_time": result.sim_time,
-            # Collateral (see panda_grasp_env.sim.collateral): counts, and the names of what was disturbed.
-            "transit_contacts": len(result.transit_contacts),
-            "transit_disturbed": len(result.transit_disturbed),
-            "disturbed": len(result.disturbed),
-            "disturbed_objects": list(result.disturbed),
-            # What the robot or its load touched, objects then fixtures, by name: in transit (never wanted) and
-            # in the work segment (a fixture there other than the one aimed at is a "collision").
-            "transit_touched": list(result.transit_contacts),
-            "work_touched": list(result.work_contacts),
-        }
 
     def _goals(self) -> tuple[np.ndarray, np.ndarray] | None:
         if not self.goal_conditioned:
