@@ -27,7 +27,7 @@ from panda_grasp_env.actions import (
 )
 from panda_grasp_env.control.controller import ControllerLimits
 from panda_grasp_env.geometry import is_number
-from panda_grasp_env.model.robot import FINGER_CLOSED, FINGER_OPEN, HOME_YAW
+from panda_grasp_env.model.robot import HOME_YAW
 from panda_grasp_env.model.scene import CAMERA_NAMES, PRIMITIVE_NOSLIP_ITERATIONS, SceneConfig
 from panda_grasp_env.observations import ObservationBuilder, Sensors, parse_obs_mode
 from panda_grasp_env.perception.camera import CameraModel
@@ -36,17 +36,10 @@ from panda_grasp_env.primitives.result import COUNTERS
 from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
 from panda_grasp_env.sim.rendering import CameraRenderer, display_available
+from panda_grasp_env.sim.starts import draw_start, ready_position
 from panda_grasp_env.sim.workcell import PhysicsError, Workcell
 from panda_grasp_env.tasks import REWARD_TYPES, Task, TaskStep, dense_reward
 
-#: Low-level modes start each episode with the hand here (x, y metres), pointing down, this high above
-#: the tallest object (at least ``READY_MIN_HEIGHT``): close to the work, like Fetch and panda-gym.
-READY_XY = (0.45, 0.0)
-READY_CLEARANCE = 0.08
-READY_MIN_HEIGHT = 0.15
-#: ``start_in_hand``: an object that moved more than this (metres) while the fingers closed on it was not
-#: cleanly held; the episode starts normally instead.
-HOLD_START_DRIFT = 0.015
 #: Every render mode the env knows.
 RENDER_MODES = ("rgb_array", "rgb_array_list", "depth_array", "human")
 
@@ -335,18 +328,12 @@ class PandaEnv(gym.Env):
         task_info = self.task.reset(self.cell, rng)
         start = "ready"
         if self.actions.low_level:
-            tallest = max((float(body_top) for body_top in self._object_tops()), default=0.0)
-            ready = np.array([*READY_XY, max(READY_MIN_HEIGHT, tallest + READY_CLEARANCE)])
+            ready = ready_position(self.cell)
             self.cell.teleport_hand(ready, HOME_YAW)
             if self.start_curriculum:  # no draw without one
-                draw, body = rng.random(), self.task.start_object(self.cell)
-                starts = {"in_hand": self._start_holding, "above_object": self._start_above,
-                          "behind_object": self._start_behind}  # fmt: skip
-                for state, probability in self.start_curriculum.items():
-                    if draw < probability:
-                        start = state if starts[state](body, ready, rng) else "ready"
-                        break
-                    draw -= probability
+                body = self.task.start_object(self.cell)
+                start = draw_start(self.cell, self.start_curriculum, body, ready, rng, LOW_LEVEL_BOUNDS,
+                                   self.task.desired_goal)  # fmt: skip
         self.actions.reset(self.cell, rng)
         if self.randomizer is not None:  # drawn last: the scene and the rest of the stream are as without it
             task_info["randomization"] = self.randomizer.apply(rng)
@@ -425,74 +412,6 @@ class PandaEnv(gym.Env):
         if layout is not None:
             facts["action_layout"] = layout
         return facts
-
-    def _start_holding(self, body: int, ready: np.ndarray, rng: np.random.Generator) -> bool:
-        """Close the fingers on ``body`` where it lies (grasp site at its centre, the low-level heading) and
-        restart the clock.  If the open hand put there touches it (too wide for the fingers at this heading)
-        or closing does not hold it, put the object and the hand back (the hand at ``ready``, open) and
-        return False."""
-        cell = self.cell
-        position, orientation = cell.data.xpos[body].copy(), cell.data.xquat[body].copy()
-        centre = np.array([*position[:2], max(position[2], LOW_LEVEL_BOUNDS[2, 0])])
-        cell.teleport_hand(centre, HOME_YAW)
-        held = not cell.touches_robot(body)  # the open hand must be around the object, not in it
-        if held:
-            cell.actuate_gripper(close=True, timeout=0.5)
-            held = body in cell.robot.bodies_between_fingers()
-        if not held or np.linalg.norm(cell.data.xpos[body] - position) > HOLD_START_DRIFT:
-            cell.set_body_pose(body, position, orientation)
-            cell.robot.teleport_fingers(FINGER_OPEN)
-            cell.teleport_hand(ready, HOME_YAW)
-            held = False
-        cell.settle(0.0)
-        return held
-
-    def _start_above(self, body: int, ready: np.ndarray, rng: np.random.Generator) -> bool:
-        """Put the open hand straight above ``body``, the grasp site anywhere (uniform) from the object's centre
-        up to the height of ``ready``; if it touches the object there, back to ``ready`` and return False."""
-        cell = self.cell
-        position = cell.data.xpos[body]
-        low = max(position[2], LOW_LEVEL_BOUNDS[2, 0])
-        cell.teleport_hand(np.array([*position[:2], low + rng.random() * (ready[2] - low)]), HOME_YAW)
-        if cell.touches_robot(body):
-            cell.teleport_hand(ready, HOME_YAW)
-            return False
-        return True
-
-    def _start_behind(self, body: int, ready: np.ndarray, rng: np.random.Generator) -> bool:
-        """Put the hand at ``body``'s height on the far side from the goal (``Task.desired_goal``): first the
-        nearest grasp-site distance (1 cm steps out from the object's bounding radius) at which it does not
-        touch the object, then 0-10 cm (uniform) further back.  If no such place is found within 8 cm, or the
-        place is outside the low-level workspace, back to ``ready`` and return False.  The fingers start
-        closed."""
-        cell = self.cell
-        position = cell.data.xpos[body].copy()
-        away = position[:2] - self.task.desired_goal()[:2]
-        away /= max(float(np.linalg.norm(away)), 1e-9)
-        height = max(position[2], LOW_LEVEL_BOUNDS[2, 0])
-        radius = float(cell.model.geom_rbound[cell.model.body_geomadr[body]])
-
-        def site(distance: float) -> np.ndarray:
-            return np.array([*(position[:2] + distance * away), height])
-
-        further = 0.1 * rng.random()
-        cell.robot.teleport_fingers(FINGER_CLOSED)  # a fist: a pushed block cannot slip between the fingers
-        for clear in np.arange(radius, radius + 0.085, 0.01):
-            start = site(clear + further)
-            inside = np.all(start >= LOW_LEVEL_BOUNDS[:, 0]) and np.all(start <= LOW_LEVEL_BOUNDS[:, 1])
-            cell.teleport_hand(site(clear), HOME_YAW)
-            if not cell.touches_robot(body):
-                if inside:
-                    cell.teleport_hand(start, HOME_YAW)
-                    return True
-                break
-        cell.robot.teleport_fingers(FINGER_OPEN)
-        cell.teleport_hand(ready, HOME_YAW)
-        return False
-
-    def _object_tops(self) -> list[float]:
-        cell = self.cell
-        return [cell.data.xpos[b][2] + cell.model.geom_rbound[cell.model.body_geomadr[b]] for b in cell.object_ids]
 
     def _goals(self) -> tuple[np.ndarray, np.ndarray] | None:
         if not self.goal_conditioned:
