@@ -35,14 +35,10 @@ from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
 from panda_grasp_env.primitives.result import COUNTERS
 from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
-from panda_grasp_env.sim.rendering import CameraRenderer, display_available
+from panda_grasp_env.sim.rendering import RENDER_MODES, EnvRenderer, advertised_render_modes, display_available
 from panda_grasp_env.sim.starts import draw_start, ready_position
 from panda_grasp_env.sim.workcell import PhysicsError, Workcell
 from panda_grasp_env.tasks import REWARD_TYPES, Task, TaskStep, dense_reward
-
-#: Every render mode the env knows.
-RENDER_MODES = ("rgb_array", "rgb_array_list", "depth_array", "human")
-
 
 #: Largest image or render side, pixels.
 MAX_IMAGE_SIDE = 2048
@@ -103,12 +99,6 @@ def checked_grid(bounds: Any, resolution: Any) -> HeightmapGrid:
             f"each side must have {low}-{high} cells"
         )
     return grid
-
-
-def advertised_render_modes() -> list[str]:
-    """``RENDER_MODES`` less "human" (a window) where none can open: checkers that build every advertised
-    mode (Gymnasium's ``check_env``) then work on servers."""
-    return [mode for mode in RENDER_MODES if mode != "human" or display_available()]
 
 
 #: The ``PandaEnv`` options that set how an agent sees and acts (observation, action mode and their
@@ -294,12 +284,8 @@ class PandaEnv(gym.Env):
         if self.randomizer is not None:
             self.observations.depth_filter = self.randomizer.noisy_depth
         self.render_size = render_size
-        self._render_renderer: CameraRenderer | None = None
-        self._viewer = None
-        self._motion_frames: list[np.ndarray] = []
-        self._next_frame_time = np.inf  # set at each reset
-        if render_mode == "rgb_array_list":
-            self.cell.step_hooks.append(self._capture_motion_frame)
+        self.renderer = EnvRenderer(self.cell, render_mode, render_size, self.metadata["render_fps"],
+                                    lambda: self.sensors.rgbd("front", *render_size)[1])  # fmt: skip
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0
 
@@ -321,7 +307,7 @@ class PandaEnv(gym.Env):
             raise ValueError(f"reset options must be a dict or None, got {type(options).__name__}")
         if options:
             raise ValueError(f"reset options are not supported, got {sorted(options)}")
-        self._next_frame_time = np.inf  # rgb_array_list: no frames of the scene being laid out and settled
+        self.renderer.pause()  # rgb_array_list: no frames of the scene being laid out and settled
         if self.randomizer is not None:
             self.randomizer.restore()  # the task lays out its scene on the nominal model
         rng = self._episode_stream()
@@ -350,11 +336,7 @@ class PandaEnv(gym.Env):
         }
         if self.start_curriculum:
             info["start"] = start
-        if self.render_mode == "human":
-            self.render()
-        if self.render_mode == "rgb_array_list":  # the list starts at the reset state
-            self._motion_frames = [self._rgb_frame()]
-            self._next_frame_time = self.cell.sim_time + 1.0 / self.metadata["render_fps"]
+        self.renderer.start_episode()  # rgb_array_list: the list starts at the reset state
         return self._observe(), info
 
     def _episode_stream(self) -> np.random.Generator:
@@ -392,8 +374,7 @@ class PandaEnv(gym.Env):
             "physics_error": physics_error,
             "sim_time": self.cell.sim_time,
         }
-        if self.render_mode == "human":
-            self.render()
+        self.renderer.show()
         truncated = physics_error or verdict.truncated
         observation, reward = self._observe(physics_error), verdict.reward
         if self.reward_type == "dense" and not physics_error:  # from the goals the learner sees, as HER will
@@ -446,43 +427,13 @@ class PandaEnv(gym.Env):
         return self.sensors.camera_model(camera, width, height)
 
     # --- rendering ------------------------------------------------------------------
-    def render(self) -> np.ndarray | None:
+    def render(self) -> np.ndarray | list[np.ndarray] | None:
+        """The ``render_mode``'s frame, or its frames since the last call (``rgb_array_list``); see ``EnvRenderer``."""
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode= to make()")
             return None
-        if self.render_mode == "human":
-            if self._viewer is None:
-                import mujoco.viewer
-
-                self._viewer = mujoco.viewer.launch_passive(self.cell.model, self.cell.data)
-            self._viewer.sync()
-            return None
-        if self.render_mode == "depth_array":
-            return self.sensors.rgbd("front", *self.render_size)[1]
-        if self.render_mode == "rgb_array_list":
-            frames, self._motion_frames = self._motion_frames, []
-            return frames
-        return self._rgb_frame()
-
-    def _rgb_frame(self) -> np.ndarray:
-        """(height, width, 3) uint8 from the front camera."""
-        if self._render_renderer is None:
-            self._render_renderer = CameraRenderer(self.cell.model, *self.render_size, "pretty")
-        return self._render_renderer.render(self.cell.data, "front", "rgb")
-
-    def _capture_motion_frame(self, cell: Workcell) -> None:
-        """A control-step hook of ``rgb_array_list``: a frame each time simulated time passes the next one."""
-        if cell.sim_time + 1e-9 < self._next_frame_time:
-            return
-        self._motion_frames.append(self._rgb_frame())
-        while self._next_frame_time <= cell.sim_time + 1e-9:
-            self._next_frame_time += 1.0 / self.metadata["render_fps"]
+        return self.renderer.render()
 
     def close(self) -> None:
         self.sensors.close()
-        if self._render_renderer is not None:
-            self._render_renderer.close()
-            self._render_renderer = None
-        if self._viewer is not None:
-            self._viewer.close()
-            self._viewer = None
+        self.renderer.close()
