@@ -3,103 +3,33 @@
 The step loop (``PandaEnv.step``) reads top to bottom: validate the action,
 execute it (one primitive, or one 25 Hz control step), let the task judge the
 result, count, observe.  Tasks live in ``panda_grasp_env/tasks`` (one file
-each), action modes in ``actions.py``, observations in ``observations.py``.
+each), action modes in ``actions.py``, observations in ``observations.py``, option
+checks in ``env_options.py``, start states in ``sim/starts.py``, render modes in ``sim/rendering.py``.
 """
 
 from __future__ import annotations
 
 import inspect
-from collections.abc import Callable
-from dataclasses import replace
 from typing import Any
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 
-from panda_grasp_env.actions import (
-    ACTION_MODES,
-    EE_STEP,
-    LOW_LEVEL_BOUNDS,
-    ActionContext,
-    ActionMode,
-    PrimitiveSettings,
-)
+from panda_grasp_env.actions import EE_STEP, LOW_LEVEL_BOUNDS, ActionContext, ActionMode, PrimitiveSettings
 from panda_grasp_env.control.controller import ControllerLimits
-from panda_grasp_env.geometry import is_number
+from panda_grasp_env.env_options import EnvOptions
 from panda_grasp_env.model.robot import HOME_YAW
-from panda_grasp_env.model.scene import CAMERA_NAMES, PRIMITIVE_NOSLIP_ITERATIONS, SceneConfig
-from panda_grasp_env.observations import ObservationBuilder, Sensors, parse_obs_mode
+from panda_grasp_env.model.scene import CAMERA_NAMES, SceneConfig
+from panda_grasp_env.observations import ObservationBuilder, Sensors
 from panda_grasp_env.perception.camera import CameraModel
-from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
+from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
 from panda_grasp_env.primitives.result import COUNTERS
 from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
-from panda_grasp_env.sim.rendering import RENDER_MODES, EnvRenderer, advertised_render_modes, display_available
+from panda_grasp_env.sim.rendering import RENDER_MODES, EnvRenderer, advertised_render_modes
 from panda_grasp_env.sim.starts import draw_start, ready_position
 from panda_grasp_env.sim.workcell import PhysicsError, Workcell
-from panda_grasp_env.tasks import REWARD_TYPES, Task, TaskStep, dense_reward
-
-#: Largest image or render side, pixels.
-MAX_IMAGE_SIDE = 2048
-#: Most headings of the ``pixel`` action mode (VPG uses 16).
-MAX_ROTATIONS = 64
-#: A heightmap grid has this many cells per side, at least and at most.
-GRID_SIDES = (16, 1024)
-
-
-def checked_cameras(cameras: Any) -> tuple[str, ...]:
-    """``cameras`` (one name or a sequence of names) as a tuple; ``ValueError`` unless they are known and distinct."""
-    names = (cameras,) if isinstance(cameras, str) else tuple(cameras) if isinstance(cameras, (tuple, list)) else None
-    if not names or not all(isinstance(c, str) and c in CAMERA_NAMES for c in names) or len(set(names)) < len(names):
-        raise ValueError(f"cameras must be distinct names from {list(CAMERA_NAMES)}, got {cameras!r}")
-    return names
-
-
-def checked_size(name: str, size: Any) -> tuple[int, int]:
-    """``size`` as (width, height) pixels, each an int from 1 to ``MAX_IMAGE_SIDE``; else ``ValueError``."""
-    sides = tuple(size) if isinstance(size, (tuple, list, np.ndarray)) else ()
-    whole = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in sides)
-    if len(sides) != 2 or not whole or not all(1 <= v <= MAX_IMAGE_SIDE for v in sides):
-        raise ValueError(f"{name} must be (width, height) in ints from 1 to {MAX_IMAGE_SIDE}, got {size!r}")
-    return int(sides[0]), int(sides[1])
-
-
-def checked_start_curriculum(requested: dict[str, Any], mode: type[ActionMode], task: Task) -> dict[str, float]:
-    """The ``start_*`` probabilities that are not zero, by start state, after checking them: each in [0, 1],
-    together at most 1, and only for a low-level ``mode`` and a task that can start in that state."""
-    for state, value in requested.items():
-        name = f"start_{state}"
-        if not (is_number(value) and 0.0 <= value <= 1.0):
-            raise ValueError(f"{name} must be a probability in [0, 1], got {value!r}")
-        if value and not (mode.low_level and state in task.start_states):
-            raise ValueError(
-                f"{name} needs a low-level action mode (ee_delta, joint) and a task that can start "
-                f"{state.replace('_', ' ')}; got action_mode={mode.name!r}, task={task.name!r} "
-                f"(its start states: {list(task.start_states)})"
-            )
-    if sum(requested.values()) > 1.0:
-        raise ValueError(f"the start_* probabilities must sum to <= 1, got {sum(requested.values())}")
-    return {state: float(value) for state, value in requested.items() if value}
-
-
-def checked_grid(bounds: Any, resolution: Any) -> HeightmapGrid:
-    """The heightmap grid of ``heightmap_bounds`` (metres) and ``heightmap_resolution`` (metres per cell);
-    ``ValueError`` unless it has ``GRID_SIDES`` cells per side."""
-    if not (is_number(resolution) and resolution > 0):
-        raise ValueError(f"heightmap_resolution must be a positive number of metres, got {resolution!r}")
-    try:
-        grid = HeightmapGrid(tuple(map(tuple, bounds)), float(resolution))
-    except (TypeError, ValueError):
-        raise ValueError(f"heightmap_bounds must be ((x0, x1), (y0, y1), (z0, z1)) metres, got {bounds!r}") from None
-    low, high = GRID_SIDES
-    if not all(low <= side <= high for side in grid.shape):
-        raise ValueError(
-            f"heightmap_resolution={resolution!r} over heightmap_bounds={bounds!r} gives a {grid.shape} grid; "
-            f"each side must have {low}-{high} cells"
-        )
-    return grid
-
+from panda_grasp_env.tasks import TaskStep, dense_reward
 
 #: The ``PandaEnv`` options that set how an agent sees and acts (observation, action mode and their
 #: resolutions); the others, and the task options, set the scene and the protocol.
@@ -188,117 +118,52 @@ class PandaEnv(gym.Env):
         try:
             self.task = make_task(task, task_options)
         except ValueError as error:
-            env_options = [
-                p for p in inspect.signature(PandaEnv.__init__).parameters if p not in ("self", "task_options")
-            ]
-            raise ValueError(f"{error}; env options: {env_options}") from None
-        action_mode = self.task.default_action_mode if action_mode is None else action_mode
-        if not isinstance(action_mode, str) or action_mode not in ACTION_MODES:
-            raise ValueError(f"unknown action_mode {action_mode!r}; valid: {list(ACTION_MODES)}")
-        mode = ACTION_MODES[action_mode]
-        if render_mode == "human" and not display_available():
-            raise ValueError("render_mode='human' needs a display (neither DISPLAY nor WAYLAND_DISPLAY is set); "
-                             "use 'rgb_array' and save the frames, e.g. with gymnasium's RecordVideo")  # fmt: skip
+            names = [p for p in inspect.signature(PandaEnv.__init__).parameters if p not in ("self", "task_options")]
+            raise ValueError(f"{error}; env options: {names}") from None
+        self.options = options = EnvOptions.checked(
+            self.task, obs_mode=obs_mode, action_mode=action_mode, render_mode=render_mode, cameras=cameras,
+            image_size=image_size, heightmap_resolution=heightmap_resolution, heightmap_bounds=heightmap_bounds,
+            rotations=rotations, primitive_z=primitive_z, push_distance=push_distance, block_gripper=block_gripper,
+            render_size=render_size, planner=planner, scene=scene, start_in_hand=start_in_hand,
+            start_above_object=start_above_object, start_behind_object=start_behind_object,
+            randomization=randomization, reward_type=reward_type,
+        )  # fmt: skip
         self.metadata = {**PandaEnv.metadata, "render_modes": advertised_render_modes()}
-        if render_mode is not None and render_mode not in RENDER_MODES:
-            raise ValueError(f"unknown render_mode {render_mode!r}; valid: {self.metadata['render_modes']} or None")
-        cameras = checked_cameras(cameras)
-        image_size, render_size = checked_size("image_size", image_size), checked_size("render_size", render_size)
-        if scene is not None and not isinstance(scene, SceneConfig):
-            raise ValueError(
-                f"scene must be a panda_grasp_env.model.scene.SceneConfig or None, got {type(scene).__name__}"
-            )
-        for name, flag in (("primitive_z", primitive_z), ("block_gripper", block_gripper)):
-            if not isinstance(flag, (bool, np.bool_)):
-                raise ValueError(f"{name} must be a bool, got {flag!r}")
-        if not (isinstance(rotations, (int, np.integer)) and not isinstance(rotations, bool)
-                and 1 <= rotations <= MAX_ROTATIONS):  # fmt: skip
-            raise ValueError(f"rotations must be an int from 1 to {MAX_ROTATIONS}, got {rotations!r}")
-        if not isinstance(planner, str):
-            raise ValueError(f"planner must be an OMPL planner's name (a str), got {planner!r}")
-        if block_gripper and action_mode != "ee_delta":
-            raise ValueError(f"block_gripper=True needs action_mode='ee_delta', not {action_mode!r}")
-        if not (is_number(push_distance) and 0 < push_distance <= 0.3):
-            raise ValueError(f"push_distance must be in (0, 0.3] m, got {push_distance!r}")
-        randomization_settings = Randomization.of(randomization)
-        modalities = parse_obs_mode(obs_mode)
-        grid = checked_grid(heightmap_bounds, heightmap_resolution)
-        requested = {"in_hand": start_in_hand, "above_object": start_above_object, "behind_object": start_behind_object}
+        self.obs_mode, self.action_mode, self.render_mode = obs_mode, options.action_mode, render_mode
+        self.render_size, self.reward_type = options.render_size, reward_type
         #: Start state -> probability of an episode starting there (a training curriculum; empty: none).
-        self.start_curriculum = checked_start_curriculum(requested, mode, self.task)
-
-        self.obs_mode, self.action_mode, self.render_mode = obs_mode, action_mode, render_mode
+        self.start_curriculum = options.start_curriculum
+        self.goal_conditioned = options.goal_conditioned
+        mode = options.mode
         self.task.fixed_hand_yaw = HOME_YAW if mode.fixed_hand_yaw else None
-        # Low-level modes: no noslip pass unless the scene sets one.  It stops a held block creeping in the
-        # fingers during long primitive carries (place accuracy); at 25 Hz control it costs ~10 % of the rate.
-        base = scene or SceneConfig()
-        if base.noslip_iterations is None:
-            base = replace(base, noslip_iterations=0 if mode.low_level else PRIMITIVE_NOSLIP_ITERATIONS)
-        scene_config = self.task.scene_config(base)
-        scene_config = replace(scene_config, fixtures=self._scene_fixtures(scene_config.fixtures))
         # Low-level modes let the reference move EE_STEP per control step; primitives keep their own speeds.
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if mode.low_level else None
-        self.cell = Workcell(scene_config, limits=limits)
+        self.cell = Workcell(options.scene_config(self.task), limits=limits)
         self.cell.step_hooks.append(self.task.on_control_step)
-        self.sensors = Sensors(self.cell, image_size, grid)
-        settings = PrimitiveSettings(
-            self.task.primitives, primitive_z, push_distance, getattr(self.task, "impulse_magnitude", 0.06)
-        )
-        self.actions: ActionMode = mode.build(
-            ActionContext(
-                self.cell,
-                settings,
-                grid,
-                int(rotations),
-                lambda: self.sensors.heightmap()[0],
-                bool(block_gripper),
-                planner,
-            )  # fmt: skip
-        )
-        self.goal_conditioned = mode.low_level and self.task.goal_conditioned
-        if reward_type not in REWARD_TYPES:
-            raise ValueError(f"unknown reward_type {reward_type!r}; valid: {list(REWARD_TYPES)}")
-        if reward_type == "dense" and not self.goal_conditioned:
-            raise ValueError(f"reward_type='dense' is the goal distance of a goal-conditioned task in a low-level "
-                             f"action mode; {task!r} in {action_mode!r} mode has no goal reward to make dense")  # fmt: skip
-        self.reward_type = reward_type
+        self.sensors = Sensors(self.cell, options.image_size, options.grid)
+        settings = PrimitiveSettings(self.task.primitives, options.primitive_z, options.push_distance,
+                                     getattr(self.task, "impulse_magnitude", 0.06))  # fmt: skip
+        context = ActionContext(self.cell, settings, options.grid, options.rotations,
+                                lambda: self.sensors.heightmap()[0], options.block_gripper, options.planner)  # fmt: skip
+        self.actions: ActionMode = mode.build(context)
         if self.goal_conditioned:
             # Only goal envs have compute_reward (vectorised, for HER): checkers treat its presence as "GoalEnv".
             self.compute_reward = self.task.compute_reward if reward_type == "sparse" else dense_reward
         # Primitive-mode agents of goal tasks see the goal at the end of the state vector.
         self._goal_in_state = self.task.goal_conditioned and not mode.low_level
-        self.observations = ObservationBuilder(
-            self.cell,
-            modalities,
-            cameras,
-            self.sensors,
-            self.task.goal_size if self.goal_conditioned else None,
-            self.task.properties_size + (self.task.goal_size if self._goal_in_state else 0),
-            self.task.command_size,
-        )
+        goal_size = self.task.goal_size if self.goal_conditioned else None
+        extra_size = self.task.properties_size + (self.task.goal_size if self._goal_in_state else 0)
+        self.observations = ObservationBuilder(self.cell, options.modalities, options.cameras, self.sensors, goal_size,
+                                               extra_size, self.task.command_size)  # fmt: skip
         self.action_space = self.actions.space
         self.observation_space = self.observations.space
-        self.randomizer = (
-            None if randomization_settings is None else DomainRandomizer(randomization_settings, self.cell)
-        )
+        self.randomizer = None if options.randomization is None else DomainRandomizer(options.randomization, self.cell)
         if self.randomizer is not None:
             self.observations.depth_filter = self.randomizer.noisy_depth
-        self.render_size = render_size
-        self.renderer = EnvRenderer(self.cell, render_mode, render_size, self.metadata["render_fps"],
-                                    lambda: self.sensors.rgbd("front", *render_size)[1])  # fmt: skip
+        self.renderer = EnvRenderer(self.cell, render_mode, options.render_size, self.metadata["render_fps"],
+                                    lambda: self.sensors.rgbd("front", *options.render_size)[1])  # fmt: skip
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0
-
-    def _scene_fixtures(self, given: Callable[[mujoco.MjSpec], None] | None) -> Callable[[mujoco.MjSpec], None]:
-        """The task's fixtures, after those of a ``scene`` given to ``make`` (if any)."""
-        if given is None:
-            return self.task.add_fixtures
-
-        def both(spec: mujoco.MjSpec) -> None:
-            given(spec)
-            self.task.add_fixtures(spec)
-
-        return both
 
     # --- the step loop -----------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
@@ -394,16 +259,12 @@ class PandaEnv(gym.Env):
             facts["action_layout"] = layout
         return facts
 
-    def _goals(self) -> tuple[np.ndarray, np.ndarray] | None:
-        if not self.goal_conditioned:
-            return None
-        return self.task.achieved_goal(self.cell), self.task.desired_goal()
-
     def _observe(self, sanitise: bool = False) -> Any:
         extra = None
         if self.observations.extra_size:
             extra = np.concatenate([self.task.properties(), self.task.desired_goal() if self._goal_in_state else []])
-        observation = self.observations.observe(self._goals(), extra, self.task.command())
+        goals = (self.task.achieved_goal(self.cell), self.task.desired_goal()) if self.goal_conditioned else None
+        observation = self.observations.observe(goals, extra, self.task.command())
         if sanitise:  # after a divergence the state may hold NaN: never hand that to a learner
             if isinstance(observation, dict):
                 return {k: np.nan_to_num(v, posinf=0.0, neginf=0.0) for k, v in observation.items()}
