@@ -3,121 +3,33 @@
 The step loop (``PandaEnv.step``) reads top to bottom: validate the action,
 execute it (one primitive, or one 25 Hz control step), let the task judge the
 result, count, observe.  Tasks live in ``panda_grasp_env/tasks`` (one file
-each), action modes in ``actions.py``, observations in ``observations.py``.
+each), action modes in ``actions.py``, observations in ``observations.py``, option
+checks in ``env_options.py``, start states in ``sim/starts.py``, render modes in ``sim/rendering.py``.
 """
 
 from __future__ import annotations
 
 import inspect
-from collections.abc import Callable
-from dataclasses import replace
 from typing import Any
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 
-from panda_grasp_env.actions import (
-    ACTION_MODES,
-    EE_STEP,
-    LOW_LEVEL_BOUNDS,
-    ActionContext,
-    ActionMode,
-    PrimitiveSettings,
-)
+from panda_grasp_env.actions import EE_STEP, LOW_LEVEL_BOUNDS, ActionContext, ActionMode, PrimitiveSettings
 from panda_grasp_env.control.controller import ControllerLimits
-from panda_grasp_env.geometry import is_number
-from panda_grasp_env.model.robot import FINGER_CLOSED, FINGER_OPEN, HOME_YAW
-from panda_grasp_env.model.scene import CAMERA_NAMES, PRIMITIVE_NOSLIP_ITERATIONS, SceneConfig
-from panda_grasp_env.observations import ObservationBuilder, Sensors, parse_obs_mode
+from panda_grasp_env.env_options import EnvOptions
+from panda_grasp_env.model.robot import HOME_YAW
+from panda_grasp_env.model.scene import CAMERA_NAMES, SceneConfig
+from panda_grasp_env.observations import ObservationBuilder, Sensors
 from panda_grasp_env.perception.camera import CameraModel
-from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
-from panda_grasp_env.primitives.result import PrimitiveResult
+from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
+from panda_grasp_env.primitives.result import COUNTERS
 from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
-from panda_grasp_env.sim.rendering import CameraRenderer, display_available
+from panda_grasp_env.sim.rendering import RENDER_MODES, EnvRenderer, advertised_render_modes
+from panda_grasp_env.sim.starts import draw_start, ready_position
 from panda_grasp_env.sim.workcell import PhysicsError, Workcell
-from panda_grasp_env.tasks import REWARD_TYPES, Task, TaskStep, dense_reward
-
-#: Low-level modes start each episode with the hand here (x, y metres), pointing down, this high above
-#: the tallest object (at least ``READY_MIN_HEIGHT``): close to the work, like Fetch and panda-gym.
-READY_XY = (0.45, 0.0)
-READY_CLEARANCE = 0.08
-READY_MIN_HEIGHT = 0.15
-#: ``start_in_hand``: an object that moved more than this (metres) while the fingers closed on it was not
-#: cleanly held; the episode starts normally instead.
-HOLD_START_DRIFT = 0.015
-COUNTERS = ("grasps_attempted", "grasps_succeeded", "places", "places_succeeded", "pushes", "impulses")
-#: Every render mode the env knows.
-RENDER_MODES = ("rgb_array", "rgb_array_list", "depth_array", "human")
-
-
-#: Largest image or render side, pixels.
-MAX_IMAGE_SIDE = 2048
-#: Most headings of the ``pixel`` action mode (VPG uses 16).
-MAX_ROTATIONS = 64
-#: A heightmap grid has this many cells per side, at least and at most.
-GRID_SIDES = (16, 1024)
-
-
-def checked_cameras(cameras: Any) -> tuple[str, ...]:
-    """``cameras`` (one name or a sequence of names) as a tuple; ``ValueError`` unless they are known and distinct."""
-    names = (cameras,) if isinstance(cameras, str) else tuple(cameras) if isinstance(cameras, (tuple, list)) else None
-    if not names or not all(isinstance(c, str) and c in CAMERA_NAMES for c in names) or len(set(names)) < len(names):
-        raise ValueError(f"cameras must be distinct names from {list(CAMERA_NAMES)}, got {cameras!r}")
-    return names
-
-
-def checked_size(name: str, size: Any) -> tuple[int, int]:
-    """``size`` as (width, height) pixels, each an int from 1 to ``MAX_IMAGE_SIDE``; else ``ValueError``."""
-    sides = tuple(size) if isinstance(size, (tuple, list, np.ndarray)) else ()
-    whole = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in sides)
-    if len(sides) != 2 or not whole or not all(1 <= v <= MAX_IMAGE_SIDE for v in sides):
-        raise ValueError(f"{name} must be (width, height) in ints from 1 to {MAX_IMAGE_SIDE}, got {size!r}")
-    return int(sides[0]), int(sides[1])
-
-
-def checked_start_curriculum(requested: dict[str, Any], mode: type[ActionMode], task: Task) -> dict[str, float]:
-    """The ``start_*`` probabilities that are not zero, by start state, after checking them: each in [0, 1],
-    together at most 1, and only for a low-level ``mode`` and a task that can start in that state."""
-    for state, value in requested.items():
-        name = f"start_{state}"
-        if not (is_number(value) and 0.0 <= value <= 1.0):
-            raise ValueError(f"{name} must be a probability in [0, 1], got {value!r}")
-        if value and not (mode.low_level and state in task.start_states):
-            raise ValueError(
-                f"{name} needs a low-level action mode (ee_delta, joint) and a task that can start "
-                f"{state.replace('_', ' ')}; got action_mode={mode.name!r}, task={task.name!r} "
-                f"(its start states: {list(task.start_states)})"
-            )
-    if sum(requested.values()) > 1.0:
-        raise ValueError(f"the start_* probabilities must sum to <= 1, got {sum(requested.values())}")
-    return {state: float(value) for state, value in requested.items() if value}
-
-
-def checked_grid(bounds: Any, resolution: Any) -> HeightmapGrid:
-    """The heightmap grid of ``heightmap_bounds`` (metres) and ``heightmap_resolution`` (metres per cell);
-    ``ValueError`` unless it has ``GRID_SIDES`` cells per side."""
-    if not (is_number(resolution) and resolution > 0):
-        raise ValueError(f"heightmap_resolution must be a positive number of metres, got {resolution!r}")
-    try:
-        grid = HeightmapGrid(tuple(map(tuple, bounds)), float(resolution))
-    except (TypeError, ValueError):
-        raise ValueError(f"heightmap_bounds must be ((x0, x1), (y0, y1), (z0, z1)) metres, got {bounds!r}") from None
-    low, high = GRID_SIDES
-    if not all(low <= side <= high for side in grid.shape):
-        raise ValueError(
-            f"heightmap_resolution={resolution!r} over heightmap_bounds={bounds!r} gives a {grid.shape} grid; "
-            f"each side must have {low}-{high} cells"
-        )
-    return grid
-
-
-def advertised_render_modes() -> list[str]:
-    """``RENDER_MODES`` less "human" (a window) where none can open: checkers that build every advertised
-    mode (Gymnasium's ``check_env``) then work on servers."""
-    return [mode for mode in RENDER_MODES if mode != "human" or display_available()]
-
+from panda_grasp_env.tasks import TaskStep, dense_reward
 
 #: The ``PandaEnv`` options that set how an agent sees and acts (observation, action mode and their
 #: resolutions); the others, and the task options, set the scene and the protocol.
@@ -206,121 +118,52 @@ class PandaEnv(gym.Env):
         try:
             self.task = make_task(task, task_options)
         except ValueError as error:
-            env_options = [
-                p for p in inspect.signature(PandaEnv.__init__).parameters if p not in ("self", "task_options")
-            ]
-            raise ValueError(f"{error}; env options: {env_options}") from None
-        action_mode = self.task.default_action_mode if action_mode is None else action_mode
-        if not isinstance(action_mode, str) or action_mode not in ACTION_MODES:
-            raise ValueError(f"unknown action_mode {action_mode!r}; valid: {list(ACTION_MODES)}")
-        mode = ACTION_MODES[action_mode]
-        if render_mode == "human" and not display_available():
-            raise ValueError("render_mode='human' needs a display (neither DISPLAY nor WAYLAND_DISPLAY is set); "
-                             "use 'rgb_array' and save the frames, e.g. with gymnasium's RecordVideo")  # fmt: skip
+            names = [p for p in inspect.signature(PandaEnv.__init__).parameters if p not in ("self", "task_options")]
+            raise ValueError(f"{error}; env options: {names}") from None
+        self.options = options = EnvOptions.checked(
+            self.task, obs_mode=obs_mode, action_mode=action_mode, render_mode=render_mode, cameras=cameras,
+            image_size=image_size, heightmap_resolution=heightmap_resolution, heightmap_bounds=heightmap_bounds,
+            rotations=rotations, primitive_z=primitive_z, push_distance=push_distance, block_gripper=block_gripper,
+            render_size=render_size, planner=planner, scene=scene, start_in_hand=start_in_hand,
+            start_above_object=start_above_object, start_behind_object=start_behind_object,
+            randomization=randomization, reward_type=reward_type,
+        )  # fmt: skip
         self.metadata = {**PandaEnv.metadata, "render_modes": advertised_render_modes()}
-        if render_mode is not None and render_mode not in RENDER_MODES:
-            raise ValueError(f"unknown render_mode {render_mode!r}; valid: {self.metadata['render_modes']} or None")
-        cameras = checked_cameras(cameras)
-        image_size, render_size = checked_size("image_size", image_size), checked_size("render_size", render_size)
-        if scene is not None and not isinstance(scene, SceneConfig):
-            raise ValueError(
-                f"scene must be a panda_grasp_env.model.scene.SceneConfig or None, got {type(scene).__name__}"
-            )
-        for name, flag in (("primitive_z", primitive_z), ("block_gripper", block_gripper)):
-            if not isinstance(flag, (bool, np.bool_)):
-                raise ValueError(f"{name} must be a bool, got {flag!r}")
-        if not (isinstance(rotations, (int, np.integer)) and not isinstance(rotations, bool)
-                and 1 <= rotations <= MAX_ROTATIONS):  # fmt: skip
-            raise ValueError(f"rotations must be an int from 1 to {MAX_ROTATIONS}, got {rotations!r}")
-        if not isinstance(planner, str):
-            raise ValueError(f"planner must be an OMPL planner's name (a str), got {planner!r}")
-        if block_gripper and action_mode != "ee_delta":
-            raise ValueError(f"block_gripper=True needs action_mode='ee_delta', not {action_mode!r}")
-        if not (is_number(push_distance) and 0 < push_distance <= 0.3):
-            raise ValueError(f"push_distance must be in (0, 0.3] m, got {push_distance!r}")
-        randomization_settings = Randomization.of(randomization)
-        modalities = parse_obs_mode(obs_mode)
-        grid = checked_grid(heightmap_bounds, heightmap_resolution)
-        requested = {"in_hand": start_in_hand, "above_object": start_above_object, "behind_object": start_behind_object}
+        self.obs_mode, self.action_mode, self.render_mode = obs_mode, options.action_mode, render_mode
+        self.render_size, self.reward_type = options.render_size, reward_type
         #: Start state -> probability of an episode starting there (a training curriculum; empty: none).
-        self.start_curriculum = checked_start_curriculum(requested, mode, self.task)
-
-        self.obs_mode, self.action_mode, self.render_mode = obs_mode, action_mode, render_mode
+        self.start_curriculum = options.start_curriculum
+        self.goal_conditioned = options.goal_conditioned
+        mode = options.mode
         self.task.fixed_hand_yaw = HOME_YAW if mode.fixed_hand_yaw else None
-        # Low-level modes: no noslip pass unless the scene sets one.  It stops a held block creeping in the
-        # fingers during long primitive carries (place accuracy); at 25 Hz control it costs ~10 % of the rate.
-        base = scene or SceneConfig()
-        if base.noslip_iterations is None:
-            base = replace(base, noslip_iterations=0 if mode.low_level else PRIMITIVE_NOSLIP_ITERATIONS)
-        scene_config = self.task.scene_config(base)
-        scene_config = replace(scene_config, fixtures=self._scene_fixtures(scene_config.fixtures))
         # Low-level modes let the reference move EE_STEP per control step; primitives keep their own speeds.
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if mode.low_level else None
-        self.cell = Workcell(scene_config, limits=limits)
+        self.cell = Workcell(options.scene_config(self.task), limits=limits)
         self.cell.step_hooks.append(self.task.on_control_step)
-        self.sensors = Sensors(self.cell, image_size, grid)
-        settings = PrimitiveSettings(
-            self.task.primitives, primitive_z, push_distance, getattr(self.task, "impulse_magnitude", 0.06)
-        )
-        self.actions: ActionMode = mode.build(
-            ActionContext(
-                self.cell,
-                settings,
-                grid,
-                int(rotations),
-                lambda: self.sensors.heightmap()[0],
-                bool(block_gripper),
-                planner,
-            )  # fmt: skip
-        )
-        self.goal_conditioned = mode.low_level and self.task.goal_conditioned
-        if reward_type not in REWARD_TYPES:
-            raise ValueError(f"unknown reward_type {reward_type!r}; valid: {list(REWARD_TYPES)}")
-        if reward_type == "dense" and not self.goal_conditioned:
-            raise ValueError(f"reward_type='dense' is the goal distance of a goal-conditioned task in a low-level "
-                             f"action mode; {task!r} in {action_mode!r} mode has no goal reward to make dense")  # fmt: skip
-        self.reward_type = reward_type
+        self.sensors = Sensors(self.cell, options.image_size, options.grid)
+        settings = PrimitiveSettings(self.task.primitives, options.primitive_z, options.push_distance,
+                                     getattr(self.task, "impulse_magnitude", 0.06))  # fmt: skip
+        context = ActionContext(self.cell, settings, options.grid, options.rotations,
+                                lambda: self.sensors.heightmap()[0], options.block_gripper, options.planner)  # fmt: skip
+        self.actions: ActionMode = mode.build(context)
         if self.goal_conditioned:
             # Only goal envs have compute_reward (vectorised, for HER): checkers treat its presence as "GoalEnv".
             self.compute_reward = self.task.compute_reward if reward_type == "sparse" else dense_reward
         # Primitive-mode agents of goal tasks see the goal at the end of the state vector.
         self._goal_in_state = self.task.goal_conditioned and not mode.low_level
-        self.observations = ObservationBuilder(
-            self.cell,
-            modalities,
-            cameras,
-            self.sensors,
-            self.task.goal_size if self.goal_conditioned else None,
-            self.task.properties_size + (self.task.goal_size if self._goal_in_state else 0),
-            self.task.command_size,
-        )
+        goal_size = self.task.goal_size if self.goal_conditioned else None
+        extra_size = self.task.properties_size + (self.task.goal_size if self._goal_in_state else 0)
+        self.observations = ObservationBuilder(self.cell, options.modalities, options.cameras, self.sensors, goal_size,
+                                               extra_size, self.task.command_size)  # fmt: skip
         self.action_space = self.actions.space
         self.observation_space = self.observations.space
-        self.randomizer = (
-            None if randomization_settings is None else DomainRandomizer(randomization_settings, self.cell)
-        )
+        self.randomizer = None if options.randomization is None else DomainRandomizer(options.randomization, self.cell)
         if self.randomizer is not None:
             self.observations.depth_filter = self.randomizer.noisy_depth
-        self.render_size = render_size
-        self._render_renderer: CameraRenderer | None = None
-        self._viewer = None
-        self._motion_frames: list[np.ndarray] = []
-        self._next_frame_time = np.inf  # set at each reset
-        if render_mode == "rgb_array_list":
-            self.cell.step_hooks.append(self._capture_motion_frame)
+        self.renderer = EnvRenderer(self.cell, render_mode, options.render_size, self.metadata["render_fps"],
+                                    lambda: self.sensors.rgbd("front", *options.render_size)[1])  # fmt: skip
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0
-
-    def _scene_fixtures(self, given: Callable[[mujoco.MjSpec], None] | None) -> Callable[[mujoco.MjSpec], None]:
-        """The task's fixtures, after those of a ``scene`` given to ``make`` (if any)."""
-        if given is None:
-            return self.task.add_fixtures
-
-        def both(spec: mujoco.MjSpec) -> None:
-            given(spec)
-            self.task.add_fixtures(spec)
-
-        return both
 
     # --- the step loop -----------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
@@ -329,25 +172,19 @@ class PandaEnv(gym.Env):
             raise ValueError(f"reset options must be a dict or None, got {type(options).__name__}")
         if options:
             raise ValueError(f"reset options are not supported, got {sorted(options)}")
-        self._next_frame_time = np.inf  # rgb_array_list: no frames of the scene being laid out and settled
+        self.renderer.pause()  # rgb_array_list: no frames of the scene being laid out and settled
         if self.randomizer is not None:
             self.randomizer.restore()  # the task lays out its scene on the nominal model
         rng = self._episode_stream()
         task_info = self.task.reset(self.cell, rng)
         start = "ready"
         if self.actions.low_level:
-            tallest = max((float(body_top) for body_top in self._object_tops()), default=0.0)
-            ready = np.array([*READY_XY, max(READY_MIN_HEIGHT, tallest + READY_CLEARANCE)])
+            ready = ready_position(self.cell)
             self.cell.teleport_hand(ready, HOME_YAW)
             if self.start_curriculum:  # no draw without one
-                draw, body = rng.random(), self.task.start_object(self.cell)
-                starts = {"in_hand": self._start_holding, "above_object": self._start_above,
-                          "behind_object": self._start_behind}  # fmt: skip
-                for state, probability in self.start_curriculum.items():
-                    if draw < probability:
-                        start = state if starts[state](body, ready, rng) else "ready"
-                        break
-                    draw -= probability
+                body = self.task.start_object(self.cell)
+                start = draw_start(self.cell, self.start_curriculum, body, ready, rng, LOW_LEVEL_BOUNDS,
+                                   self.task.desired_goal)  # fmt: skip
         self.actions.reset(self.cell, rng)
         if self.randomizer is not None:  # drawn last: the scene and the rest of the stream are as without it
             task_info["randomization"] = self.randomizer.apply(rng)
@@ -364,11 +201,7 @@ class PandaEnv(gym.Env):
         }
         if self.start_curriculum:
             info["start"] = start
-        if self.render_mode == "human":
-            self.render()
-        if self.render_mode == "rgb_array_list":  # the list starts at the reset state
-            self._motion_frames = [self._rgb_frame()]
-            self._next_frame_time = self.cell.sim_time + 1.0 / self.metadata["render_fps"]
+        self.renderer.start_episode()  # rgb_array_list: the list starts at the reset state
         return self._observe(), info
 
     def _episode_stream(self) -> np.random.Generator:
@@ -394,19 +227,19 @@ class PandaEnv(gym.Env):
         if verdict is None:  # a diverged step earns nothing (sparse goal rewards: -1, since 0 is success)
             verdict = TaskStep(-1.0 if self.goal_conditioned else 0.0, False, False)
         self.sensors.invalidate()
-        self._count(result)
+        if result is not None:
+            result.count(self._counters)
         info = {
             "is_success": verdict.success,
             **verdict.info,
-            **self._primitive_info(result),
+            **(result.info() if result is not None else {}),
             **self._counters,
             "actions_clipped": clipped,
             "actions_clipped_total": self._clipped_total,
             "physics_error": physics_error,
             "sim_time": self.cell.sim_time,
         }
-        if self.render_mode == "human":
-            self.render()
+        self.renderer.show()
         truncated = physics_error or verdict.truncated
         observation, reward = self._observe(physics_error), verdict.reward
         if self.reward_type == "dense" and not physics_error:  # from the goals the learner sees, as HER will
@@ -426,119 +259,12 @@ class PandaEnv(gym.Env):
             facts["action_layout"] = layout
         return facts
 
-    def _start_holding(self, body: int, ready: np.ndarray, rng: np.random.Generator) -> bool:
-        """Close the fingers on ``body`` where it lies (grasp site at its centre, the low-level heading) and
-        restart the clock.  If the open hand put there touches it (too wide for the fingers at this heading)
-        or closing does not hold it, put the object and the hand back (the hand at ``ready``, open) and
-        return False."""
-        cell = self.cell
-        position, orientation = cell.data.xpos[body].copy(), cell.data.xquat[body].copy()
-        centre = np.array([*position[:2], max(position[2], LOW_LEVEL_BOUNDS[2, 0])])
-        cell.teleport_hand(centre, HOME_YAW)
-        held = not cell.touches_robot(body)  # the open hand must be around the object, not in it
-        if held:
-            cell.actuate_gripper(close=True, timeout=0.5)
-            held = body in cell.robot.bodies_between_fingers()
-        if not held or np.linalg.norm(cell.data.xpos[body] - position) > HOLD_START_DRIFT:
-            cell.set_body_pose(body, position, orientation)
-            cell.robot.teleport_fingers(FINGER_OPEN)
-            cell.teleport_hand(ready, HOME_YAW)
-            held = False
-        cell.settle(0.0)
-        return held
-
-    def _start_above(self, body: int, ready: np.ndarray, rng: np.random.Generator) -> bool:
-        """Put the open hand straight above ``body``, the grasp site anywhere (uniform) from the object's centre
-        up to the height of ``ready``; if it touches the object there, back to ``ready`` and return False."""
-        cell = self.cell
-        position = cell.data.xpos[body]
-        low = max(position[2], LOW_LEVEL_BOUNDS[2, 0])
-        cell.teleport_hand(np.array([*position[:2], low + rng.random() * (ready[2] - low)]), HOME_YAW)
-        if cell.touches_robot(body):
-            cell.teleport_hand(ready, HOME_YAW)
-            return False
-        return True
-
-    def _start_behind(self, body: int, ready: np.ndarray, rng: np.random.Generator) -> bool:
-        """Put the hand at ``body``'s height on the far side from the goal (``Task.desired_goal``): first the
-        nearest grasp-site distance (1 cm steps out from the object's bounding radius) at which it does not
-        touch the object, then 0-10 cm (uniform) further back.  If no such place is found within 8 cm, or the
-        place is outside the low-level workspace, back to ``ready`` and return False.  The fingers start
-        closed."""
-        cell = self.cell
-        position = cell.data.xpos[body].copy()
-        away = position[:2] - self.task.desired_goal()[:2]
-        away /= max(float(np.linalg.norm(away)), 1e-9)
-        height = max(position[2], LOW_LEVEL_BOUNDS[2, 0])
-        radius = float(cell.model.geom_rbound[cell.model.body_geomadr[body]])
-
-        def site(distance: float) -> np.ndarray:
-            return np.array([*(position[:2] + distance * away), height])
-
-        further = 0.1 * rng.random()
-        cell.robot.teleport_fingers(FINGER_CLOSED)  # a fist: a pushed block cannot slip between the fingers
-        for clear in np.arange(radius, radius + 0.085, 0.01):
-            start = site(clear + further)
-            inside = np.all(start >= LOW_LEVEL_BOUNDS[:, 0]) and np.all(start <= LOW_LEVEL_BOUNDS[:, 1])
-            cell.teleport_hand(site(clear), HOME_YAW)
-            if not cell.touches_robot(body):
-                if inside:
-                    cell.teleport_hand(start, HOME_YAW)
-                    return True
-                break
-        cell.robot.teleport_fingers(FINGER_OPEN)
-        cell.teleport_hand(ready, HOME_YAW)
-        return False
-
-    def _object_tops(self) -> list[float]:
-        cell = self.cell
-        return [cell.data.xpos[b][2] + cell.model.geom_rbound[cell.model.body_geomadr[b]] for b in cell.object_ids]
-
-    def _count(self, result: PrimitiveResult | None) -> None:
-        if result is None:
-            return
-        if result.primitive == "grasp":
-            self._counters["grasps_attempted"] += 1
-            self._counters["grasps_succeeded"] += int(result.success)
-        elif result.primitive == "place":
-            self._counters["places"] += 1
-            self._counters["places_succeeded"] += int(result.success)
-        elif result.primitive == "push":
-            self._counters["pushes"] += 1
-        elif result.primitive == "impulse":
-            self._counters["impulses"] += 1
-
-    @staticmethod
-    def _primitive_info(result: PrimitiveResult | None) -> dict[str, Any]:
-        if result is None:
-            return {}
-        return {
-            "primitive": result.primitive,
-            "primitive_success": result.success,
-            "primitive_reason": result.reason,
-            "primitive_object": result.object or "",
-            "primitive_sim_time": result.sim_time,
-            # Collateral (see panda_grasp_env.sim.collateral): counts, and the names of what was disturbed.
-            "transit_contacts": len(result.transit_contacts),
-            "transit_disturbed": len(result.transit_disturbed),
-            "disturbed": len(result.disturbed),
-            "disturbed_objects": list(result.disturbed),
-            # What the robot or its load touched, objects then fixtures, by name: in transit (never wanted) and
-            # in the work segment (a fixture there other than the one aimed at is a "collision").
-            "transit_touched": list(result.transit_contacts),
-            "work_touched": list(result.work_contacts),
-        }
-
-    def _goals(self) -> tuple[np.ndarray, np.ndarray] | None:
-        if not self.goal_conditioned:
-            return None
-        return self.task.achieved_goal(self.cell), self.task.desired_goal()
-
     def _observe(self, sanitise: bool = False) -> Any:
         extra = None
         if self.observations.extra_size:
             extra = np.concatenate([self.task.properties(), self.task.desired_goal() if self._goal_in_state else []])
-        observation = self.observations.observe(self._goals(), extra, self.task.command())
+        goals = (self.task.achieved_goal(self.cell), self.task.desired_goal()) if self.goal_conditioned else None
+        observation = self.observations.observe(goals, extra, self.task.command())
         if sanitise:  # after a divergence the state may hold NaN: never hand that to a learner
             if isinstance(observation, dict):
                 return {k: np.nan_to_num(v, posinf=0.0, neginf=0.0) for k, v in observation.items()}
@@ -562,43 +288,13 @@ class PandaEnv(gym.Env):
         return self.sensors.camera_model(camera, width, height)
 
     # --- rendering ------------------------------------------------------------------
-    def render(self) -> np.ndarray | None:
+    def render(self) -> np.ndarray | list[np.ndarray] | None:
+        """The ``render_mode``'s frame, or its frames since the last call (``rgb_array_list``); see ``EnvRenderer``."""
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode= to make()")
             return None
-        if self.render_mode == "human":
-            if self._viewer is None:
-                import mujoco.viewer
-
-                self._viewer = mujoco.viewer.launch_passive(self.cell.model, self.cell.data)
-            self._viewer.sync()
-            return None
-        if self.render_mode == "depth_array":
-            return self.sensors.rgbd("front", *self.render_size)[1]
-        if self.render_mode == "rgb_array_list":
-            frames, self._motion_frames = self._motion_frames, []
-            return frames
-        return self._rgb_frame()
-
-    def _rgb_frame(self) -> np.ndarray:
-        """(height, width, 3) uint8 from the front camera."""
-        if self._render_renderer is None:
-            self._render_renderer = CameraRenderer(self.cell.model, *self.render_size, "pretty")
-        return self._render_renderer.render(self.cell.data, "front", "rgb")
-
-    def _capture_motion_frame(self, cell: Workcell) -> None:
-        """A control-step hook of ``rgb_array_list``: a frame each time simulated time passes the next one."""
-        if cell.sim_time + 1e-9 < self._next_frame_time:
-            return
-        self._motion_frames.append(self._rgb_frame())
-        while self._next_frame_time <= cell.sim_time + 1e-9:
-            self._next_frame_time += 1.0 / self.metadata["render_fps"]
+        return self.renderer.render()
 
     def close(self) -> None:
         self.sensors.close()
-        if self._render_renderer is not None:
-            self._render_renderer.close()
-            self._render_renderer = None
-        if self._viewer is not None:
-            self._viewer.close()
-            self._viewer = None
+        self.renderer.close()

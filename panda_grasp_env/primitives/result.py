@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from panda_grasp_env.sim.workcell import Workcell
 
@@ -23,6 +24,15 @@ REASONS = (
     "no_plan",
     "no_contact",
 )
+#: The per-episode counters an env reports in ``info``: a primitive's attempts (and, where given, its
+#: successes) by primitive name.
+COUNTED = {
+    "grasp": ("grasps_attempted", "grasps_succeeded"),
+    "place": ("places", "places_succeeded"),
+    "push": ("pushes", None),
+    "impulse": ("impulses", None),
+}
+COUNTERS = tuple(name for names in COUNTED.values() for name in names if name is not None)
 
 
 @dataclass
@@ -50,6 +60,33 @@ class PrimitiveResult:
     transit_disturbed: list[str] = field(default_factory=list)
     #: Names of the objects other than the targets that moved (> 1 cm) or tipped over during the primitive.
     disturbed: list[str] = field(default_factory=list)
+
+    def count(self, counters: dict[str, int]) -> None:
+        """Add this primitive to an episode's ``COUNTERS``: one attempt, and one success if it succeeded."""
+        attempts, successes = COUNTED.get(self.primitive, (None, None))
+        if attempts is not None:
+            counters[attempts] += 1
+        if successes is not None:
+            counters[successes] += int(self.success)
+
+    def info(self) -> dict[str, Any]:
+        """The env's ``info`` entries of this primitive (seconds, names; collateral: see ``sim.collateral``)."""
+        return {
+            "primitive": self.primitive,
+            "primitive_success": self.success,
+            "primitive_reason": self.reason,
+            "primitive_object": self.object or "",
+            "primitive_sim_time": self.sim_time,
+            # Collateral: counts, and the names of what was disturbed.
+            "transit_contacts": len(self.transit_contacts),
+            "transit_disturbed": len(self.transit_disturbed),
+            "disturbed": len(self.disturbed),
+            "disturbed_objects": list(self.disturbed),
+            # What the robot or its load touched, objects then fixtures, by name: in transit (never wanted) and
+            # in the work segment (a fixture there other than the one aimed at is a "collision").
+            "transit_touched": list(self.transit_contacts),
+            "work_touched": list(self.work_contacts),
+        }
 
 
 def closed_on(cell: Workcell) -> int | None:

@@ -11,22 +11,28 @@ Two profiles:
 
 Set ``MUJOCO_GL=egl`` before importing mujoco on a machine without a display.
 Depth is metres along the camera's optical axis; segmentation is per-pixel
-geom id (-1 for background).
+geom id (-1 for background).  ``EnvRenderer`` is what an env's ``render_mode``
+shows: front-camera frames, their video, or MuJoCo's viewer.
 """
 
 from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable
+from typing import Any
 
 import mujoco
 import numpy as np
 
 from panda_grasp_env.geometry import is_count
+from panda_grasp_env.sim.workcell import Workcell
 
 PROFILES = ("fast", "pretty")
 MODALITIES = ("rgb", "depth", "segmentation")
 _GEOM_GROUPS = {"fast": (0, 2), "pretty": (0, 1)}
+#: Every render mode the env knows.
+RENDER_MODES = ("rgb_array", "rgb_array_list", "depth_array", "human")
 
 
 def display_available() -> bool:
@@ -35,6 +41,12 @@ def display_available() -> bool:
     if sys.platform.startswith("linux"):
         return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
     return True
+
+
+def advertised_render_modes() -> list[str]:
+    """``RENDER_MODES`` less "human" (a window) where none can open: checkers that build every advertised
+    mode (Gymnasium's ``check_env``) then work on servers."""
+    return [mode for mode in RENDER_MODES if mode != "human" or display_available()]
 
 
 class CameraRenderer:
@@ -177,3 +189,75 @@ class RenderCache:
         for renderer in self._renderers.values():
             renderer.close()
         self._renderers.clear()
+
+
+class EnvRenderer:
+    """What an env's ``render_mode`` shows of ``cell``, from the front camera at ``size`` (width, height) pixels:
+    ``rgb_array`` a (height, width, 3) uint8 frame (``pretty`` profile); ``depth_array`` the (height, width)
+    float32 metres of ``depth()``; ``rgb_array_list`` the frames since the episode began or the last
+    ``render``, one each time simulated time passes a multiple of ``1 / fps`` seconds (a control-step hook:
+    inside primitives too); ``human`` MuJoCo's passive viewer.  None: nothing (no hook, no renderer)."""
+
+    def __init__(
+        self, cell: Workcell, mode: str | None, size: tuple[int, int], fps: float, depth: Callable[[], np.ndarray]
+    ) -> None:
+        self.cell, self.mode, self.size, self.fps, self._depth = cell, mode, size, fps, depth
+        self._renderer: CameraRenderer | None = None
+        self._viewer: Any = None
+        self._frames: list[np.ndarray] = []
+        self._next_frame_time = np.inf  # set at each episode's start
+        if mode == "rgb_array_list":
+            cell.step_hooks.append(self._capture)
+
+    def pause(self) -> None:
+        """Take no frames until ``start_episode`` (none of a scene being laid out and settled)."""
+        self._next_frame_time = np.inf
+
+    def start_episode(self) -> None:
+        """After a reset: show it (``human``), or begin the frame list with it (``rgb_array_list``)."""
+        self.show()
+        if self.mode == "rgb_array_list":
+            self._frames = [self._rgb_frame()]
+            self._next_frame_time = self.cell.sim_time + 1.0 / self.fps
+
+    def show(self) -> None:
+        """Bring the viewer up to date (``human`` only: the other modes render when asked)."""
+        if self.mode == "human":
+            self.render()
+
+    def render(self) -> np.ndarray | list[np.ndarray] | None:
+        """The frame (or, ``rgb_array_list``, the frames) of the mode; None for ``human`` and None."""
+        if self.mode == "human":
+            if self._viewer is None:
+                import mujoco.viewer
+
+                self._viewer = mujoco.viewer.launch_passive(self.cell.model, self.cell.data)
+            self._viewer.sync()
+            return None
+        if self.mode == "depth_array":
+            return self._depth()
+        if self.mode == "rgb_array_list":
+            frames, self._frames = self._frames, []
+            return frames
+        return None if self.mode is None else self._rgb_frame()
+
+    def _rgb_frame(self) -> np.ndarray:
+        if self._renderer is None:
+            self._renderer = CameraRenderer(self.cell.model, *self.size, "pretty")
+        return self._renderer.render(self.cell.data, "front", "rgb")
+
+    def _capture(self, cell: Workcell) -> None:
+        if cell.sim_time + 1e-9 < self._next_frame_time:
+            return
+        self._frames.append(self._rgb_frame())
+        while self._next_frame_time <= cell.sim_time + 1e-9:
+            self._next_frame_time += 1.0 / self.fps
+
+    def close(self) -> None:
+        """Free the renderer and close the viewer (idempotent)."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
