@@ -149,7 +149,7 @@ def test_a_second_checkout_runs_its_own_code(tmp_path, installed):
     shutil.copy(ROOT / "pyproject.toml", checkout)
     forget_the_install = (
         "sys.meta_path[:] = [f for f in sys.meta_path if 'editable' not in type(f).__module__]\n"
-        f"sys.path[:] = [p for p in sys.path if not p.startswith({str(ROOT)!r})]\n"
+        f"sys.path[:] = [p for p in sys.path if p.rstrip('/') != {str(ROOT)!r}]\n"
     )
     script = (
         "import json, sys\n"
