@@ -21,6 +21,7 @@ import argparse
 import json
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -130,12 +131,16 @@ def tips_when_pushed_at(cell: Workcell, height: float, ramp: float = 2.0) -> boo
     return bool(tilt > TILT_TIPPED)
 
 
-def slide_tip_height(cell: Workcell, iterations: int = 9) -> float:
-    low, high = 0.0, cell.config.block_size
+def threshold(happens_at: Callable[[float], bool], low: float, high: float, iterations: int = 9) -> float:
+    """Bisection: the value in [low, high] above which ``happens_at(value)`` is true (false below)."""
     for _ in range(iterations):
         middle = (low + high) / 2
-        low, high = (low, middle) if tips_when_pushed_at(cell, middle) else (middle, high)
+        low, high = (low, middle) if happens_at(middle) else (middle, high)
     return (low + high) / 2
+
+
+def slide_tip_height(cell: Workcell) -> float:
+    return threshold(lambda height: tips_when_pushed_at(cell, height), 0.0, cell.config.block_size)
 
 
 def slides_on_incline(cell: Workcell, angle: float, friction: float, hold: float = 0.5) -> bool:
@@ -153,12 +158,8 @@ def slides_on_incline(cell: Workcell, angle: float, friction: float, hold: float
     return bool(np.linalg.norm(cell.data.xpos[block] - start) > SLID)
 
 
-def slip_angle(cell: Workcell, friction: float, iterations: int = 9) -> float:
-    low, high = np.radians(10.0), np.radians(44.0)
-    for _ in range(iterations):
-        middle = (low + high) / 2
-        low, high = (low, middle) if slides_on_incline(cell, middle, friction) else (middle, high)
-    return (low + high) / 2
+def slip_angle(cell: Workcell, friction: float) -> float:
+    return threshold(lambda angle: slides_on_incline(cell, angle, friction), np.radians(10.0), np.radians(44.0))
 
 
 def free_fall_time(cell: Workcell, drop: float) -> float:

@@ -86,6 +86,7 @@ class CollateralMonitor:
         self._is_object[cell.object_ids] = True
         self._is_fixture_geom = np.zeros(model.ngeom, dtype=bool)
         self._is_fixture_geom[list(cell.fixture_names)] = True
+        self._has_fixtures = bool(cell.fixture_names)
         self.active = False
         #: Whether the last control step's contacts included a first touch, in the work segment, of a fixture
         #: the primitive was not aimed at (``Workcell.move_to`` stops there).
@@ -170,6 +171,8 @@ class CollateralMonitor:
         if touched.size:
             target = self.record.work_contacts if self.in_work else self.record.transit_contacts
             target.update(int(b) for b in touched)
+        if not self._has_fixtures:  # the scene's contacts cannot touch one: skip the per-step work
+            return
         fixtures = self._is_fixture_geom[geoms]
         hit = np.concatenate([geoms[robot_side[:, 0] & fixtures[:, 1], 1], geoms[robot_side[:, 1] & fixtures[:, 0], 0]])
         if hit.size:

@@ -382,6 +382,8 @@ class Workcell:
     def fixture_below(self, x: float, y: float) -> str | None:
         """The fixture whose surface is the first one straight below (x, y) once free objects are seen through
         (what a primitive at (x, y) works on or over), or None (the table or nothing)."""
+        if not self.fixture_names:  # no fixture to find: no ray casts at every primitive's start
+            return None
         geom = np.zeros(1, dtype=np.int32)
         start, down = np.array([x, y, 1.0]), np.array([0.0, 0.0, -1.0])
         exclude = -1
