@@ -34,7 +34,7 @@ from panda_grasp_env.actions import ACTION_MODES
 from panda_grasp_env.agents.random_agent import RandomAgent
 from panda_grasp_env.agents.registry import BASELINES, EXPERTS
 from panda_grasp_env.env import AGENT_OPTIONS
-from panda_grasp_env.registration import BENCHMARKS, ENV_IDS, TASKS
+from panda_grasp_env.registration import BENCHMARK_RESET_OPTIONS, BENCHMARKS, ENV_IDS, TASKS
 
 if TYPE_CHECKING:
     from panda_grasp_env.agents.learned import Checkpoint
@@ -333,8 +333,11 @@ def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
 def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = None) -> dict[str, Any]:
     """The benchmark's step loop: reset ``env`` with ``spec.seed`` and let ``agent`` act until the episode ends."""
     began = time.perf_counter()
-    observation, info = env.reset(seed=spec.seed)
+    reset_options = BENCHMARK_RESET_OPTIONS.get(spec.task)
+    observation, info = env.reset(seed=spec.seed, options=None if reset_options is None else reset_options(spec.seed))
     agent.reset(observation, info)
+    meshes = [o["mesh"] for o in info.get("objects", []) if "mesh" in o]
+    first_grasp = None  # whether the episode's first grasp attempt succeeded
     in_play = info.get("objects_remaining")
     ideal = env.unwrapped.task.ideal_actions if in_play is None else in_play
     decisions, actions, disturbed, transit_contacts = [], 0, 0, 0
@@ -349,6 +352,8 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
         disturbed += info.get("disturbed", 0)  # primitive steps only: low-level steps have no collateral keys
         transit_contacts += info.get("transit_contacts", 0)
         task_facts.update(info)
+        if first_grasp is None and info.get("primitive") == "grasp":
+            first_grasp = bool(info["primitive_success"])
         if "primitive_reason" in info and not info["primitive_success"]:
             failures[info["primitive_reason"]] += 1
         if recorder is not None and "primitive" in info:
@@ -376,6 +381,8 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
         "physics_error": bool(info["physics_error"]),
         "disturbed": int(disturbed),
         "transit_contacts": int(transit_contacts),
+        **({"first_grasp": bool(first_grasp)} if grasping else {}),  # no grasp attempted: False
+        **({"meshes": meshes} if meshes else {}),
     }
     timing = {"wall_seconds": time.perf_counter() - began, "decision_seconds_median": float(np.median(decisions))}
     return {"result": result, "timing": timing}
@@ -483,4 +490,6 @@ def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             else 0.0,
             "transit_contacts": sum(r.get("transit_contacts", 0) for r in episodes),
         }
+        if any("first_grasp" in r for r in episodes):  # grasping tasks: episodes whose first grasp attempt held
+            table[key]["first_grasp_success"] = rate(sum(r.get("first_grasp", False) for r in episodes), n)
     return table

@@ -170,8 +170,10 @@ class PandaEnv(gym.Env):
         super().reset(seed=seed)
         if options is not None and not isinstance(options, dict):
             raise ValueError(f"reset options must be a dict or None, got {type(options).__name__}")
-        if options:
-            raise ValueError(f"reset options are not supported, got {sorted(options)}")
+        unknown = sorted(set(options or {}) - set(self.task.reset_options))
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {unknown}; {self.task.name} takes {list(self.task.reset_options)}")
+        self.task.apply_reset_options(self.cell, dict(options or {}))
         self.renderer.pause()  # rgb_array_list: no frames of the scene being laid out and settled
         if self.randomizer is not None:
             self.randomizer.restore()  # the task lays out its scene on the nominal model

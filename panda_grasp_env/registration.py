@@ -13,7 +13,7 @@ fresh interpreter: Gymnasium imports this package first.  Any env or task option
 from __future__ import annotations
 
 import inspect
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -30,6 +30,9 @@ class Benchmark:
     options: Mapping[str, Any] = field(default_factory=dict)
     quick_seeds: int = 10
     full_seeds: int = 100
+    #: ``env.reset(options=...)`` of each episode, from its seed (None: none): what one episode plays when the
+    #: protocol sweeps a list (each test object in turn), not a random draw.
+    reset_options: Callable[[int], dict[str, Any]] | None = None
 
 
 @dataclass(frozen=True)
@@ -52,6 +55,8 @@ ENV_IDS: dict[str, tuple[dict[str, Any], int]] = {}
 BENCHMARKS: dict[str, tuple[str, dict[str, Any]]] = {}
 #: Benchmark task -> episodes of the quick and of the full protocol.
 BENCHMARK_SEEDS: dict[str, tuple[int, int]] = {}
+#: Benchmark task -> its episodes' ``reset`` options from the seed (``Benchmark.reset_options``), where it has them.
+BENCHMARK_RESET_OPTIONS: dict[str, Callable[[int], dict[str, Any]]] = {}
 
 TaskClass = TypeVar("TaskClass", bound=type)
 
@@ -79,6 +84,8 @@ def register_task(cls: TaskClass) -> TaskClass:
                 benchmark = Benchmark(options=benchmark)
             BENCHMARKS[name] = (env_id, dict(benchmark.options))
             BENCHMARK_SEEDS[name] = (benchmark.quick_seeds, benchmark.full_seeds)
+            if benchmark.reset_options is not None:
+                BENCHMARK_RESET_OPTIONS[name] = benchmark.reset_options
     return cls
 
 

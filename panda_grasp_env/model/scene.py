@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.geometry import is_count
+from panda_grasp_env.model.meshes import MAX_PARTS, load_mesh_object, mesh_name, split_of
 
 ARM_JOINTS = tuple(f"robot:panda0_joint{i}" for i in range(1, 8))
 FINGER_JOINTS = ("robot:panda0_finger_joint1", "robot:panda0_finger_joint2")
@@ -53,6 +54,8 @@ PUSH_FACE_CENTRE = (0.0, 0.010, 0.05875)
 PAD_PRIORITY, OWN_FRICTION_PRIORITY = 1, 2
 CAMERA_NAMES = ("overhead", "front", "wrist")
 MAX_OBJECTS = 30
+#: Geom group of geoms that are not drawn: an object slot's geoms its current shape does not use.
+HIDDEN_GROUP = 3
 
 DEFAULT_COLOURS: dict[str, tuple[float, float, float]] = {
     "red": (0.85, 0.12, 0.10),
@@ -79,6 +82,9 @@ class SceneConfig:
     #: Free objects of variable shape (``object_<i>``) for grasping tasks; their
     #: shape, size and colour are set at each reset (see ``panda_grasp_env.model.objects``).
     n_objects: int = 0
+    #: Ids of the mesh set's objects (``panda_grasp_env.model.meshes``) the object slots can take: their meshes
+    #: are compiled in, and each slot carries ``meshes.MAX_PARTS`` mesh geoms besides its primitive one.
+    mesh_objects: tuple[int, ...] = ()
     block_size: float = 0.05
     block_mass: float = 0.1
     #: Sliding, torsional and rolling friction coefficients of the blocks.
@@ -121,6 +127,10 @@ class SceneConfig:
             raise ValueError(f"n_objects must be an int between 0 and {MAX_OBJECTS}, got {self.n_objects!r}")
         if self.n_blocks + self.n_objects == 0:
             raise ValueError("the scene needs at least one block or object")
+        if not isinstance(self.mesh_objects, tuple) or (self.mesh_objects and not self.n_objects):
+            raise ValueError(f"mesh_objects must be a tuple of mesh set ids, with n_objects > 0, got {self.mesh_objects!r}")
+        for object_id in self.mesh_objects:
+            split_of(object_id)  # ValueError naming an id outside the set
         for name in ("block_size", "block_mass", "gripper_force", "timestep"):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
@@ -344,7 +354,8 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
         spec.default.geom.solimp = list(CONTACT_SOLIMP)
 
     # Geom groups: 0 world, 1 robot visual meshes (pretty renders), 2 robot
-    # collision geoms (fast renders: 2.3 k instead of 134 k triangles), 4 sites.
+    # collision geoms (fast renders: 2.3 k instead of 134 k triangles), 3 hidden (unused
+    # object-slot geoms), 4 sites.
     for geom in spec.geoms:
         if geom.name.endswith("_pad") or geom.contype or geom.conaffinity:
             geom.group = 2
@@ -402,10 +413,21 @@ def _add_environment(spec: mujoco.MjSpec, config: SceneConfig) -> None:
     for name, colour in zip(config.block_names, config.colours.values()):
         geom = _add_free_cube(world, name, config, list(config.block_friction), condim=3)
         geom.rgba = [*colour, 1.0]
+    parts = _add_object_meshes(spec, config.mesh_objects)
     for name in config.object_names:
         # Object slots start as cubes; tasks set type, size, mass and colour at reset (Workcell.set_object_shapes).
         # Rolling friction (condim 6, 2 mm): without it a dropped sphere or capsule rolled off the table.
-        _add_free_cube(world, name, config, [*config.block_friction[:2], 0.002], condim=6)
+        cube = _add_free_cube(world, name, config, [*config.block_friction[:2], 0.002], condim=6)
+        for index in range(MAX_PARTS if parts else 0):
+            # Mesh geoms, hidden until a mesh object takes the slot (objects.apply_shape).  Compiled to collide
+            # (MuJoCo 4 lets no other geom collide later); the workcell switches their contacts off.
+            geom = spec.body(name).add_geom()
+            geom.name = f"{name}_part_{index}"
+            geom.type = mujoco.mjtGeom.mjGEOM_MESH
+            geom.meshname = parts[0]
+            geom.group = HIDDEN_GROUP
+            geom.mass = 0.0
+            geom.friction, geom.condim = cube.friction, cube.condim
 
     # Goal region marker for goal-conditioned tasks: a flat translucent disc,
     # hidden under the table until a task moves it (it has no collision).
@@ -430,6 +452,21 @@ def _add_environment(spec: mujoco.MjSpec, config: SceneConfig) -> None:
     front.pos = eye
     front.quat = _look_at(eye, np.array([0.45, 0.0, 0.12]))
     front.fovy = config.cameras.get("front", CameraConfig()).fovy
+
+
+def _add_object_meshes(spec: mujoco.MjSpec, object_ids: tuple[int, ...]) -> list[str]:
+    """Add the geoms' meshes of mesh set objects ``object_ids`` as assets; their names."""
+    names = []
+    for object_id in object_ids:
+        for index, part in enumerate(load_mesh_object(object_id).parts):
+            mesh = spec.add_mesh()
+            mesh.name = mesh_name(object_id, index)
+            mesh.uservert = part.vertices.ravel().tolist()
+            mesh.userface = part.faces.ravel().tolist()
+            # Mass comes from meshes.MeshObject per object; the hull is what collides.
+            mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_CONVEX
+            names.append(mesh.name)
+    return names
 
 
 def _add_free_cube(

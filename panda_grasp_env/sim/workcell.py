@@ -21,6 +21,7 @@ from panda_grasp_env.model.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, Pand
 from panda_grasp_env.model.scene import (
     CONTACT_SOLIMP,
     CONTACT_SOLREF,
+    HIDDEN_GROUP,
     OWN_FRICTION_PRIORITY,
     SceneConfig,
     build_spec,
@@ -77,8 +78,14 @@ _EXACT_TYPES = {
 
 def geom_extent_along(model: mujoco.MjModel, data: mujoco.MjData, geom: int, axis: np.ndarray) -> tuple[float, float]:
     """Lowest and highest coordinate of a geom along the world unit vector ``axis``, metres (exact for boxes,
-    spheres, capsules, cylinders; bounding spheres otherwise)."""
+    spheres, capsules, cylinders and meshes; bounding spheres otherwise)."""
     kind = _EXACT_TYPES.get(int(model.geom_type[geom]))
+    if int(model.geom_type[geom]) == int(mujoco.mjtGeom.mjGEOM_MESH):
+        mesh = model.geom_dataid[geom]
+        start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+        heights = model.mesh_vert[start : start + count] @ (data.geom_xmat[geom].reshape(3, 3).T @ axis)
+        centre = float(data.geom_xpos[geom] @ axis)
+        return centre + float(heights.min()), centre + float(heights.max())
     if kind is None:
         half = float(model.geom_rbound[geom])
     else:
@@ -130,6 +137,8 @@ class Workcell:
             raise ValueError(f"control_substeps must be a positive int, got {control_substeps!r}")
         self.spec = build_spec(self.config)
         self.model = self.spec.compile()
+        hidden = self.model.geom_group == HIDDEN_GROUP  # object-slot geoms no shape uses yet: no contacts
+        self.model.geom_contype[hidden] = self.model.geom_conaffinity[hidden] = 0
         self.data = mujoco.MjData(self.model)
         self.control_substeps = control_substeps
         self.control_dt = control_substeps * self.model.opt.timestep
@@ -151,7 +160,8 @@ class Workcell:
                 model.geom_solimp[g].copy(),
                 int(model.geom_priority[g]),
             )  # fmt: skip
-            for g in model.body_geomadr[self.object_ids]
+            for b in self.object_ids
+            for g in range(model.body_geomadr[b], model.body_geomadr[b] + model.body_geomnum[b])
         }
         self._dof_adr = {b: self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.object_ids}
         #: Objects faster than this (m/s) end the step with ``PhysicsError``; see ``allowing_object_speed``.
@@ -553,14 +563,15 @@ class Workcell:
         An object with its own friction gets the highest geom priority, so that its coefficient is the one
         used, and the pads' contact softness (``CONTACT_SOLREF``), which the priority also decides."""
         model = self.model
-        geom = int(model.body_geomadr[body_id])
-        compiled_friction, solref, solimp, priority = self._slot_contacts[geom]
-        sliding = compiled_friction
-        if friction is not None:
-            sliding = np.array([friction, *compiled_friction[1:]])
-            solref, solimp, priority = CONTACT_SOLREF, CONTACT_SOLIMP, OWN_FRICTION_PRIORITY
-        model.geom_friction[geom], model.geom_solref[geom], model.geom_solimp[geom] = sliding, solref, solimp
-        model.geom_priority[geom] = priority
+        start = int(model.body_geomadr[body_id])
+        for geom in range(start, start + int(model.body_geomnum[body_id])):  # a mesh slot's part geoms too
+            compiled_friction, solref, solimp, priority = self._slot_contacts[geom]
+            sliding = compiled_friction
+            if friction is not None:
+                sliding = np.array([friction, *compiled_friction[1:]])
+                solref, solimp, priority = CONTACT_SOLREF, CONTACT_SOLIMP, OWN_FRICTION_PRIORITY
+            model.geom_friction[geom], model.geom_solref[geom], model.geom_solimp[geom] = sliding, solref, solimp
+            model.geom_priority[geom] = priority
 
     def refresh_constants(self) -> None:
         """Recompute the model's derived constants after masses or inertias changed, keeping the state."""

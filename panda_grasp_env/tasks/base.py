@@ -84,6 +84,13 @@ class Task(ABC):
         """The scene this task needs, derived from the env's ``base`` scene (blocks, object slots)."""
         return base
 
+    #: Keys ``env.reset(options=...)`` accepts for this task (see ``apply_reset_options``).
+    reset_options: tuple[str, ...] = ()
+
+    def apply_reset_options(self, cell: Workcell, options: dict[str, Any]) -> None:  # noqa: B027 (an optional hook)
+        """Take the episode's ``reset`` options (keys among ``reset_options``; empty when none were given),
+        before ``reset``.  ``ValueError`` names a bad value."""
+
     def add_fixtures(self, spec: mujoco.MjSpec) -> None:  # noqa: B027 (an optional hook)
         """Add the task's static fixtures (a bin, a wall, a shelf) to the scene's ``spec``: world frame,
         metres, geoms in group 0 (seen by cameras and ray casts).  Called on every model of the scene (the

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from panda_grasp_env.geometry import is_count, is_number
+from panda_grasp_env.model.meshes import SPLITS
 from panda_grasp_env.model.objects import SHAPES, ObjectShape, ObjectSpec
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
@@ -78,6 +80,24 @@ def fitting_yaw(shape: ObjectShape, yaw: float, hand_yaw: float, rng: np.random.
     widths = np.array([shape.width_across(y, hand_yaw) for y in draws])
     fits = np.flatnonzero(widths <= HAND_FIT_WIDTH)
     return float(draws[fits[0]] if fits.size else draws[np.argmin(widths)])
+
+
+#: Actions a single mesh object gets (``PandaGraspMesh-v0``): success within this budget.
+MESH_ATTEMPTS = 5
+#: The mesh objects the single-object benchmarks sweep: all 100 test objects, and 100 train objects spread
+#: over the train split (every ninth).
+EVALUATION_OBJECTS = {"train": SPLITS["train"][::9], "test": SPLITS["test"]}
+
+
+def object_by_seed(split: str) -> Callable[[int], dict[str, Any]]:
+    """Reset options giving episode ``seed`` the object ``EVALUATION_OBJECTS[split][seed % 100]``: any 100
+    consecutive seeds play each object once."""
+    ids = EVALUATION_OBJECTS[split]
+
+    def options(seed: int) -> dict[str, Any]:
+        return {"objects": [{"shape": "mesh", "split": split, "ids": [ids[seed % len(ids)]]}]}
+
+    return options
 
 
 @register_task
@@ -152,6 +172,33 @@ class Grasp(Task):
             },
         ),
         "PandaGraspPacked-v0": EnvId(40, {"packed": "random"}),
+        # The procedural mesh set (the objects extra): one object dropped at a random pose, a budget of
+        # MESH_ATTEMPTS actions; the benchmarks sweep 100 objects of a split, one per seed in turn.
+        "PandaGraspMesh-v0": EnvId(
+            MESH_ATTEMPTS,
+            {"objects": [{"shape": "mesh", "split": "train"}]},
+            benchmarks={
+                "GraspMeshTrain": Benchmark(
+                    {"primitive_z": True, "objects": [{"shape": "mesh", "split": "train", "ids": list(EVALUATION_OBJECTS["train"])}]},
+                    quick_seeds=10, full_seeds=300, reset_options=object_by_seed("train"),
+                ),
+                "GraspMeshTest": Benchmark(
+                    {"primitive_z": True, "objects": [{"shape": "mesh", "split": "test"}]},
+                    quick_seeds=10, full_seeds=300, reset_options=object_by_seed("test"),
+                ),
+            },
+        ),
+        # VPG's protocol on 10 mesh objects of one split dropped in a heap.
+        "PandaGraspMeshClutter-v0": EnvId(
+            60,
+            {"objects": [{"shape": "mesh", "split": "train"}], "clutter": True},
+            benchmarks={
+                "GraspMeshClutterTrain": Benchmark({"primitive_z": True}, quick_seeds=2, full_seeds=30),
+                "GraspMeshClutterTest": Benchmark(
+                    {"primitive_z": True, "objects": [{"shape": "mesh", "split": "test"}]}, quick_seeds=2, full_seeds=30
+                ),
+            },
+        ),
         # The hand-designed packed layouts and VPG's heaps, half each: one validation for both.
         "PandaGraspMixed-v0": EnvId(60, {"packed": "adversarial", "heap_share": 0.5}),
     }
@@ -209,6 +256,7 @@ class Grasp(Task):
         #: State-vector entries per object when specs are given (see ``properties``).
         self.properties_size = 0 if objects is None else n_objects * OBJECT_PROPERTIES
         self.drawn: list[ObjectShape] = []
+        self._episode_specs: list[ObjectSpec] | None = None  # this episode's, from reset options
         self.grasped = 0
         self.consecutive_failures = 0
         self._goal = np.zeros(3)
@@ -232,7 +280,34 @@ class Grasp(Task):
         return int(layout)
 
     def scene_config(self, base: SceneConfig) -> SceneConfig:
-        return with_scene(base, n_blocks=0, n_objects=self.n_objects)
+        meshes = tuple(sorted({i for spec in self.specs for i in spec.mesh_ids}))
+        return with_scene(base, n_blocks=0, n_objects=self.n_objects, mesh_objects=meshes)
+
+    reset_options = ("objects",)
+
+    def apply_reset_options(self, cell: Workcell, options: dict[str, Any]) -> None:
+        """``reset(options={"objects": [...]})``: object specs for this episode alone, as the ``objects`` task
+        option takes them (one repeats for every object); mesh objects must be among those the scene compiled
+        (``ValueError`` naming the others)."""
+        objects = options.get("objects")
+        if objects is None:
+            self._episode_specs = None
+            return
+        if not isinstance(objects, (list, tuple)) or not objects or len(objects) not in (1, self.n_objects):
+            raise ValueError(f"reset option objects must be a list of 1 or {self.n_objects} object specs, got {objects!r}")
+        specs = []
+        for index, value in enumerate(objects):
+            try:
+                specs.append(ObjectSpec.of(value))
+            except (TypeError, ValueError) as error:
+                raise ValueError(f"reset option objects[{index}]: {error}") from None
+        missing = sorted({i for spec in specs for i in spec.mesh_ids} - set(cell.config.mesh_objects))
+        if missing:
+            raise ValueError(
+                f"reset option objects: mesh objects {missing[:10]} are not in this env's scene (make it with "
+                "objects whose split or ids hold them)"
+            )
+        self._episode_specs = specs * self.n_objects if len(specs) == 1 else specs
 
     def _lay_out_packed(self, cell: Workcell, rng: np.random.Generator) -> tuple[str, list[ObjectShape]]:
         """Put a packed layout on the table (the unused object slots stay parked); its name and shapes."""
@@ -279,7 +354,8 @@ class Grasp(Task):
             if self.packed is not None:  # a heap instead of the packed layout (heap_share)
                 layout = "heap"
             count = HEAP_OBJECTS if self.packed is not None else self.n_objects
-            shapes = self.drawn = [spec.sample(rng) for spec in self.specs[:count]]
+            specs = self.specs if self._episode_specs is None else self._episode_specs
+            shapes = self.drawn = [spec.sample(rng) for spec in specs[:count]]
             self._set_shapes(cell, shapes)
             if heap:
                 for level, (body, shape) in enumerate(zip(cell.object_ids, shapes)):
@@ -289,7 +365,7 @@ class Grasp(Task):
                 cell.settle(1.5)
             else:
                 placed: list[tuple[np.ndarray, float]] = []
-                for body, shape, spec in zip(cell.object_ids, shapes, self.specs):
+                for body, shape, spec in zip(cell.object_ids, shapes, specs):
                     for _ in range(1000):  # rejection sampling; the region holds 30 small objects easily
                         xy = np.array([rng.uniform(*SPAWN_REGION[0]), rng.uniform(*SPAWN_REGION[1])])
                         if all(np.linalg.norm(xy - p) >= shape.bounding_radius + r + 0.04 for p, r in placed):
@@ -300,7 +376,8 @@ class Grasp(Task):
                         yaw = fitting_yaw(shape, yaw, self.fixed_hand_yaw, rng)
                     position = [*xy, shape.resting_half_height + 0.001]
                     cell.set_body_pose(body, position, shape.resting_quaternion(yaw))
-                cell.settle(0.3)
+                # A mesh set down at a drawn orientation tips onto a face: give it time to come to rest.
+                cell.settle(1.0 if any(shape.kind == "mesh" for shape in shapes) else 0.3)
         # Objects that rolled out of the play region or off the table in the drop are removed from the
         # scene, and so are the rare ones a heap pressed into the table top (soft contacts; they could never
         # be lifted): what is left on the table is exactly what is in play.
@@ -323,11 +400,12 @@ class Grasp(Task):
         objects = [
             {
                 "shape": o.kind,
-                "size": o.size,
+                "size": tuple(float(x) for x in o.size),
                 "mass": o.mass_and_inertia()[0],
                 "friction": o.friction,
                 "rgb": tuple(o.rgb),
                 "lying": o.is_lying,
+                **({"mesh": o.mesh} if o.kind == "mesh" else {}),
             }  # fmt: skip
             for o in shapes
         ]
