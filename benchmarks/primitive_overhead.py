@@ -1,6 +1,7 @@
 """Wall time per primitive against the physics it runs, per task, in one run.
 
-    python benchmarks/primitive_overhead.py [--primitives 25] [--repeats 3] [--tasks TowerBuild,TowerBreak,GraspClutter]
+    python benchmarks/primitive_overhead.py [--primitives 25] [--repeats 3]
+                                            [--tasks TowerBuild,TowerBreak,GraspClutter,GraspMeshClutter]
                                             [--out results/benchmarks/primitive_overhead.json] [--resume]
 
 For each task: ``--primitives`` seeded random primitive actions through ``gymnasium.make`` (``action_space``
@@ -29,7 +30,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # benchmarks._physics, also in the workers
-TASKS = ("TowerBuild", "TowerBreak", "GraspClutter")
+TASKS = ("TowerBuild", "TowerBreak", "GraspClutter", "GraspMeshClutter")
+#: ``make`` options per task: the mesh heap drops 10 test objects (the objects extra).
+OPTIONS = {"GraspMeshClutter": {"objects": [{"shape": "mesh", "split": "test"}]}}
 RAW_STEPS = 5000
 
 
@@ -41,7 +44,7 @@ def measure(task: str, primitives: int) -> dict[str, float]:
 
     from benchmarks._physics import raw_step_rate, timed_mj_step
 
-    env = gym.make(f"panda_grasp_env:Panda{task}-v0")
+    env = gym.make(f"panda_grasp_env:Panda{task}-v0", **OPTIONS.get(task, {}))
     env.action_space.seed(0)
     seed = 0
     env.reset(seed=seed)
