@@ -33,6 +33,9 @@ class Benchmark:
     #: ``env.reset(options=...)`` of each episode, from its seed (None: none): what one episode plays when the
     #: protocol sweeps a list (each test object in turn), not a random draw.
     reset_options: Callable[[int], dict[str, Any]] | None = None
+    #: Whether ``evaluate.py`` without ``--tasks`` plays it (False: only when named, e.g. the mesh benchmarks,
+    #: which need the objects extra and minutes an episode).
+    by_default: bool = True
 
 
 @dataclass(frozen=True)
@@ -55,6 +58,8 @@ ENV_IDS: dict[str, tuple[dict[str, Any], int]] = {}
 BENCHMARKS: dict[str, tuple[str, dict[str, Any]]] = {}
 #: Benchmark task -> episodes of the quick and of the full protocol.
 BENCHMARK_SEEDS: dict[str, tuple[int, int]] = {}
+#: The benchmark tasks ``evaluate.py`` plays when ``--tasks`` is not given.
+DEFAULT_BENCHMARKS: list[str] = []
 #: Benchmark task -> its episodes' ``reset`` options from the seed (``Benchmark.reset_options``), where it has them.
 BENCHMARK_RESET_OPTIONS: dict[str, Callable[[int], dict[str, Any]]] = {}
 
@@ -84,6 +89,8 @@ def register_task(cls: TaskClass) -> TaskClass:
                 benchmark = Benchmark(options=benchmark)
             BENCHMARKS[name] = (env_id, dict(benchmark.options))
             BENCHMARK_SEEDS[name] = (benchmark.quick_seeds, benchmark.full_seeds)
+            if benchmark.by_default:
+                DEFAULT_BENCHMARKS.append(name)
             if benchmark.reset_options is not None:
                 BENCHMARK_RESET_OPTIONS[name] = benchmark.reset_options
     return cls

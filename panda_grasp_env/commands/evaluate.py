@@ -55,7 +55,7 @@ from panda_grasp_env.agents.evaluation import (
 from panda_grasp_env.agents.towers import build_tower, push_tower
 from panda_grasp_env.commands.results_page import describe_seeds, save_pngs, write_page
 from panda_grasp_env.geometry import is_number
-from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS
+from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS, DEFAULT_BENCHMARKS
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tooling.runs import commit, interrupt_on_signals, machine, versions, write_atomically
@@ -177,7 +177,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--full", action="store_true", help="the publication protocol instead of the quick one")
     agents = all_agents()
     parser.add_argument("--agents", default=",".join(agents), help=f"comma-separated, from {list(agents)}")
-    parser.add_argument("--tasks", default=",".join(BENCHMARKS), help=f"comma-separated, from {list(BENCHMARKS)}")
+    parser.add_argument("--tasks", default=",".join(DEFAULT_BENCHMARKS),
+                        help=f"comma-separated, from {list(BENCHMARKS)} (default: all but the mesh benchmarks, "
+                             "which need the objects extra)")  # fmt: skip
     parser.add_argument("--seeds", type=int, default=None,
                         help="episodes per (agent, task): seeds --seed-start .. --seed-start + N - 1")  # fmt: skip
     parser.add_argument("--seed-start", type=int, default=0, help="the first seed (default 0)")

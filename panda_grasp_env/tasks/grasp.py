@@ -180,11 +180,11 @@ class Grasp(Task):
             benchmarks={
                 "GraspMeshTrain": Benchmark(
                     {"primitive_z": True, "objects": [{"shape": "mesh", "split": "train", "ids": list(EVALUATION_OBJECTS["train"])}]},
-                    quick_seeds=10, full_seeds=300, reset_options=object_by_seed("train"),
+                    quick_seeds=10, full_seeds=300, reset_options=object_by_seed("train"), by_default=False,
                 ),
                 "GraspMeshTest": Benchmark(
                     {"primitive_z": True, "objects": [{"shape": "mesh", "split": "test"}]},
-                    quick_seeds=10, full_seeds=300, reset_options=object_by_seed("test"),
+                    quick_seeds=10, full_seeds=300, reset_options=object_by_seed("test"), by_default=False,
                 ),
             },
         ),
@@ -193,9 +193,10 @@ class Grasp(Task):
             60,
             {"objects": [{"shape": "mesh", "split": "train"}], "clutter": True},
             benchmarks={
-                "GraspMeshClutterTrain": Benchmark({"primitive_z": True}, quick_seeds=2, full_seeds=30),
+                "GraspMeshClutterTrain": Benchmark({"primitive_z": True}, quick_seeds=2, full_seeds=30, by_default=False),
                 "GraspMeshClutterTest": Benchmark(
-                    {"primitive_z": True, "objects": [{"shape": "mesh", "split": "test"}]}, quick_seeds=2, full_seeds=30
+                    {"primitive_z": True, "objects": [{"shape": "mesh", "split": "test"}]},
+                    quick_seeds=2, full_seeds=30, by_default=False,
                 ),
             },
         ),
