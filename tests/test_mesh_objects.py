@@ -137,3 +137,20 @@ def _object_specs(node):
     elif isinstance(node, list):
         for value in node:
             yield from _object_specs(value)
+
+
+def test_the_readmes_single_object_command_runs(tmp_path):
+    """The README's one command for a single-object test figure, on 2 of its seeds."""
+    import json
+    import re
+    import shlex
+
+    from panda_grasp_env.commands import evaluate
+
+    block = (ROOT / "README.md").read_text().split("## Unseen objects", 1)[1].split("```bash\n", 1)[1].split("\n```")[0]
+    args = shlex.split(block.split("python evaluate.py", 1)[1])
+    assert re.search(r"--tasks GraspMeshTest\b", block) and "--seeds" in args
+    args[args.index("--seeds") + 1] = "2"
+    evaluate.main([*args, "--out", str(tmp_path)])
+    metrics = json.loads((tmp_path / "results.json").read_text())["metrics"]["planned/GraspMeshTest"]
+    assert metrics["episodes"] == 2 and metrics["first_grasp_success"]["n"] == 2
