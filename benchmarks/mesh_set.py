@@ -5,8 +5,9 @@
     python benchmarks/mesh_set.py --results results/run    # per-object first-grasp table of an evaluate.py run
 
 Needs the objects extra.  ``--results`` reads an ``evaluate.py`` output folder's ``episodes.jsonl`` and prints,
-per agent and benchmark task, each mesh object's first-grasp successes over its episodes (the GraspMesh
-benchmarks play each evaluation object once per 100 seeds), then the objects no agent grasped first time.
+per agent and benchmark task, the first-grasp successes over all episodes, the objects missed at least once
+(with their successes / episodes; the GraspMesh benchmarks play each evaluation object once per 100 seeds),
+and the objects never grasped first time.
 """
 
 from __future__ import annotations
@@ -94,11 +95,14 @@ def per_object(results: Path) -> None:
         raise SystemExit(f"no single-mesh grasping episodes in {results / 'episodes.jsonl'}")
     for (agent, task), objects in sorted(table.items()):
         print(f"\n{agent} on {task}: object id: first-grasp successes / episodes")
-        cells = [f"{i}: {sum(v)}/{len(v)}" for i, v in sorted(objects.items())]
-        for start in range(0, len(cells), 10):
-            print("  " + "  ".join(f"{c:>10s}" for c in cells[start : start + 10]))
+        successes = sum(sum(v) for v in objects.values())
+        episodes = sum(len(v) for v in objects.values())
+        print(f"  {successes}/{episodes} episodes over {len(objects)} objects")
+        below = [f"{i}: {sum(v)}/{len(v)}" for i, v in sorted(objects.items()) if sum(v) < len(v)]
+        shown = ", ".join(below[:20]) + (", ..." if len(below) > 20 else "")
+        print(f"  objects missed at least once ({len(below)}): {shown or 'none'}")
         never = [i for i, v in sorted(objects.items()) if not any(v)]
-        print(f"  never grasped first time: {never or 'none'}")
+        print(f"  never grasped first time ({len(never)}): {never if len(never) <= 20 else 'all but ' + str(len(objects) - len(never))}")
 
 
 def main() -> None:

@@ -21,7 +21,9 @@ Panda's 73 mm opening closes across it in a top-down grasp.  Mass is the pieces'
 per episode from ``DENSITY_RANGE`` (where ``ObjectSpec.mass`` does not fix it); pieces that overlap count twice.
 
 The **split** is fixed: objects 900-999 are the test set, 0-899 train (the published 900 / 100 split, as
-numbered).  Object 168 is left out of train: every vertex of its OBJ is NaN.
+numbered).  Object 168 is left out of train: every vertex of its OBJ is NaN.  Four train objects are flat
+(295, 297, 602, 824: 0.5-1.5 mm thick, 8-17 mm across) and cannot be picked up from a table; they stay in the
+split as published, and the train objects the benchmarks play (``tasks.grasp.EVALUATION_OBJECTS``) hold none.
 """
 
 from __future__ import annotations
