@@ -102,7 +102,7 @@ def per_object(results: Path) -> None:
         shown = ", ".join(below[:20]) + (", ..." if len(below) > 20 else "")
         print(f"  objects missed at least once ({len(below)}): {shown or 'none'}")
         never = [i for i, v in sorted(objects.items()) if not any(v)]
-        print(f"  never grasped first time ({len(never)}): {never if len(never) <= 20 else 'all but ' + str(len(objects) - len(never))}")
+        print(f"  never grasped first time ({len(never)}): {never if len(never) <= 20 else f'{len(never)} of {len(objects)}'}")
 
 
 def main() -> None:
