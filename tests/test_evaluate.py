@@ -347,7 +347,11 @@ TAMPERINGS = {
     ),
     "an extra field": (
         lambda lines: tampered(lines, lambda r: r["result"].update(bonus=1)),
-        "line 2: result must hold exactly",
+        "line 2: result must hold .*, and may hold",
+    ),
+    "an optional field of the wrong type": (
+        lambda lines: tampered(lines, lambda r: r["result"].update(first_grasp="yes")),
+        "line 2: result.first_grasp must be a JSON boolean",
     ),
     "key of another spec": (
         lambda lines: tampered(lines, lambda r: r.update(key=json.loads(lines[0])["key"])),

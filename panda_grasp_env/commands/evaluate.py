@@ -54,7 +54,7 @@ from panda_grasp_env.agents.evaluation import (
 )
 from panda_grasp_env.agents.towers import build_tower, push_tower
 from panda_grasp_env.commands.results_page import describe_seeds, save_pngs, write_page
-from panda_grasp_env.geometry import is_number
+from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS, DEFAULT_BENCHMARKS
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre
 from panda_grasp_env.sim.workcell import Workcell
@@ -279,6 +279,8 @@ RESULT_FIELDS: dict[str, type | tuple[type, ...]] = {
     "grasps_attempted": int, "grasps_succeeded": int, "cycles": int, "sim_seconds": (int, float),
     "failures": dict, "physics_error": bool, "disturbed": int, "transit_contacts": int,
 }  # fmt: skip
+#: Fields only some results hold: grasping tasks' ``first_grasp``, mesh episodes' object ids (``meshes``).
+OPTIONAL_RESULT_FIELDS: dict[str, type] = {"first_grasp": bool, "meshes": list}
 #: Why an episode failed (``episode_failure``): a name, or None for a success.
 FAILURE_FIELD = "failure"
 
@@ -288,8 +290,14 @@ def _record_problem(record: dict, keys: set[str]) -> str | None:
     if set(record) != {"key", "commit", "result", "timing"}:
         return f"keys {sorted(record)} are not key, commit, result, timing"
     result, timing = record["result"], record["timing"]
-    if not isinstance(result, dict) or set(result) != {*RESULT_FIELDS, FAILURE_FIELD}:
-        return f"result must hold exactly {[*RESULT_FIELDS, FAILURE_FIELD]}"
+    required = {*RESULT_FIELDS, FAILURE_FIELD}
+    if not isinstance(result, dict) or not required <= set(result) <= required | set(OPTIONAL_RESULT_FIELDS):
+        return f"result must hold {[*RESULT_FIELDS, FAILURE_FIELD]}, and may hold {list(OPTIONAL_RESULT_FIELDS)}"
+    for name, kind in OPTIONAL_RESULT_FIELDS.items():
+        value = result.get(name, kind())
+        valid = isinstance(value, kind) and (kind is bool or all(is_count(v) for v in value))
+        if not valid:
+            return f"result.{name} must be a JSON {'boolean' if kind is bool else 'list of whole numbers'}, got {value!r:.60}"
     failure = result[FAILURE_FIELD]
     if not (failure is None if result["success"] is True else isinstance(failure, str) and 0 < len(failure) <= 64):
         return f"result.{FAILURE_FIELD} must be null for a success and a reason otherwise, got {failure!r:.60}"
