@@ -1,7 +1,8 @@
 """Tower agents and scripts: build a tower, and break it with a push.
 
-The agents perceive blocks from the env's RGB-D images (``panda_grasp_env.perception.pose``) -- or,
-in the ``Oracle*`` variants, read the simulator's true block poses -- and act through the env's
+The agents perceive blocks from the env's depth images (``panda_grasp_env.perception.pose``; colour is not
+read, so all blocks may look alike) -- or, in the ``Oracle*`` variants, read the simulator's true block
+poses -- and act through the env's
 ``primitive`` action mode.  ``build_tower`` and ``push_tower`` are the same skills as scripts on a bare
 ``Workcell`` (true poses: the demo of the simulation core and the primitive benchmarks), whose failures
 are the primitives' own.  World frame, metres, radians.
@@ -19,7 +20,12 @@ import numpy as np
 
 from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
 from panda_grasp_env.agents.registry import BaselineFactory, register_baseline
-from panda_grasp_env.perception.pose import detect_towers, estimate_block_poses, wrap_quarter
+from panda_grasp_env.perception.pose import (
+    detect_towers,
+    estimate_block_poses_from_depth,
+    follow_blocks,
+    wrap_quarter,
+)
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.primitives.top_down import grasp, place, push
 from panda_grasp_env.sim.stacking import (
@@ -44,7 +50,14 @@ class SeenBlock:
 
 
 class CameraBlocks:
-    """Block poses from the overhead and front cameras' RGB-D (with the Kinect-like noise if seeded)."""
+    """Block poses from the overhead and front cameras' depth (with the Kinect-like noise if seeded), by shape
+    alone (``estimate_block_poses_from_depth``): colour is not read.
+
+    A block keeps its name from one call to the next by geometry alone (``follow_blocks``: it continues the
+    known block it lies nearest); a block not seen (in the hand) keeps its last place until it is seen again.
+    At reset the block nearest the task's ``base_position`` takes the base's name (``base``); the others are
+    ``block_<i>`` in the order first seen.
+    """
 
     name = "camera"
 
@@ -52,13 +65,23 @@ class CameraBlocks:
         self.noise_seed = noise_seed
 
     def reset(self, observation: Any, info: dict[str, Any], agent: str) -> None:
-        require(info, ("block_colours", "block_size"), agent, "use a tower task of panda_grasp_env")
-        self.colours, self.block_size = info["block_colours"], info["block_size"]
+        require(info, ("block_size",), agent, "use a tower task of panda_grasp_env")
+        self.block_size = info["block_size"]
         self.views = CameraViews(observation, info, agent, ("overhead", "front"), self.noise_seed)
+        #: Name -> where that block was last seen (centre, world metres).
+        self.known: dict[str, np.ndarray] = {}
+        if "base" in info and "base_position" in info:
+            self.known[info["base"]] = np.asarray(info["base_position"], dtype=float)
 
     def __call__(self, observation: Any) -> dict[str, SeenBlock]:
-        poses = estimate_block_poses(self.views(observation), self.colours, self.block_size)
-        return {name: SeenBlock(p.position, p.yaw) for name, p in poses.items()}
+        seen = estimate_block_poses_from_depth(self.views(observation), self.block_size)
+        blocks = {}
+        for block, name in zip(seen, follow_blocks(self.known, seen)):
+            if name is None:
+                name = next(f"block_{i}" for i in range(len(self.known) + 1) if f"block_{i}" not in self.known)
+            self.known[name] = block.position
+            blocks[name] = SeenBlock(block.position, block.yaw)
+        return blocks
 
 
 class OracleBlocks:
