@@ -13,9 +13,9 @@ Two ways to gather each block's points, one fit:
   blocks of an earlier estimate they lie nearest.
 
 Then, per block: a first guess from the highest face's minimum-area rectangle,
-and the cube's pose (x, y, z, yaw) fitted to all its points by robust least
-squares on the cube's signed distance (every visible point lies on the
-surface).  Points from several faces and cameras -- the overhead camera sees
+and the cube's pose (x, y, z, yaw; from depth alone z is its level's height)
+fitted to all its points by robust least squares on the cube's signed
+distance (every visible point lies on the surface).  Points from several faces and cameras -- the overhead camera sees
 top faces, the front camera the sides of blocks hidden under a tower's top --
 pin the pose down; noise averages out instead of moving extreme points.
 
@@ -40,11 +40,11 @@ from panda_grasp_env.perception.segmentation import colour_masks
 MIN_POINTS = 30
 #: Robust-loss scale of the surface fit, metres (about the depth noise at 1 m).
 FIT_SCALE = 0.003
-#: Depth points less than this above the table belong to it (about three standard deviations of the depth
-#: noise at 1 m), metres.
+#: Depth points less than this above the table belong to it (about four standard deviations of the depth
+#: noise at 1 m, 1.9 mm), metres.
 TABLE_CLEARANCE = 0.008
-#: A top face's points may stand this far above the top of its block's level (depth noise) and still count to
-#: that block rather than the one above, metres.
+#: Half the height of the band around a boundary between two levels of blocks, whose points could lie on either
+#: block, and how far depth noise may move a top face's points from its block's top, metres.
 LEVEL_MARGIN = 0.005
 #: Side of the (x, y) grid cells on which points are joined into groups that touch, metres.
 GROUP_CELL = 0.004
@@ -63,8 +63,8 @@ class View:
 class BlockRegion:
     """Where ``estimate_block_poses_from_depth`` looks for blocks: world x and y bounds, the table top's height
     and the highest block top, metres.  The defaults: the table in front of the robot's base (which, with the
-    arm, stands behind x = 0.2), up to 0.3 m (six blocks of 5 cm; a block held by the hand at its home pose hangs
-    above 0.35 m)."""
+    arm, stands behind x = 0.2), up to 0.3 m (six blocks of 5 cm; the hand at its home pose, and a block it
+    holds there, stay above 0.4 m)."""
 
     x: tuple[float, float] = (0.2, 1.0)
     y: tuple[float, float] = (-0.6, 0.6)
@@ -271,8 +271,9 @@ def depth_point_sets(points: np.ndarray, block_size: float, table: float) -> lis
     A group's top face counts to the level below it, however far noise lifts it.  Points within
     ``LEVEL_MARGIN`` of a boundary between two of a group's levels are left out: they could lie on either block
     (a lower block's top meets the upper one's sides there).  The levels' centres divide the height of the
-    group's top face (its points' median) evenly: resting blocks sink into each other a little (0.4 mm a
-    contact in this simulation), so a tower is a little lower than its blocks' sizes add up to."""
+    group's top face (its points' median; the block size where no top face is seen) evenly: resting blocks sink
+    into each other a little (0.4 mm a contact in this simulation), so a tower is a little lower than its
+    blocks' sizes add up to."""
     sets = []
     for group in touching_groups(points):
         heights = points[group, 2] - table
@@ -294,9 +295,9 @@ def estimate_block_poses_from_depth(
     views: list[View], block_size: float, region: BlockRegion = BlockRegion()
 ) -> list[BlockPose]:
     """Pose of every cube of edge ``block_size`` (metres) seen in the views' depth inside ``region``, resting
-    flat on its table or on other cubes (so its centre's height is its level's, ``depth_point_sets``: only x, y
-    and yaw are fitted);
-    colour is not read.  Anonymous (``seen_<i>``, see ``follow_blocks``); an empty table gives ``[]``."""
+    flat on its table or on other cubes (so its centre's height is its level's, ``depth_point_sets``: only x,
+    y and yaw are fitted).  Colour is not read.  The blocks are anonymous (``seen_<i>``; ``follow_blocks``
+    names them); an empty table gives ``[]``."""
     check_estimate_inputs(views, block_size)
     points, rays = points_in_region(views, region)
     if len(points) < MIN_POINTS:
@@ -312,7 +313,7 @@ def estimate_block_poses_from_depth(
 def follow_blocks(known: Mapping[str, np.ndarray], seen: Sequence[BlockPose]) -> list[str | None]:
     """For each ``seen`` block, the name of the ``known`` block (name -> centre (3,), world metres) it continues,
     or None: the one-to-one pairing of least total centre distance, so a block keeps its name while it is the
-    nearest to where that name was.  With more blocks seen than known, the farthest go unnamed."""
+    nearest to where that name was.  With more blocks seen than known, those left out of the pairing go unnamed."""
     names = list(known)
     if not names or not seen:
         return [None] * len(seen)
