@@ -1,7 +1,8 @@
 """Tower agents and scripts: build a tower, and break it with a push.
 
-The agents perceive blocks from the env's RGB-D images (``panda_grasp_env.perception.pose``) -- or,
-in the ``Oracle*`` variants, read the simulator's true block poses -- and act through the env's
+The tower agents perceive blocks in the env's depth images (``DepthBlocks``: by shape, colour not read, so
+all blocks may look alike; ``CameraBlocks`` finds blocks by colour, for tasks that name one by its colour) --
+or, in the ``Oracle*`` variants, read the simulator's true block poses -- and act through the env's
 ``primitive`` action mode.  ``build_tower`` and ``push_tower`` are the same skills as scripts on a bare
 ``Workcell`` (true poses: the demo of the simulation core and the primitive benchmarks), whose failures
 are the primitives' own.  World frame, metres, radians.
@@ -19,7 +20,13 @@ import numpy as np
 
 from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
 from panda_grasp_env.agents.registry import BaselineFactory, register_baseline
-from panda_grasp_env.perception.pose import detect_towers, estimate_block_poses, wrap_quarter
+from panda_grasp_env.perception.pose import (
+    detect_towers,
+    estimate_block_poses,
+    estimate_block_poses_from_depth,
+    follow_blocks,
+    wrap_quarter,
+)
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.primitives.top_down import grasp, place, push
 from panda_grasp_env.sim.stacking import (
@@ -44,7 +51,8 @@ class SeenBlock:
 
 
 class CameraBlocks:
-    """Block poses from the overhead and front cameras' RGB-D (with the Kinect-like noise if seeded)."""
+    """Block poses from the overhead and front cameras' RGB-D (with the Kinect-like noise if seeded), each block
+    found and named by its colour (``estimate_block_poses``): for tasks that name a block by its colour."""
 
     name = "camera"
 
@@ -59,6 +67,44 @@ class CameraBlocks:
     def __call__(self, observation: Any) -> dict[str, SeenBlock]:
         poses = estimate_block_poses(self.views(observation), self.colours, self.block_size)
         return {name: SeenBlock(p.position, p.yaw) for name, p in poses.items()}
+
+
+class DepthBlocks:
+    """Block poses from the overhead and front cameras' depth (with the Kinect-like noise if seeded), by shape
+    alone (``estimate_block_poses_from_depth``): colour is not read, so blocks may all look alike.  Blocks rest
+    on the table or on each other and nothing else stands on the table (a task's fixtures would look like
+    blocks): the tower tasks.
+
+    A block keeps its name from one call to the next by geometry alone (``follow_blocks``: it continues the
+    known block it lies nearest); a block not seen (in the hand) keeps its last place until it is seen again.
+    At reset the block nearest the task's ``base_position`` takes the base's name (``base``); the others are
+    ``block_<i>`` in the order first seen.  Its ``name`` is ``camera``, as ``CameraBlocks``'s: perception from
+    the cameras, as against the oracle's.
+    """
+
+    name = "camera"
+
+    def __init__(self, noise_seed: int | None = 0) -> None:
+        self.noise_seed = noise_seed
+
+    def reset(self, observation: Any, info: dict[str, Any], agent: str) -> None:
+        require(info, ("block_size",), agent, "use a tower task of panda_grasp_env")
+        self.block_size = info["block_size"]
+        self.views = CameraViews(observation, info, agent, ("overhead", "front"), self.noise_seed)
+        #: Name -> where that block was last seen (centre, world metres).
+        self.known: dict[str, np.ndarray] = {}
+        if "base" in info and "base_position" in info:
+            self.known[info["base"]] = np.asarray(info["base_position"], dtype=float)
+
+    def __call__(self, observation: Any) -> dict[str, SeenBlock]:
+        seen = estimate_block_poses_from_depth(self.views(observation), self.block_size)
+        blocks = {}
+        for block, name in zip(seen, follow_blocks(self.known, seen)):
+            if name is None:
+                name = next(f"block_{i}" for i in range(len(self.known) + 1) if f"block_{i}" not in self.known)
+            self.known[name] = block.position
+            blocks[name] = SeenBlock(block.position, block.yaw)
+        return blocks
 
 
 class OracleBlocks:
@@ -82,6 +128,11 @@ class OracleBlocks:
         }
 
 
+#: What the tower agents perceive blocks with (each has ``name``, ``block_size``, ``reset`` and a call giving
+#: the blocks seen, by name).
+BlockPerceiver = CameraBlocks | DepthBlocks | OracleBlocks
+
+
 class TowerBuilderAgent:
     """Stack every block on the base block, yaw-aligned to it: grasp the clearest loose block, place it on top.
 
@@ -89,8 +140,8 @@ class TowerBuilderAgent:
     with ``cameras=('overhead', 'front')`` at 640 x 480.
     """
 
-    def __init__(self, perceiver: CameraBlocks | OracleBlocks | None = None) -> None:
-        self.perceiver = perceiver or CameraBlocks()
+    def __init__(self, perceiver: BlockPerceiver | None = None) -> None:
+        self.perceiver = perceiver or DepthBlocks()
         self.name = f"tower_builder_{self.perceiver.name}"
         self.failures: Counter[str] = Counter()
 
@@ -150,8 +201,8 @@ class TowerBreakerAgent:
     the workspace (so the blocks stay within reach) whose start is clear of other blocks; in a directional
     break (the observation's one-hot ``command``), the commanded one."""
 
-    def __init__(self, perceiver: CameraBlocks | OracleBlocks | None = None) -> None:
-        self.perceiver = perceiver or CameraBlocks()
+    def __init__(self, perceiver: BlockPerceiver | None = None) -> None:
+        self.perceiver = perceiver or DepthBlocks()
         self.name = f"tower_breaker_{self.perceiver.name}"
         self.failures: Counter[str] = Counter()
 
@@ -187,8 +238,8 @@ class TowerBreakerAgent:
 class BuildAndBreakAgent:
     """Builds while the task's phase is ``build`` and pushes the tower over while it is ``break``."""
 
-    def __init__(self, perceiver: CameraBlocks | OracleBlocks | None = None) -> None:
-        perceiver = perceiver or CameraBlocks()
+    def __init__(self, perceiver: BlockPerceiver | None = None) -> None:
+        perceiver = perceiver or DepthBlocks()
         self.builder, self.breaker = TowerBuilderAgent(perceiver), TowerBreakerAgent(perceiver)
         self.name = f"build_and_break_{perceiver.name}"
 
@@ -208,19 +259,22 @@ class BuildAndBreakAgent:
         return self.builder.act(observation, info)
 
 
-def block_baseline(agent: Callable[[CameraBlocks | OracleBlocks], Any]) -> BaselineFactory:
-    """A planned baseline's factory: ``agent`` over block poses from RGB-D (noise seeded), or with ``oracle``
-    over the true poses."""
+def block_baseline(
+    agent: Callable[[BlockPerceiver], Any],
+    perceiver: type[CameraBlocks | DepthBlocks] = CameraBlocks,
+) -> BaselineFactory:
+    """A planned baseline's factory: ``agent`` over block poses from the images (``perceiver``, noise seeded),
+    or with ``oracle`` over the true poses."""
 
     def make(env: gym.Env, seed: int, oracle: bool) -> Any:
-        return agent(OracleBlocks(env) if oracle else CameraBlocks(noise_seed=seed))
+        return agent(OracleBlocks(env) if oracle else perceiver(noise_seed=seed))
 
     return make
 
 
-register_baseline("TowerBuild")(block_baseline(TowerBuilderAgent))
-register_baseline("TowerBreak", "TowerBreakDirectional")(block_baseline(TowerBreakerAgent))
-register_baseline("BuildAndBreak")(block_baseline(BuildAndBreakAgent))
+register_baseline("TowerBuild")(block_baseline(TowerBuilderAgent, DepthBlocks))
+register_baseline("TowerBreak", "TowerBreakDirectional")(block_baseline(TowerBreakerAgent, DepthBlocks))
+register_baseline("BuildAndBreak")(block_baseline(BuildAndBreakAgent, DepthBlocks))
 
 
 # --- scripts on a bare workcell (true poses) ---------------------------------------------------

@@ -5,7 +5,11 @@
 * block pose error (position: 3-D distance of centres, mm; yaw modulo 90 degrees)
   from the overhead and front cameras at 640x480, half the scenes scattered and
   half a standing tower, with the Kinect-like noise model on and off
-  (goal with noise: median <= 2 mm, 95th percentile <= 5 mm, median yaw <= 2 deg);
+  (goal with noise: median <= 2 mm, 95th percentile <= 5 mm, median yaw <= 2 deg):
+  by colour (``estimate_block_poses``) and by shape from depth alone
+  (``estimate_block_poses_from_depth``, whose anonymous blocks are paired with the
+  true ones by least total distance; one farther than half a block from its pair is
+  missed, and estimates left over are extra);
 * tower detection: the detected stack equals the true bottom-up order;
 * colour segmentation IoU per colour against the simulator's segmentation
   render, over the pixels either marks (goal: mean >= 0.95);
@@ -34,13 +38,21 @@ for _threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import gymnasium as gym
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from benchmarks._common import Results, rate
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.grasps import detect_grasps_rgbd
 from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_from_rgbd
 from panda_grasp_env.perception.noise import DepthNoise, RGBNoise
-from panda_grasp_env.perception.pose import View, detect_towers, estimate_block_poses, wrap_quarter
+from panda_grasp_env.perception.pose import (
+    BlockPose,
+    View,
+    detect_towers,
+    estimate_block_poses,
+    estimate_block_poses_from_depth,
+    wrap_quarter,
+)
 from panda_grasp_env.perception.segmentation import colour_masks
 from panda_grasp_env.sim.rendering import CameraRenderer
 from panda_grasp_env.sim.workcell import Workcell
@@ -59,20 +71,36 @@ def capture(cell: Workcell, renderer: CameraRenderer, noise_rng: np.random.Gener
     return views
 
 
-def pose_errors(scenes: int, noise: bool) -> dict:
+def paired_with_truth(seen: list[BlockPose], cell: Workcell) -> dict[str, BlockPose]:
+    """Anonymous estimates named after the true blocks they pair with (least total distance); a pair farther
+    apart than half a block is no pair."""
+    positions = cell.block_positions()
+    distances = np.linalg.norm(np.array([p.position for p in seen]).reshape(-1, 1, 3) - positions[None], axis=2)
+    rows, columns = linear_sum_assignment(distances)
+    return {cell.block_names[c]: seen[r] for r, c in zip(rows, columns) if distances[r, c] < cell.config.block_size / 2}
+
+
+def pose_errors(scenes: int, noise: bool, by_depth: bool = False) -> dict:
+    """Pose errors over ``scenes`` seeded scenes: by colour, or (``by_depth``) by shape from depth alone."""
     cell = Workcell()
     colours = dict(zip(cell.block_names, cell.config.colours.values()))
     position_mm: dict[str, list[float]] = {"scattered": [], "tower": []}
     yaw_deg: dict[str, list[float]] = {"scattered": [], "tower": []}
-    missed, towers_right, seconds = 0, 0, []
+    missed, extra, towers_right, seconds = 0, 0, 0, []
     with CameraRenderer(cell.model, *SIZE) as renderer:
         for scene in range(scenes):
             layout = "scattered" if scene % 2 == 0 else "tower"
             cell.reset(np.random.default_rng(scene), layout)
             views = capture(cell, renderer, np.random.default_rng(10_000 + scene) if noise else None)
             start = time.perf_counter()
-            poses = estimate_block_poses(views, colours, cell.config.block_size)
-            seconds.append(time.perf_counter() - start)
+            if by_depth:
+                seen = estimate_block_poses_from_depth(views, cell.config.block_size)
+                seconds.append(time.perf_counter() - start)
+                poses = paired_with_truth(seen, cell)
+                extra += len(seen) - len(poses)
+            else:
+                poses = estimate_block_poses(views, colours, cell.config.block_size)
+                seconds.append(time.perf_counter() - start)
             positions, yaws = cell.block_positions(), cell.block_yaws()
             for index, name in enumerate(cell.block_names):
                 if name not in poses:
@@ -96,6 +124,7 @@ def pose_errors(scenes: int, noise: bool) -> dict:
         "yaw_deg": summary(every_yaw),
         "by_layout": {k: {"position_mm": summary(position_mm[k]), "yaw_deg": summary(yaw_deg[k])} for k in position_mm},
         "blocks_missed": missed,
+        "blocks_extra": extra,
         "blocks_total": scenes * len(cell.block_names),
         "towers_detected_right": towers_right,
         "tower_scenes": scenes // 2,
@@ -173,13 +202,16 @@ def main() -> None:
     parser.add_argument("--resume", action="store_true")
     args = parser.parse_args()
     results = Results(args.out, args.resume)
-    for noise in (True, False):
-        r = results.section(f"pose_noise_{noise}", lambda noise=noise: pose_errors(args.scenes, noise))
+    for by_depth, noise in ((False, True), (False, False), (True, True), (True, False)):
+        section = f"pose_{'depth_' if by_depth else ''}noise_{noise}"
+        r = results.section(section, lambda noise=noise, d=by_depth: pose_errors(args.scenes, noise, d))
         p, y = r["position_mm"], r["yaw_deg"]
+        extra = f", extra {r['blocks_extra']}" if by_depth else ""
         print(
-            f"block pose, noise {'on ' if noise else 'off'}: position median {p['median']:.2f} mm, p95 {p['p95']:.2f} mm;"
-            f" yaw median {y['median']:.2f} deg, p95 {y['p95']:.2f} deg  (n={p['n']}, missed {r['blocks_missed']}"
-            f"/{r['blocks_total']}; {r['ms_per_estimate_median']:.0f} ms per scene)"
+            f"block pose by {'depth' if by_depth else 'colour'}, noise {'on ' if noise else 'off'}: position median "
+            f"{p['median']:.2f} mm, p95 {p['p95']:.2f} mm; yaw median {y['median']:.2f} deg, p95 {y['p95']:.2f} deg"
+            f"  (n={p['n']}, missed {r['blocks_missed']}/{r['blocks_total']}{extra}; "
+            f"{r['ms_per_estimate_median']:.0f} ms per scene)"
         )
         for layout, figures in r["by_layout"].items():
             print(

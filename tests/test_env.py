@@ -330,6 +330,10 @@ def test_reset_options_must_be_a_mapping():
         ("PandaGraspClutter-v0", {"max_failures": True}),
         ("PandaTowerBreak-v0", {"k": True}),
         ("PandaPutInBin-v0", {"n_blocks": True}),
+        ("PandaTowerBuild-v0", {"block_colours": "grey"}),
+        ("PandaTowerBreak-v0", {"block_colours": None}),
+        ("PandaBuildAndBreak-v0", {"block_colours": ["uniform"]}),
+        ("PandaTowerBreakDirectional-v0", {"block_colours": np.array(["uniform", "distinct"])}),
     ],
 )
 def test_task_options_of_the_wrong_type_raise_value_errors_naming_them(env_id, kwargs):

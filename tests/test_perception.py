@@ -3,10 +3,19 @@
 import numpy as np
 import pytest
 
+from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_from_points, heightmap_from_rgbd
 from panda_grasp_env.perception.noise import DepthNoise, RGBNoise
-from panda_grasp_env.perception.pose import View, detect_towers, estimate_block_poses, wrap_quarter
+from panda_grasp_env.perception.pose import (
+    BlockPose,
+    View,
+    detect_towers,
+    estimate_block_poses,
+    estimate_block_poses_from_depth,
+    follow_blocks,
+    wrap_quarter,
+)
 from panda_grasp_env.perception.segmentation import colour_masks, fit_plane_ransac, foreground_mask
 from panda_grasp_env.sim.rendering import CameraRenderer
 from panda_grasp_env.sim.workcell import Workcell
@@ -99,6 +108,81 @@ def test_block_poses_within_a_few_millimetres_with_noise(scene, layout):
         assert towers == [[cell.block_names[i] for i in np.argsort(cell.block_positions()[:, 2])]]
     else:
         assert sorted(len(t) for t in towers) == [1, 1, 1, 1]
+
+
+def colourless(views):
+    """The views with every pixel black: nothing to read colour from."""
+    return [View(np.zeros_like(v.rgb), v.depth, v.camera) for v in views]
+
+
+def errors_to_true_blocks(cell, poses):
+    """Per true block (in block order): the distance (mm) to the nearest estimate and the yaw error (degrees)
+    of that estimate, modulo 90."""
+    positions, yaws = cell.block_positions(), cell.block_yaws()
+    result = []
+    for position, yaw in zip(positions, yaws):
+        nearest = min(poses, key=lambda p: np.linalg.norm(p.position - position))
+        result.append(
+            (1000 * np.linalg.norm(nearest.position - position), abs(np.degrees(wrap_quarter(nearest.yaw - yaw))))
+        )
+    return result
+
+
+@pytest.mark.parametrize("layout", ["scattered", "tower"])
+@pytest.mark.parametrize("seed", [6, 7])
+def test_block_poses_from_depth_alone_within_a_few_millimetres(scene, layout, seed):
+    cell, renderer = scene
+    cell.reset(np.random.default_rng(seed), layout)
+    poses = estimate_block_poses_from_depth(colourless(views_of(cell, renderer, noise_seed=seed)), 0.05)
+    assert len(poses) == 4
+    for distance_mm, yaw_deg in errors_to_true_blocks(cell, poses):
+        assert distance_mm < 3.0 and yaw_deg < 2.0
+    towers = detect_towers({p.name: p.position for p in poses}, cell.config.block_size)
+    assert sorted(len(t) for t in towers) == ([4] if layout == "tower" else [1, 1, 1, 1])
+
+
+@pytest.mark.parametrize(
+    "layout",
+    [
+        # (x, y, level, yaw): two blocks side by side (one top face twice a block long), a tower of two
+        # whose base touches a third block, and a twisted tower of three.
+        [(0.50, 0.0, 0, 0.1), (0.50, 0.05, 0, 0.1), (0.40, -0.15, 0, 0.3), (0.62, -0.15, 0, -0.2)],
+        [(0.50, 0.0, 0, 0.2), (0.51, 0.005, 1, -0.1), (0.50, 0.055, 0, 0.2), (0.40, -0.15, 0, 0.0)],
+        [(0.50, 0.0, 0, 0.0), (0.50, 0.0, 1, 0.35), (0.50, 0.0, 2, -0.3), (0.40, 0.15, 0, 0.1)],
+    ],
+)
+def test_block_poses_from_depth_tell_apart_blocks_that_touch(scene, layout):
+    cell, renderer = scene
+    cell.clear()
+    for body, (x, y, level, yaw) in zip(cell.block_ids, layout):
+        cell.set_body_pose(body, np.array([x, y, 0.025 + level * 0.0501]), yaw_quaternion(yaw))
+    cell.settle(0.3)
+    poses = estimate_block_poses_from_depth(colourless(views_of(cell, renderer, noise_seed=1)), 0.05)
+    assert len(poses) == 4
+    for distance_mm, yaw_deg in errors_to_true_blocks(cell, poses):
+        assert distance_mm < 3.0 and yaw_deg < 2.0
+
+
+def test_an_empty_table_has_no_blocks_by_depth(scene):
+    cell, renderer = scene
+    cell.clear()  # every block parked beside the table, the arm at home above it
+    assert estimate_block_poses_from_depth(views_of(cell, renderer, noise_seed=0), 0.05) == []
+
+
+def test_blocks_keep_the_names_of_the_known_blocks_they_lie_nearest():
+    def seen(*positions):
+        return [BlockPose(f"seen_{i}", np.array(p, dtype=float), 0.0, 100, 0.001) for i, p in enumerate(positions)]
+
+    known = {"base": np.array([0.5, 0.0, 0.025]), "other": np.array([0.4, 0.1, 0.025])}
+    # Listed in another order, each moved a little, and a block never seen before far from both.
+    assert follow_blocks(known, seen((0.41, 0.1, 0.025), (0.7, -0.2, 0.025), (0.5, 0.01, 0.025))) == [
+        "other",
+        None,
+        "base",
+    ]
+    # One known block unseen (in the hand): the seen one is named after the block it lies nearest.
+    assert follow_blocks(known, seen((0.5, 0.0, 0.075))) == ["base"]
+    assert follow_blocks({}, seen((0.5, 0.0, 0.025))) == [None]
 
 
 def test_heightmap_sees_the_tower_top(scene):

@@ -47,6 +47,27 @@ def test_tower_build_succeeds_in_ideal_actions_and_terminates():
     env.close()
 
 
+@pytest.mark.parametrize("env_id", ["PandaTowerBuild-v0", "PandaTowerBreak-v0", "PandaBuildAndBreak-v0"])
+def test_uniform_block_colours_leave_no_colour_to_tell_blocks_apart(env_id):
+    from panda_grasp_env.perception.segmentation import colour_masks
+
+    looks = {}
+    for colouring in ("distinct", "uniform"):
+        env = make(env_id, obs_mode="rgb", cameras="front", image_size=(320, 240), block_colours=colouring)
+        observation, info = env.reset(seed=3)
+        cell = env.unwrapped.cell
+        rgb = cell.model.geom_rgba[cell.model.body_geomadr[cell.block_ids], :3]
+        assert np.allclose(rgb, list(info["block_colours"].values()))  # what the env publishes is what it renders
+        looks[colouring] = len(np.unique(rgb, axis=0))
+        # What a colour reader finds: each block in the distinct scene, none in the uniform one.
+        found = [mask.sum() > 100 for mask in colour_masks(observation, info["block_colours"]).values()]
+        assert found == [colouring == "distinct"] * 4
+        if "base" in info:
+            assert np.allclose(info["base_position"], cell.block_positions()[0])
+        env.close()
+    assert looks == {"distinct": 4, "uniform": 1}
+
+
 def test_tower_break_by_push_and_by_impulse():
     env = make("PandaTowerBreak-v0")
     env.reset(seed=0)

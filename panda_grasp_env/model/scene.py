@@ -63,6 +63,9 @@ DEFAULT_COLOURS: dict[str, tuple[float, float, float]] = {
     "blue": (0.10, 0.25, 0.85),
     "yellow": (0.95, 0.85, 0.10),
 }
+#: Every block's colour where a block task's ``block_colours`` option is ``"uniform"``: a light grey, without
+#: hue, so that domain randomisation's per-block hue shifts leave the blocks alike (r, g, b in 0-1).
+UNIFORM_BLOCK_COLOUR = (0.85, 0.85, 0.85)
 
 
 @dataclass(frozen=True)

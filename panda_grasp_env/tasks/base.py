@@ -29,7 +29,7 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.geometry import is_number
-from panda_grasp_env.model.scene import SceneConfig
+from panda_grasp_env.model.scene import UNIFORM_BLOCK_COLOUR, SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import EnvId
 from panda_grasp_env.sim.workcell import Workcell
@@ -174,6 +174,25 @@ def goals_reached(achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.nda
 def with_scene(base: SceneConfig, **changes: Any) -> SceneConfig:
     """``base`` with some fields replaced (validated by SceneConfig)."""
     return replace(base, **changes)
+
+
+#: The block tasks' ``block_colours`` option: ``"distinct"``, each block its scene colour (red, green, blue,
+#: yellow by default), or ``"uniform"``, every block ``UNIFORM_BLOCK_COLOUR``, so that only shape and place tell
+#: them apart (perception that does not read colour).  Block names stay the colours' (``block_red``, ...):
+#: they name the blocks, however they look.
+BLOCK_COLOURINGS = ("distinct", "uniform")
+
+
+def check_block_colours(block_colours: Any) -> None:
+    """``ValueError`` naming the ``block_colours`` task option unless it is one of ``BLOCK_COLOURINGS``."""
+    valid = isinstance(block_colours, str) and block_colours in BLOCK_COLOURINGS
+    check_option("block_colours", block_colours, valid, f"one of {list(BLOCK_COLOURINGS)}")
+
+
+def block_scene(base: SceneConfig, n_blocks: int, block_colours: str) -> SceneConfig:
+    """``base`` with ``n_blocks`` blocks, coloured as the ``block_colours`` option says, and no other objects."""
+    colours = dict.fromkeys(base.colours, UNIFORM_BLOCK_COLOUR) if block_colours == "uniform" else base.colours
+    return with_scene(base, n_blocks=n_blocks, n_objects=0, colours=colours)
 
 
 def is_interval(value: Any) -> bool:

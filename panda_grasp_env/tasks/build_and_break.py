@@ -25,7 +25,10 @@ class BuildAndBreak(Task):
     tower with a successful push counts a break and switches back (a tower a
     failed primitive knocked over switches back without counting).  ``info`` carries ``phase``,
     ``builds`` and ``breaks``; ``is_success`` is true once a full build-and-break
-    cycle is complete.  Reward: the phase's own reward (stack progress while
+    cycle is complete.  At reset ``info`` also names the base and gives its
+    centre (``base``, ``base_position``, as TowerBuild); every build is on that
+    block.  Option: ``block_colours`` (``"distinct"`` or ``"uniform"``, as
+    TowerBuild).  Reward: the phase's own reward (stack progress while
     building, blocks moved while breaking), +1 per completed phase.  Terminates
     only if a block leaves the table.
     """
@@ -38,9 +41,9 @@ class BuildAndBreak(Task):
     }
     primitives = ("grasp", "place", "push")
 
-    def __init__(self, n_blocks: int = 4) -> None:
-        self.build = TowerBuild(n_blocks=n_blocks)
-        self.breaker = TowerBreak(n_blocks=n_blocks)
+    def __init__(self, n_blocks: int = 4, block_colours: str = "distinct") -> None:
+        self.build = TowerBuild(n_blocks=n_blocks, block_colours=block_colours)
+        self.breaker = TowerBreak(n_blocks=n_blocks, block_colours=block_colours)
         self.n_blocks = n_blocks
         self.phase = "build"
         self.builds = self.breaks = 0
@@ -56,7 +59,7 @@ class BuildAndBreak(Task):
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
         build_info = self.build.reset(cell, rng)
         self.phase, self.builds, self.breaks = "build", 0, 0
-        return {"base": build_info["base"], **self._info(cell)}
+        return {"base": build_info["base"], "base_position": build_info["base_position"], **self._info(cell)}
 
     def _info(self, cell: Workcell) -> dict[str, Any]:
         return {"phase": self.phase, "builds": self.builds, "breaks": self.breaks, "cycles": self.breaks}

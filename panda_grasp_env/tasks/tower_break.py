@@ -11,7 +11,7 @@ from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.workcell import Workcell
-from panda_grasp_env.tasks.base import Task, TaskStep, check_option, with_scene
+from panda_grasp_env.tasks.base import Task, TaskStep, block_scene, check_block_colours, check_option
 
 #: The source study's four push directions, as headings about world z (radians).
 BREAK_DIRECTIONS = {"+x": 0.0, "+y": np.pi / 2, "-x": np.pi, "-y": -np.pi / 2}
@@ -34,7 +34,8 @@ class TowerBreak(Task):
     directional break -- each episode commands one of ``BREAK_DIRECTIONS``
     (drawn at reset, observed as the one-hot ``command``, in that order), and
     the tower must also fall towards it: the blocks' centroid moves at least one
-    block size, within 45 degrees of the commanded heading.
+    block size, within 45 degrees of the commanded heading; ``block_colours``:
+    ``"distinct"`` (default) or ``"uniform"`` (every block the same light grey).
     Success: >= k blocks moved by a primitive that succeeded; terminates once
     >= k blocks moved (``info["broken_by_failure"]`` when a failed primitive
     moved them: no success).  Reward: blocks newly moved this step, +1 on
@@ -57,6 +58,7 @@ class TowerBreak(Task):
         allow_impulse: bool = False,
         impulse_magnitude: float = 0.06,
         directional: bool = False,
+        block_colours: str = "distinct",
     ) -> None:
         check_option("n_blocks", n_blocks, is_count(n_blocks) and 2 <= n_blocks <= 4, "an int in [2, 4]")
         k = n_blocks - 1 if k is None else k
@@ -65,6 +67,8 @@ class TowerBreak(Task):
         valid = is_number(impulse_magnitude) and 0 < impulse_magnitude <= 1.0
         check_option("impulse_magnitude", impulse_magnitude, valid, "in (0, 1] N s")
         check_option("directional", directional, isinstance(directional, bool), "a bool")
+        check_block_colours(block_colours)
+        self.block_colours = block_colours
         self.n_blocks, self.k, self.directional = n_blocks, k, directional
         self.command_size = len(BREAK_DIRECTIONS) if directional else 0
         self.direction = 0  # index into BREAK_DIRECTIONS
@@ -74,7 +78,7 @@ class TowerBreak(Task):
         self._moved = 0
 
     def scene_config(self, base: SceneConfig) -> SceneConfig:
-        return with_scene(base, n_blocks=self.n_blocks, n_objects=0)
+        return block_scene(base, self.n_blocks, self.block_colours)
 
     @property
     def ideal_actions(self) -> int:

@@ -1,4 +1,5 @@
-"""TowerBuild: blocks scattered; stack all N on the base block (the first colour, red by default)."""
+"""TowerBuild: blocks scattered; stack all N on the base block (the first colour, red by default; its centre at
+reset is published, so the base is known where all blocks look alike)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.stacking import stack_column
 from panda_grasp_env.sim.workcell import Workcell
-from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, with_scene
+from panda_grasp_env.tasks.base import Task, TaskStep, block_scene, check_block_colours, check_option, goals_reached
 
 #: A tower must stand still this long, with the gripper released, to count as built (seconds).
 STABLE_TIME = 0.5
@@ -36,7 +37,12 @@ class TowerBuild(Task):
     Options: ``n_blocks`` (2-4, default 4: the base and three to stack);
     ``order``: ``"any"`` (any colour order above the base) or ``"fixed"`` (the
     scene's colour order: red, green, blue, yellow); ``tolerance``: how far (m)
-    a block's centre may sit from the base's axis (default a fifth of the block).
+    a block's centre may sit from the base's axis (default a fifth of the block);
+    ``block_colours``: ``"distinct"`` (default: red, green, blue, yellow) or
+    ``"uniform"`` (every block the same light grey: only shape and place tell
+    blocks apart).  ``info`` at reset names the base (``base``) and gives its
+    centre (``base_position``, world metres): where blocks look alike, that is
+    how an agent knows which one it is.
     Success (primitive modes): all blocks stacked, still and released for 0.5 s.
     Goal-conditioned (low-level modes): goal = where each non-base block stands
     in the finished tower, in the fixed order; success = all within 5 cm.
@@ -60,15 +66,19 @@ class TowerBuild(Task):
     goal_conditioned = True
     start_states = ("in_hand", "above_object")
 
-    def __init__(self, n_blocks: int = 4, order: str = "any", tolerance: float | None = None) -> None:
+    def __init__(
+        self, n_blocks: int = 4, order: str = "any", tolerance: float | None = None, block_colours: str = "distinct"
+    ) -> None:
         check_option("n_blocks", n_blocks, is_count(n_blocks) and 2 <= n_blocks <= 4, "an int in [2, 4]")
         check_option("order", order, order in ("any", "fixed"), "'any' or 'fixed'")
         check_option(
             "tolerance", tolerance, tolerance is None or 0 < float(tolerance) <= 0.025, "None or in (0, 0.025] m"
         )
+        check_block_colours(block_colours)
         self.n_blocks = n_blocks
         self.order = order
         self.tolerance = tolerance
+        self.block_colours = block_colours
         self._stable_since: float | None = None
         self._levels = 1
         self._column: list[int] = [0]
@@ -76,7 +86,7 @@ class TowerBuild(Task):
         self._goal = np.zeros(3 * (n_blocks - 1))
 
     def scene_config(self, base: SceneConfig) -> SceneConfig:
-        return with_scene(base, n_blocks=self.n_blocks, n_objects=0)
+        return block_scene(base, self.n_blocks, self.block_colours)
 
     @property
     def ideal_actions(self) -> int:
@@ -90,7 +100,7 @@ class TowerBuild(Task):
         base = cell.block_positions()[0]
         self._goal = np.concatenate([base + [0.0, 0.0, size * level] for level in range(1, self.n_blocks)])
         self.restart(cell)
-        return {"base": cell.block_names[0], "stack_height": self._levels}
+        return {"base": cell.block_names[0], "base_position": base, "stack_height": self._levels}
 
     def restart(self, cell: Workcell) -> None:
         """Start building from the blocks as they lie now."""
