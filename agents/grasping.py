@@ -371,7 +371,9 @@ class PackedGraspOracle(OracleGraspAgent):
         return action
 
 
-@register_baseline("Grasp", "GraspClutter", "GraspMeshTrain", "GraspMeshTest", "GraspMeshClutterTrain", "GraspMeshClutterTest")
+@register_baseline(
+    "Grasp", "GraspClutter", "GraspMeshTrain", "GraspMeshTest", "GraspMeshClutterTrain", "GraspMeshClutterTest"
+)
 def grasp_baseline(env: gym.Env, seed: int, oracle: bool) -> PlannedGraspAgent:
     """The planned grasping agent (RGB-D grasp detection, noise and restarts seeded), or the oracle."""
     return OracleGraspAgent(env, seed=seed) if oracle else PlannedGraspAgent(noise_seed=seed, seed=seed)

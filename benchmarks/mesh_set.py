@@ -20,8 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from panda_grasp_env.model.meshes import EXCLUDED, MAX_PARTS, SPLITS, load_mesh_object
-from panda_grasp_env.tasks.grasp import EVALUATION_OBJECTS
+from panda_grasp_env.model.meshes import EVALUATION_OBJECTS, EXCLUDED, MAX_PARTS, SPLITS, load_mesh_object
 
 
 def split_figures() -> None:
@@ -102,7 +101,9 @@ def per_object(results: Path) -> None:
         shown = ", ".join(below[:20]) + (", ..." if len(below) > 20 else "")
         print(f"  objects missed at least once ({len(below)}): {shown or 'none'}")
         never = [i for i, v in sorted(objects.items()) if not any(v)]
-        print(f"  never grasped first time ({len(never)}): {never if len(never) <= 20 else f'{len(never)} of {len(objects)}'}")
+        print(
+            f"  never grasped first time ({len(never)}): {never if len(never) <= 20 else f'{len(never)} of {len(objects)}'}"
+        )
 
 
 def main() -> None:

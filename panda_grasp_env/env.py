@@ -172,7 +172,9 @@ class PandaEnv(gym.Env):
             raise ValueError(f"reset options must be a dict or None, got {type(options).__name__}")
         unknown = sorted(set(options or {}) - set(self.task.reset_options))
         if unknown:
-            raise ValueError(f"unknown reset option(s) {unknown}; {self.task.name} takes {list(self.task.reset_options)}")
+            raise ValueError(
+                f"unknown reset option(s) {unknown}; {self.task.name} takes {list(self.task.reset_options)}"
+            )
         self.task.apply_reset_options(self.cell, dict(options or {}))
         self.renderer.pause()  # rgb_array_list: no frames of the scene being laid out and settled
         if self.randomizer is not None:

@@ -13,10 +13,17 @@ from gymnasium.utils.env_checker import check_env
 pytest.importorskip("pybullet_data", reason="the mesh object set needs the objects extra (the test extra has it)")
 
 from panda_grasp_env.model import meshes  # noqa: E402
-from panda_grasp_env.model.meshes import EXCLUDED, MAX_MIDDLE_EXTENT, MAX_PARTS, SPLITS, load_mesh_object  # noqa: E402
+from panda_grasp_env.model.meshes import (  # noqa: E402  # noqa: E402
+    EVALUATION_OBJECTS,
+    EXCLUDED,
+    MAX_MIDDLE_EXTENT,
+    MAX_PARTS,
+    SPLITS,
+    load_mesh_object,
+    object_by_seed,
+)
 from panda_grasp_env.model.objects import ObjectSpec  # noqa: E402
 from panda_grasp_env.sim.workcell import body_bottom_height  # noqa: E402
-from panda_grasp_env.tasks.grasp import EVALUATION_OBJECTS, object_by_seed  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TEST_IDS = [900, 905, 990]  # 990: 85 pieces merged into MAX_PARTS geoms
@@ -91,7 +98,9 @@ def test_a_mesh_object_falls_onto_a_face_and_collides_through_its_pieces():
 
 
 def test_reset_options_choose_the_episodes_object_and_a_primitive_slot_hides_the_mesh():
-    env = gym.make("panda_grasp_env:PandaGrasp-v0", objects=[{"shape": ("cube", "mesh"), "split": "test", "ids": [905]}])
+    env = gym.make(
+        "panda_grasp_env:PandaGrasp-v0", objects=[{"shape": ("cube", "mesh"), "split": "test", "ids": [905]}]
+    )
     env.reset(seed=0)
     options = {"objects": [{"shape": "mesh", "split": "test", "ids": [905]}]}
     _, first = env.reset(seed=11, options=options)

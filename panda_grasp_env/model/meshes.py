@@ -23,16 +23,19 @@ per episode from ``DENSITY_RANGE`` (where ``ObjectSpec.mass`` does not fix it); 
 The **split** is fixed: objects 900-999 are the test set, 0-899 train (the published 900 / 100 split, as
 numbered).  Object 168 is left out of train: every vertex of its OBJ is NaN.  Four train objects are flat
 (295, 297, 602, 824: 0.5-1.5 mm thick, 8-17 mm across) and cannot be picked up from a table; they stay in the
-split as published, and the train objects the benchmarks play (``tasks.grasp.EVALUATION_OBJECTS``) hold none.
+split as published, and the train objects the benchmarks play (``EVALUATION_OBJECTS``) hold none.
 """
 
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
+from typing import Any
 
+import mujoco
 import numpy as np
 from scipy.cluster.vq import kmeans2
 from scipy.spatial import ConvexHull
@@ -55,6 +58,22 @@ MAX_PARTS = 16
 #: Density range (kg/m^3) an object's mass is drawn from: light plastic to hard wood.
 DENSITY_RANGE = (400.0, 1000.0)
 EXTRA_HINT = "pip install 'panda_grasp_env[objects]' (it installs the pybullet wheel, which ships the object set)"
+
+
+#: The mesh objects the single-object benchmarks sweep: all 100 test objects, and 100 train objects spread
+#: over the train split (every ninth; none of the four flat ones).
+EVALUATION_OBJECTS = {"train": SPLITS["train"][::9], "test": SPLITS["test"]}
+
+
+def object_by_seed(split: str) -> Callable[[int], dict[str, Any]]:
+    """Reset options giving episode ``seed`` the object ``EVALUATION_OBJECTS[split][seed % 100]``: any 100
+    consecutive seeds play each object once."""
+    ids = EVALUATION_OBJECTS[split]
+
+    def options(seed: int) -> dict[str, Any]:
+        return {"objects": [{"shape": "mesh", "split": split, "ids": [ids[seed % len(ids)]]}]}
+
+    return options
 
 
 def set_root(mesh_set: str = "random_urdfs") -> Path:
@@ -197,6 +216,21 @@ def load_mesh_object(object_id: int, mesh_set: str = "random_urdfs") -> MeshObje
     extent = np.abs(np.concatenate([piece.vertices for piece in pieces])).max(axis=0)
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     return MeshObject(object_id, tuple(_merged(pieces, MAX_PARTS)), scale, volume, moments, extent, digest)
+
+
+def add_mesh_assets(spec: mujoco.MjSpec, object_ids: tuple[int, ...]) -> list[str]:
+    """Add the geoms' meshes of objects ``object_ids`` to ``spec`` as assets (each renders its original faces
+    and collides as its hull); their names."""
+    names = []
+    for object_id in object_ids:
+        for index, part in enumerate(load_mesh_object(object_id).parts):
+            mesh = spec.add_mesh()
+            mesh.name = mesh_name(object_id, index)
+            mesh.uservert = part.vertices.ravel().tolist()
+            mesh.userface = part.faces.ravel().tolist()
+            mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_CONVEX  # mass comes from MeshObject, per object
+            names.append(mesh.name)
+    return names
 
 
 def mesh_name(object_id: int, part: int) -> str:

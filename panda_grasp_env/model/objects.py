@@ -287,8 +287,10 @@ class ObjectSpec:
         if self.ids is None:
             return
         ids = [self.ids] if isinstance(self.ids, (int, np.integer)) else self.ids
-        if not isinstance(ids, (tuple, list)) or not ids or not all(
-            isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in ids
+        if (
+            not isinstance(ids, (tuple, list))
+            or not ids
+            or not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in ids)
         ):
             raise ValueError(f"ids must be a non-empty list of mesh object ids, got {self.ids!r}")
         outside = sorted({int(i) for i in ids} - set(SPLITS[self.split]))

@@ -21,7 +21,7 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.geometry import is_count
-from panda_grasp_env.model.meshes import MAX_PARTS, load_mesh_object, mesh_name, split_of
+from panda_grasp_env.model.meshes import MAX_PARTS, add_mesh_assets, split_of
 
 ARM_JOINTS = tuple(f"robot:panda0_joint{i}" for i in range(1, 8))
 FINGER_JOINTS = ("robot:panda0_finger_joint1", "robot:panda0_finger_joint2")
@@ -131,7 +131,9 @@ class SceneConfig:
         if self.n_blocks + self.n_objects == 0:
             raise ValueError("the scene needs at least one block or object")
         if not isinstance(self.mesh_objects, tuple) or (self.mesh_objects and not self.n_objects):
-            raise ValueError(f"mesh_objects must be a tuple of mesh set ids, with n_objects > 0, got {self.mesh_objects!r}")
+            raise ValueError(
+                f"mesh_objects must be a tuple of mesh set ids, with n_objects > 0, got {self.mesh_objects!r}"
+            )
         for object_id in self.mesh_objects:
             split_of(object_id)  # ValueError naming an id outside the set
         for name in ("block_size", "block_mass", "gripper_force", "timestep"):
@@ -416,7 +418,7 @@ def _add_environment(spec: mujoco.MjSpec, config: SceneConfig) -> None:
     for name, colour in zip(config.block_names, config.colours.values()):
         geom = _add_free_cube(world, name, config, list(config.block_friction), condim=3)
         geom.rgba = [*colour, 1.0]
-    parts = _add_object_meshes(spec, config.mesh_objects)
+    parts = add_mesh_assets(spec, config.mesh_objects)
     for name in config.object_names:
         # Object slots start as cubes; tasks set type, size, mass and colour at reset (Workcell.set_object_shapes).
         # Rolling friction (condim 6, 2 mm): without it a dropped sphere or capsule rolled off the table.
@@ -455,21 +457,6 @@ def _add_environment(spec: mujoco.MjSpec, config: SceneConfig) -> None:
     front.pos = eye
     front.quat = _look_at(eye, np.array([0.45, 0.0, 0.12]))
     front.fovy = config.cameras.get("front", CameraConfig()).fovy
-
-
-def _add_object_meshes(spec: mujoco.MjSpec, object_ids: tuple[int, ...]) -> list[str]:
-    """Add the geoms' meshes of mesh set objects ``object_ids`` as assets; their names."""
-    names = []
-    for object_id in object_ids:
-        for index, part in enumerate(load_mesh_object(object_id).parts):
-            mesh = spec.add_mesh()
-            mesh.name = mesh_name(object_id, index)
-            mesh.uservert = part.vertices.ravel().tolist()
-            mesh.userface = part.faces.ravel().tolist()
-            # Mass comes from meshes.MeshObject per object; the hull is what collides.
-            mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_CONVEX
-            names.append(mesh.name)
-    return names
 
 
 def _add_free_cube(

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from panda_grasp_env.geometry import is_count, is_number
-from panda_grasp_env.model.meshes import SPLITS
+from panda_grasp_env.model.meshes import EVALUATION_OBJECTS, object_by_seed
 from panda_grasp_env.model.objects import SHAPES, ObjectShape, ObjectSpec
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
@@ -84,20 +83,6 @@ def fitting_yaw(shape: ObjectShape, yaw: float, hand_yaw: float, rng: np.random.
 
 #: Actions a single mesh object gets (``PandaGraspMesh-v0``): success within this budget.
 MESH_ATTEMPTS = 5
-#: The mesh objects the single-object benchmarks sweep: all 100 test objects, and 100 train objects spread
-#: over the train split (every ninth).
-EVALUATION_OBJECTS = {"train": SPLITS["train"][::9], "test": SPLITS["test"]}
-
-
-def object_by_seed(split: str) -> Callable[[int], dict[str, Any]]:
-    """Reset options giving episode ``seed`` the object ``EVALUATION_OBJECTS[split][seed % 100]``: any 100
-    consecutive seeds play each object once."""
-    ids = EVALUATION_OBJECTS[split]
-
-    def options(seed: int) -> dict[str, Any]:
-        return {"objects": [{"shape": "mesh", "split": split, "ids": [ids[seed % len(ids)]]}]}
-
-    return options
 
 
 @register_task
@@ -179,12 +164,21 @@ class Grasp(Task):
             {"objects": [{"shape": "mesh", "split": "train"}]},
             benchmarks={
                 "GraspMeshTrain": Benchmark(
-                    {"primitive_z": True, "objects": [{"shape": "mesh", "split": "train", "ids": list(EVALUATION_OBJECTS["train"])}]},
-                    quick_seeds=10, full_seeds=300, reset_options=object_by_seed("train"), by_default=False,
+                    {
+                        "primitive_z": True,
+                        "objects": [{"shape": "mesh", "split": "train", "ids": list(EVALUATION_OBJECTS["train"])}],
+                    },
+                    quick_seeds=10,
+                    full_seeds=300,
+                    reset_options=object_by_seed("train"),
+                    by_default=False,
                 ),
                 "GraspMeshTest": Benchmark(
                     {"primitive_z": True, "objects": [{"shape": "mesh", "split": "test"}]},
-                    quick_seeds=10, full_seeds=300, reset_options=object_by_seed("test"), by_default=False,
+                    quick_seeds=10,
+                    full_seeds=300,
+                    reset_options=object_by_seed("test"),
+                    by_default=False,
                 ),
             },
         ),
@@ -193,10 +187,14 @@ class Grasp(Task):
             60,
             {"objects": [{"shape": "mesh", "split": "train"}], "clutter": True},
             benchmarks={
-                "GraspMeshClutterTrain": Benchmark({"primitive_z": True}, quick_seeds=2, full_seeds=30, by_default=False),
+                "GraspMeshClutterTrain": Benchmark(
+                    {"primitive_z": True}, quick_seeds=2, full_seeds=30, by_default=False
+                ),
                 "GraspMeshClutterTest": Benchmark(
                     {"primitive_z": True, "objects": [{"shape": "mesh", "split": "test"}]},
-                    quick_seeds=2, full_seeds=30, by_default=False,
+                    quick_seeds=2,
+                    full_seeds=30,
+                    by_default=False,
                 ),
             },
         ),
@@ -295,7 +293,9 @@ class Grasp(Task):
             self._episode_specs = None
             return
         if not isinstance(objects, (list, tuple)) or not objects or len(objects) not in (1, self.n_objects):
-            raise ValueError(f"reset option objects must be a list of 1 or {self.n_objects} object specs, got {objects!r}")
+            raise ValueError(
+                f"reset option objects must be a list of 1 or {self.n_objects} object specs, got {objects!r}"
+            )
         specs = []
         for index, value in enumerate(objects):
             try:
