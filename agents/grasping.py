@@ -7,13 +7,17 @@ observation); grasps are proposed from the depth image without object models
 (``panda_grasp_env.perception.grasps``); the best untried one is selected; the env's grasp
 primitive moves, closes, lifts and verifies (finger gap, then lift without
 dropping); on failure the arm has retreated home and the loop repeats with the
-next candidate.
+next candidate.  When no untried candidate is left, ``PushPlanner`` works on the objects the depth image shows
+one by one (``camera_scene``): a grasp that clears the neighbours, or the push that best frees one from them.
+The push-aware oracle (``PackedGraspOracle``) runs the same planner on the true shapes.
 """
 
 from __future__ import annotations
 
 import time
 from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -23,16 +27,28 @@ from panda_grasp_env.actions import encode_grasp_pose
 from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure
 from panda_grasp_env.agents.registry import register_baseline
 from panda_grasp_env.geometry import top_down_rotation
-from panda_grasp_env.perception.grasps import GraspCandidate, GripperGeometry, detect_grasps_rgbd
+from panda_grasp_env.perception.grasps import (
+    REGION_OF_INTEREST,
+    GraspCandidate,
+    GripperGeometry,
+    ObjectOutline,
+    detect_grasps_rgbd,
+)
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
+from panda_grasp_env.perception.pose import View
+from panda_grasp_env.perception.segmentation import fit_plane_ransac, object_tops, region_points
 
 #: A candidate this close (metres, radians) to a failed attempt is not tried again.
 RETRY_DISTANCE = 0.01
 RETRY_HEADING = np.deg2rad(15)
+#: With nothing to grasp: a harmless grasp at an empty corner of the table (world metres).
+EMPTY_CORNER_GRASP = GraspCandidate(np.array([0.3, 0.3, 0.02]), top_down_rotation(0.0), 0.0, 0.0, 0.0, -1)
 
 
 class PlannedGraspAgent:
-    """Grasps with the top-ranked detected candidate that has not failed yet; pushes the heap when none is left.
+    """Grasps with the top-ranked detected candidate that has not failed yet; when none is left, lets
+    ``PushPlanner`` choose on the camera's view of the objects (``camera_scene``): a grasp it finds clear of the
+    neighbours, else the push that best frees an object (where pushes are offered), else the least blocked grasp.
 
     Needs ``action_mode='grasp_pose'`` (6-DOF grasps through the env's motion stack) or
     ``action_mode='primitive'`` with ``primitive_z=True`` (top-down grasp primitive), and
@@ -50,7 +66,10 @@ class PlannedGraspAgent:
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
         self._choose_writer(info)
         self.views = CameraViews(observation, info, self.name, ("overhead",), self.noise_seed)
+        self.view: View | None = None
         self.rng = np.random.default_rng(self.seed)
+        pushes = not self.pose_mode and "push" in self.write.primitives
+        self.planner = PushPlanner(float(info["action_layout"]["push_distance"]) if pushes else None)
         self.failed: list[tuple[np.ndarray, float]] = []
         self.last: GraspCandidate | None = None
         self.failures = Counter()
@@ -77,37 +96,42 @@ class PlannedGraspAgent:
         return False
 
     def candidates(self, observation: Any) -> list[GraspCandidate]:
-        """Ranked grasp candidates from the overhead depth image."""
-        view = self.views(observation)[0]
-        return detect_grasps_rgbd(view.depth, view.camera, self.rng)
+        """Ranked grasp candidates from the overhead depth image (kept as ``view`` for the push planner)."""
+        self.view = self.views(observation)[0]
+        return detect_grasps_rgbd(self.view.depth, self.view.camera, self.rng)
 
-    def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
+    def _note_failure(self, info: dict[str, Any]) -> None:
+        """Count the last primitive's failure; remember a failed grasp so that it is not tried again."""
         record_failure(self.failures, info)
         if self.last is not None and info.get("primitive") == "grasp" and not info["primitive_success"]:
             self.failed.append((self.last.position, self.last.yaw))
+
+    def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
+        self._note_failure(info)
         start = time.perf_counter()
         ranked = self.candidates(observation)
         untried = [c for c in ranked if not self._tried(c)]
-        self.compute_seconds.append(time.perf_counter() - start)
-        if not untried:
+        if untried:
+            self.last = untried[0]
+            action = self._grasp_action(self.last)
+        else:
             self.failures["no_candidate"] += 1
-            self.last = None
-            return self._push_or_wait(ranked)
-        self.last = untried[0]
-        return self._grasp_action(self.last)
+            action = self._without_candidate(ranked)
+        self.compute_seconds.append(time.perf_counter() - start)
+        return action
 
-    def _push_or_wait(self, ranked: list[GraspCandidate]) -> np.ndarray:
-        """No untried grasp: push through the best-ranked object's centre to change the scene (VPG's other
-        primitive), or retry the best candidate if pushing is not offered."""
-        best = ranked[0] if ranked else None
-        if self.pose_mode or "push" not in self.write.primitives:
-            if best is None:  # nothing seen: a harmless grasp at an empty corner of the table
-                best = GraspCandidate(np.array([0.3, 0.3, 0.02]), top_down_rotation(0.0), 0.0, 0.0, 0.0, -1)
-            return self._grasp_action(best)
-        centre = best.position[:2] if best is not None else np.array([0.5, 0.0])
-        heading = float(self.rng.uniform(-np.pi, np.pi))
-        start = centre - 0.06 * np.array([np.cos(heading), np.sin(heading)])
-        return self.write("push", start[0], start[1], heading, 0.03)
+    def _without_candidate(self, ranked: list[GraspCandidate]) -> np.ndarray:
+        """No untried candidate: ``PushPlanner``'s choice on the objects of the image the detector saw."""
+        return self._decided(self.planner.choose(camera_scene(self.view, self.rng), self._tried, self.rng))
+
+    def _decided(self, decision: PackedDecision) -> np.ndarray:
+        """The action of a ``PushPlanner`` decision (a grasp at an empty corner when it holds none)."""
+        if decision.push_start is not None:
+            self.last = None
+            x, y = decision.push_start
+            return self.write("push", x, y, decision.push_heading, PUSH_HEIGHT)
+        self.last = decision.grasp or EMPTY_CORNER_GRASP
+        return self._grasp_action(self.last)
 
 
 class OracleGraspAgent(PlannedGraspAgent):
@@ -125,6 +149,19 @@ class OracleGraspAgent(PlannedGraspAgent):
         self.rng = np.random.default_rng(self.seed)
         self.failed, self.last = [], None
         self.failures, self.compute_seconds = Counter(), []
+
+    def _without_candidate(self, ranked: list[GraspCandidate]) -> np.ndarray:
+        """No untried candidate: push through the best-ranked object's centre at a random heading to change the
+        scene (VPG's other primitive), or retry the best candidate if pushing is not offered."""
+        best = ranked[0] if ranked else None
+        if self.pose_mode or "push" not in self.write.primitives:
+            self.last = best or EMPTY_CORNER_GRASP
+            return self._grasp_action(self.last)
+        self.last = None
+        centre = best.position[:2] if best is not None else np.array([0.5, 0.0])
+        heading = float(self.rng.uniform(-np.pi, np.pi))
+        start = centre - 0.06 * np.array([np.cos(heading), np.sin(heading)])
+        return self.write("push", start[0], start[1], heading, 0.03)
 
     def candidates(self, observation: Any) -> list[GraspCandidate]:
         cell, model = self.cell, self.cell.model
@@ -164,6 +201,11 @@ PUSH_HEADINGS = np.arange(8) * np.pi / 4
 #: the object at the start (metres); the sideways shifts of the stroke off an object's centre line tried.
 PUSH_HEIGHT, PUSHER_HALF_WIDTH, PUSHER_HALF_DEPTH, PUSH_GAP = 0.015, 0.031, 0.02, 0.01
 PUSH_SHIFTS = (-0.025, 0.0, 0.025)
+#: A clump (several objects seen as one: too wide for the hand at every heading) is also pushed with the fingers
+#: over only its outermost ``CLUMP_EDGE`` metres on either side, to take one object off it.
+CLUMP_EDGE = 0.03
+#: Where objects count as in play for the push planner (world x, y bounds, metres): VPG's workspace.
+PLAY_REGION = np.asarray(DEFAULT_BOUNDS[:2])
 
 
 def _near(points: np.ndarray, others: np.ndarray) -> bool:
@@ -175,9 +217,18 @@ def _near(points: np.ndarray, others: np.ndarray) -> bool:
     return bool(np.min(np.linalg.norm(candidates[:, None] - others[None], axis=2)) < SAMPLE_SPACING)
 
 
+def columns(points: np.ndarray) -> np.ndarray:
+    """Points (N, 3) of one object, world metres, as seen from above: one column (x, y, highest z) per cell of a
+    ``SAMPLE_SPACING`` grid they fall in, (M, 3)."""
+    cells, inverse = np.unique(np.round(points[:, :2] / SAMPLE_SPACING).astype(int), axis=0, return_inverse=True)
+    tops = np.full(len(cells), -np.inf)
+    np.maximum.at(tops, inverse.ravel(), points[:, 2])
+    return np.column_stack([cells * SAMPLE_SPACING, tops])
+
+
 def footprint(model: Any, data: Any, body: int) -> np.ndarray:
-    """Columns (N, 3) covering the first geom of ``body`` seen from above: world x, y and the top z of the
-    geom over that point (metres), on a ``SAMPLE_SPACING`` grid."""
+    """``columns`` (N, 3) covering the first geom of ``body`` seen from above: world x, y and the top z of the
+    geom over that point (metres), from its true pose and shape."""
     geom = int(model.body_geomadr[body])
     kind, size = int(model.geom_type[geom]), model.geom_size[geom]
     if kind == 6:  # box
@@ -195,74 +246,93 @@ def footprint(model: Any, data: Any, body: int) -> np.ndarray:
     elif kind == 3:
         beyond = np.clip(np.abs(local[:, 2]) - size[1], 0.0, None)
         local = local[np.hypot(np.hypot(local[:, 0], local[:, 1]), beyond) <= size[0] + 1e-9]
-    points = local @ data.xmat[body].reshape(3, 3).T + data.xpos[body]
-    cells, inverse = np.unique(np.round(points[:, :2] / SAMPLE_SPACING).astype(int), axis=0, return_inverse=True)
-    tops = np.full(len(cells), -np.inf)
-    np.maximum.at(tops, inverse.ravel(), points[:, 2])
-    return np.column_stack([cells * SAMPLE_SPACING, tops])
+    return columns(local @ data.xmat[body].reshape(3, 3).T + data.xpos[body])
 
 
-class PackedGraspOracle(OracleGraspAgent):
-    """*Oracle* for packed scenes: true object poses and shapes; grasps only where the open fingers and the
-    palm clear every other object; with ``pushes``, a planned push when no such grasp is left.
+@dataclass(frozen=True)
+class PackedScene:
+    """The objects in play as the push planner sees them (world frame, metres, radians): per object (keyed by an
+    index) its ``columns`` (N, 3), and the closing-axis headings along its faces, tried besides
+    ``GRASP_HEADINGS``."""
 
-    Grasps: for each object in play, at each of ``GRASP_HEADINGS`` and across its own faces, a top-down grasp through its centre
-    (``grasp_depth`` below its top) whose width across the fingers fits the hand.  Clear: no point of
-    another object (``footprint``) inside either open finger's box, from the fingertips up, or under
-    the palm.  The clear candidate across the narrowest width is tried first; one that failed is not tried
-    again (as ``PlannedGraspAgent``).
+    objects: dict[int, np.ndarray]
+    face_headings: dict[int, tuple[float, ...]]
 
-    Pushes (VPG's other primitive, ``pushes=True``) when no clear grasp is left: for each object and each of
-    ``PUSH_HEADINGS`` the closed fingers start just behind it -- where they clear everything -- and push
-    ``push_distance``; the object and whatever its sweep meets (transitively) are predicted to move along
-    with it.  The push that leaves the most objects with a clear grasp (then: the least blocked grasp
-    freest; then: moving the fewest; never one that moves an object out of the play region) is made, if
-    it does better than the scene as it is.  Without ``pushes`` (the grasp-only oracle), or when no push
-    helps, it tries the grasp that collides least.  It plays in ``primitive`` mode (``primitive_z=True``) or,
-    its choices rounded to the nearest cell and heading, in ``pixel`` mode: the demonstrator of
-    ``heightmap_dqn_demos``.
+
+def camera_scene(view: View, rng: np.random.Generator) -> PackedScene:
+    """The ``PackedScene`` one depth image shows (``View``: its depth and camera): the tops of the objects
+    (``object_tops``, split at the gaps the camera sees between packed ones) whose centre lies in
+    ``PLAY_REGION``, with the headings of their outline's sides and axes (``ObjectOutline``)."""
+    points = region_points(view.depth, view.camera, REGION_OF_INTEREST)
+    finite = np.isfinite(points).all(axis=-1)
+    if np.count_nonzero(finite) < 3:
+        return PackedScene({}, {})
+    table, _ = fit_plane_ransac(points[finite], rng)
+    objects, headings = {}, {}
+    for index, top in enumerate(object_tops(points, table, view.camera)):
+        centre = top[:, :2].mean(axis=0)
+        if np.all((centre >= PLAY_REGION[:, 0]) & (centre <= PLAY_REGION[:, 1])):
+            objects[index] = columns(top)
+            headings[index] = tuple(ObjectOutline.of(top, 0).headings)
+    return PackedScene(objects, headings)
+
+
+@dataclass(frozen=True)
+class PackedDecision:
+    """What the push planner chose: a ``grasp`` (``clear`` when nothing is in the hand's way), or a push from
+    world ``push_start`` (x, y) metres along heading ``push_heading`` radians (``grasp`` None); neither when the
+    scene holds nothing that fits the hand and no push helps."""
+
+    grasp: GraspCandidate | None = None
+    clear: bool = False
+    push_start: np.ndarray | None = None
+    push_heading: float = 0.0
+
+
+class PushPlanner:
+    """Top-down grasps that clear every other object, and the push that frees most, planned on a ``PackedScene``:
+    the true shapes for ``PackedGraspOracle``, the camera's object tops for ``PlannedGraspAgent``.
+
+    Grasps: for each object, at each of ``GRASP_HEADINGS`` and its face headings, a top-down grasp through its
+    centre (``grasp_depth`` below its top) whose width across the fingers fits the hand.  Clear: no column of
+    another object inside either open finger's box, from the fingertips up, or under the palm.
+
+    Pushes: for each object and each of ``PUSH_HEADINGS`` (and ``PUSH_SHIFTS`` sideways) the closed fingers start
+    just behind it -- where they clear everything -- and push ``push_distance``; the object and whatever its
+    sweep meets (transitively) are predicted to move along with it.  The push that leaves the most objects with
+    a clear grasp (then: the least blocked grasp freest; then: moving the fewest; never one that moves an
+    object out of ``PLAY_REGION``) is chosen, if it does better than the scene as it is.  ``push_distance``
+    None: no pushes (the grasp-only oracle; action modes without them).
+
+    Clumps: an object too wide for the hand at every heading is several objects the camera could not tell
+    apart (touching, no gap seen).  The fingers are predicted to take along only the part of a clump in their
+    band, leaving the rest, and clumps are also pushed at their edges (``CLUMP_EDGE``).  True shapes make none.
     """
 
-    name = "packed_grasp_oracle"
+    def __init__(self, push_distance: float | None, gripper: GripperGeometry | None = None) -> None:
+        self.push_distance = push_distance
+        self.gripper = gripper or GripperGeometry()
 
-    def __init__(self, env: gym.Env, seed: int = 0, pushes: bool = True) -> None:
-        super().__init__(env, seed)
-        self.pushes = pushes
-        self.gripper = GripperGeometry()
-        self.push_distance = 0.1
-        self.play_region: np.ndarray | None = None
-        self._face_headings: dict[int, tuple[float, float]] = {}
+    def clumps(self, scene: PackedScene) -> set[int]:
+        """The objects of ``scene`` too wide for the hand at every heading tried."""
+        wide = set()
+        for index, points in scene.objects.items():
+            headings = np.array([*GRASP_HEADINGS, *scene.face_headings.get(index, ())])
+            closing = np.stack([np.cos(headings), np.sin(headings)], axis=1)
+            u = points[:, :2] @ closing.T
+            if np.all(u.max(axis=0) - u.min(axis=0) > self.gripper.max_width):
+                wide.add(index)
+        return wide
 
-    def reset(self, observation: Any, info: dict[str, Any]) -> None:
-        super().reset(observation, info)
-        layout = info.get("action_layout", {})
-        self.push_distance = float(layout["push_distance"])
-        self.play_region = np.asarray(DEFAULT_BOUNDS[:2])
-
-    def _objects(self) -> dict[int, np.ndarray]:
-        """``footprint`` of every object on the table inside the play region, by index in ``object_ids``."""
-        cell = self.cell
-        objects = {}
-        for index, body in enumerate(cell.object_ids):
-            xy = cell.data.xpos[body][:2]
-            inside = np.all((xy >= self.play_region[:, 0]) & (xy <= self.play_region[:, 1]))
-            if cell.data.xpos[body][2] > -0.05 and inside:
-                objects[index] = footprint(cell.model, cell.data, body)
-                # Across its faces too, not only at the fixed headings (a box turned between two of them).
-                x_axis = cell.data.xmat[body].reshape(3, 3)[:, 0]
-                heading = float(np.arctan2(x_axis[1], x_axis[0]))
-                self._face_headings[index] = (heading % np.pi, (heading + np.pi / 2) % np.pi)
-        return objects
-
-    def _grasps(self, objects: dict[int, np.ndarray]) -> list[tuple[int, GraspCandidate]]:
-        """(points of other objects in the hand's way, candidate) for every fitting grasp, fewest first."""
+    def grasps(self, scene: PackedScene) -> list[tuple[int, GraspCandidate]]:
+        """(columns of other objects in the hand's way, candidate) for every fitting grasp, fewest first."""
         g = self.gripper
         ranked = []
-        for index, points in objects.items():
-            others = np.concatenate([p for i, p in objects.items() if i != index] or [np.zeros((0, 3))])
+        for index, points in scene.objects.items():
+            others = np.concatenate([p for i, p in scene.objects.items() if i != index] or [np.zeros((0, 3))])
             centre, top = points[:, :2].mean(axis=0), points[:, 2].max()
             z = max(top - g.grasp_depth, g.min_height)
-            for yaw in (*GRASP_HEADINGS, *self._face_headings.get(index, ())):
+            for yaw in (*GRASP_HEADINGS, *scene.face_headings.get(index, ())):
                 closing = np.array([np.cos(yaw), np.sin(yaw)])
                 lateral = np.array([-closing[1], closing[0]])
                 u = (points[:, :2] - centre) @ closing
@@ -280,19 +350,23 @@ class PackedGraspOracle(OracleGraspAgent):
         ranked.sort(key=lambda item: (item[0], item[1].width, item[1].object_index))
         return ranked
 
-    def _clearance(self, objects: dict[int, np.ndarray]) -> tuple[int, int]:
-        """(objects with at least one clear grasp, minus the points in the way of the least blocked grasp)."""
-        ranked = self._grasps(objects)
+    def clearance(self, scene: PackedScene) -> tuple[int, int]:
+        """(objects with at least one clear grasp, minus the columns in the way of the least blocked grasp)."""
+        ranked = self.grasps(scene)
         return len({c.object_index for blocked, c in ranked if blocked == 0}), -(ranked[0][0] if ranked else 0)
 
-    def _push_outcome(self, objects: dict[int, np.ndarray], index: int, heading: float, shift: float) -> tuple | None:
-        """(``_clearance`` after, -objects moved, start xy) of a push along ``heading`` that starts
-        just behind object ``index``, ``shift`` metres to the left of its centre line; None if the closed
-        fingers cannot come down there or something would leave the play region.
+    def push_outcome(
+        self, scene: PackedScene, index: int, heading: float, shift: float, clumps: set[int]
+    ) -> tuple | None:
+        """(``clearance`` after, -objects moved, start xy) of a push along ``heading`` that starts just behind
+        object ``index``, ``shift`` metres to the left of its centre line; None if the closed fingers cannot come
+        down there or something would leave the play region.
 
         The closed fingers are a ``PUSHER_HALF_WIDTH`` x ``PUSHER_HALF_DEPTH`` box; every object whose
         footprint the box sweeps moves the full stroke less the start gap, and so does whatever those sweep
-        on (transitively)."""
+        on (transitively).  Of a clump (``clumps``: objects of ``scene`` too wide for the hand) the box sweeps,
+        only the columns ahead in its band move."""
+        objects, headings = dict(scene.objects), dict(scene.face_headings)
         direction = np.array([np.cos(heading), np.sin(heading)])
         lateral = np.array([-direction[1], direction[0]])
         points = objects[index]
@@ -307,16 +381,27 @@ class PackedGraspOracle(OracleGraspAgent):
         )
         if np.any(at_start & (everything[:, 2] > PUSH_HEIGHT - 0.01)):
             return None
-        moved = set()
-        for other, other_points in objects.items():
+        moved, target = set(), None
+        for other, other_points in scene.objects.items():
             relative = other_points[:, :2] - start
             ahead = relative @ direction
-            inside = (
-                (np.abs(relative @ lateral) < PUSHER_HALF_WIDTH) & (ahead > 0) & (ahead < travel + PUSHER_HALF_DEPTH)
-            )
-            if np.any(inside):
+            band = (np.abs(relative @ lateral) < PUSHER_HALF_WIDTH) & (ahead > 0)
+            if not np.any(band & (ahead < travel + PUSHER_HALF_DEPTH)):
+                continue
+            if other in clumps and not np.all(band):  # the band's part of the clump goes, the rest stays
+                piece = max(objects) + 1
+                objects[other], objects[piece], headings[piece] = (
+                    other_points[~band],
+                    other_points[band],
+                    headings.get(other, ()),
+                )
+                moved.add(piece)
+            else:
+                piece = other
                 moved.add(other)
-        if index not in moved:
+            if other == index:
+                target = piece
+        if target is None:
             return None
         step = travel * direction
         frontier = list(moved)
@@ -327,46 +412,98 @@ class PackedGraspOracle(OracleGraspAgent):
                 if other not in moved and _near(other_points[:, :2], swept):
                     moved.add(other)
                     frontier.append(other)
-        after = {i: p + np.array([*step, 0.0]) if i in moved else p for i, p in objects.items()}
+        shifted = np.array([*step, 0.0])
+        after = PackedScene({i: p + shifted if i in moved else p for i, p in objects.items()}, headings)
         for i in moved:
-            xy = after[i][:, :2].mean(axis=0)
-            if not np.all((xy >= self.play_region[:, 0] + 0.03) & (xy <= self.play_region[:, 1] - 0.03)):
+            xy = after.objects[i][:, :2].mean(axis=0)
+            if not np.all((xy >= PLAY_REGION[:, 0] + 0.03) & (xy <= PLAY_REGION[:, 1] - 0.03)):
                 return None
-        return self._clearance(after), -len(moved), start
+        return self.clearance(after), -len(moved), start
 
-    def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
-        record_failure(self.failures, info)
-        if self.last is not None and info.get("primitive") == "grasp" and not info["primitive_success"]:
-            self.failed.append((self.last.position, self.last.yaw))
-        start = time.perf_counter()
-        objects = self._objects()
-        ranked = [(blocked, c) for blocked, c in self._grasps(objects) if not self._tried(c)]
+    @staticmethod
+    def shifts(points: np.ndarray, heading: float, clump: bool) -> tuple[float, ...]:
+        """Sideways shifts (metres, to the left) of pushes along ``heading`` behind an object with ``columns``
+        ``points``: ``PUSH_SHIFTS``, and for a ``clump`` those that put its outermost ``CLUMP_EDGE`` on either
+        side under the fingers."""
+        if not clump:
+            return PUSH_SHIFTS
+        lateral = np.array([-np.sin(heading), np.cos(heading)])
+        offsets = (points[:, :2] - points[:, :2].mean(axis=0)) @ lateral
+        edge = PUSHER_HALF_WIDTH - CLUMP_EDGE
+        return (*PUSH_SHIFTS, float(offsets.max()) + edge, float(offsets.min()) - edge)
+
+    def choose(
+        self, scene: PackedScene, tried: Callable[[GraspCandidate], bool], rng: np.random.Generator | None = None
+    ) -> PackedDecision:
+        """The first clear grasp not ``tried`` yet; else (with pushes) the push that frees the most objects
+        -- if none frees one, the one that most clears the way of the least blocked grasp -- unless no push does
+        better than trying that grasp as it is; else that grasp.  Of equally good pushes the first (or, given
+        ``rng``, one drawn at random: a clump's seams may run either way)."""
+        ranked = [(blocked, c) for blocked, c in self.grasps(scene) if not tried(c)]
         clear = [c for blocked, c in ranked if blocked == 0]
-        action = None
         if clear:
-            self.last = clear[0]
-        elif self.pushes and objects:
+            return PackedDecision(clear[0], clear=True)
+        if self.push_distance is not None and scene.objects:
+            clumps = self.clumps(scene)
             outcomes = [
                 (outcome, heading)
-                for index in objects
+                for index, points in scene.objects.items()
                 for heading in PUSH_HEADINGS
-                for shift in PUSH_SHIFTS
-                if (outcome := self._push_outcome(objects, index, heading, shift)) is not None
+                for shift in self.shifts(points, heading, index in clumps)
+                if (outcome := self.push_outcome(scene, index, heading, shift, clumps)) is not None
             ]
-            # The push that frees the most objects; if none frees one, the one that most clears the way of the
-            # least blocked grasp -- unless no push does better than trying that grasp as it is.
-            best = max(outcomes, key=lambda item: item[0][:2], default=None)
-            if best is not None and best[0][0] > (0, -ranked[0][0] if ranked else 0):
-                (_, _, push_start), heading = best
-                self.last = None
-                action = self.write("push", push_start[0], push_start[1], float(heading), PUSH_HEIGHT)
-        if action is None:
-            if not clear:
-                self.failures["no_clear_grasp"] += 1
-                # The least blocked grasp, or, with nothing that fits the hand, a harmless one at an empty corner.
-                empty = GraspCandidate(np.array([0.3, 0.3, 0.02]), top_down_rotation(0.0), 0.0, 0.0, 0.0, -1)
-                self.last = ranked[0][1] if ranked else empty
-            action = self._grasp_action(self.last)
+            best = max((outcome[:2] for outcome, _ in outcomes), default=None)
+            if best is not None and best[0] > (0, -ranked[0][0] if ranked else 0):
+                tied = [item for item in outcomes if item[0][:2] == best]
+                (_, _, start), heading = tied[0] if rng is None else tied[int(rng.integers(len(tied)))]
+                return PackedDecision(push_start=start, push_heading=float(heading))
+        return PackedDecision(ranked[0][1] if ranked else None)
+
+
+class PackedGraspOracle(OracleGraspAgent):
+    """*Oracle* for packed scenes: ``PushPlanner`` on the true object poses and shapes (``footprint``); grasps
+    only where the open fingers and the palm clear every other object; with ``pushes``, a planned push when no
+    such grasp is left.
+
+    The clear candidate across the narrowest width is tried first; one that failed is not tried again (as
+    ``PlannedGraspAgent``).  Without ``pushes`` (the grasp-only oracle), or when no push helps, it tries the
+    grasp that collides least.  It plays in ``primitive`` mode (``primitive_z=True``) or, its choices rounded to
+    the nearest cell and heading, in ``pixel`` mode: the demonstrator of ``heightmap_dqn_demos``.
+    """
+
+    name = "packed_grasp_oracle"
+
+    def __init__(self, env: gym.Env, seed: int = 0, pushes: bool = True) -> None:
+        super().__init__(env, seed)
+        self.pushes = pushes
+
+    def reset(self, observation: Any, info: dict[str, Any]) -> None:
+        super().reset(observation, info)
+        self.planner = PushPlanner(float(info["action_layout"]["push_distance"]) if self.pushes else None)
+
+    def scene(self) -> PackedScene:
+        """The true ``footprint`` of every object on the table inside ``PLAY_REGION``, by index in
+        ``object_ids``, with the headings of its faces."""
+        cell = self.cell
+        objects, headings = {}, {}
+        for index, body in enumerate(cell.object_ids):
+            xy = cell.data.xpos[body][:2]
+            inside = np.all((xy >= PLAY_REGION[:, 0]) & (xy <= PLAY_REGION[:, 1]))
+            if cell.data.xpos[body][2] > -0.05 and inside:
+                objects[index] = footprint(cell.model, cell.data, body)
+                # Across its faces too, not only at the fixed headings (a box turned between two of them).
+                x_axis = cell.data.xmat[body].reshape(3, 3)[:, 0]
+                heading = float(np.arctan2(x_axis[1], x_axis[0]))
+                headings[index] = (heading % np.pi, (heading + np.pi / 2) % np.pi)
+        return PackedScene(objects, headings)
+
+    def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
+        self._note_failure(info)
+        start = time.perf_counter()
+        decision = self.planner.choose(self.scene(), self._tried)
+        if decision.push_start is None and not decision.clear:
+            self.failures["no_clear_grasp"] += 1
+        action = self._decided(decision)
         self.compute_seconds.append(time.perf_counter() - start)
         return action
 

@@ -32,8 +32,8 @@ from scipy.spatial import cKDTree
 
 from panda_grasp_env.geometry import top_down_rotation
 from panda_grasp_env.perception.camera import CameraModel
-from panda_grasp_env.perception.images import check_depth, check_points
-from panda_grasp_env.perception.segmentation import Plane, fit_plane_ransac
+from panda_grasp_env.perception.images import check_points
+from panda_grasp_env.perception.segmentation import Plane, fit_plane_ransac, region_points
 
 #: Where grasps are looked for (world metres): the table in front of the robot, up to 30 cm high.
 #: It keeps the robot's own body (at home, above and behind it) out of the cloud.
@@ -284,10 +284,8 @@ def detect_grasps_rgbd(
 ) -> list[GraspCandidate]:
     """The whole pipeline on one depth image (H, W) metres: back-project the part of the image that
     sees ``region``, fit the table plane (RANSAC), detect grasps.  Empty when nothing stands there."""
-    depth = check_depth(depth)
-    corners = np.array([[x, y, z] for x in region[0] for y in region[1] for z in region[2]])
-    points = camera.depth_to_world_points(depth, camera.window_around(corners)).reshape(-1, 3)
-    points = points[np.all((points >= region[:, 0]) & (points <= region[:, 1]), axis=1)]
+    points = region_points(depth, camera, region).reshape(-1, 3)
+    points = points[np.isfinite(points).all(axis=1)]
     if len(points) < 3:
         return []
     table, _ = fit_plane_ransac(points, rng)

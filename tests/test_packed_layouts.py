@@ -1,11 +1,12 @@
 """Packed layouts (``Grasp(packed=...)``): they stand as designed, options are checked, and a push frees
-what grasps alone cannot take."""
+what grasps alone cannot take -- planned on the true shapes or on what the camera sees."""
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
-from panda_grasp_env.agents.grasping import PackedGraspOracle
+from panda_grasp_env.agents.evaluation import PERCEPTION
+from panda_grasp_env.agents.grasping import PackedGraspOracle, PlannedGraspAgent, PushPlanner, camera_scene
 from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS, GAP, random_packed_layout
 
 
@@ -116,3 +117,57 @@ def test_a_planned_push_frees_boxes_that_grasps_alone_cannot_take():
     grasped_alone, in_play = cleared(pushes=False, seed=900_000)
     assert in_play == 2 and grasped_alone == 0
     assert cleared(pushes=True, seed=900_000) == (2, 2)
+
+
+def camera_view(env, seed):
+    """The planned agent's noisy overhead view of ``env`` reset with ``seed``, and the reset info."""
+    observation, info = env.reset(seed=seed)
+    agent = PlannedGraspAgent(noise_seed=seed, seed=seed)
+    agent.reset(observation, info)
+    agent.candidates(observation)
+    return agent, info
+
+
+@pytest.mark.parametrize("layout", ["cubes_3x3", "long_boxes_5_diagonal", "cube_row_against_boxes"])
+def test_the_depth_image_splits_a_packed_layout_into_its_objects(layout):
+    """Packed 3 mm apart, with depth noise: one top per object, each centred within 5 mm of the object.  (Objects
+    that touch with no gap a pixel wide come out as one: two cubes of cubes_3x3 at seed 5700000 do.)"""
+    env = gym.make("panda_grasp_env:PandaGraspAdversarial-v0", layout=layout, primitive_z=True, **PERCEPTION)
+    agent, info = camera_view(env, seed=5_700_001)
+    cell = env.unwrapped.cell
+    scene = camera_scene(agent.view, np.random.default_rng(0))
+    true_centres = np.array([cell.data.xpos[b][:2] for b in cell.object_ids if not cell.is_parked(int(b))])
+    seen_centres = np.array([points[:, :2].mean(axis=0) for points in scene.objects.values()])
+    assert len(seen_centres) == len(true_centres) == info["objects_remaining"]
+    distances = np.linalg.norm(true_centres[:, None] - seen_centres[None], axis=2)
+    assert np.all(distances.min(axis=1) < 0.005)
+    assert sorted(distances.argmin(axis=1)) == list(range(len(seen_centres)))  # each object a top of its own
+    env.close()
+
+
+def test_the_planned_agent_pushes_packed_boxes_apart_from_what_the_camera_sees():
+    """Two long boxes side by side: the detector finds no grasp, and the push the planner picks on the camera's
+    view opens a gap a finger fits in (judged on the true shapes), loses nothing, and is followed by a grasp."""
+    env = gym.make("panda_grasp_env:PandaGraspAdversarial-v0", layout="long_boxes_2", primitive_z=True, **PERCEPTION)
+    observation, info = env.reset(seed=5_700_002)
+    agent = PlannedGraspAgent(noise_seed=5_700_002, seed=5_700_002)
+    agent.reset(observation, info)
+    truth, judge = PackedGraspOracle(env), PushPlanner(None)
+    assert judge.clearance(truth.scene())[0] == 0
+    observation, reward, _, _, info = env.step(agent.act(observation, info))
+    assert agent.failures["no_candidate"] == 1 and info["primitive"] == "push"
+    assert info["primitive_success"] and reward == 0.5 and info["objects_remaining"] == 2
+    assert judge.clearance(truth.scene())[0] >= 1
+    agent.act(observation, info)
+    assert agent.last is not None  # a grasp, no second push
+    env.close()
+
+
+def test_the_push_planner_grasps_and_does_not_push_when_an_object_stands_clear():
+    env = gym.make("panda_grasp_env:PandaGrasp-v0", shapes=("cube",), primitive_z=True, **PERCEPTION)
+    agent, _ = camera_view(env, seed=5_700_003)
+    decision = agent.planner.choose(camera_scene(agent.view, np.random.default_rng(0)), lambda candidate: False)
+    assert decision.push_start is None and decision.clear
+    cube = env.unwrapped.cell.data.xpos[env.unwrapped.cell.object_ids[0]]
+    assert np.linalg.norm(decision.grasp.position[:2] - cube[:2]) < 0.005
+    env.close()
