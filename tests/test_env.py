@@ -313,7 +313,7 @@ def test_reset_options_must_be_a_mapping():
     env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
     with pytest.raises(ValueError, match="reset options must be a dict or None, got int"):
         env.reset(seed=0, options=5)
-    with pytest.raises(ValueError, match="reset options are not supported, got \\['shuffle'\\]"):
+    with pytest.raises(ValueError, match="unknown reset option\\(s\\) \\['shuffle'\\]; TowerBreak takes \\[\\]"):
         env.reset(seed=0, options={"shuffle": True})
     env.close()
 
