@@ -69,6 +69,17 @@ def shorthand_spec(shapes: tuple[str, ...] | str | None, size_ranges: dict | Non
         raise ValueError(f"task option size_ranges: {error}") from None
 
 
+def parsed_specs(values: list | tuple, name: str) -> list[ObjectSpec]:
+    """Each of ``values`` as an ``ObjectSpec``; ``ValueError`` naming ``name[index]`` for a bad one."""
+    specs = []
+    for index, value in enumerate(values):
+        try:
+            specs.append(ObjectSpec.of(value))
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"{name}[{index}]: {error}") from None
+    return specs
+
+
 def fitting_yaw(shape: ObjectShape, yaw: float, hand_yaw: float, rng: np.random.Generator) -> float:
     """``yaw`` if the shape resting at it is at most ``HAND_FIT_WIDTH`` wide across the fingers of a hand
     at heading ``hand_yaw`` (radians, world; the fingers close along that heading), else a yaw drawn
@@ -239,12 +250,7 @@ class Grasp(Task):
                 raise ValueError(
                     "task options shapes and size_ranges are shorthands for objects: give one or the other"
                 )
-            specs = []
-            for index, value in enumerate(objects):
-                try:
-                    specs.append(ObjectSpec.of(value))
-                except (TypeError, ValueError) as error:
-                    raise ValueError(f"task option objects[{index}]: {error}") from None
+            specs = parsed_specs(objects, "task option objects")
         default = len(specs) if len(specs) > 1 else (HEAP_OBJECTS if clutter else 1)
         n_objects = default if n_objects is None else n_objects
         check_option("n_objects", n_objects, is_count(n_objects) and 1 <= n_objects <= 30, "an int in [1, 30]")
@@ -296,12 +302,7 @@ class Grasp(Task):
             raise ValueError(
                 f"reset option objects must be a list of 1 or {self.n_objects} object specs, got {objects!r}"
             )
-        specs = []
-        for index, value in enumerate(objects):
-            try:
-                specs.append(ObjectSpec.of(value))
-            except (TypeError, ValueError) as error:
-                raise ValueError(f"reset option objects[{index}]: {error}") from None
+        specs = parsed_specs(objects, "reset option objects")
         missing = sorted({i for spec in specs for i in spec.mesh_ids} - set(cell.config.mesh_objects))
         if missing:
             raise ValueError(
