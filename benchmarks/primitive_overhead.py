@@ -1,7 +1,7 @@
 """Wall time per primitive against the physics it runs, per task, in one run.
 
     python benchmarks/primitive_overhead.py [--primitives 25] [--repeats 3]
-                                            [--tasks TowerBuild,TowerBreak,GraspClutter,GraspMeshClutter]
+                                            [--tasks TowerBuild,TowerBreak,GraspClutter,GraspMeshClutter,...]
                                             [--out results/benchmarks/primitive_overhead.json] [--resume]
 
 For each task: ``--primitives`` seeded random primitive actions through ``gymnasium.make`` (``action_space``
@@ -27,24 +27,38 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # benchmarks._physics, also in the workers
-TASKS = ("TowerBuild", "TowerBreak", "GraspClutter", "GraspMeshClutter")
-#: ``make`` options per task: the mesh heap drops 10 test objects (the objects extra).
-OPTIONS = {"GraspMeshClutter": {"objects": [{"shape": "mesh", "split": "test"}]}}
+_MESH_HEAP = {"objects": [{"shape": "mesh", "split": "test"}]}
+#: Row -> (task, ``make`` options; ``sleep`` sets ``SceneConfig.sleep``).  The mesh heap drops 10 test objects
+#: (the objects extra); its ``Awake`` row turns off the island sleeping mesh scenes have by default.
+ROWS: dict[str, tuple[str, dict[str, Any]]] = {
+    "TowerBuild": ("TowerBuild", {}),
+    "TowerBreak": ("TowerBreak", {}),
+    "GraspClutter": ("GraspClutter", {}),
+    "GraspMeshClutter": ("GraspMeshClutter", _MESH_HEAP),
+    "GraspMeshClutterAwake": ("GraspMeshClutter", {**_MESH_HEAP, "sleep": False}),
+}
+TASKS = tuple(ROWS)
 RAW_STEPS = 5000
 
 
-def measure(task: str, primitives: int) -> dict[str, float]:
-    """One task in this interpreter (see the module docstring)."""
+def measure(row: str, primitives: int) -> dict[str, float]:
+    """One row of ``ROWS`` in this interpreter (see the module docstring)."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     import gymnasium as gym
     import numpy as np
 
     from benchmarks._physics import raw_step_rate, timed_mj_step
+    from panda_grasp_env.model.scene import SceneConfig
 
-    env = gym.make(f"panda_grasp_env:Panda{task}-v0", **OPTIONS.get(task, {}))
+    task, options = ROWS[row]
+    options = dict(options)
+    if "sleep" in options:
+        options["scene"] = SceneConfig(sleep=options.pop("sleep"))
+    env = gym.make(f"panda_grasp_env:Panda{task}-v0", **options)
     env.action_space.seed(0)
     seed = 0
     env.reset(seed=seed)
@@ -105,13 +119,13 @@ def main() -> None:
     results = Results(args.out, args.resume)
     repeats = [results.section(f"repeat_{r}", lambda: {task: run(task) for task in tasks}) for r in range(args.repeats)]
     print(f"medians: {args.primitives} random primitives per task, {args.repeats} repeats ({results.data['machine']})")
-    print(f"{'task':14s} {'wall/prim s':>11s} {'steps':>6s} {'raw/s':>7s} {'sim s/wall s':>12s} "
+    print(f"{'task':21s} {'wall/prim s':>11s} {'steps':>6s} {'raw/s':>7s} {'sim s/wall s':>12s} "
           f"{'wall/(steps/raw)':>16s} {'wall/in mj_step':>15s}")  # fmt: skip
     summary = {}
     for task in tasks:
         figures = {key: statistics.median(r[task][key] for r in repeats) for key in repeats[0][task]}
         summary[task] = figures
-        print(f"{task:14s} {figures['wall_s']:11.3f} {figures['steps']:6.0f} {figures['raw_rate']:7.0f} "
+        print(f"{task:21s} {figures['wall_s']:11.3f} {figures['steps']:6.0f} {figures['raw_rate']:7.0f} "
               f"{figures['sim_per_wall']:12.2f} {figures['wall_over_raw']:16.2f} {figures['wall_over_inside']:15.2f}")  # fmt: skip
     print("goal (issue 29): wall/(steps/raw) <= 1.25")
     results.data.pop("summary", None)

@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import pytest
 import yaml
@@ -13,7 +14,7 @@ from gymnasium.utils.env_checker import check_env
 pytest.importorskip("pybullet_data", reason="the mesh object set needs the objects extra (the test extra has it)")
 
 from panda_grasp_env.model import meshes  # noqa: E402
-from panda_grasp_env.model.meshes import (  # noqa: E402  # noqa: E402
+from panda_grasp_env.model.meshes import (  # noqa: E402
     EVALUATION_OBJECTS,
     EXCLUDED,
     MAX_MIDDLE_EXTENT,
@@ -23,6 +24,7 @@ from panda_grasp_env.model.meshes import (  # noqa: E402  # noqa: E402
     object_by_seed,
 )
 from panda_grasp_env.model.objects import ObjectSpec  # noqa: E402
+from panda_grasp_env.model.scene import SceneConfig  # noqa: E402
 from panda_grasp_env.sim.workcell import body_bottom_height  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,7 +83,7 @@ def test_bad_mesh_specs_name_the_culprit(spec, culprit):
 
 
 def test_a_mesh_object_falls_onto_a_face_and_collides_through_its_pieces():
-    env = make(TEST_IDS)
+    env = make(TEST_IDS, scene=SceneConfig(sleep=False))  # a sleeping object's contacts leave data.contact
     check_env(env.unwrapped, skip_render_check=True)
     _, info = env.reset(seed=3)
     cell = env.unwrapped.cell
@@ -95,6 +97,24 @@ def test_a_mesh_object_falls_onto_a_face_and_collides_through_its_pieces():
     touching = {int(g) for c in cell.data.contact[: cell.data.ncon] for g in (c.geom1, c.geom2)}
     pieces = set(range(first + 1, first + 1 + len(load_mesh_object(drawn["mesh"]).parts)))
     assert touching & pieces and first not in touching
+
+
+def test_a_resting_mesh_object_sleeps_and_the_hand_still_lifts_it():
+    """Mesh scenes turn on MuJoCo's island sleeping (SceneConfig.sleep None); the fingers' contact wakes it."""
+    from panda_grasp_env.agents.grasping import OracleGraspAgent
+
+    env = make(TEST_IDS, primitive_z=True)
+    observation, info = env.reset(seed=3)
+    cell = env.unwrapped.cell
+    tree = cell.model.body_treeid[int(cell.object_ids[0])]
+    assert cell.model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_SLEEP
+    assert cell.data.tree_asleep[tree] >= 0  # settled by the reset drop
+    agent = OracleGraspAgent(env)
+    agent.reset(observation, info)
+    _, _, terminated, _, info = env.step(agent.act(observation, info))
+    assert info["primitive"] == "grasp" and info["primitive_success"] and terminated and info["is_success"]
+    awake = gym.make("panda_grasp_env:PandaGraspMesh-v0", scene=SceneConfig(sleep=False))
+    assert not awake.unwrapped.cell.model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_SLEEP
 
 
 def test_reset_options_choose_the_episodes_object_and_a_primitive_slot_hides_the_mesh():

@@ -59,6 +59,7 @@ def test_scene_is_configurable():
         ({"cameras": {"ceiling": None}}, "ceiling"),
         ({"block_friction": (1.0, 0.1)}, "block_friction"),
         ({"noslip_iterations": -1}, "noslip_iterations"),
+        ({"sleep": "yes"}, "sleep"),
     ],
 )
 def test_bad_scene_config_names_the_culprit(kwargs, culprit):

@@ -111,6 +111,13 @@ class SceneConfig:
     #: edge.  Off by default until the grasping policies are retested on it: the faces widen the fingertips by
     #: 4 mm each side, and the oracle then missed 9 grasps on a 3-object heap it cleared without them.
     push_faces: bool = False
+    #: MuJoCo's island sleeping (``mjENBL_SLEEP`` at its default ``sleep_tolerance``, 1e-3): free bodies that
+    #: have come to rest leave collision detection and the solver until an awake body touches them, a force
+    #: or a written pose wakes them.  The arm carries actuators and never sleeps.  None: on where the scene has
+    #: ``mesh_objects``, whose resting 10-object heap made each step cost 2.5 times a primitive heap's awake
+    #: (``benchmarks/primitive_overhead.py``), and off elsewhere, so that the block tasks' physics and figures
+    #: stay as measured.
+    sleep: bool | None = None
     cameras: dict[str, CameraConfig] = field(
         default_factory=lambda: {
             "overhead": CameraConfig(640, 480, 45.0),  # Kinect-like vertical field of view
@@ -146,6 +153,8 @@ class SceneConfig:
             is_count(self.noslip_iterations) and self.noslip_iterations >= 0
         ):
             raise ValueError(f"noslip_iterations must be an int >= 0 or None, got {self.noslip_iterations!r}")
+        if self.sleep is not None and not isinstance(self.sleep, bool):
+            raise ValueError(f"sleep must be a bool or None, got {self.sleep!r}")
         for name in ("stiff_contacts", "push_faces"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
@@ -259,6 +268,8 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
     # error); with 3 passes <= 2.5 mm.  It costs ~25 % of mj_step's rate.
     noslip = config.noslip_iterations
     spec.option.noslip_iterations = PRIMITIVE_NOSLIP_ITERATIONS if noslip is None else noslip
+    if config.sleep or (config.sleep is None and config.mesh_objects):
+        spec.option.enableflags |= mujoco.mjtEnableBit.mjENBL_SLEEP
     spec.visual.quality.offsamples = 4
     spec.visual.map.znear = 0.01
     spec.stat.center = [0.4, 0.0, 0.2]
