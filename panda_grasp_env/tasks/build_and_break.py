@@ -27,8 +27,8 @@ class BuildAndBreak(Task):
     ``builds`` and ``breaks``; ``is_success`` is true once a full build-and-break
     cycle is complete.  At reset ``info`` also names the base and gives its
     centre (``base``, ``base_position``, as TowerBuild); every build is on that
-    block.  Option: ``block_colours`` (``"distinct"`` or ``"uniform"``, as
-    TowerBuild).  Reward: the phase's own reward (stack progress while
+    block.  Options: ``n_blocks`` (2-8, default 4) and ``block_colours``
+    (``"distinct"`` or ``"uniform"``), as TowerBuild's.  Reward: the phase's own reward (stack progress while
     building, blocks moved while breaking), +1 per completed phase.  Terminates
     only if a block leaves the table.
     """
