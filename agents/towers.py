@@ -36,6 +36,7 @@ from panda_grasp_env.sim.stacking import (
     wrap_quarter_turn,
 )
 from panda_grasp_env.sim.workcell import Workcell
+from panda_grasp_env.tasks.base import TALL_TOWERS
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
 #: Where a push starts: this far from the tower's axis (half a block plus a finger's clearance).
@@ -272,9 +273,16 @@ def block_baseline(
     return make
 
 
-register_baseline("TowerBuild")(block_baseline(TowerBuilderAgent, DepthBlocks))
-register_baseline("TowerBreak", "TowerBreakDirectional")(block_baseline(TowerBreakerAgent, DepthBlocks))
-register_baseline("BuildAndBreak")(block_baseline(BuildAndBreakAgent, DepthBlocks))
+def with_tall_towers(*tasks: str) -> tuple[str, ...]:
+    """The benchmark ``tasks`` and their tall-tower variants (``TowerBuild6``, ...: ``TALL_TOWERS``)."""
+    return (*tasks, *(f"{task}{n}" for task in tasks for n in TALL_TOWERS))
+
+
+register_baseline(*with_tall_towers("TowerBuild"))(block_baseline(TowerBuilderAgent, DepthBlocks))
+register_baseline(*with_tall_towers("TowerBreak", "TowerBreakDirectional"))(
+    block_baseline(TowerBreakerAgent, DepthBlocks)
+)
+register_baseline(*with_tall_towers("BuildAndBreak"))(block_baseline(BuildAndBreakAgent, DepthBlocks))
 
 
 # --- scripts on a bare workcell (true poses) ---------------------------------------------------

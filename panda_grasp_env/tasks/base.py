@@ -192,6 +192,9 @@ def check_block_colours(block_colours: Any) -> None:
 #: Blocks the tower tasks (TowerBuild, TowerBreak, BuildAndBreak) take, fewest and most: a base and one block on
 #: it, up to a 40 cm tower of eight (one per default colour, ``DEFAULT_COLOURS``).
 TOWER_BLOCKS = (2, 8)
+#: Heights (blocks) of the tall-tower benchmarks (``TowerBuild6``, ``TowerBreak8``, ...): played only when named,
+#: since an episode takes two to three times a four-block one.
+TALL_TOWERS = (6, 8)
 
 
 def check_tower_blocks(n_blocks: Any) -> None:

@@ -10,7 +10,7 @@ from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.workcell import Workcell
-from panda_grasp_env.tasks.base import Task, TaskStep
+from panda_grasp_env.tasks.base import TALL_TOWERS, Task, TaskStep
 from panda_grasp_env.tasks.tower_break import TowerBreak
 from panda_grasp_env.tasks.tower_build import TowerBuild
 
@@ -36,7 +36,16 @@ class BuildAndBreak(Task):
     name = "BuildAndBreak"
     env_ids = {
         "PandaBuildAndBreak-v0": EnvId(
-            100, benchmarks={"BuildAndBreak": Benchmark({"max_episode_steps": 30}, quick_seeds=1, full_seeds=10)}
+            100,
+            benchmarks={
+                "BuildAndBreak": Benchmark({"max_episode_steps": 30}, quick_seeds=1, full_seeds=10),
+                **{
+                    f"BuildAndBreak{n}": Benchmark(
+                        {"n_blocks": n, "max_episode_steps": 30}, quick_seeds=1, full_seeds=10, by_default=False
+                    )
+                    for n in TALL_TOWERS
+                },
+            },
         )
     }
     primitives = ("grasp", "place", "push")

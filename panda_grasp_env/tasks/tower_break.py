@@ -12,6 +12,7 @@ from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.base import (
+    TALL_TOWERS,
     Task,
     TaskStep,
     block_scene,
@@ -51,9 +52,28 @@ class TowerBreak(Task):
 
     name = "TowerBreak"
     env_ids = {
-        "PandaTowerBreak-v0": EnvId(5, benchmarks={"TowerBreak": Benchmark(quick_seeds=5, full_seeds=100)}),
+        "PandaTowerBreak-v0": EnvId(
+            5,
+            benchmarks={
+                "TowerBreak": Benchmark(quick_seeds=5, full_seeds=100),
+                **{
+                    f"TowerBreak{n}": Benchmark({"n_blocks": n}, quick_seeds=5, full_seeds=100, by_default=False)
+                    for n in TALL_TOWERS
+                },
+            },
+        ),
         "PandaTowerBreakDirectional-v0": EnvId(
-            5, {"directional": True}, benchmarks={"TowerBreakDirectional": Benchmark(quick_seeds=5, full_seeds=100)}
+            5,
+            {"directional": True},
+            benchmarks={
+                "TowerBreakDirectional": Benchmark(quick_seeds=5, full_seeds=100),
+                **{
+                    f"TowerBreakDirectional{n}": Benchmark(
+                        {"n_blocks": n}, quick_seeds=5, full_seeds=100, by_default=False
+                    )
+                    for n in TALL_TOWERS
+                },
+            },
         ),
     }
     primitives = ("push",)

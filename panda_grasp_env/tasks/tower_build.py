@@ -13,6 +13,7 @@ from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.stacking import stack_column
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.base import (
+    TALL_TOWERS,
     Task,
     TaskStep,
     block_scene,
@@ -62,7 +63,22 @@ class TowerBuild(Task):
 
     name = "TowerBuild"
     env_ids = {
-        "PandaTowerBuild-v0": EnvId(30, benchmarks={"TowerBuild": Benchmark(quick_seeds=5, full_seeds=100)}),
+        # Tall towers get the four-block tower's step limit per block to stack: five times the ideal actions.
+        "PandaTowerBuild-v0": EnvId(
+            30,
+            benchmarks={
+                "TowerBuild": Benchmark(quick_seeds=5, full_seeds=100),
+                **{
+                    f"TowerBuild{n}": Benchmark(
+                        {"n_blocks": n, "max_episode_steps": 10 * (n - 1)},
+                        quick_seeds=5,
+                        full_seeds=100,
+                        by_default=False,
+                    )
+                    for n in TALL_TOWERS
+                },
+            },
+        ),
         # Two blocks, goal-conditioned at 25 Hz: panda-gym's Stack.
         "PandaStack-v0": EnvId(
             100,
