@@ -34,7 +34,7 @@ class Benchmark:
     #: protocol sweeps a list (each test object in turn), not a random draw.
     reset_options: Callable[[int], dict[str, Any]] | None = None
     #: Whether ``evaluate.py`` without ``--tasks`` plays it (False: only when named, e.g. the mesh benchmarks,
-    #: which need the objects extra and minutes an episode).
+    #: which need the objects extra and minutes an episode, and the 6- and 8-block towers).
     by_default: bool = True
 
 

@@ -38,6 +38,22 @@ def test_tower_builder_stacks_four_blocks_in_six_actions(oracle):
     env.close()
 
 
+@pytest.mark.parametrize("n_blocks", [6, 8])
+def test_planned_builder_stacks_a_tall_tower_in_ideal_actions(n_blocks):
+    """The benchmark's planned agent on TowerBuild6 / TowerBuild8: the eighth block's place starts within
+    the workspace's top (its hover lowered), and every level stays on the base's axis."""
+    from panda_grasp_env.registration import BENCHMARKS
+
+    env_id, options = BENCHMARKS[f"TowerBuild{n_blocks}"]
+    env = gym.make(f"panda_grasp_env:{env_id}", cameras=("overhead", "front"), **RGBD, **options)
+    agent = BASELINES[f"TowerBuild{n_blocks}"](env, 0, False)
+    info, actions = run(env, agent, seed=0)
+    positions = env.unwrapped.cell.block_positions()
+    assert info["is_success"] and info["stack_height"] == n_blocks and actions == 2 * (n_blocks - 1)
+    assert np.linalg.norm(positions[:, :2] - positions[0, :2], axis=1).max() < 0.005
+    env.close()
+
+
 @pytest.mark.parametrize("seed", [11, 12])
 def test_tower_builder_stacks_blocks_that_all_look_alike(seed):
     env = gym.make("panda_grasp_env:PandaTowerBuild-v0", cameras=("overhead", "front"), block_colours="uniform", **RGBD)

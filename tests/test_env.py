@@ -269,7 +269,7 @@ def test_bad_pixel_actions_raise():
             {"action_mode": "torque"},
             "valid: \\['primitive', 'pixel', 'pixel_factored', 'ee_delta', 'joint', 'grasp_pose'\\]",
         ),
-        ({"n_blocks": 7}, "n_blocks"),
+        ({"n_blocks": 9}, "n_blocks"),
         ({"colour": "red"}, "unknown option\\(s\\) \\['colour'\\] for task 'TowerBuild'; valid: \\['n_blocks'"),
         ({"cameras": ("ceiling",)}, "cameras must be distinct names from \\['overhead', 'front', 'wrist'\\]"),
         ({"cameras": 5}, "cameras must be"),

@@ -163,6 +163,26 @@ def test_block_poses_from_depth_tell_apart_blocks_that_touch(scene, layout):
         assert distance_mm < 3.0 and yaw_deg < 2.0
 
 
+@pytest.mark.parametrize("layout", ["scattered", "tower"])
+def test_eight_blocks_are_told_apart_by_colour_and_by_depth(layout):
+    """The eight default colours stay apart in colour segmentation (a lit face of a block clips no channel into
+    a neighbour's hue window), and depth perception sees all eight levels of a 40 cm tower."""
+    from panda_grasp_env.model.scene import SceneConfig
+
+    cell = Workcell(SceneConfig(n_blocks=8))
+    renderer = CameraRenderer(cell.model, *SIZE)
+    cell.reset(np.random.default_rng(1), layout)
+    views = views_of(cell, renderer, noise_seed=1)
+    renderer.close()
+    by_colour = estimate_block_poses(views, colours_of(cell), cell.config.block_size)
+    assert set(by_colour) == set(cell.block_names)
+    for index, name in enumerate(cell.block_names):
+        assert np.linalg.norm(by_colour[name].position - cell.block_positions()[index]) < 0.004
+    by_depth = estimate_block_poses_from_depth(colourless(views), cell.config.block_size)
+    assert len(by_depth) == 8
+    assert all(distance_mm < 3.0 for distance_mm, _ in errors_to_true_blocks(cell, by_depth))
+
+
 def test_an_empty_table_has_no_blocks_by_depth(scene):
     cell, renderer = scene
     cell.clear()  # every block parked beside the table, the arm at home above it

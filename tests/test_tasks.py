@@ -47,6 +47,42 @@ def test_tower_build_succeeds_in_ideal_actions_and_terminates():
     env.close()
 
 
+@pytest.mark.parametrize("n_blocks", [6, 8])
+@pytest.mark.parametrize("env_id", ["PandaTowerBuild-v0", "PandaTowerBreak-v0", "PandaBuildAndBreak-v0"])
+def test_tall_tower_tasks_lay_out_six_or_eight_blocks_of_distinct_colours(env_id, n_blocks):
+    from panda_grasp_env.sim.stacking import stack_column
+
+    env = make(env_id, n_blocks=n_blocks)
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        cell = env.unwrapped.cell
+        positions = cell.block_positions()
+        assert len(cell.block_names) == n_blocks == len(set(map(tuple, info["block_colours"].values())))
+        if env_id == "PandaTowerBreak-v0":  # a standing tower, the lowest block its base
+            base = int(np.argmin(positions[:, 2]))
+            assert len(stack_column(positions, base, cell.config.block_size)) == n_blocks
+        else:  # scattered on the table, apart by the diagonal and a finger's room, within reach
+            gaps = np.linalg.norm(positions[:, None, :2] - positions[None, :, :2], axis=2)
+            assert np.all(gaps[~np.eye(n_blocks, dtype=bool)] >= 0.05 * np.sqrt(2) + 0.03)
+            assert np.allclose(positions[:, 2], 0.025, atol=0.002)
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ["PandaTowerBuild-v0", "PandaTowerBreak-v0", "PandaBuildAndBreak-v0"])
+@pytest.mark.parametrize("n_blocks", [1, 9, 6.0, True])
+def test_tower_tasks_name_n_blocks_outside_two_to_eight(env_id, n_blocks):
+    with pytest.raises(ValueError, match=r"task option 'n_blocks' must be an int in \[2, 8\]"):
+        make(env_id, n_blocks=n_blocks)
+
+
+def test_a_block_task_with_fewer_scene_colours_than_blocks_names_n_blocks():
+    from panda_grasp_env.model.scene import SceneConfig
+
+    four_colours = SceneConfig(colours={"red": (1, 0, 0), "green": (0, 1, 0), "blue": (0, 0, 1), "grey": (0.5,) * 3})
+    with pytest.raises(ValueError, match="n_blocks must be an int between 0 and the number of colours \\(4\\)"):
+        make("PandaTowerBuild-v0", n_blocks=6, scene=four_colours)
+
+
 @pytest.mark.parametrize("env_id", ["PandaTowerBuild-v0", "PandaTowerBreak-v0", "PandaBuildAndBreak-v0"])
 def test_uniform_block_colours_leave_no_colour_to_tell_blocks_apart(env_id):
     from panda_grasp_env.perception.segmentation import colour_masks

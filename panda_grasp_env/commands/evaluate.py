@@ -17,7 +17,8 @@ learned checkpoint by name (agents/checkpoints/): on its own task, and on the ot
 task its observation and action spaces fit (a heightmap grasping policy on heaps and packed layouts).
 Tasks: the benchmarks the task modules register (``panda_grasp_env.registration.BENCHMARKS``): Grasp,
 GraspClutter, GraspAdversarial, TowerBuild, TowerBreak, TowerBreakDirectional, BuildAndBreak, PutInBin (primitive actions),
-Push, Lift, Stack (low-level ee_delta).  An agent that does not apply to a task is skipped (one line counts them;
+Push, Lift, Stack (low-level ee_delta); played only when named: the mesh benchmarks (GraspMesh*) and the towers
+of 6 and 8 blocks (TowerBuild6, TowerBuild8, TowerBreak6, ..., BuildAndBreak8).  An agent that does not apply to a task is skipped (one line counts them;
 the reports give each pair and reason).
 Outputs (``--out``, default results/quick or results/full): results.json and
 results.csv (deterministic: same seeds give identical files), timing.json,
@@ -179,7 +180,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--agents", default=",".join(agents), help=f"comma-separated, from {list(agents)}")
     parser.add_argument("--tasks", default=",".join(DEFAULT_BENCHMARKS),
                         help=f"comma-separated, from {list(BENCHMARKS)} (default: all but the mesh benchmarks, "
-                             "which need the objects extra)")  # fmt: skip
+                             "which need the objects extra, and the 6- and 8-block towers)")  # fmt: skip
     parser.add_argument("--seeds", type=int, default=None,
                         help="episodes per (agent, task): seeds --seed-start .. --seed-start + N - 1")  # fmt: skip
     parser.add_argument("--seed-start", type=int, default=0, help="the first seed (default 0)")

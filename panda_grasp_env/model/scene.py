@@ -57,11 +57,22 @@ MAX_OBJECTS = 30
 #: Geom group of geoms that are not drawn: an object slot's geoms its current shape does not use.
 HIDDEN_GROUP = 3
 
+#: The blocks' colours, in block order (r, g, b in 0-1).  The first four are the source study's tower (yellow
+#: for its violet); the other four, for towers of up to eight, sit in the gaps between them on the hue circle,
+#: at least 19 of OpenCV's 180 hue units from any other, beside colour segmentation's half-window of 10
+#: (``panda_grasp_env.perception.segmentation.HUE_WINDOW``): red 1, yellow 26, lime 45, green 65, cyan 90,
+#: blue 114, purple 136, magenta 158.  They are darker (no channel above 0.8) so that a lit top face clips no
+#: channel, which turned a brighter lime's top faces (0.5, 0.9, 0.1) to hue 32, inside yellow's window.  No
+#: orange: 12 units from red and 13 from yellow, it would fall inside both of their windows.
 DEFAULT_COLOURS: dict[str, tuple[float, float, float]] = {
     "red": (0.85, 0.12, 0.10),
     "green": (0.10, 0.70, 0.20),
     "blue": (0.10, 0.25, 0.85),
     "yellow": (0.95, 0.85, 0.10),
+    "lime": (0.38, 0.70, 0.06),
+    "cyan": (0.10, 0.80, 0.80),
+    "purple": (0.42, 0.08, 0.72),
+    "magenta": (0.72, 0.08, 0.54),
 }
 #: Every block's colour where a block task's ``block_colours`` option is ``"uniform"``: a light grey, without
 #: hue, so that domain randomisation's per-block hue shifts leave the blocks alike (r, g, b in 0-1).

@@ -25,6 +25,10 @@ from panda_grasp_env.sim.workcell import WORKSPACE, PhysicsError, Workcell, body
 #: Lowest grasp-site height: the fingertips reach 15 mm below the site.
 MIN_GRASP_HEIGHT = 0.02
 APPROACH_HEIGHT = 0.10  # pre-grasp / pre-place hover above the target, metres
+#: A place's hover may come down to this above its goal (metres) where the workspace's top leaves no room for
+#: ``APPROACH_HEIGHT``: the eighth block of a tower, its bottom at 0.35 m.  The transit comes in higher than the
+#: goal's surface by ``TRANSIT_CLEARANCE``, so a hover this low still starts clear of the tower.
+MIN_PLACE_APPROACH = 0.03
 LIFT_HEIGHT = 0.15  # how high a grasped object is lifted, metres
 SLOW_SPEED = 0.12  # m/s for the last approach and pushes
 PLACE_SPEED = 0.04  # m/s while lowering a held object to contact
@@ -139,9 +143,10 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     """Put the held object down with its centre over (x, y) and its bottom on a surface at height ``z``.
 
     Transit above (x, y) at the transit height (the load hanging clear of
-    everything); the work segment: down to ``APPROACH_HEIGHT`` above the goal,
-    lower slowly until the object touches something, open, retreat straight
-    up; then home.  If (x, y) cannot be reached the object stays in the hand
+    everything); the work segment: down to ``APPROACH_HEIGHT`` above the goal
+    (less, down to ``MIN_PLACE_APPROACH``, where the workspace's top is
+    nearer), lower slowly until the object touches something, open, retreat
+    straight up; then home.  If (x, y) cannot be reached the object stays in the hand
     and the arm goes home.  Success: the object was released, rests with its
     centre within a quarter of the block size of (x, y) and its bottom within
     1 cm of ``z``.  ``yaw`` is the closing-axis heading during the place.
@@ -156,8 +161,9 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
         hang = cell.robot.ee_position - [*cell.data.xpos[body][:2], body_bottom_height(cell.model, cell.data, body)]
         return np.array([x, y, z + height_above]) + hang
 
-    above = site_goal(APPROACH_HEIGHT)
-    if not _in_workspace(above, above - [0.0, 0.0, APPROACH_HEIGHT]):
+    approach = min(APPROACH_HEIGHT, WORKSPACE[2, 1] - site_goal(0.0)[2])
+    above = site_goal(approach)
+    if approach < MIN_PLACE_APPROACH or not _in_workspace(above, above - [0.0, 0.0, approach]):
         return PrimitiveResult("place", False, "out_of_workspace", object=name, targets={body})
     if not cell.transit(above[0], above[1], yaw).reached:
         cell.move_home()

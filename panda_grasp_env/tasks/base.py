@@ -28,7 +28,7 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
-from panda_grasp_env.geometry import is_number
+from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.model.scene import UNIFORM_BLOCK_COLOUR, SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import EnvId
@@ -177,7 +177,7 @@ def with_scene(base: SceneConfig, **changes: Any) -> SceneConfig:
 
 
 #: The block tasks' ``block_colours`` option: ``"distinct"``, each block its scene colour (red, green, blue,
-#: yellow by default), or ``"uniform"``, every block ``UNIFORM_BLOCK_COLOUR``, so that only shape and place tell
+#: yellow, ... by default: ``DEFAULT_COLOURS``), or ``"uniform"``, every block ``UNIFORM_BLOCK_COLOUR``, so that only shape and place tell
 #: them apart (perception that does not read colour).  Block names stay the colours' (``block_red``, ...):
 #: they name the blocks, however they look.
 BLOCK_COLOURINGS = ("distinct", "uniform")
@@ -187,6 +187,20 @@ def check_block_colours(block_colours: Any) -> None:
     """``ValueError`` naming the ``block_colours`` task option unless it is one of ``BLOCK_COLOURINGS``."""
     valid = isinstance(block_colours, str) and block_colours in BLOCK_COLOURINGS
     check_option("block_colours", block_colours, valid, f"one of {list(BLOCK_COLOURINGS)}")
+
+
+#: Blocks the tower tasks (TowerBuild, TowerBreak, BuildAndBreak) take, fewest and most: a base and one block on
+#: it, up to a 40 cm tower of eight (one per default colour, ``DEFAULT_COLOURS``).
+TOWER_BLOCKS = (2, 8)
+#: Heights (blocks) of the tall-tower benchmarks (``TowerBuild6``, ``TowerBreak8``, ...): played only when named,
+#: since an episode takes two to three times a four-block one.
+TALL_TOWERS = (6, 8)
+
+
+def check_tower_blocks(n_blocks: Any) -> None:
+    """``ValueError`` naming the ``n_blocks`` task option unless it is an int within ``TOWER_BLOCKS``."""
+    low, high = TOWER_BLOCKS
+    check_option("n_blocks", n_blocks, is_count(n_blocks) and low <= n_blocks <= high, f"an int in [{low}, {high}]")
 
 
 def block_scene(base: SceneConfig, n_blocks: int, block_colours: str) -> SceneConfig:

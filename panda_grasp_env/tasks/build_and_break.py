@@ -10,7 +10,7 @@ from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.workcell import Workcell
-from panda_grasp_env.tasks.base import Task, TaskStep
+from panda_grasp_env.tasks.base import TALL_TOWERS, Task, TaskStep
 from panda_grasp_env.tasks.tower_break import TowerBreak
 from panda_grasp_env.tasks.tower_build import TowerBuild
 
@@ -27,8 +27,8 @@ class BuildAndBreak(Task):
     ``builds`` and ``breaks``; ``is_success`` is true once a full build-and-break
     cycle is complete.  At reset ``info`` also names the base and gives its
     centre (``base``, ``base_position``, as TowerBuild); every build is on that
-    block.  Option: ``block_colours`` (``"distinct"`` or ``"uniform"``, as
-    TowerBuild).  Reward: the phase's own reward (stack progress while
+    block.  Options: ``n_blocks`` (2-8, default 4) and ``block_colours``
+    (``"distinct"`` or ``"uniform"``), as TowerBuild's.  Reward: the phase's own reward (stack progress while
     building, blocks moved while breaking), +1 per completed phase.  Terminates
     only if a block leaves the table.
     """
@@ -36,7 +36,16 @@ class BuildAndBreak(Task):
     name = "BuildAndBreak"
     env_ids = {
         "PandaBuildAndBreak-v0": EnvId(
-            100, benchmarks={"BuildAndBreak": Benchmark({"max_episode_steps": 30}, quick_seeds=1, full_seeds=10)}
+            100,
+            benchmarks={
+                "BuildAndBreak": Benchmark({"max_episode_steps": 30}, quick_seeds=1, full_seeds=10),
+                **{
+                    f"BuildAndBreak{n}": Benchmark(
+                        {"n_blocks": n, "max_episode_steps": 30}, quick_seeds=1, full_seeds=10, by_default=False
+                    )
+                    for n in TALL_TOWERS
+                },
+            },
         )
     }
     primitives = ("grasp", "place", "push")

@@ -11,7 +11,15 @@ from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.workcell import Workcell
-from panda_grasp_env.tasks.base import Task, TaskStep, block_scene, check_block_colours, check_option
+from panda_grasp_env.tasks.base import (
+    TALL_TOWERS,
+    Task,
+    TaskStep,
+    block_scene,
+    check_block_colours,
+    check_option,
+    check_tower_blocks,
+)
 
 #: The source study's four push directions, as headings about world z (radians).
 BREAK_DIRECTIONS = {"+x": 0.0, "+y": np.pi / 2, "-x": np.pi, "-y": -np.pi / 2}
@@ -26,7 +34,7 @@ def blocks_moved(positions: np.ndarray, tower_positions: np.ndarray, block_size:
 class TowerBreak(Task):
     """Break a standing tower of ``n_blocks``.
 
-    Options: ``n_blocks`` (2-4, default 4); ``k``: blocks that must leave their
+    Options: ``n_blocks`` (2-8, default 4); ``k``: blocks that must leave their
     tower position (moved >= one block size; default all but the base);
     ``allow_impulse``: add the ``impulse`` primitive (a horizontal impulse of
     ``impulse_magnitude`` N s on the block nearest the chosen point, as in the
@@ -44,9 +52,28 @@ class TowerBreak(Task):
 
     name = "TowerBreak"
     env_ids = {
-        "PandaTowerBreak-v0": EnvId(5, benchmarks={"TowerBreak": Benchmark(quick_seeds=5, full_seeds=100)}),
+        "PandaTowerBreak-v0": EnvId(
+            5,
+            benchmarks={
+                "TowerBreak": Benchmark(quick_seeds=5, full_seeds=100),
+                **{
+                    f"TowerBreak{n}": Benchmark({"n_blocks": n}, quick_seeds=5, full_seeds=100, by_default=False)
+                    for n in TALL_TOWERS
+                },
+            },
+        ),
         "PandaTowerBreakDirectional-v0": EnvId(
-            5, {"directional": True}, benchmarks={"TowerBreakDirectional": Benchmark(quick_seeds=5, full_seeds=100)}
+            5,
+            {"directional": True},
+            benchmarks={
+                "TowerBreakDirectional": Benchmark(quick_seeds=5, full_seeds=100),
+                **{
+                    f"TowerBreakDirectional{n}": Benchmark(
+                        {"n_blocks": n}, quick_seeds=5, full_seeds=100, by_default=False
+                    )
+                    for n in TALL_TOWERS
+                },
+            },
         ),
     }
     primitives = ("push",)
@@ -60,7 +87,7 @@ class TowerBreak(Task):
         directional: bool = False,
         block_colours: str = "distinct",
     ) -> None:
-        check_option("n_blocks", n_blocks, is_count(n_blocks) and 2 <= n_blocks <= 4, "an int in [2, 4]")
+        check_tower_blocks(n_blocks)
         k = n_blocks - 1 if k is None else k
         check_option("k", k, is_count(k) and 1 <= k <= n_blocks, f"an int in [1, {n_blocks}]")
         check_option("allow_impulse", allow_impulse, isinstance(allow_impulse, bool), "a bool")

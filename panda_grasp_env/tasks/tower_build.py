@@ -7,13 +7,21 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.geometry import is_count
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.stacking import stack_column
 from panda_grasp_env.sim.workcell import Workcell
-from panda_grasp_env.tasks.base import Task, TaskStep, block_scene, check_block_colours, check_option, goals_reached
+from panda_grasp_env.tasks.base import (
+    TALL_TOWERS,
+    Task,
+    TaskStep,
+    block_scene,
+    check_block_colours,
+    check_option,
+    check_tower_blocks,
+    goals_reached,
+)
 
 #: A tower must stand still this long, with the gripper released, to count as built (seconds).
 STABLE_TIME = 0.5
@@ -34,11 +42,12 @@ def holding_a_block(cell: Workcell) -> bool:
 class TowerBuild(Task):
     """Build a tower of ``n_blocks`` on the base block.
 
-    Options: ``n_blocks`` (2-4, default 4: the base and three to stack);
-    ``order``: ``"any"`` (any colour order above the base) or ``"fixed"`` (the
-    scene's colour order: red, green, blue, yellow); ``tolerance``: how far (m)
-    a block's centre may sit from the base's axis (default a fifth of the block);
-    ``block_colours``: ``"distinct"`` (default: red, green, blue, yellow) or
+    Options: ``n_blocks`` (2-8, default 4: the base and three to stack; eight
+    stand 40 cm); ``order``: ``"any"`` (any colour order above the base) or
+    ``"fixed"`` (the scene's colour order: red, green, blue, yellow, lime, cyan,
+    purple, magenta); ``tolerance``: how far (m) a block's centre may sit from
+    the base's axis (default a fifth of the block); ``block_colours``:
+    ``"distinct"`` (default: each block its colour, as in ``order``) or
     ``"uniform"`` (every block the same light grey: only shape and place tell
     blocks apart).  ``info`` at reset names the base (``base``) and gives its
     centre (``base_position``, world metres): where blocks look alike, that is
@@ -54,7 +63,22 @@ class TowerBuild(Task):
 
     name = "TowerBuild"
     env_ids = {
-        "PandaTowerBuild-v0": EnvId(30, benchmarks={"TowerBuild": Benchmark(quick_seeds=5, full_seeds=100)}),
+        # Tall towers get the four-block tower's step limit per block to stack: five times the ideal actions.
+        "PandaTowerBuild-v0": EnvId(
+            30,
+            benchmarks={
+                "TowerBuild": Benchmark(quick_seeds=5, full_seeds=100),
+                **{
+                    f"TowerBuild{n}": Benchmark(
+                        {"n_blocks": n, "max_episode_steps": 10 * (n - 1)},
+                        quick_seeds=5,
+                        full_seeds=100,
+                        by_default=False,
+                    )
+                    for n in TALL_TOWERS
+                },
+            },
+        ),
         # Two blocks, goal-conditioned at 25 Hz: panda-gym's Stack.
         "PandaStack-v0": EnvId(
             100,
@@ -69,7 +93,7 @@ class TowerBuild(Task):
     def __init__(
         self, n_blocks: int = 4, order: str = "any", tolerance: float | None = None, block_colours: str = "distinct"
     ) -> None:
-        check_option("n_blocks", n_blocks, is_count(n_blocks) and 2 <= n_blocks <= 4, "an int in [2, 4]")
+        check_tower_blocks(n_blocks)
         check_option("order", order, order in ("any", "fixed"), "'any' or 'fixed'")
         check_option(
             "tolerance", tolerance, tolerance is None or 0 < float(tolerance) <= 0.025, "None or in (0, 0.025] m"
