@@ -36,7 +36,7 @@ from panda_grasp_env.sim.stacking import (
     wrap_quarter_turn,
 )
 from panda_grasp_env.sim.workcell import Workcell
-from panda_grasp_env.tasks.base import TALL_TOWERS
+from panda_grasp_env.tasks.base import tall_tower_names
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
 #: Where a push starts: this far from the tower's axis (half a block plus a finger's clearance).
@@ -279,8 +279,8 @@ def block_baseline(
 
 
 def with_tall_towers(*tasks: str) -> tuple[str, ...]:
-    """The benchmark ``tasks`` and their tall-tower variants (``TowerBuild6``, ...: ``TALL_TOWERS``)."""
-    return (*tasks, *(f"{task}{n}" for task in tasks for n in TALL_TOWERS))
+    """The benchmark ``tasks`` and their tall-tower variants (``TowerBuild6``, ...: ``tall_tower_names``)."""
+    return (*tasks, *(name for task in tasks for name in tall_tower_names(task)))
 
 
 register_baseline(*with_tall_towers("TowerBuild"))(block_baseline(TowerBuilderAgent, DepthBlocks))

@@ -10,7 +10,7 @@ from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.workcell import Workcell
-from panda_grasp_env.tasks.base import TALL_TOWERS, Task, TaskStep
+from panda_grasp_env.tasks.base import Task, TaskStep, with_tall_towers
 from panda_grasp_env.tasks.tower_break import TowerBreak
 from panda_grasp_env.tasks.tower_build import TowerBuild
 
@@ -37,15 +37,9 @@ class BuildAndBreak(Task):
     env_ids = {
         "PandaBuildAndBreak-v0": EnvId(
             100,
-            benchmarks={
-                "BuildAndBreak": Benchmark({"max_episode_steps": 30}, quick_seeds=1, full_seeds=10),
-                **{
-                    f"BuildAndBreak{n}": Benchmark(
-                        {"n_blocks": n, "max_episode_steps": 30}, quick_seeds=1, full_seeds=10, by_default=False
-                    )
-                    for n in TALL_TOWERS
-                },
-            },
+            benchmarks=with_tall_towers(
+                "BuildAndBreak", Benchmark({"max_episode_steps": 30}, quick_seeds=1, full_seeds=10)
+            ),
         )
     }
     primitives = ("grasp", "place", "push")

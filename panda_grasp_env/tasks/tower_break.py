@@ -12,13 +12,13 @@ from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.base import (
-    TALL_TOWERS,
     Task,
     TaskStep,
     block_scene,
     check_block_colours,
     check_option,
     check_tower_blocks,
+    with_tall_towers,
 )
 
 #: The source study's four push directions, as headings about world z (radians).
@@ -53,27 +53,12 @@ class TowerBreak(Task):
     name = "TowerBreak"
     env_ids = {
         "PandaTowerBreak-v0": EnvId(
-            5,
-            benchmarks={
-                "TowerBreak": Benchmark(quick_seeds=5, full_seeds=100),
-                **{
-                    f"TowerBreak{n}": Benchmark({"n_blocks": n}, quick_seeds=5, full_seeds=100, by_default=False)
-                    for n in TALL_TOWERS
-                },
-            },
+            5, benchmarks=with_tall_towers("TowerBreak", Benchmark(quick_seeds=5, full_seeds=100))
         ),
         "PandaTowerBreakDirectional-v0": EnvId(
             5,
             {"directional": True},
-            benchmarks={
-                "TowerBreakDirectional": Benchmark(quick_seeds=5, full_seeds=100),
-                **{
-                    f"TowerBreakDirectional{n}": Benchmark(
-                        {"n_blocks": n}, quick_seeds=5, full_seeds=100, by_default=False
-                    )
-                    for n in TALL_TOWERS
-                },
-            },
+            benchmarks=with_tall_towers("TowerBreakDirectional", Benchmark(quick_seeds=5, full_seeds=100)),
         ),
     }
     primitives = ("push",)

@@ -13,7 +13,6 @@ from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.stacking import stack_column
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.base import (
-    TALL_TOWERS,
     Task,
     TaskStep,
     block_scene,
@@ -21,6 +20,7 @@ from panda_grasp_env.tasks.base import (
     check_option,
     check_tower_blocks,
     goals_reached,
+    with_tall_towers,
 )
 
 #: A tower must stand still this long, with the gripper released, to count as built (seconds).
@@ -65,19 +65,7 @@ class TowerBuild(Task):
     env_ids = {
         # Tall towers get the four-block tower's step limit per block to stack: five times the ideal actions.
         "PandaTowerBuild-v0": EnvId(
-            30,
-            benchmarks={
-                "TowerBuild": Benchmark(quick_seeds=5, full_seeds=100),
-                **{
-                    f"TowerBuild{n}": Benchmark(
-                        {"n_blocks": n, "max_episode_steps": 10 * (n - 1)},
-                        quick_seeds=5,
-                        full_seeds=100,
-                        by_default=False,
-                    )
-                    for n in TALL_TOWERS
-                },
-            },
+            30, benchmarks=with_tall_towers("TowerBuild", Benchmark(quick_seeds=5, full_seeds=100), steps_per_block=10)
         ),
         # Two blocks, goal-conditioned at 25 Hz: panda-gym's Stack.
         "PandaStack-v0": EnvId(
