@@ -95,10 +95,11 @@ def task_label(env_id: str, env_kwargs: dict[str, Any]) -> str:
 
 
 def all_agents() -> tuple[str, ...]:
-    """Built-in agents, then the shipped learned checkpoints by name."""
+    """Built-in agents, then the shipped learned checkpoints by name, then the phased agents made of them."""
     from panda_grasp_env.agents.learned import available_checkpoints
+    from panda_grasp_env.agents.phased import PHASED_AGENTS
 
-    return (*AGENTS, *available_checkpoints())
+    return (*AGENTS, *available_checkpoints(), *PHASED_AGENTS)
 
 
 def skip_reason(agent: str, task: str) -> str | None:
@@ -113,6 +114,11 @@ def skip_reason(agent: str, task: str) -> str | None:
         if task not in BASELINES:
             return f"no {agent} agent is written for {task}"
         return None
+    from panda_grasp_env.agents.phased import PHASED_AGENTS
+
+    if agent in PHASED_AGENTS:
+        tasks = PHASED_AGENTS[agent].tasks
+        return None if task in tasks else f"the phased agent {agent} plays {', '.join(tasks)}"
     return learned_skip_reason(agent, task)
 
 
@@ -257,6 +263,10 @@ def task_options_from_pairs(pairs: list[str], tasks: list[str]) -> dict[str, Any
 
 
 def make_env(spec: EpisodeSpec) -> gym.Env:
+    from panda_grasp_env.agents.phased import PHASED_AGENTS, phased_env
+
+    if spec.agent in PHASED_AGENTS:
+        return phased_env(spec.agent, spec.task, **spec.make_options)
     if spec.agent not in AGENTS:  # a learned checkpoint: its env options on the task's scene
         from panda_grasp_env.agents.learned import Checkpoint
 
@@ -273,6 +283,10 @@ def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
         return RandomAgent(env.action_space, seed=spec.seed)
     if spec.agent == "expert":
         return EXPERTS[spec.task]()
+    from panda_grasp_env.agents.phased import PHASED_AGENTS, PhasedAgent
+
+    if spec.agent in PHASED_AGENTS:
+        return PhasedAgent(spec.agent, env)
     if spec.agent not in AGENTS:
         from panda_grasp_env.agents.learned import LearnedAgent
 

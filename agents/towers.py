@@ -41,6 +41,15 @@ from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
 #: Where a push starts: this far from the tower's axis (half a block plus a finger's clearance).
 PUSH_START = 0.065
+#: Where a push at a tower whose top stands above ``TALL_TOWER_TOP`` starts.  The arm's wrist (link 7, from
+#: about 14 cm above the grasp site) reaches 4.5 cm ahead of it: coming down to a push (at most 12 cm high,
+#: ``PUSH_HEIGHT_RANGE``) 6.5 cm from a 30 cm tower's axis, it touches the top block and the push stops with
+#: ``"collision"`` (measured on TowerBreak6); from 8.5 cm it clears, and the stroke's last centimetres strike
+#: the tower with the fingers and the wrist together.
+TALL_PUSH_START = 0.085
+#: Tower top (metres) above which the wrist passes the tower's upper blocks on the way down (a 4-block
+#: tower's top stands at 20 cm, a 5-block one's at 25 cm).
+TALL_TOWER_TOP = 0.22
 
 
 @dataclass(frozen=True)
@@ -205,7 +214,12 @@ class TowerBuilderAgent:
 class TowerBreakerAgent:
     """Push the tallest tower over: of the four directions, the one heading most towards the middle of
     the workspace (so the blocks stay within reach) whose start is clear of other blocks; in a directional
-    break (the observation's one-hot ``command``), the commanded one."""
+    break (the observation's one-hot ``command``), the commanded one.
+
+    A tower taller than ``TALL_TOWER_TOP`` is pushed from ``TALL_PUSH_START``, and only from a start no
+    farther from the robot's base (the world origin) than the tower: from beyond it, the forearm (links 5
+    and 6, 20-30 cm above the hand) reaches over the tower's top on the way down.  On TowerBreak8 that rule
+    told the 6 of 12 (seed, direction) pairs that collided from the 6 that pushed (seeds 6000003-05)."""
 
     def __init__(self, perceiver: BlockPerceiver | None = None) -> None:
         self.perceiver = perceiver or DepthBlocks()
@@ -226,6 +240,9 @@ class TowerBreakerAgent:
             return self.write("push", 0.3, 0.3, 0.0)
         tower = max(towers, key=len)
         centre = blocks[tower[0]].position[:2]
+        top = max(blocks[name].position[2] for name in tower) + self.perceiver.block_size / 2
+        tall = top > TALL_TOWER_TOP
+        start_distance = TALL_PUSH_START if tall else PUSH_START
         others = np.array([blocks[n].position[:2] for n in blocks if n not in tower]).reshape(-1, 2)
         inward = np.array([0.5, 0.0]) - centre
         headings = list(BREAK_DIRECTIONS.values())
@@ -233,11 +250,12 @@ class TowerBreakerAgent:
             headings = [headings[int(np.argmax(observation["command"]))]]
         for heading in sorted(headings, key=lambda h: -(np.cos(h) * inward[0] + np.sin(h) * inward[1])):
             direction = np.array([np.cos(heading), np.sin(heading)])
-            start = centre - PUSH_START * direction
+            start = centre - start_distance * direction
             clear = len(others) == 0 or np.min(np.linalg.norm(others - start, axis=1)) > 0.06
+            clear = clear and not (tall and np.linalg.norm(start) > np.linalg.norm(centre))
             if clear and 0.27 < start[0] < 0.73 and abs(start[1]) < 0.33:
                 return self.write("push", start[0], start[1], heading)
-        start = centre - PUSH_START * np.array([np.cos(headings[0]), np.sin(headings[0])])
+        start = centre - start_distance * np.array([np.cos(headings[0]), np.sin(headings[0])])
         return self.write("push", start[0], start[1], headings[0])
 
 

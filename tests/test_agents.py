@@ -75,6 +75,20 @@ def test_tower_breaker_breaks_the_tower_with_one_push():
     env.close()
 
 
+@pytest.mark.parametrize("n_blocks", [6, 8])
+def test_planned_breaker_topples_a_tall_tower_with_one_push(n_blocks):
+    """The benchmark's planned agent on TowerBreak6 / TowerBreak8: from the tall-tower start the arm's wrist
+    and forearm clear the tower on the way down, so the push is not stopped as a collision."""
+    from panda_grasp_env.registration import BENCHMARKS
+
+    env_id, options = BENCHMARKS[f"TowerBreak{n_blocks}"]
+    env = gym.make(f"panda_grasp_env:{env_id}", cameras=("overhead", "front"), **RGBD, **options)
+    # Seed 1's push towards the middle starts beyond the tower (from the robot), where the forearm strikes it.
+    info, actions = run(env, BASELINES[f"TowerBreak{n_blocks}"](env, 0, False), seed=1)
+    assert info["is_success"] and actions == 1 and info["primitive_reason"] == "ok"
+    env.close()
+
+
 @pytest.mark.parametrize("oracle", [False, True])
 def test_grasp_agent_clears_two_objects(oracle):
     env = gym.make("panda_grasp_env:PandaGrasp-v0", n_objects=2, shapes=("cube", "capsule"), primitive_z=True, **RGBD)
@@ -130,4 +144,27 @@ def test_tower_builder_needs_both_cameras():
     observation, info = env.reset(seed=0)
     with pytest.raises(ValueError, match="cameras"):
         TowerBuilderAgent().reset(observation, info)
+    env.close()
+
+
+def test_the_phased_agent_acts_with_each_phase_policy_in_that_policy_slot():
+    """build_and_break_dqn: the builder's grasp while building; while breaking, the breaker's own push (same
+    heading and cell) moved into the push slot of BuildAndBreak's grasp-place-push layout."""
+    from panda_grasp_env.agents.learned import LearnedAgent
+    from panda_grasp_env.agents.phased import PhasedAgent, phased_env
+
+    env = phased_env("build_and_break_dqn", "BuildAndBreak")
+    observation, info = env.reset(seed=0)
+    agent = PhasedAgent("build_and_break_dqn", env)
+    agent.reset(observation, info)
+    primitives, shape = env.unwrapped.actions.settings.primitives, env.unwrapped.actions.shape
+    assert info["phase"] == "build"
+    assert primitives[np.unravel_index(agent.act(observation, info), shape)[0]] == "grasp"  # the hand is empty
+    breaking = {**info, "phase": "break"}
+    breaker = LearnedAgent("tower_break_dqn")
+    breaker.reset(observation, breaking)
+    own = np.unravel_index(breaker.act(observation, breaking), (1, *shape[1:]))
+    assert np.unravel_index(agent.act(observation, breaking), shape) == (primitives.index("push"), *own[1:])
+    with pytest.raises(ValueError, match="phase"):
+        agent.act(observation, {**info, "phase": "rest"})
     env.close()

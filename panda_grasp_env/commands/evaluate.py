@@ -14,7 +14,9 @@
 Agents: random, planned (perception-based planned baselines), oracle (the same, on
 true poses), expert (scripted ee_delta state machines for Lift, Push and Stack), and every shipped
 learned checkpoint by name (agents/checkpoints/): on its own task, and on the other scenes of that
-task its observation and action spaces fit (a heightmap grasping policy on heaps and packed layouts).
+task its observation and action spaces fit (a heightmap grasping policy on heaps and packed layouts);
+and build_and_break_dqn, BuildAndBreak played by the shipped builder and breaker, each in its phase
+(``panda_grasp_env.agents.phased``).
 Tasks: the benchmarks the task modules register (``panda_grasp_env.registration.BENCHMARKS``): Grasp,
 GraspClutter, GraspAdversarial, TowerBuild, TowerBreak, TowerBreakDirectional, BuildAndBreak, PutInBin (primitive actions),
 Push, Lift, Stack (low-level ee_delta); played only when named: the mesh benchmarks (GraspMesh*) and the towers
@@ -565,14 +567,15 @@ def videos(specs: list[EpisodeSpec], out: Path) -> list[Path]:
 
 
 def chosen_checkpoints(args: argparse.Namespace) -> list[Any]:
-    """The shipped checkpoints among the chosen agents that play at least one chosen task."""
+    """The shipped checkpoints among the chosen agents (a phased agent's parts) that play at least one chosen task."""
     from panda_grasp_env.agents.learned import Checkpoint
+    from panda_grasp_env.agents.phased import PHASED_AGENTS
 
-    return [
-        Checkpoint(agent)
-        for agent in args.agents
-        if agent not in AGENTS and any(skip_reason(agent, task) is None for task in args.tasks)
-    ]
+    names: list[str] = []
+    for agent in args.agents:
+        if agent not in AGENTS and any(skip_reason(agent, task) is None for task in args.tasks):
+            names += PHASED_AGENTS[agent].phases.values() if agent in PHASED_AGENTS else [agent]
+    return [Checkpoint(name) for name in dict.fromkeys(names)]
 
 
 def learning_curves(args: argparse.Namespace) -> list[str]:
