@@ -262,8 +262,17 @@ def task_options_from_pairs(pairs: list[str], tasks: list[str]) -> dict[str, Any
     return options
 
 
+def phased_env(name: str, task: str, **options: Any) -> gym.Env:
+    """The env phased agent ``name`` plays ``task`` in: the task's scene, seen and acted on as its first part
+    was trained (``learned_env``)."""
+    from panda_grasp_env.agents.learned import Checkpoint
+    from panda_grasp_env.agents.phased import PHASED_AGENTS
+
+    return learned_env(Checkpoint(PHASED_AGENTS[name].first), task, **options)
+
+
 def make_env(spec: EpisodeSpec) -> gym.Env:
-    from panda_grasp_env.agents.phased import PHASED_AGENTS, phased_env
+    from panda_grasp_env.agents.phased import PHASED_AGENTS
 
     if spec.agent in PHASED_AGENTS:
         return phased_env(spec.agent, spec.task, **spec.make_options)

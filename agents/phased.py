@@ -17,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.actions import PixelActions
-from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent, observation_mismatch
+from panda_grasp_env.agents.learned import LearnedAgent, observation_mismatch
 
 
 @dataclass(frozen=True)
@@ -29,7 +29,8 @@ class PhasedPolicies:
 
     @property
     def first(self) -> str:
-        """The checkpoint whose env options (heightmap, action mode) the task's env is made with."""
+        """The checkpoint whose env options (heightmap, action mode) the task's env is made with
+        (``panda_grasp_env.agents.evaluation.phased_env``)."""
         return next(iter(self.phases.values()))
 
 
@@ -92,10 +93,3 @@ class PhasedAgent:
         primitive = self.slots[phase][0][own_primitive]
         return int(np.ravel_multi_index((primitive, rotation, row, col), self.shape))
 
-
-def phased_env(name: str, task: str, **options: Any) -> gym.Env:
-    """The env phased agent ``name`` plays ``task`` in: the task's scene, seen and acted on as its first part
-    was trained (``learned_env``)."""
-    from panda_grasp_env.agents.evaluation import learned_env
-
-    return learned_env(Checkpoint(PHASED_AGENTS[name].first), task, **options)
