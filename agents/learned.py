@@ -94,10 +94,7 @@ def read_config(path: Path) -> TrainConfig:
         raise ValueError(f"{path} is not valid YAML: {error}") from None
     if not isinstance(raw, dict) or not all(isinstance(k, str) for k in raw):
         raise ValueError(f"{path} must be a mapping of training config keys")
-    try:
-        return config_from_dict(raw, str(path))
-    except TypeError as error:  # a value of the wrong type, met by the config's own checks
-        raise ValueError(f"{path}: {error}") from None
+    return config_from_dict(raw, str(path))
 
 
 class Checkpoint:

@@ -1,5 +1,6 @@
 """train.py, its configs, the heightmap Q-policy and loading shipped checkpoints."""
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -71,6 +72,12 @@ def test_unknown_key_fails_listing_the_valid_ones(tmp_path):
         load_config(CONFIGS / "push_sac_her.yaml", ["totl_steps=5"])
 
 
+def test_a_missing_key_fails_listing_the_valid_ones(tmp_path):
+    path = write_config(tmp_path, name="x", env_id="PandaPush-v0", algo="sac")
+    with pytest.raises(ValueError, match=r"c.yaml lacks required key\(s\) \['total_steps'\]; valid keys: \['name'"):
+        load_config(path)
+
+
 @pytest.mark.parametrize(
     "override, message",
     [
@@ -88,6 +95,17 @@ def test_unknown_key_fails_listing_the_valid_ones(tmp_path):
         ("seed", "key=value"),
         ("train_env_kwargs=0.5", "train_env_kwargs=0.5: expected a mapping"),
         ("selection_episodes=99001", r"selection_episodes=99001: expected an int in \[0, 99000\]"),
+        # Values of the wrong type: the key, the value and what it takes.
+        ("total_steps=1.5", "config total_steps=1.5: expected an int >= 1"),
+        ("n_envs=true", "config n_envs=True: expected an int >= 1"),
+        ("seed=seven", "config seed='seven': expected an int >= 0"),
+        ("max_minutes=soon", "config max_minutes='soon': expected a positive number or null"),
+        ("name=[a]", r"config name=\['a'\]: expected letters, digits, - and _"),
+        ("name=__", "config name='__': expected letters, digits, - and _"),
+        ("env_kwargs=[1]", r"config env_kwargs=\[1\]: expected a mapping"),
+        ("observation_keys=[proprio, 3]", r"config observation_keys=\['proprio', 3\]: expected null or a non-empty"),
+        ("observation_keys=[]", r"config observation_keys=\[\]: expected null or a non-empty"),
+        ("init_policy=5", "config init_policy=5: expected a checkpoint name or folder, or null"),
     ],
 )
 def test_bad_values_fail_before_training(override, message):
@@ -154,6 +172,10 @@ def test_overrides_reach_into_mappings_and_read_numbers():
     assert config.algo_kwargs["learning_rate"] == pytest.approx(3e-4)
     assert (config.seed, config.n_envs) == (7, 2)
     assert config.algo_kwargs["batch_size"] == 256  # untouched entries stay
+    config = load_config(CONFIGS / "push_sac_her.yaml", ["env_kwargs.reward_type=dense", "max_minutes=2.5"])
+    assert config.env_kwargs["reward_type"] == "dense" and config.max_minutes == 2.5
+    with pytest.raises(ValueError, match=r"override 'name.first=x': 'name' is not a mapping"):
+        load_config(CONFIGS / "push_sac_her.yaml", ["name.first=x"])
 
 
 def test_train_cli_reports_config_errors_without_starting(tmp_path, capsys):
@@ -444,10 +466,10 @@ def test_init_policy_starts_a_run_from_a_checkpoints_weights(finished_run, tmp_p
         load_initial_policy(build_model(narrower, env, None), narrower, initial_policy_source(narrower))
     env.close()
     with pytest.raises(ValueError, match="init_policy tiny was trained with heightmap_dqn, this run uses sac"):
-        initial_policy_source(TrainConfig(**{**vars(config), "algo": "sac"}))
+        initial_policy_source(dataclasses.replace(config, algo="sac", algo_kwargs={}))
     # The same Q-policy learned from demonstrations may start from it.
     demos = {**config.algo_kwargs, "demonstrations": {"dataset": "panda_grasp_env/any-v0", "episodes": 1}}
-    assert initial_policy_source(TrainConfig(**{**vars(config), "algo": "heightmap_dqn_demos", "algo_kwargs": demos}))
+    assert initial_policy_source(dataclasses.replace(config, algo="heightmap_dqn_demos", algo_kwargs=demos))
     with pytest.raises(ValueError, match="init_policy tiny: its action_space"):
         initial_policy_source(load_config(CONFIGS / "grasp_clutter_dqn.yaml", [*TINY_DQN, "init_policy=tiny",
                                                                                "env_kwargs.rotations=8"]))  # fmt: skip
@@ -547,10 +569,6 @@ def test_resume_refuses_changes_to_what_built_the_model(finished_run, capsys):
         assert train.main(["--resume", str(finished_run), override, "--no-progress"]) == 2
         assert "a resumed run cannot change" in capsys.readouterr().err
     assert (finished_run / "config.yaml").read_text() == saved
-
-
-def test_config_dataclass_lists_its_keys():
-    assert TrainConfig.keys()[:4] == ["name", "env_id", "algo", "total_steps"]
 
 
 @pytest.mark.slow

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import yaml
+from pydantic import TypeAdapter, ValidationError
 
 Config = TypeVar("Config")
 
@@ -249,6 +250,35 @@ def config_from_mapping(cls: type[Config], raw: dict[str, Any], source: str) -> 
     config = cls(**raw)
     config.validate()  # type: ignore[attr-defined]
     return config
+
+
+def config_value_error(key: str, value: Any, expected: str) -> ValueError:
+    """The error of a config key's bad value: ``config <key>=<value>: expected <what it takes>``."""
+    return ValueError(f"config {key}={value!r}: expected {expected}")
+
+
+def checked_config(cls: type[Config], raw: Any, source: str) -> Config:
+    """The pydantic dataclass ``cls`` from the mapping ``raw`` (read from ``source``), checked.  ``ValueError``
+    listing unknown or missing keys beside the valid ones, or naming the first bad key, its value and what it
+    takes (the field's ``description``, else what its check said); a check across keys raises its own."""
+    try:
+        return TypeAdapter(cls).validate_python(raw)
+    except ValidationError as error:
+        problems = error.errors(include_url=False)
+    fields = cls.__pydantic_fields__  # type: ignore[attr-defined]
+    valid = list(fields)
+    unknown = [p["loc"][0] for p in problems if p["type"] in ("unexpected_keyword_argument", "invalid_key")]
+    if unknown:
+        raise ValueError(f"unknown key(s) {unknown} in {source}; valid keys: {valid}")
+    missing = [p["loc"][0] for p in problems if p["type"] == "missing"]
+    if missing:
+        raise ValueError(f"{source} lacks required key(s) {missing}; valid keys: {valid}")
+    first = problems[0]
+    said = str(first.get("ctx", {}).get("error", first["msg"]))
+    if not first["loc"]:
+        raise ValueError(said)
+    key = first["loc"][0]
+    raise config_value_error(key, raw[key], fields[key].description or said)
 
 
 def new_run_folder(runs_dir: Path, config: Any, **facts: Any) -> Path:
