@@ -122,9 +122,9 @@ def commit() -> str:
     root = Path(__file__).resolve().parents[2]  # the repository (agents/, perception/ and train.py too)
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-        changes = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no", "--",
-                                  ".", ":(exclude)agents/checkpoints", ":(exclude)panda_grasp_env/falls/checkpoints"],
-                                 capture_output=True, text=True)  # fmt: skip
+        shipped = [":(exclude)agents/checkpoints", ":(exclude)panda_grasp_env/falls/checkpoints"]
+        status = ["status", "--porcelain", "--untracked-files=no", "--", ".", *shipped]
+        changes = subprocess.run(["git", "-C", str(root), *status], capture_output=True, text=True)
     except OSError:
         return "unknown"
     if not head.stdout.strip():
@@ -187,11 +187,14 @@ def run_key() -> bytes:
         raise ValueError(f"run-signing key {path} is not a regular file: {mend}")
     with os.fdopen(descriptor, "rb") as handle:
         if facts.st_uid != os.getuid():
-            raise ValueError(f"run-signing key {path} belongs to user id {facts.st_uid}, not to you "
-                             f"({os.getuid()}): {mend}")  # fmt: skip
+            raise ValueError(
+                f"run-signing key {path} belongs to user id {facts.st_uid}, not to you ({os.getuid()}): {mend}"
+            )
         if facts.st_mode & 0o077:
-            raise ValueError(f"run-signing key {path} has mode {stat.S_IMODE(facts.st_mode):04o}, not 0600: group or "
-                             f"others may have read it, so {mend}")  # fmt: skip
+            raise ValueError(
+                f"run-signing key {path} has mode {stat.S_IMODE(facts.st_mode):04o}, not 0600: group or "
+                f"others may have read it, so {mend}"
+            )
         key = handle.read(RUN_KEY_BYTES + 1)
     if len(key) != RUN_KEY_BYTES:
         size = f"{len(key)} bytes" if len(key) <= RUN_KEY_BYTES else f"more than {RUN_KEY_BYTES} bytes"
@@ -292,8 +295,14 @@ def new_run_folder(runs_dir: Path, config: Any, **facts: Any) -> Path:
         run_dir = runs_dir / f"{config.name}-seed{config.seed}-{suffix}"
     run_dir.mkdir()
     write_atomically(run_dir / "config.yaml", yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
-    meta = {"seed": config.seed, "versions": versions(), "commit": commit(), "machine": f"{machine()}, no GPU used",
-            "started": time.strftime("%Y-%m-%d %H:%M:%S %Z"), **facts}  # fmt: skip
+    meta = {
+        "seed": config.seed,
+        "versions": versions(),
+        "commit": commit(),
+        "machine": f"{machine()}, no GPU used",
+        "started": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
+        **facts,
+    }
     write_json(run_dir / "meta.json", meta)
     return run_dir
 
