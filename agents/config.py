@@ -4,19 +4,21 @@ run may change.  ``train.py`` and ``panda_grasp_env.agents.training`` build runs
 
 from __future__ import annotations
 
-import dataclasses
+import contextlib
 import inspect
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import gymnasium as gym
 import numpy as np
 import yaml
+from pydantic import AfterValidator, ConfigDict, Field, StrictFloat, StrictInt, model_validator
+from pydantic.dataclasses import dataclass
 
-from panda_grasp_env.geometry import is_count, is_number
-from panda_grasp_env.tooling.runs import check_resume_changes, config_from_mapping
+from panda_grasp_env.geometry import is_number
+from panda_grasp_env.registration import ENV_IDS
+from panda_grasp_env.tooling.runs import check_resume_changes, checked_config, config_value_error
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
 ALGORITHMS: dict[str, tuple[str, str]] = {
@@ -56,107 +58,126 @@ MOST_SELECTION_EPISODES = TEST_SEED_OFFSET - SELECTION_SEED_OFFSET
 REWARDS = ("task", "outcome")
 
 
-@dataclass
-class TrainConfig:
-    """One training run.  Steps are environment steps (summed over ``n_envs``)."""
+#: A count of steps, episodes, envs or threads.
+Count = Annotated[StrictInt, Field(ge=1, description="an int >= 1")]
+#: A seed (the first of a run of seeds).
+Seed = Annotated[StrictInt, Field(ge=0, description="an int >= 0")]
+#: Keyword arguments for a constructor.
+Keywords = Annotated[dict[str, Any], Field(description="a mapping")]
 
-    name: str
-    env_id: str
-    algo: str
-    total_steps: int
-    env_kwargs: dict[str, Any] = field(default_factory=dict)  # options for gymnasium.make
+
+def registered_env_id(env_id: str) -> str:
+    """``env_id`` if it is a registered id (tasks may register more after import); else ``ValueError``."""
+    if env_id not in ENV_IDS:
+        raise ValueError(f"one of {sorted(ENV_IDS)}")
+    return env_id
+
+
+def distinct(names: list[str]) -> list[str]:
+    """``names`` if none repeats; else ``ValueError``."""
+    if len(set(names)) < len(names):
+        raise ValueError(f"names that do not repeat, not {names}")
+    return names
+
+
+@dataclass(frozen=True, config=ConfigDict(extra="forbid"))
+class TrainConfig:
+    """One training run.  Steps are environment steps (summed over ``n_envs``).
+
+    A pydantic dataclass: each key's ``description`` says what values it takes, and ``config_from_dict`` quotes
+    it in the ``ValueError`` of a bad value.  Keys that must agree are checked together after each alone.
+    """
+
+    name: Annotated[str, Field(pattern=r"^[\w-]*[^\W_][\w-]*$", description="letters, digits, - and _")]
+    env_id: Annotated[str, AfterValidator(registered_env_id)]
+    algo: Annotated[Literal[tuple(ALGORITHMS)], Field(description=f"one of {sorted(ALGORITHMS)}")]
+    total_steps: Count
+    env_kwargs: Keywords = Field(default_factory=dict)  # options for gymnasium.make
     # Added to env_kwargs in the training envs only (curricula such as start_in_hand); evaluation, the final
     # test and LearnedAgent use env_kwargs alone.
-    train_env_kwargs: dict[str, Any] = field(default_factory=dict)
-    max_episode_steps: int | None = None  # None: the id's own limit
+    train_env_kwargs: Keywords = Field(default_factory=dict)
+    # None: the id's own limit
+    max_episode_steps: Annotated[StrictInt | None, Field(gt=0, description="a positive int or null")] = None
     # The entries of a Dict observation the policy sees, e.g. [proprio, overhead_rgb, desired_goal] for a
     # policy that must see the objects through cameras (None: all of them).
-    observation_keys: list[str] | None = None
-    algo_kwargs: dict[str, Any] = field(default_factory=dict)  # SB3 constructor arguments
-    policy_kwargs: dict[str, Any] = field(default_factory=dict)
-    her: dict[str, Any] | None = None  # HerReplayBuffer arguments; None = no HER
-    reward: str = "task"  # what the learner is paid: one of REWARDS (evaluation always uses the task's metrics)
-    n_envs: int = 1
-    vec_env: str = "dummy"  # dummy | subproc (spawn)
-    seed: int = 0
-    eval_every: int = 5000  # steps between evaluations
-    eval_episodes: int = 20
-    eval_seed: int = 1_000_000  # validation episodes: seeds eval_seed, eval_seed + 1, ...; the final test:
-    # eval_seed + TEST_SEED_OFFSET, ... (training episodes draw other seeds; see TrainConfig docs)
-    final_eval_episodes: int = 100
+    observation_keys: Annotated[
+        Annotated[list[str], Field(min_length=1), AfterValidator(distinct)] | None,
+        Field(description="null or a non-empty list of distinct observation entry names"),
+    ] = None
+    algo_kwargs: Keywords = Field(default_factory=dict)  # SB3 constructor arguments
+    policy_kwargs: Keywords = Field(default_factory=dict)
+    # HerReplayBuffer arguments; None = no HER
+    her: Annotated[dict[str, Any] | None, Field(description="a mapping or null")] = None
+    # What the learner is paid (evaluation always uses the task's metrics).
+    reward: Annotated[Literal[REWARDS], Field(description=f"one of {list(REWARDS)}")] = "task"
+    n_envs: Count = 1
+    # subproc: the envs step in spawned worker processes
+    vec_env: Annotated[Literal["dummy", "subproc"], Field(description="'dummy' or 'subproc'")] = "dummy"
+    seed: Seed = 0
+    eval_every: Count = 5000  # steps between evaluations
+    eval_episodes: Count = 20
+    # Validation episodes: seeds eval_seed, eval_seed + 1, ...; the final test: eval_seed + TEST_SEED_OFFSET, ...
+    # (training episodes draw other seeds; see TrainConfig docs)
+    eval_seed: Seed = 1_000_000
+    final_eval_episodes: Count = 100
     # After training, the best periodic validation's policy and the final one each play this many episodes on
     # the selection seeds (eval_seed + SELECTION_SEED_OFFSET, ...) and the better of the two is tested; 0: the
     # validated best is tested unchecked.
-    selection_episodes: int = 0
-    checkpoint_every: int = 5000
-    max_minutes: float | None = None  # stop (and checkpoint) after this much wall time in total
-    torch_threads: int = 1
+    selection_episodes: Annotated[
+        StrictInt,
+        Field(
+            ge=0,
+            le=MOST_SELECTION_EPISODES,
+            description=f"an int in [0, {MOST_SELECTION_EPISODES}] (clear of the test seeds)",
+        ),
+    ] = 0
+    checkpoint_every: Count = 5000
+    # Stop (and checkpoint) after this many minutes of wall time in total.
+    max_minutes: Annotated[StrictInt | StrictFloat | None, Field(gt=0, description="a positive number or null")] = None
+    torch_threads: Count = 1
     # A shipped checkpoint (name in agents/checkpoints, or folder) whose policy weights -- actor and critics --
     # start the run instead of random ones: fine-tuning after the task changed.  Same algorithm, spaces and
     # network; the optimisers, the entropy coefficient (set algo_kwargs.ent_coef) and the replay buffer start
     # afresh.  None: random weights.
-    init_policy: str | None = None
+    init_policy: Annotated[str | None, Field(description="a checkpoint name or folder, or null")] = None
 
-    @classmethod
-    def keys(cls) -> list[str]:
-        return [f.name for f in dataclasses.fields(cls)]
-
-    def validate(self) -> None:
-        from panda_grasp_env.registration import ENV_IDS
-
-        def check(ok: bool, key: str, expected: str) -> None:
+    @model_validator(mode="after")
+    def _check_keys_together(self) -> TrainConfig:
+        def require(ok: bool, key: str, expected: str) -> None:
             if not ok:
-                raise ValueError(f"config {key}={getattr(self, key)!r}: expected {expected}")
+                raise config_value_error(key, getattr(self, key), expected)
 
-        check(isinstance(self.name, str) and self.name.replace("-", "").replace("_", "").isalnum(), "name",
-              "letters, digits, - and _")  # fmt: skip
-        check(self.env_id in ENV_IDS, "env_id", f"one of {sorted(ENV_IDS)}")
-        check(self.algo in ALGORITHMS, "algo", f"one of {sorted(ALGORITHMS)}")
-        for key in ("total_steps", "n_envs", "eval_every", "eval_episodes", "final_eval_episodes", "checkpoint_every",
-                    "torch_threads"):  # fmt: skip
-            value = getattr(self, key)
-            check(isinstance(value, int) and not isinstance(value, bool) and value >= 1, key, "an int >= 1")
-        check(is_count(self.seed) and self.seed >= 0, "seed", "an int >= 0")
-        check(isinstance(self.selection_episodes, int) and not isinstance(self.selection_episodes, bool)
-              and 0 <= self.selection_episodes <= MOST_SELECTION_EPISODES, "selection_episodes",
-              f"an int in [0, {MOST_SELECTION_EPISODES}] (clear of the test seeds)")  # fmt: skip
-        check(is_count(self.eval_seed) and self.eval_seed >= 0, "eval_seed", "an int >= 0")
-        check(self.vec_env in ("dummy", "subproc"), "vec_env", "'dummy' or 'subproc'")
-        check(self.max_minutes is None or (isinstance(self.max_minutes, (int, float)) and self.max_minutes > 0),
-              "max_minutes", "a positive number or null")  # fmt: skip
-        check(self.max_episode_steps is None or (is_count(self.max_episode_steps) and self.max_episode_steps > 0),
-              "max_episode_steps", "a positive int or null")  # fmt: skip
-        for key in ("env_kwargs", "train_env_kwargs", "algo_kwargs", "policy_kwargs"):
-            check(isinstance(getattr(self, key), dict), key, "a mapping")
-        check(self.her is None or isinstance(self.her, dict), "her", "a mapping or null")
-        keys = self.observation_keys
-        check(keys is None or (isinstance(keys, list) and len(keys) > 0 and all(isinstance(k, str) for k in keys)
-                               and len(set(keys)) == len(keys)), "observation_keys",
-              "null or a non-empty list of distinct observation entry names")  # fmt: skip
-        check(keys is None or (self.her is None and self.algo not in HEIGHTMAP_ALGORITHMS), "observation_keys",
-              "null with HER (it needs achieved_goal) and with the heightmap algorithms")  # fmt: skip
-        check(
+        require(
+            self.observation_keys is None or (self.her is None and self.algo not in HEIGHTMAP_ALGORITHMS),
+            "observation_keys",
+            "null with HER (it needs achieved_goal) and with the heightmap algorithms",
+        )
+        require(
             self.her is None or self.algo in HER_ALGORITHMS, "her", f"null unless algo is one of {list(HER_ALGORITHMS)}"
         )
-        check(self.reward in REWARDS, "reward", f"one of {list(REWARDS)}")
-        check(self.reward == "task" or ENV_IDS[self.env_id][0].get("task") == "TowerBuild", "reward",
-              "'task' unless env_id is a TowerBuild id (the outcome reward reads the stack height)")  # fmt: skip
-        check(self.init_policy is None or isinstance(self.init_policy, str), "init_policy",
-              "a checkpoint name or folder, or null")  # fmt: skip
+        require(
+            self.reward == "task" or ENV_IDS[self.env_id][0].get("task") == "TowerBuild",
+            "reward",
+            "'task' unless env_id is a TowerBuild id (the outcome reward reads the stack height)",
+        )
         if self.algo in DEMONSTRATION_ALGORITHMS:
             from panda_grasp_env.agents.imitation import Demonstrations
 
-            check("demonstrations" in self.algo_kwargs, "algo_kwargs", f"a demonstrations entry for {self.algo}")
+            require("demonstrations" in self.algo_kwargs, "algo_kwargs", f"a demonstrations entry for {self.algo}")
             Demonstrations.of(self.algo_kwargs["demonstrations"])
-        rate = self.algo_kwargs.get("learning_rate", 1.0)
+        rate = self.algo_kwargs.get("learning_rate")
         if isinstance(rate, dict):
-            ok = sorted(rate) == ["end", "start"] and all(is_number(v) and v >= 0 for v in rate.values())
-            check(ok and rate["start"] > 0, "algo_kwargs",
-                  "learning_rate as a positive number or {start: > 0, end: >= 0} (linear over total_steps)")  # fmt: skip
+            ok = rate.keys() == {"start", "end"} and all(is_number(v) and v >= 0 for v in rate.values())
+            require(
+                ok and rate["start"] > 0,
+                "algo_kwargs",
+                "learning_rate as a positive number or {start: > 0, end: >= 0} (linear over total_steps)",
+            )
         valid = [p for p in constructor_parameters(load_class(ALGORITHMS[self.algo][0])) if p not in ("policy", "env")]
         unknown = [k for k in self.algo_kwargs if k not in valid or k in ("seed", "policy_kwargs", "tensorboard_log")]
         if unknown:
             raise ValueError(f"unknown algo_kwargs {unknown} for {self.algo}; valid: {sorted(valid)}")
+        return self
 
 
 def steps_label(config: TrainConfig) -> str:
@@ -196,35 +217,30 @@ def load_class(path: str) -> Any:
     return getattr(importlib.import_module(module), name)
 
 
-def _parse_override(text: str) -> tuple[list[str], Any]:
-    if "=" not in text:
-        raise ValueError(f"override {text!r} must look like key=value (dotted keys reach into mappings)")
-    key, value = text.split("=", 1)
-    parsed = yaml.safe_load(value)
-    if isinstance(parsed, str):  # YAML 1.1 reads 3e-4 as a string
-        try:
-            parsed = float(parsed)
-        except ValueError:
-            pass
-    return key.strip().split("."), parsed
-
-
 def read_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> dict[str, Any]:
-    """A YAML config as a mapping, with ``key=value`` overrides applied (dotted keys reach into mappings)."""
+    """A YAML config as a mapping, with ``key=value`` overrides applied: the value is read as YAML (and a number
+    in exponent form as a float, which YAML 1.1 reads as a string), and dotted keys reach into mappings."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"config file {path} not found")
     raw = yaml.safe_load(path.read_text()) or {}
     if not isinstance(raw, dict):
         raise ValueError(f"config {path} must be a mapping of keys to values")
-    for text in overrides:
-        keys, value = _parse_override(text)
+    for override in overrides:
+        key, equals, text = override.partition("=")
+        if not equals:
+            raise ValueError(f"override {override!r} must look like key=value (dotted keys reach into mappings)")
+        *parents, leaf = key.strip().split(".")
         target = raw
-        for key in keys[:-1]:
-            target = target.setdefault(key, {})
+        for parent in parents:
+            target = target.setdefault(parent, {})
             if not isinstance(target, dict):
-                raise ValueError(f"override {text!r}: {key!r} is not a mapping")
-        target[keys[-1]] = value
+                raise ValueError(f"override {override!r}: {parent!r} is not a mapping")
+        value = yaml.safe_load(text)
+        if isinstance(value, str):  # YAML 1.1 reads 3e-4 as a string
+            with contextlib.suppress(ValueError):
+                value = float(value)
+        target[leaf] = value
     return raw
 
 
@@ -234,7 +250,8 @@ def load_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -
 
 
 def config_from_dict(raw: dict[str, Any], source: str = "config") -> TrainConfig:
-    return config_from_mapping(TrainConfig, raw, source)
+    """The checked ``TrainConfig`` of a mapping; ``ValueError`` naming the bad key (``checked_config``)."""
+    return checked_config(TrainConfig, raw, source)
 
 
 # --- envs -------------------------------------------------------------------------------
@@ -328,8 +345,10 @@ def training_env(config: TrainConfig) -> gym.Env:
         spaces = getattr(env.observation_space, "spaces", {})
         missing = [key for key in config.observation_keys if key not in spaces]
         if missing:
-            raise ValueError(f"observation_keys {missing} are not in {config.env_id}'s observations with "
-                             f"{config.env_kwargs} (its entries: {list(spaces)})")  # fmt: skip
+            raise ValueError(
+                f"observation_keys {missing} are not in {config.env_id}'s observations with "
+                f"{config.env_kwargs} (its entries: {list(spaces)})"
+            )
         env = gym.wrappers.FilterObservation(env, config.observation_keys)
     return env
 

@@ -53,8 +53,13 @@ def available_checkpoints() -> list[str]:
 #: checkpoint.json's keys and their JSON types (``task`` and ``steps`` required); a value of another type
 #: (``"avoid_failures": "no"``) is refused, not read by Python's truthiness.
 CHECKPOINT_FACTS: dict[str, type | tuple[type, ...]] = {
-    "task": str, "steps": int, "policy_class": str, "env_id": str, "algo": str, "avoid_failures": bool,
-}  # fmt: skip
+    "task": str,
+    "steps": int,
+    "policy_class": str,
+    "env_id": str,
+    "algo": str,
+    "avoid_failures": bool,
+}
 #: Largest checkpoint.json and config.yaml read, in bytes.
 MAX_FACTS_BYTES = 64 << 10
 MAX_CONFIG_BYTES = 1 << 20
@@ -73,8 +78,9 @@ def read_checkpoint_facts(path: Path) -> dict[str, Any]:
     for key, value in facts.items():
         kind = CHECKPOINT_FACTS[key]
         if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-            raise ValueError(f"{path}: {key} must be a JSON {'boolean' if kind is bool else kind.__name__}, "
-                             f"got {value!r:.80}")  # fmt: skip
+            raise ValueError(
+                f"{path}: {key} must be a JSON {'boolean' if kind is bool else kind.__name__}, got {value!r:.80}"
+            )
     if facts["steps"] < 0:
         raise ValueError(f"{path}: steps must be >= 0, got {facts['steps']}")
     return facts
@@ -94,10 +100,7 @@ def read_config(path: Path) -> TrainConfig:
         raise ValueError(f"{path} is not valid YAML: {error}") from None
     if not isinstance(raw, dict) or not all(isinstance(k, str) for k in raw):
         raise ValueError(f"{path} must be a mapping of training config keys")
-    try:
-        return config_from_dict(raw, str(path))
-    except TypeError as error:  # a value of the wrong type, met by the config's own checks
-        raise ValueError(f"{path}: {error}") from None
+    return config_from_dict(raw, str(path))
 
 
 class Checkpoint:
@@ -146,8 +149,11 @@ class Checkpoint:
         """Where this checkpoint's weights came from: its folder, the training step they were saved at and the
         SHA-256 of its weights (a fine-tuning run records it: the name alone may be shipped again)."""
         weights = policy_paths(self.path / "policy")[1]
-        return {"path": str(self.path.resolve()), "steps": self.meta["steps"],
-                "policy_sha256": sha256(weights if weights.is_file() else self.path / "policy.zip")}  # fmt: skip
+        return {
+            "path": str(self.path.resolve()),
+            "steps": self.meta["steps"],
+            "policy_sha256": sha256(weights if weights.is_file() else self.path / "policy.zip"),
+        }
 
     def make_env(self, **options: Any) -> gym.Env:
         """The env the policy was trained on (raw observations; the agent transforms them), with ``options``

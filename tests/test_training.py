@@ -1,5 +1,6 @@
 """train.py, its configs, the heightmap Q-policy and loading shipped checkpoints."""
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -71,6 +72,12 @@ def test_unknown_key_fails_listing_the_valid_ones(tmp_path):
         load_config(CONFIGS / "push_sac_her.yaml", ["totl_steps=5"])
 
 
+def test_a_missing_key_fails_listing_the_valid_ones(tmp_path):
+    path = write_config(tmp_path, name="x", env_id="PandaPush-v0", algo="sac")
+    with pytest.raises(ValueError, match=r"c.yaml lacks required key\(s\) \['total_steps'\]; valid keys: \['name'"):
+        load_config(path)
+
+
 @pytest.mark.parametrize(
     "override, message",
     [
@@ -88,6 +95,17 @@ def test_unknown_key_fails_listing_the_valid_ones(tmp_path):
         ("seed", "key=value"),
         ("train_env_kwargs=0.5", "train_env_kwargs=0.5: expected a mapping"),
         ("selection_episodes=99001", r"selection_episodes=99001: expected an int in \[0, 99000\]"),
+        # Values of the wrong type: the key, the value and what it takes.
+        ("total_steps=1.5", "config total_steps=1.5: expected an int >= 1"),
+        ("n_envs=true", "config n_envs=True: expected an int >= 1"),
+        ("seed=seven", "config seed='seven': expected an int >= 0"),
+        ("max_minutes=soon", "config max_minutes='soon': expected a positive number or null"),
+        ("name=[a]", r"config name=\['a'\]: expected letters, digits, - and _"),
+        ("name=__", "config name='__': expected letters, digits, - and _"),
+        ("env_kwargs=[1]", r"config env_kwargs=\[1\]: expected a mapping"),
+        ("observation_keys=[proprio, 3]", r"config observation_keys=\['proprio', 3\]: expected null or a non-empty"),
+        ("observation_keys=[]", r"config observation_keys=\[\]: expected null or a non-empty"),
+        ("init_policy=5", "config init_policy=5: expected a checkpoint name or folder, or null"),
     ],
 )
 def test_bad_values_fail_before_training(override, message):
@@ -119,8 +137,13 @@ class ScriptedTowerSteps(gym.Env):
     def step(self, action):
         primitive, block, success, height, done, next_height = self.steps[self.i]
         self.i += 1
-        info = {"primitive": primitive, "primitive_object": block, "primitive_success": success,
-                "stack_height": height, "is_success": done}  # fmt: skip
+        info = {
+            "primitive": primitive,
+            "primitive_object": block,
+            "primitive_success": success,
+            "stack_height": height,
+            "is_success": done,
+        }
         return self.heightmap(next_height), -99.0, done, False, info
 
 
@@ -154,6 +177,10 @@ def test_overrides_reach_into_mappings_and_read_numbers():
     assert config.algo_kwargs["learning_rate"] == pytest.approx(3e-4)
     assert (config.seed, config.n_envs) == (7, 2)
     assert config.algo_kwargs["batch_size"] == 256  # untouched entries stay
+    config = load_config(CONFIGS / "push_sac_her.yaml", ["env_kwargs.reward_type=dense", "max_minutes=2.5"])
+    assert config.env_kwargs["reward_type"] == "dense" and config.max_minutes == 2.5
+    with pytest.raises(ValueError, match=r"override 'name.first=x': 'name' is not a mapping"):
+        load_config(CONFIGS / "push_sac_her.yaml", ["name.first=x"])
 
 
 def test_train_cli_reports_config_errors_without_starting(tmp_path, capsys):
@@ -186,8 +213,16 @@ def blob_observation(rows=40, cols=40, centre=(12, 25), radius=3, height=0.04):
 def tiny_policy(primitives=("grasp", "push"), used=("grasp",), rotations=4, rows=40, cols=40, refine=False):
     space = gym.spaces.Box(0, 255, (4, rows, cols), dtype=np.uint8)
     actions = gym.spaces.Discrete(len(primitives) * rotations * rows * cols)
-    return HeightmapQPolicy(space, actions, lambda _: 1e-3, primitives=primitives, rotations=rotations, cell_size=0.01,
-                            primitives_used=used, refine=refine)  # fmt: skip
+    return HeightmapQPolicy(
+        space,
+        actions,
+        lambda _: 1e-3,
+        primitives=primitives,
+        rotations=rotations,
+        cell_size=0.01,
+        primitives_used=used,
+        refine=refine,
+    )
 
 
 def test_encoded_heightmap_keeps_millimetres():
@@ -199,8 +234,15 @@ def test_encoded_heightmap_keeps_millimetres():
 
 
 def test_directional_command_becomes_heading_planes_the_network_reads():
-    env = EncodedHeightmap(gym.make("panda_grasp_env:PandaTowerBreakDirectional-v0", obs_mode="heightmap",
-                                    action_mode="pixel", heightmap_resolution=0.008, rotations=4))  # fmt: skip
+    env = EncodedHeightmap(
+        gym.make(
+            "panda_grasp_env:PandaTowerBreakDirectional-v0",
+            obs_mode="heightmap",
+            action_mode="pixel",
+            heightmap_resolution=0.008,
+            rotations=4,
+        )
+    )
     observation, info = env.reset(seed=0)
     assert observation.shape == env.observation_space.shape and observation.shape[0] == 6
     cos_sin = observation[4:, 0, 0] / 127.0 - 1.0
@@ -210,8 +252,15 @@ def test_directional_command_becomes_heading_planes_the_network_reads():
     env.close()
     th.manual_seed(0)
     space = gym.spaces.Box(0, 255, (6, 40, 40), dtype=np.uint8)
-    policy = HeightmapQPolicy(space, gym.spaces.Discrete(4 * 1600), lambda _: 1e-3, primitives=("push",), rotations=4,
-                              cell_size=0.01, command=True)  # fmt: skip
+    policy = HeightmapQPolicy(
+        space,
+        gym.spaces.Discrete(4 * 1600),
+        lambda _: 1e-3,
+        primitives=("push",),
+        rotations=4,
+        cell_size=0.01,
+        command=True,
+    )
     assert policy._get_constructor_parameters()["command"]
     heightmap = np.zeros((40, 40, 4), dtype=np.float32)
     heightmap[10:15, 20:25] = [0.8, 0.2, 0.2, 0.1]
@@ -224,8 +273,15 @@ def test_directional_command_becomes_heading_planes_the_network_reads():
     q_north = policy.q_net(th.as_tensor(encode_heightmap(turned, heading=np.pi / 2))[None]).view(4, 40, 40)[1]
     assert th.allclose(th.rot90(q_east, 1, (0, 1)), q_north, atol=1e-4)
     with pytest.raises(ValueError, match="6 or 7"):
-        HeightmapQPolicy(gym.spaces.Box(0, 255, (4, 40, 40), dtype=np.uint8), gym.spaces.Discrete(4 * 1600),
-                         lambda _: 1e-3, primitives=("push",), rotations=4, cell_size=0.01, command=True)  # fmt: skip
+        HeightmapQPolicy(
+            gym.spaces.Box(0, 255, (4, 40, 40), dtype=np.uint8),
+            gym.spaces.Discrete(4 * 1600),
+            lambda _: 1e-3,
+            primitives=("push",),
+            rotations=4,
+            cell_size=0.01,
+            command=True,
+        )
 
 
 @pytest.mark.parametrize("refine", [False, True])
@@ -266,8 +322,11 @@ def test_agent_does_not_retry_a_failed_primitive_where_nothing_changed():
         assert p == 0 and inside[row, col]
         tried.append((rotation, row, col))
     radius = agent.memory.radius
-    fresh = [(h, r, c) for i, (h, r, c) in enumerate(tried)
-             if all(h % 2 != h0 % 2 or max(abs(r - r0), abs(c - c0)) > radius for h0, r0, c0 in tried[:i])]  # fmt: skip
+    fresh = [
+        (h, r, c)
+        for i, (h, r, c) in enumerate(tried)
+        if all(h % 2 != h0 % 2 or max(abs(r - r0), abs(c - c0)) > radius for h0, r0, c0 in tried[:i])
+    ]
     assert len(fresh) >= 4 and tried[: len(fresh)] == fresh  # new places or headings first, then repeats
     assert agent.memory.excluded(observation).reshape(shape)[0][:, inside].all()
     raised, _ = blob_observation(height=0.08)  # the heights there changed: everything may be tried again
@@ -444,13 +503,14 @@ def test_init_policy_starts_a_run_from_a_checkpoints_weights(finished_run, tmp_p
         load_initial_policy(build_model(narrower, env, None), narrower, initial_policy_source(narrower))
     env.close()
     with pytest.raises(ValueError, match="init_policy tiny was trained with heightmap_dqn, this run uses sac"):
-        initial_policy_source(TrainConfig(**{**vars(config), "algo": "sac"}))
+        initial_policy_source(dataclasses.replace(config, algo="sac", algo_kwargs={}))
     # The same Q-policy learned from demonstrations may start from it.
     demos = {**config.algo_kwargs, "demonstrations": {"dataset": "panda_grasp_env/any-v0", "episodes": 1}}
-    assert initial_policy_source(TrainConfig(**{**vars(config), "algo": "heightmap_dqn_demos", "algo_kwargs": demos}))
+    assert initial_policy_source(dataclasses.replace(config, algo="heightmap_dqn_demos", algo_kwargs=demos))
     with pytest.raises(ValueError, match="init_policy tiny: its action_space"):
-        initial_policy_source(load_config(CONFIGS / "grasp_clutter_dqn.yaml", [*TINY_DQN, "init_policy=tiny",
-                                                                               "env_kwargs.rotations=8"]))  # fmt: skip
+        initial_policy_source(
+            load_config(CONFIGS / "grasp_clutter_dqn.yaml", [*TINY_DQN, "init_policy=tiny", "env_kwargs.rotations=8"])
+        )
 
     # Through train.py: a fine-tuning run starts from the checkpoint's weights (with learning_starts above
     # total_steps nothing is learned, so its policy is the checkpoint's) and records where they came from.
@@ -483,8 +543,16 @@ def test_every_shipped_checkpoint_loads_acts_and_has_its_card(name):
 
 
 def test_her_pipeline_runs_with_vectorised_envs(tmp_path):
-    overrides = ["total_steps=200", "n_envs=2", "algo_kwargs.learning_starts=100", "algo_kwargs.buffer_size=1000",
-                 "eval_every=200", "eval_episodes=1", "final_eval_episodes=1", "checkpoint_every=200"]  # fmt: skip
+    overrides = [
+        "total_steps=200",
+        "n_envs=2",
+        "algo_kwargs.learning_starts=100",
+        "algo_kwargs.buffer_size=1000",
+        "eval_every=200",
+        "eval_episodes=1",
+        "final_eval_episodes=1",
+        "checkpoint_every=200",
+    ]
     config = str(CONFIGS / "lift_sac_her.yaml")  # with training envs that start some episodes holding the object
     assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *overrides]) == 0
     final = json.loads((tmp_path / "lift_sac_her-seed0" / "final.json").read_text())
@@ -509,8 +577,8 @@ def test_train_env_kwargs_reach_the_training_envs_only():
 def test_learning_rate_decays_linearly_over_total_steps_also_when_resumed(tmp_path, monkeypatch):
     decay = "algo_kwargs.learning_rate={start: 0.001, end: 0.0001}"
     config = str(CONFIGS / "grasp_clutter_dqn.yaml")
-    assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *TINY_DQN, decay,
-                       "total_steps=6"]) == 0  # fmt: skip
+    cli = ["--config", config, "--runs", str(tmp_path), "--no-progress", *TINY_DQN, decay, "total_steps=6"]
+    assert train.main(cli) == 0
     rates = []
     original = HeightmapDQN.train
 
@@ -547,10 +615,6 @@ def test_resume_refuses_changes_to_what_built_the_model(finished_run, capsys):
         assert train.main(["--resume", str(finished_run), override, "--no-progress"]) == 2
         assert "a resumed run cannot change" in capsys.readouterr().err
     assert (finished_run / "config.yaml").read_text() == saved
-
-
-def test_config_dataclass_lists_its_keys():
-    assert TrainConfig.keys()[:4] == ["name", "env_id", "algo", "total_steps"]
 
 
 @pytest.mark.slow
@@ -608,8 +672,15 @@ def test_holding_plane_switches_the_masks_between_grasp_and_place():
     assert holding.shape == (5, 40, 40) and holding[4].min() == 255 and empty[4].max() == 0
     primitives = ("grasp", "place", "push")
     space = gym.spaces.Box(0, 255, (5, 40, 40), dtype=np.uint8)
-    policy = HeightmapQPolicy(space, gym.spaces.Discrete(3 * 4 * 1600), lambda _: 1e-3, primitives=primitives,
-                              rotations=4, cell_size=0.01, primitives_used=("grasp", "place"))  # fmt: skip
+    policy = HeightmapQPolicy(
+        space,
+        gym.spaces.Discrete(3 * 4 * 1600),
+        lambda _: 1e-3,
+        primitives=primitives,
+        rotations=4,
+        cell_size=0.01,
+        primitives_used=("grasp", "place"),
+    )
     allowed = policy.q_net.allowed(th.as_tensor(np.stack([holding, empty]))).reshape(2, 3, 4, 40, 40)
     assert allowed[0, 1].any() and not allowed[0, 0].any()  # holding: place only
     assert allowed[1, 0].any() and not allowed[1, 1].any()  # empty hand: grasp only
@@ -721,8 +792,13 @@ def test_maskable_ppo_cnn_policy_takes_the_encoded_heightmap_as_it_is():
 
     from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap
 
-    raw = gym.make("panda_grasp_env:PandaGrasp-v0", action_mode="pixel_factored", obs_mode="heightmap",
-                   heightmap_resolution=0.004, rotations=4)  # fmt: skip
+    raw = gym.make(
+        "panda_grasp_env:PandaGrasp-v0",
+        action_mode="pixel_factored",
+        obs_mode="heightmap",
+        heightmap_resolution=0.004,
+        rotations=4,
+    )
     assert not is_image_space(raw.observation_space)  # float32, channels last: CnnPolicy fails on it
     env = EncodedHeightmap(raw)
     assert env.observation_space.shape == (4, 112, 112) and is_image_space(env.observation_space)

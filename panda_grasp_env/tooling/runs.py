@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import yaml
+from pydantic import TypeAdapter, ValidationError
 
 Config = TypeVar("Config")
 
@@ -121,9 +122,9 @@ def commit() -> str:
     root = Path(__file__).resolve().parents[2]  # the repository (agents/, perception/ and train.py too)
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-        changes = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no", "--",
-                                  ".", ":(exclude)agents/checkpoints", ":(exclude)panda_grasp_env/falls/checkpoints"],
-                                 capture_output=True, text=True)  # fmt: skip
+        shipped = [":(exclude)agents/checkpoints", ":(exclude)panda_grasp_env/falls/checkpoints"]
+        status = ["status", "--porcelain", "--untracked-files=no", "--", ".", *shipped]
+        changes = subprocess.run(["git", "-C", str(root), *status], capture_output=True, text=True)
     except OSError:
         return "unknown"
     if not head.stdout.strip():
@@ -186,11 +187,14 @@ def run_key() -> bytes:
         raise ValueError(f"run-signing key {path} is not a regular file: {mend}")
     with os.fdopen(descriptor, "rb") as handle:
         if facts.st_uid != os.getuid():
-            raise ValueError(f"run-signing key {path} belongs to user id {facts.st_uid}, not to you "
-                             f"({os.getuid()}): {mend}")  # fmt: skip
+            raise ValueError(
+                f"run-signing key {path} belongs to user id {facts.st_uid}, not to you ({os.getuid()}): {mend}"
+            )
         if facts.st_mode & 0o077:
-            raise ValueError(f"run-signing key {path} has mode {stat.S_IMODE(facts.st_mode):04o}, not 0600: group or "
-                             f"others may have read it, so {mend}")  # fmt: skip
+            raise ValueError(
+                f"run-signing key {path} has mode {stat.S_IMODE(facts.st_mode):04o}, not 0600: group or "
+                f"others may have read it, so {mend}"
+            )
         key = handle.read(RUN_KEY_BYTES + 1)
     if len(key) != RUN_KEY_BYTES:
         size = f"{len(key)} bytes" if len(key) <= RUN_KEY_BYTES else f"more than {RUN_KEY_BYTES} bytes"
@@ -251,6 +255,35 @@ def config_from_mapping(cls: type[Config], raw: dict[str, Any], source: str) -> 
     return config
 
 
+def config_value_error(key: str, value: Any, expected: str) -> ValueError:
+    """The error of a config key's bad value: ``config <key>=<value>: expected <what it takes>``."""
+    return ValueError(f"config {key}={value!r}: expected {expected}")
+
+
+def checked_config(cls: type[Config], raw: Any, source: str) -> Config:
+    """The pydantic dataclass ``cls`` from the mapping ``raw`` (read from ``source``), checked.  ``ValueError``
+    listing unknown or missing keys beside the valid ones, or naming the first bad key, its value and what it
+    takes (the field's ``description``, else what its check said); a check across keys raises its own."""
+    try:
+        return TypeAdapter(cls).validate_python(raw)
+    except ValidationError as error:
+        problems = error.errors(include_url=False)
+    fields = cls.__pydantic_fields__  # type: ignore[attr-defined]
+    valid = list(fields)
+    unknown = [p["loc"][0] for p in problems if p["type"] in ("unexpected_keyword_argument", "invalid_key")]
+    if unknown:
+        raise ValueError(f"unknown key(s) {unknown} in {source}; valid keys: {valid}")
+    missing = [p["loc"][0] for p in problems if p["type"] == "missing"]
+    if missing:
+        raise ValueError(f"{source} lacks required key(s) {missing}; valid keys: {valid}")
+    first = problems[0]
+    said = str(first.get("ctx", {}).get("error", first["msg"]))
+    if not first["loc"]:
+        raise ValueError(said)
+    key = first["loc"][0]
+    raise config_value_error(key, raw[key], fields[key].description or said)
+
+
 def new_run_folder(runs_dir: Path, config: Any, **facts: Any) -> Path:
     """A fresh folder ``runs_dir/<name>-seed<seed>[-N]`` for a run of the config dataclass ``config``, holding
     config.yaml and meta.json (seed, versions, commit, machine, start time and ``facts``)."""
@@ -262,8 +295,14 @@ def new_run_folder(runs_dir: Path, config: Any, **facts: Any) -> Path:
         run_dir = runs_dir / f"{config.name}-seed{config.seed}-{suffix}"
     run_dir.mkdir()
     write_atomically(run_dir / "config.yaml", yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
-    meta = {"seed": config.seed, "versions": versions(), "commit": commit(), "machine": f"{machine()}, no GPU used",
-            "started": time.strftime("%Y-%m-%d %H:%M:%S %Z"), **facts}  # fmt: skip
+    meta = {
+        "seed": config.seed,
+        "versions": versions(),
+        "commit": commit(),
+        "machine": f"{machine()}, no GPU used",
+        "started": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
+        **facts,
+    }
     write_json(run_dir / "meta.json", meta)
     return run_dir
 
