@@ -10,8 +10,10 @@ from panda_grasp_env.commands import train
 from panda_grasp_env.falls import training as fall_training
 from panda_grasp_env.falls.dataset import load_split, split_of
 from panda_grasp_env.falls.model import Confusion, FallPredictor, constant_velocity, copy_last, evaluate
-from panda_grasp_env.falls.recorder import RecorderSettings, main, record_dataset
+from panda_grasp_env.falls.recorder import LATER_SETTINGS, RecorderSettings, main, record_dataset, tower_height
 from panda_grasp_env.falls.training import load_fall_model
+from panda_grasp_env.model.scene import DEFAULT_COLOURS
+from panda_grasp_env.perception.camera import CameraModel
 
 SETTINGS = RecorderSettings(frames=10, shard_size=2, seed=7)
 
@@ -54,6 +56,10 @@ def test_recording_is_deterministic_and_resumes(dataset, tmp_path):
     assert [s["sha256"] for s in meta["shards"]] == [s["sha256"] for s in first]
     with pytest.raises(ValueError, match="other settings"):
         record_dataset(out, 4, RecorderSettings(frames=12, shard_size=2, seed=7), workers=1, progress=False)
+    # A folder recorded before the later settings existed resumes: their defaults record what it holds.
+    settings = json.loads((out / "settings.json").read_text())
+    (out / "settings.json").write_text(json.dumps({k: v for k, v in settings.items() if k not in LATER_SETTINGS}))
+    assert record_dataset(out, 4, SETTINGS, workers=1, progress=False)["recording"]["sequences_recorded_now"] == 0
 
 
 def test_bad_recorder_settings_fail_with_the_name():
@@ -61,7 +67,48 @@ def test_bad_recorder_settings_fail_with_the_name():
         RecorderSettings(frame_interval=0.05).validate()
     with pytest.raises(ValueError, match="breaker"):
         RecorderSettings(breaker="kick").validate()
+    for heights in [(9,), (1,), (), (6, 6), [6, 8], (6.0,)]:
+        with pytest.raises(ValueError, match="tower_blocks"):
+            RecorderSettings(tower_blocks=heights).validate()
     assert main(["--out", "/nonexistent/x", "--sequences", "0", "--no-progress"]) == 2
+    assert main(["--out", "/nonexistent/x", "--tower-blocks", "6,9", "--no-progress"]) == 2
+
+
+def test_tall_towers_draw_their_height_per_sequence_and_label_each_block_by_its_index(tmp_path):
+    settings = RecorderSettings(frames=4, shard_size=2, tower_blocks=(6, 8))
+    heights = [tower_height(seed, settings) for seed in range(40)]
+    assert heights == [tower_height(seed, settings) for seed in range(40)] and set(heights) == {6, 8}
+    assert heights[:2] == [6, 8]  # the two sequences recorded here
+    meta = record_dataset(tmp_path, 2, settings, progress=False)
+    assert meta["classes"] == ["background", *(f"block_{c}" for c in DEFAULT_COLOURS)]  # the tallest tower's
+    assert meta["tower_blocks"] == [6, 8]
+    camera = CameraModel(
+        *meta["camera"]["render_size"], *(np.array(meta["camera"][k]) for k in ("K", "rotation", "position"))
+    )
+    with np.load(tmp_path / "shard_00000.npz") as shard:
+        assert shard["n_blocks"].tolist() == [6, 8] and shard["poses"].shape == (2, 4, 8, 7)
+        for labels, poses, n, origin in zip(shard["labels"], shard["poses"], shard["n_blocks"], shard["crop_origin"]):
+            assert np.isnan(poses[:, n:]).all() and not np.isnan(poses[:, :n]).any()
+            assert set(np.unique(labels)) <= set(range(n + 1))
+            top = int(np.argmax(poses[0, :n, 2]))  # the standing tower's top block, seen from above before it falls
+            (u, v), _ = camera.world_to_pixel(poses[0, top, :3] + [0, 0, 0.025])
+            assert labels[0, round(v) - origin[1], round(u) - origin[0]] == top + 1
+    split = load_split(tmp_path, "train")
+    assert split.n_blocks.tolist() == [6, 8] and split.poses.shape == (2, 4, 8, 7)
+
+
+def test_a_dataset_recorded_before_tower_heights_loads_as_four_block_towers(dataset, tmp_path):
+    from panda_grasp_env.tooling.runs import sha256
+
+    meta = json.loads((dataset / "metadata.json").read_text())
+    for entry in meta["shards"]:
+        with np.load(dataset / entry["file"]) as shard:
+            np.savez_compressed(tmp_path / entry["file"], **{k: shard[k] for k in shard.files if k != "n_blocks"})
+        entry.update(bytes=(tmp_path / entry["file"]).stat().st_size, sha256=sha256(tmp_path / entry["file"]))
+    del meta["tower_blocks"]
+    (tmp_path / "metadata.json").write_text(json.dumps(meta))
+    split = load_split(tmp_path, "train")
+    assert split.n_blocks.tolist() == [4] * len(split.labels) and split.poses.shape[2] == 4
 
 
 def test_loader_splits_by_sequence_and_names_a_corrupt_shard(dataset, tmp_path):

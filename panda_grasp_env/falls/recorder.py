@@ -1,7 +1,8 @@
 """Record falling-tower sequences from the env:  python -m panda_grasp_env.falls --out data/falls --sequences 2000
 
-Each sequence: ``PandaTowerBreak-v0`` resets with its seed (a 4-block tower in
-random colour order, position and yaw), one ``env.step`` breaks it -- a random
+Each sequence: ``PandaTowerBreak-v0`` resets with its seed (a tower of one of
+``tower_blocks`` heights -- 4 blocks by default, drawn per sequence -- in random
+colour order, position and yaw), one ``env.step`` breaks it -- a random
 horizontal impulse on a random block (the source study's protocol) or a push
 -- and, from the moment a block starts to move, the overhead camera is
 sampled every ``frame_interval`` seconds of simulated time: RGB, depth, the
@@ -31,6 +32,7 @@ import numpy as np
 
 from panda_grasp_env.falls.dataset import SHARD_ARRAYS, split_of
 from panda_grasp_env.geometry import is_count
+from panda_grasp_env.tasks.base import TOWER_BLOCKS
 from panda_grasp_env.tooling.runs import atomic_path, interrupt_on_signals, sha256, write_atomically
 
 #: Block speed (m/s) above which the fall has begun.
@@ -38,6 +40,8 @@ MOTION_SPEED = 0.01
 #: Rendered image (width, height) the square crop is cut from: a block is ~10 px wide and a 64 px crop spans 0.33 m.
 RENDER_SIZE = (224, 168)
 BREAKERS = ("impulse", "push", "mixed")
+#: Settings added after the first recordings; their defaults record what the recorder did before them.
+LATER_SETTINGS = ("tower_blocks",)
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,7 @@ class RecorderSettings:
     impulse: tuple[float, float] = (0.08, 0.2)
     shard_size: int = 50
     seed: int = 0  # sequence i uses env seed seed + i
+    tower_blocks: tuple[int, ...] = (4,)  # tower heights (blocks), one drawn per sequence (``tower_height``)
 
     def validate(self) -> None:
         checks = [
@@ -70,6 +75,14 @@ class RecorderSettings:
             (0 < self.impulse[0] <= self.impulse[1] <= 1.0, "impulse", "(low, high) with 0 < low <= high <= 1 N s"),
             (is_count(self.shard_size) and self.shard_size >= 1, "shard_size", "an int >= 1"),
             (is_count(self.seed) and self.seed >= 0, "seed", "an int >= 0"),
+            (
+                isinstance(self.tower_blocks, tuple)
+                and len(self.tower_blocks) >= 1
+                and all(is_count(n) and TOWER_BLOCKS[0] <= n <= TOWER_BLOCKS[1] for n in self.tower_blocks)
+                and len(set(self.tower_blocks)) == len(self.tower_blocks),
+                "tower_blocks",
+                f"a non-empty tuple of distinct ints in [{TOWER_BLOCKS[0]}, {TOWER_BLOCKS[1]}]",
+            ),
         ]
         for ok, name, expected in checks:
             if not ok:
@@ -128,13 +141,15 @@ class FrameGrabber:
         sensors.invalidate()
 
 
-def make_recorder_env() -> Any:
+def make_recorder_env(n_blocks: int) -> Any:
+    """The env that records towers of ``n_blocks``: block i (label i + 1) has ``DEFAULT_COLOURS``' colour i."""
     import gymnasium as gym
 
     import panda_grasp_env  # noqa: F401
 
     return gym.make(
         "PandaTowerBreak-v0",
+        n_blocks=n_blocks,
         action_mode="primitive",
         primitive_z=True,
         allow_impulse=True,
@@ -144,10 +159,32 @@ def make_recorder_env() -> Any:
     )
 
 
-def record_sequence(env: Any, seed: int, settings: RecorderSettings) -> dict[str, np.ndarray]:
-    """One fall: reset with ``seed``, break the tower, grab ``settings.frames`` frames."""
+class RecorderEnvs(dict):
+    """Recorder envs by tower height (blocks), each made when first asked for (offscreen: EGL unless the
+    process chose another ``MUJOCO_GL``)."""
+
+    def __missing__(self, n_blocks: int) -> Any:
+        os.environ.setdefault("MUJOCO_GL", "egl")
+        self[n_blocks] = env = make_recorder_env(n_blocks)
+        return env
+
+
+def tower_height(seed: int, settings: RecorderSettings) -> int:
+    """The tower height (blocks) of sequence ``seed``: one of ``settings.tower_blocks``, uniformly, from a
+    generator of the sequence's own, apart from the one that draws its strike (so a single height records
+    exactly what the recorder did before heights were a setting)."""
+    rng = np.random.default_rng([settings.seed, seed, 0x70E5])
+    return int(settings.tower_blocks[int(rng.integers(len(settings.tower_blocks)))])
+
+
+def record_sequence(envs: RecorderEnvs, seed: int, settings: RecorderSettings) -> dict[str, np.ndarray]:
+    """One fall: reset the env of the sequence's ``tower_height`` with ``seed``, break the tower, grab
+    ``settings.frames`` frames.  ``poses`` has a row per block of the tallest of ``settings.tower_blocks``:
+    NaN for the blocks a lower tower lacks."""
     from panda_grasp_env.actions import encode_primitive
 
+    n_blocks = tower_height(seed, settings)
+    env = envs[n_blocks]
     _, info = env.reset(seed=seed)
     cell = env.unwrapped.cell
     rng = np.random.default_rng([settings.seed, seed, 0xFA11])
@@ -189,8 +226,11 @@ def record_sequence(env: Any, seed: int, settings: RecorderSettings) -> dict[str
     finally:
         cell.step_hooks.remove(grabber)
     stacked = {key: np.stack([frame[key] for frame in grabber.frames]) for key in grabber.frames[0]}
+    missing = max(settings.tower_blocks) - n_blocks
+    stacked["poses"] = np.pad(stacked["poses"], ((0, 0), (0, missing), (0, 0)), constant_values=np.nan)
     return {
         **stacked,
+        "n_blocks": np.uint8(n_blocks),
         "seeds": np.int64(seed),
         "breaker": np.uint8(BREAKERS.index(breaker)),
         "strike": np.array([level, heading, magnitude, target[0], target[1]], dtype=np.float32),
@@ -198,23 +238,16 @@ def record_sequence(env: Any, seed: int, settings: RecorderSettings) -> dict[str
     }
 
 
-_ENV: Any = None
-
-
-def _worker_init() -> None:
-    global _ENV
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    _ENV = make_recorder_env()
+#: This process's recorder envs (a pool worker's, or the recording process's own with one worker).
+_ENVS = RecorderEnvs()
 
 
 def record_shard(job: tuple[Path, int, int, RecorderSettings]) -> dict[str, Any]:
     """Record sequences [first, first + count) into ``out/shard_<index>.npz`` and its sidecar JSON (both atomic)."""
     out, index, count, settings = job
-    if _ENV is None:
-        _worker_init()
     began = time.perf_counter()
     first = settings.seed + index * settings.shard_size
-    sequences = [record_sequence(_ENV, first + i, settings) for i in range(count)]
+    sequences = [record_sequence(_ENVS, first + i, settings) for i in range(count)]
     arrays = {key: np.stack([s[key] for s in sequences]) for key in SHARD_ARRAYS}
     name = f"shard_{index:05d}.npz"
     with atomic_path(out / name) as tmp, open(tmp, "wb") as handle:
@@ -253,7 +286,11 @@ def record_dataset(
     out.mkdir(parents=True, exist_ok=True)
     settings_file = out / "settings.json"
     wanted = {"sequences": sequences, **asdict(settings)}
-    if settings_file.exists() and json.loads(settings_file.read_text()) != json.loads(json.dumps(wanted)):
+    # A folder recorded before LATER_SETTINGS existed was recorded as their defaults record.
+    defaults = {key: value for key, value in asdict(RecorderSettings()).items() if key in LATER_SETTINGS}
+    recorded = json.loads(json.dumps(defaults)) | json.loads(settings_file.read_text()) \
+        if settings_file.exists() else None  # fmt: skip
+    if recorded is not None and recorded != json.loads(json.dumps(wanted)):
         raise ValueError(f"{out} holds a recording with other settings ({settings_file}); use another --out")
     settings_file.write_text(json.dumps(wanted, indent=2))
     n_shards = -(-sequences // settings.shard_size)
@@ -275,7 +312,7 @@ def record_dataset(
                 entries[int(entry["file"][6:11])] = entry
                 bar.update(entry["sequences"])
         else:
-            with multiprocessing.get_context("spawn").Pool(workers, initializer=_worker_init) as pool:
+            with multiprocessing.get_context("spawn").Pool(workers) as pool:
                 for entry in pool.imap_unordered(record_shard, jobs):
                     entries[int(entry["file"][6:11])] = entry
                     bar.update(entry["sequences"])
@@ -293,7 +330,7 @@ def record_dataset(
 def describe(out: Path, settings: RecorderSettings, sequences: int, shards: list[dict[str, Any]]) -> dict[str, Any]:
     import importlib.metadata as md
 
-    env = make_recorder_env()
+    env = make_recorder_env(max(settings.tower_blocks))  # its colours are every height's first colours
     _, info = env.reset(seed=settings.seed)
     camera = env.unwrapped.camera_model("overhead")
     classes = ["background", *info["block_colours"]]
@@ -307,6 +344,7 @@ def describe(out: Path, settings: RecorderSettings, sequences: int, shards: list
         "frames": settings.frames,
         "frame_interval": settings.frame_interval,
         "crop": settings.crop,
+        "tower_blocks": list(settings.tower_blocks),
         "classes": classes,
         "settings": asdict(settings),
         "splits": {"rule": "seed % 10: 0-7 train, 8 val, 9 test", **counts},
@@ -324,6 +362,11 @@ def describe(out: Path, settings: RecorderSettings, sequences: int, shards: list
     }
 
 
+def int_tuple(text: str) -> tuple[int, ...]:
+    """``"6,8"`` -> ``(6, 8)`` (a command-line list)."""
+    return tuple(int(part) for part in text.split(","))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m panda_grasp_env.falls",
@@ -337,6 +380,9 @@ def main(argv: list[str] | None = None) -> int:
     for field, value in asdict(defaults).items():
         if field == "impulse":
             parser.add_argument("--impulse", type=float, nargs=2, default=value, metavar=("LOW", "HIGH"))
+        elif field == "tower_blocks":
+            parser.add_argument("--tower-blocks", type=int_tuple, default=value, metavar="N[,N...]",
+                                help="tower heights in blocks, one drawn per sequence (default 4)")  # fmt: skip
         else:
             parser.add_argument(f"--{field.replace('_', '-')}", type=type(value), default=value)
     parser.add_argument("--no-progress", action="store_true")
