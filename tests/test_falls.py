@@ -10,7 +10,15 @@ from panda_grasp_env.commands import train
 from panda_grasp_env.falls import training as fall_training
 from panda_grasp_env.falls.dataset import load_split, split_of
 from panda_grasp_env.falls.model import Confusion, FallPredictor, constant_velocity, copy_last, evaluate
-from panda_grasp_env.falls.recorder import LATER_SETTINGS, RecorderSettings, main, record_dataset, tower_height
+from panda_grasp_env.falls.recorder import (
+    LATER_SETTINGS,
+    RecorderEnvs,
+    RecorderSettings,
+    main,
+    record_dataset,
+    record_sequence,
+    tower_height,
+)
 from panda_grasp_env.falls.training import load_fall_model
 from panda_grasp_env.model.scene import DEFAULT_COLOURS
 from panda_grasp_env.perception.camera import CameraModel
@@ -70,12 +78,19 @@ def test_bad_recorder_settings_fail_with_the_name():
     for heights in [(9,), (1,), (), (6, 6), [6, 8], (6.0,)]:
         with pytest.raises(ValueError, match="tower_blocks"):
             RecorderSettings(tower_blocks=heights).validate()
+    for levels in [(0, 6), (3, 2), (-1, 2), (0,)]:
+        with pytest.raises(ValueError, match="strike_levels"):
+            RecorderSettings(strike_levels=levels).validate()
+    with pytest.raises(ValueError, match="strike_levels.*lowest tower"):
+        RecorderSettings(tower_blocks=(4, 8), strike_levels=(4, 5)).validate()
+    with pytest.raises(ValueError, match="start_shift"):
+        RecorderSettings(start_shift=-0.01).validate()
     assert main(["--out", "/nonexistent/x", "--sequences", "0", "--no-progress"]) == 2
     assert main(["--out", "/nonexistent/x", "--tower-blocks", "6,9", "--no-progress"]) == 2
 
 
 def test_tall_towers_draw_their_height_per_sequence_and_label_each_block_by_its_index(tmp_path):
-    settings = RecorderSettings(frames=4, shard_size=2, tower_blocks=(6, 8))
+    settings = RecorderSettings(frames=4, shard_size=2, tower_blocks=(6, 8), strike_levels=(3, 5))
     heights = [tower_height(seed, settings) for seed in range(40)]
     assert heights == [tower_height(seed, settings) for seed in range(40)] and set(heights) == {6, 8}
     assert heights[:2] == [6, 8]  # the two sequences recorded here
@@ -95,6 +110,16 @@ def test_tall_towers_draw_their_height_per_sequence_and_label_each_block_by_its_
             assert labels[0, round(v) - origin[1], round(u) - origin[0]] == top + 1
     split = load_split(tmp_path, "train")
     assert split.n_blocks.tolist() == [6, 8] and split.poses.shape == (2, 4, 8, 7)
+
+
+def test_with_a_start_shift_the_frames_start_once_a_block_left_its_place():
+    # Pushing fingers make a tall tower jitter faster than MOTION_SPEED long before it moves: without the shift
+    # this sequence's first frame showed its blocks within 1 mm of the tower.
+    settings = RecorderSettings(frames=2, tower_blocks=(8,), breaker="push", strike_levels=(4, 4), start_shift=0.005)
+    envs = RecorderEnvs()
+    first = record_sequence(envs, 2, settings)["poses"][0, :, :3]
+    envs[8].reset(seed=2)
+    assert np.linalg.norm(first - envs[8].unwrapped.cell.block_positions(), axis=1).max() >= 0.005
 
 
 def test_a_dataset_recorded_before_tower_heights_loads_as_four_block_towers(dataset, tmp_path):

@@ -3,8 +3,9 @@
 Each sequence: ``PandaTowerBreak-v0`` resets with its seed (a tower of one of
 ``tower_blocks`` heights -- 4 blocks by default, drawn per sequence -- in random
 colour order, position and yaw), one ``env.step`` breaks it -- a random
-horizontal impulse on a random block (the source study's protocol) or a push
--- and, from the moment a block starts to move, the overhead camera is
+horizontal impulse on a block at a random level of ``strike_levels`` (the
+source study's protocol) or a push -- and, from the moment a block starts to
+move (and is ``start_shift`` from its place), the overhead camera is
 sampled every ``frame_interval`` seconds of simulated time: RGB, depth, the
 simulator's segmentation and ``perception``'s colour segmentation, cropped to
 a square around the tower, plus every block's pose.  The format and the loader
@@ -30,18 +31,23 @@ from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.actions import PRIMITIVE_Z_RANGE
 from panda_grasp_env.falls.dataset import SHARD_ARRAYS, split_of
-from panda_grasp_env.geometry import is_count
+from panda_grasp_env.geometry import is_count, is_number
+from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.tasks.base import TOWER_BLOCKS
 from panda_grasp_env.tooling.runs import atomic_path, interrupt_on_signals, sha256, write_atomically
 
-#: Block speed (m/s) above which the fall has begun.
+#: Block speed (m/s) above which the fall has begun (once a block is also ``start_shift`` from the tower).
 MOTION_SPEED = 0.01
+#: The highest tower level (0: the base) a strike aims at: its centre (0.275 m) is the highest under the top
+#: of ``PRIMITIVE_Z_RANGE`` (0.3 m), above which a primitive's height is clipped and it would hit another block.
+HIGHEST_STRIKE_LEVEL = int((PRIMITIVE_Z_RANGE[1] - SceneConfig().block_size / 2) // SceneConfig().block_size)
 #: Rendered image (width, height) the square crop is cut from: a block is ~10 px wide and a 64 px crop spans 0.33 m.
 RENDER_SIZE = (224, 168)
 BREAKERS = ("impulse", "push", "mixed")
 #: Settings added after the first recordings; their defaults record what the recorder did before them.
-LATER_SETTINGS = ("tower_blocks",)
+LATER_SETTINGS = ("tower_blocks", "strike_levels", "start_shift")
 
 
 @dataclass(frozen=True)
@@ -56,6 +62,14 @@ class RecorderSettings:
     shard_size: int = 50
     seed: int = 0  # sequence i uses env seed seed + i
     tower_blocks: tuple[int, ...] = (4,)  # tower heights (blocks), one drawn per sequence (``tower_height``)
+    # Levels (0: the base) the struck block is drawn from, uniformly, up to the tower's top and
+    # HIGHEST_STRIKE_LEVEL: a tall tower struck low mostly stands (an impulse in the lower half of a 6-block
+    # tower toppled 3 of 19, in the upper half 19 of 26; see docs/falling-tower.md).
+    strike_levels: tuple[int, int] = (0, HIGHEST_STRIKE_LEVEL)
+    # Metres: 0 starts the frames at the first block moving faster than MOTION_SPEED; more also waits until a
+    # block is that far from where it stood (a tall tower touched by the pushing fingers jitters at up to
+    # 0.16 m/s for seconds before it moves; see docs/falling-tower.md).
+    start_shift: float = 0.0
 
     def validate(self) -> None:
         checks = [
@@ -83,17 +97,36 @@ class RecorderSettings:
                 "tower_blocks",
                 f"a non-empty tuple of distinct ints in [{TOWER_BLOCKS[0]}, {TOWER_BLOCKS[1]}]",
             ),
+            (
+                isinstance(self.strike_levels, tuple)
+                and len(self.strike_levels) == 2
+                and all(is_count(level) for level in self.strike_levels)
+                and 0 <= self.strike_levels[0] <= self.strike_levels[1] <= HIGHEST_STRIKE_LEVEL,
+                "strike_levels",
+                f"(lowest, highest) ints with 0 <= lowest <= highest <= {HIGHEST_STRIKE_LEVEL}",
+            ),
+            (is_number(self.start_shift) and 0 <= self.start_shift <= 0.05, "start_shift", "in [0, 0.05] m"),
         ]
         for ok, name, expected in checks:
             if not ok:
                 raise ValueError(f"{name}={getattr(self, name)!r}: expected {expected}")
+        if self.strike_levels[0] >= min(self.tower_blocks):
+            raise ValueError(
+                f"strike_levels={self.strike_levels!r}: the lowest level struck must be under the top of the lowest "
+                f"tower ({min(self.tower_blocks)} blocks: levels 0-{min(self.tower_blocks) - 1})"
+            )
 
 
 class FrameGrabber:
-    """A workcell step hook: once the blocks move, grab a cropped frame every ``frame_interval`` seconds."""
+    """A workcell step hook: once the blocks move (a block faster than ``MOTION_SPEED`` and one at least
+    ``start_shift`` from its place in ``tower``, (B, 3) world positions in metres), grab a cropped frame every
+    ``frame_interval`` seconds."""
 
-    def __init__(self, env: Any, settings: RecorderSettings, origin: tuple[int, int], colours: dict) -> None:
+    def __init__(
+        self, env: Any, settings: RecorderSettings, origin: tuple[int, int], colours: dict, tower: np.ndarray
+    ) -> None:
         self.env, self.settings, self.origin, self.colours = env, settings, origin, colours
+        self.tower = tower
         self.start: float | None = None
         self.frames: list[dict[str, np.ndarray]] = []
 
@@ -102,12 +135,12 @@ class FrameGrabber:
         return len(self.frames) >= self.settings.frames
 
     def __call__(self, cell: Any) -> None:
-        from panda_grasp_env.tasks.tower_build import blocks_still
-
         if self.done:
             return
         if self.start is None:
-            if blocks_still(cell):
+            moving = np.any(cell.body_speeds(cell.block_ids) >= MOTION_SPEED)
+            shift = np.linalg.norm(cell.block_positions() - self.tower, axis=1).max()
+            if not moving or shift < self.settings.start_shift:
                 return
             self.start = cell.sim_time
         if cell.sim_time + 1e-6 >= self.start + len(self.frames) * self.settings.frame_interval:
@@ -198,7 +231,8 @@ def record_sequence(envs: RecorderEnvs, seed: int, settings: RecorderSettings) -
         int(np.clip(round(v) - half, 0, RENDER_SIZE[1] - settings.crop)),
     )
     breaker = settings.breaker if settings.breaker != "mixed" else ("impulse", "push")[int(rng.integers(2))]
-    level = int(rng.integers(len(tower)))
+    lowest, highest = settings.strike_levels
+    level = int(rng.integers(lowest, min(highest, len(tower) - 1) + 1))
     heading = float(rng.uniform(-np.pi, np.pi))
     order = np.argsort(tower[:, 2])
     target = tower[order[level]]
@@ -212,7 +246,7 @@ def record_sequence(envs: RecorderEnvs, seed: int, settings: RecorderSettings) -
         magnitude = 0.0
         start = target[:2] - 0.08 * np.array([np.cos(heading), np.sin(heading)])
         action = encode_primitive(primitives, True, "push", start[0], start[1], heading, target[2])
-    grabber = FrameGrabber(env, settings, origin, info["block_colours"])
+    grabber = FrameGrabber(env, settings, origin, info["block_colours"], tower)
     cell.step_hooks.append(grabber)
     try:
         env.step(action)
@@ -383,12 +417,15 @@ def main(argv: list[str] | None = None) -> int:
         elif field == "tower_blocks":
             parser.add_argument("--tower-blocks", type=int_tuple, default=value, metavar="N[,N...]",
                                 help="tower heights in blocks, one drawn per sequence (default 4)")  # fmt: skip
+        elif field == "strike_levels":
+            parser.add_argument("--strike-levels", type=int, nargs=2, default=value, metavar=("LOWEST", "HIGHEST"))
         else:
             parser.add_argument(f"--{field.replace('_', '-')}", type=type(value), default=value)
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     interrupt_on_signals()
-    settings = RecorderSettings(**{f: getattr(args, f) for f in asdict(defaults)} | {"impulse": tuple(args.impulse)})
+    tuples = {"impulse": tuple(args.impulse), "strike_levels": tuple(args.strike_levels)}
+    settings = RecorderSettings(**{f: getattr(args, f) for f in asdict(defaults)} | tuples)
     try:
         metadata = record_dataset(args.out, args.sequences, settings, args.workers, not args.no_progress)
     except ValueError as error:
