@@ -9,7 +9,15 @@ import torch
 from panda_grasp_env.commands import train
 from panda_grasp_env.falls import training as fall_training
 from panda_grasp_env.falls.dataset import load_split, split_of
-from panda_grasp_env.falls.model import Confusion, FallPredictor, constant_velocity, copy_last, evaluate
+from panda_grasp_env.falls.model import (
+    Confusion,
+    FallPredictor,
+    constant_velocity,
+    copy_last,
+    evaluate,
+    fall_directions,
+    image_to_world_direction,
+)
 from panda_grasp_env.falls.recorder import (
     LATER_SETTINGS,
     RecorderEnvs,
@@ -19,7 +27,7 @@ from panda_grasp_env.falls.recorder import (
     record_sequence,
     tower_height,
 )
-from panda_grasp_env.falls.training import load_fall_model
+from panda_grasp_env.falls.training import load_fall_model, tower_words
 from panda_grasp_env.model.scene import DEFAULT_COLOURS
 from panda_grasp_env.perception.camera import CameraModel
 
@@ -179,6 +187,52 @@ def test_baselines_and_metrics_on_a_moving_square():
     assert results["constant_velocity"]["t+5"]["mean_block_iou"] == pytest.approx(1.0)
 
 
+#: A 32x32 camera 1 m above the world origin, with the overhead camera's axes: image right is world -y, image
+#: down world -x, the optical axis world -z (a block on the table 1 cm along -y is 1 pixel right of centre).
+TOP_DOWN = {"render_size": [32, 32], "K": [[100.0, 0, 15.5], [0, 100.0, 15.5], [0, 0, 1]],
+            "rotation": [[0, -1, 0], [-1, 0, 0], [0, 0, -1]], "position": [0.0, 0.0, 1.0]}  # fmt: skip
+
+
+def directions(labels, poses, n_blocks, model=None):
+    """``fall_directions`` of 32x32 label sequences cut at the corner of ``TOP_DOWN``'s image."""
+    origins = np.zeros((len(labels), 2), dtype=int)
+    return fall_directions(model, labels, poses, np.array(n_blocks), origins, TOP_DOWN, ["bg", "red"], context=3)
+
+
+def test_fall_direction_scores_a_blob_moving_the_way_the_blocks_went_and_the_opposite_way():
+    frames = np.zeros((1, 8, 32, 32), dtype=np.uint8)
+    for t in range(8):
+        frames[0, t, 12:18, 2 + 2 * t : 8 + 2 * t] = 1  # moving right in the image: towards world -y
+    assert np.allclose(image_to_world_direction(np.array([0.0, 2.0]), TOP_DOWN), [0.0, -0.02])
+    poses = np.zeros((1, 8, 2, 7), dtype=np.float32)
+    poses[0, :, 0, 1] = -0.01 * np.arange(8)  # block 0 went 7 cm along world -y; block 1 (unused at n_blocks 1) stood
+    model = FallPredictor(2, 32, context=3, hidden=8)  # untrained: constant velocity, soft edges
+    right = directions(frames, poses, [1], model)
+    assert (right["fell"], right["did_not_fall"], right["hidden"], right["scored"]) == (1, 0, 0, 1)
+    for name in ("copy_last", "constant_velocity", "translation_oracle", "true_labels"):
+        assert right["predictors"][name] == {"within_45": 1.0, "median_error_deg": 0.0, "no_direction": 0}, name
+    # The untrained model's soft edges drift its five-step rollout a row downwards.
+    assert right["predictors"]["model"]["within_45"] == 1.0 and right["predictors"]["model"]["median_error_deg"] < 10
+    wrong = directions(frames, -poses, [1])
+    assert wrong["predictors"]["constant_velocity"] == {"within_45": 0.0, "median_error_deg": 180.0, "no_direction": 0}
+    # A tower that did not fall is counted apart, by height too (n_blocks 6 and 8: both blocks count); so is one
+    # whose struck block flew out of view while the rest stood (its blocks' mean moved 50 cm), and one the first
+    # frame does not show.
+    still = np.repeat(frames[:, :1], 8, axis=1)
+    flung = np.zeros_like(poses)
+    flung[0, -1, 1, 1] = -1.0
+    hidden = frames.copy()
+    hidden[0, 0] = 0
+    both = directions(np.concatenate([frames, still, still, hidden]), np.concatenate([poses, 0 * poses, flung, poses]),
+                      [6, 8, 8, 6])  # fmt: skip
+    assert (both["sequences"], both["did_not_fall"], both["fell"], both["hidden"], both["scored"]) == (4, 2, 2, 1, 1)
+    assert (both["by_height"]["8"]["did_not_fall"], both["by_height"]["8"]["fell"]) == (2, 0)
+    assert both["by_height"]["8"]["predictors"]["copy_last"]["within_45"] is None
+    # A prediction that does not move has no direction: a 180-degree miss.
+    standing = directions(still, poses, [1])
+    assert standing["predictors"]["copy_last"] == {"within_45": 0.0, "median_error_deg": 180.0, "no_direction": 1}
+
+
 def test_model_rollout_shapes_and_mismatch_errors():
     model = FallPredictor(n_classes=5, image_size=16, context=2, hidden=8)
     frames = torch.zeros(3, 2, 5, 16, 16)
@@ -200,9 +254,12 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     assert [r["epoch"] for r in rows] == [1, 2]
     final = json.loads((run / "final.json").read_text())
     assert set(final["metrics"]) == {"model", "copy_last", "constant_velocity", "translation_oracle"}
+    assert set(final["direction"]["predictors"]) == {*final["metrics"], "true_labels"}
     assert list((run / "strips").glob("seed*.png"))
     card = (run / "card.md").read_text()
     assert "mean block IoU" in card and "resumed with `epochs=2`" in card
+    assert "falling 4-block tower" in card and "| true_labels | all |" in card
+    assert tower_words([6, 8]) == "6- or 8-block" and tower_words([4, 6, 8]) == "4-, 6- or 8-block"
     model, saved = load_fall_model(run / "best.pt")
     assert model.context == 3 and model.use_depth and saved["classes"][0] == "background"
     assert load_split(dataset, "val", depth=True).depth.dtype == np.float16
@@ -225,6 +282,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     assert "constant_velocity" in capsys.readouterr().out
     retests = json.loads((run / "retest.json").read_text())
     assert retests[str(dataset)]["metrics"]["model"] == final["metrics"]["model"]  # the final test, again
+    assert retests[str(dataset)]["direction"] == final["direction"]
     assert train.main(["--retest", str(run), "dataset=/nowhere"]) == 2
     assert train.main(["--retest", str(run), "epochs=3"]) == 2
     # A latest.pt changed since this user's job wrote it is not resumed from (nor one of a copied run).
