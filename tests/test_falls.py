@@ -9,9 +9,27 @@ import torch
 from panda_grasp_env.commands import train
 from panda_grasp_env.falls import training as fall_training
 from panda_grasp_env.falls.dataset import load_split, split_of
-from panda_grasp_env.falls.model import Confusion, FallPredictor, constant_velocity, copy_last, evaluate
-from panda_grasp_env.falls.recorder import RecorderSettings, main, record_dataset
-from panda_grasp_env.falls.training import load_fall_model
+from panda_grasp_env.falls.model import (
+    Confusion,
+    FallPredictor,
+    constant_velocity,
+    copy_last,
+    evaluate,
+    fall_directions,
+    image_to_world_direction,
+)
+from panda_grasp_env.falls.recorder import (
+    LATER_SETTINGS,
+    RecorderEnvs,
+    RecorderSettings,
+    main,
+    record_dataset,
+    record_sequence,
+    tower_height,
+)
+from panda_grasp_env.falls.training import load_fall_model, tower_words
+from panda_grasp_env.model.scene import DEFAULT_COLOURS
+from panda_grasp_env.perception.camera import CameraModel
 
 SETTINGS = RecorderSettings(frames=10, shard_size=2, seed=7)
 
@@ -54,6 +72,10 @@ def test_recording_is_deterministic_and_resumes(dataset, tmp_path):
     assert [s["sha256"] for s in meta["shards"]] == [s["sha256"] for s in first]
     with pytest.raises(ValueError, match="other settings"):
         record_dataset(out, 4, RecorderSettings(frames=12, shard_size=2, seed=7), workers=1, progress=False)
+    # A folder recorded before the later settings existed resumes: their defaults record what it holds.
+    settings = json.loads((out / "settings.json").read_text())
+    (out / "settings.json").write_text(json.dumps({k: v for k, v in settings.items() if k not in LATER_SETTINGS}))
+    assert record_dataset(out, 4, SETTINGS, workers=1, progress=False)["recording"]["sequences_recorded_now"] == 0
 
 
 def test_bad_recorder_settings_fail_with_the_name():
@@ -61,7 +83,65 @@ def test_bad_recorder_settings_fail_with_the_name():
         RecorderSettings(frame_interval=0.05).validate()
     with pytest.raises(ValueError, match="breaker"):
         RecorderSettings(breaker="kick").validate()
+    for heights in [(9,), (1,), (), (6, 6), [6, 8], (6.0,)]:
+        with pytest.raises(ValueError, match="tower_blocks"):
+            RecorderSettings(tower_blocks=heights).validate()
+    for levels in [(0, 6), (3, 2), (-1, 2), (0,)]:
+        with pytest.raises(ValueError, match="strike_levels"):
+            RecorderSettings(strike_levels=levels).validate()
+    with pytest.raises(ValueError, match="strike_levels.*lowest tower"):
+        RecorderSettings(tower_blocks=(4, 8), strike_levels=(4, 5)).validate()
+    with pytest.raises(ValueError, match="start_shift"):
+        RecorderSettings(start_shift=-0.01).validate()
     assert main(["--out", "/nonexistent/x", "--sequences", "0", "--no-progress"]) == 2
+    assert main(["--out", "/nonexistent/x", "--tower-blocks", "6,9", "--no-progress"]) == 2
+
+
+def test_tall_towers_draw_their_height_per_sequence_and_label_each_block_by_its_index(tmp_path):
+    settings = RecorderSettings(frames=4, shard_size=2, tower_blocks=(6, 8), strike_levels=(3, 5))
+    heights = [tower_height(seed, settings) for seed in range(40)]
+    assert heights == [tower_height(seed, settings) for seed in range(40)] and set(heights) == {6, 8}
+    assert heights[:2] == [6, 8]  # the two sequences recorded here
+    meta = record_dataset(tmp_path, 2, settings, progress=False)
+    assert meta["classes"] == ["background", *(f"block_{c}" for c in DEFAULT_COLOURS)]  # the tallest tower's
+    assert meta["tower_blocks"] == [6, 8]
+    camera = CameraModel(
+        *meta["camera"]["render_size"], *(np.array(meta["camera"][k]) for k in ("K", "rotation", "position"))
+    )
+    with np.load(tmp_path / "shard_00000.npz") as shard:
+        assert shard["n_blocks"].tolist() == [6, 8] and shard["poses"].shape == (2, 4, 8, 7)
+        for labels, poses, n, origin in zip(shard["labels"], shard["poses"], shard["n_blocks"], shard["crop_origin"]):
+            assert np.isnan(poses[:, n:]).all() and not np.isnan(poses[:, :n]).any()
+            assert set(np.unique(labels)) <= set(range(n + 1))
+            top = int(np.argmax(poses[0, :n, 2]))  # the standing tower's top block, seen from above before it falls
+            (u, v), _ = camera.world_to_pixel(poses[0, top, :3] + [0, 0, 0.025])
+            assert labels[0, round(v) - origin[1], round(u) - origin[0]] == top + 1
+    split = load_split(tmp_path, "train")
+    assert split.n_blocks.tolist() == [6, 8] and split.poses.shape == (2, 4, 8, 7)
+
+
+def test_with_a_start_shift_the_frames_start_once_a_block_left_its_place():
+    # Pushing fingers make a tall tower jitter faster than MOTION_SPEED long before it moves: without the shift
+    # this sequence's first frame showed its blocks within 1 mm of the tower.
+    settings = RecorderSettings(frames=2, tower_blocks=(8,), breaker="push", strike_levels=(4, 4), start_shift=0.005)
+    envs = RecorderEnvs()
+    first = record_sequence(envs, 2, settings)["poses"][0, :, :3]
+    envs[8].reset(seed=2)
+    assert np.linalg.norm(first - envs[8].unwrapped.cell.block_positions(), axis=1).max() >= 0.005
+
+
+def test_a_dataset_recorded_before_tower_heights_loads_as_four_block_towers(dataset, tmp_path):
+    from panda_grasp_env.tooling.runs import sha256
+
+    meta = json.loads((dataset / "metadata.json").read_text())
+    for entry in meta["shards"]:
+        with np.load(dataset / entry["file"]) as shard:
+            np.savez_compressed(tmp_path / entry["file"], **{k: shard[k] for k in shard.files if k != "n_blocks"})
+        entry.update(bytes=(tmp_path / entry["file"]).stat().st_size, sha256=sha256(tmp_path / entry["file"]))
+    del meta["tower_blocks"]
+    (tmp_path / "metadata.json").write_text(json.dumps(meta))
+    split = load_split(tmp_path, "train")
+    assert split.n_blocks.tolist() == [4] * len(split.labels) and split.poses.shape[2] == 4
 
 
 def test_loader_splits_by_sequence_and_names_a_corrupt_shard(dataset, tmp_path):
@@ -107,6 +187,52 @@ def test_baselines_and_metrics_on_a_moving_square():
     assert results["constant_velocity"]["t+5"]["mean_block_iou"] == pytest.approx(1.0)
 
 
+#: A 32x32 camera 1 m above the world origin, with the overhead camera's axes: image right is world -y, image
+#: down world -x, the optical axis world -z (a block on the table 1 cm along -y is 1 pixel right of centre).
+TOP_DOWN = {"render_size": [32, 32], "K": [[100.0, 0, 15.5], [0, 100.0, 15.5], [0, 0, 1]],
+            "rotation": [[0, -1, 0], [-1, 0, 0], [0, 0, -1]], "position": [0.0, 0.0, 1.0]}  # fmt: skip
+
+
+def directions(labels, poses, n_blocks, model=None):
+    """``fall_directions`` of 32x32 label sequences cut at the corner of ``TOP_DOWN``'s image."""
+    origins = np.zeros((len(labels), 2), dtype=int)
+    return fall_directions(model, labels, poses, np.array(n_blocks), origins, TOP_DOWN, ["bg", "red"], context=3)
+
+
+def test_fall_direction_scores_a_blob_moving_the_way_the_blocks_went_and_the_opposite_way():
+    frames = np.zeros((1, 8, 32, 32), dtype=np.uint8)
+    for t in range(8):
+        frames[0, t, 12:18, 2 + 2 * t : 8 + 2 * t] = 1  # moving right in the image: towards world -y
+    assert np.allclose(image_to_world_direction(np.array([0.0, 2.0]), TOP_DOWN), [0.0, -0.02])
+    poses = np.zeros((1, 8, 2, 7), dtype=np.float32)
+    poses[0, :, 0, 1] = -0.01 * np.arange(8)  # block 0 went 7 cm along world -y; block 1 (unused at n_blocks 1) stood
+    model = FallPredictor(2, 32, context=3, hidden=8)  # untrained: constant velocity, soft edges
+    right = directions(frames, poses, [1], model)
+    assert (right["fell"], right["did_not_fall"], right["hidden"], right["scored"]) == (1, 0, 0, 1)
+    for name in ("copy_last", "constant_velocity", "translation_oracle", "true_labels"):
+        assert right["predictors"][name] == {"within_45": 1.0, "median_error_deg": 0.0, "no_direction": 0}, name
+    # The untrained model's soft edges drift its five-step rollout a row downwards.
+    assert right["predictors"]["model"]["within_45"] == 1.0 and right["predictors"]["model"]["median_error_deg"] < 10
+    wrong = directions(frames, -poses, [1])
+    assert wrong["predictors"]["constant_velocity"] == {"within_45": 0.0, "median_error_deg": 180.0, "no_direction": 0}
+    # A tower that did not fall is counted apart, by height too (n_blocks 6 and 8: both blocks count); so is one
+    # whose struck block flew out of view while the rest stood (its blocks' mean moved 50 cm), and one the first
+    # frame does not show.
+    still = np.repeat(frames[:, :1], 8, axis=1)
+    flung = np.zeros_like(poses)
+    flung[0, -1, 1, 1] = -1.0
+    hidden = frames.copy()
+    hidden[0, 0] = 0
+    both = directions(np.concatenate([frames, still, still, hidden]), np.concatenate([poses, 0 * poses, flung, poses]),
+                      [6, 8, 8, 6])  # fmt: skip
+    assert (both["sequences"], both["did_not_fall"], both["fell"], both["hidden"], both["scored"]) == (4, 2, 2, 1, 1)
+    assert (both["by_height"]["8"]["did_not_fall"], both["by_height"]["8"]["fell"]) == (2, 0)
+    assert both["by_height"]["8"]["predictors"]["copy_last"]["within_45"] is None
+    # A prediction that does not move has no direction: a 180-degree miss.
+    standing = directions(still, poses, [1])
+    assert standing["predictors"]["copy_last"] == {"within_45": 0.0, "median_error_deg": 180.0, "no_direction": 1}
+
+
 def test_model_rollout_shapes_and_mismatch_errors():
     model = FallPredictor(n_classes=5, image_size=16, context=2, hidden=8)
     frames = torch.zeros(3, 2, 5, 16, 16)
@@ -128,9 +254,12 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     assert [r["epoch"] for r in rows] == [1, 2]
     final = json.loads((run / "final.json").read_text())
     assert set(final["metrics"]) == {"model", "copy_last", "constant_velocity", "translation_oracle"}
+    assert set(final["direction"]["predictors"]) == {*final["metrics"], "true_labels"}
     assert list((run / "strips").glob("seed*.png"))
     card = (run / "card.md").read_text()
     assert "mean block IoU" in card and "resumed with `epochs=2`" in card
+    assert "falling 4-block tower" in card and "| true_labels | all |" in card
+    assert tower_words([6, 8]) == "6- or 8-block" and tower_words([4, 6, 8]) == "4-, 6- or 8-block"
     model, saved = load_fall_model(run / "best.pt")
     assert model.context == 3 and model.use_depth and saved["classes"][0] == "background"
     assert load_split(dataset, "val", depth=True).depth.dtype == np.float16
@@ -153,6 +282,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     assert "constant_velocity" in capsys.readouterr().out
     retests = json.loads((run / "retest.json").read_text())
     assert retests[str(dataset)]["metrics"]["model"] == final["metrics"]["model"]  # the final test, again
+    assert retests[str(dataset)]["direction"] == final["direction"]
     assert train.main(["--retest", str(run), "dataset=/nowhere"]) == 2
     assert train.main(["--retest", str(run), "epochs=3"]) == 2
     # A latest.pt changed since this user's job wrote it is not resumed from (nor one of a copied run).

@@ -232,10 +232,21 @@ def print_fall_metrics(metrics: dict) -> None:
                   f"{m['foreground_accuracy']:.4f}, pixel accuracy {m['pixel_accuracy']:.4f} ({m['frames']} frames)")  # fmt: skip
 
 
+def print_fall_directions(direction: dict) -> None:
+    """One line per predictor of ``fall_directions``' figures over all test towers."""
+    print(f"fall direction: {direction['fell']} of {direction['sequences']} test towers fell, "
+          f"{direction['hidden']} of them hidden in the first frame")  # fmt: skip
+    for name, d in direction["predictors"].items():
+        if d["within_45"] is not None:
+            print(f"{name:18s} within 45 degrees {d['within_45']:.3f}, median error {d['median_error_deg']:.1f} "
+                  f"degrees ({d['no_direction']} without a direction)")  # fmt: skip
+
+
 def report_fall(outcome: dict, run_dir: Path) -> int:
     if outcome["stopped_by"] == "max_minutes":
         print(f"time budget spent; more with  python train.py --resume {run_dir} max_minutes=M")
     print_fall_metrics(outcome["metrics"])
+    print_fall_directions(outcome["direction"])
     print(f"card: {run_dir / 'card.md'}")
     return 0
 
@@ -248,6 +259,7 @@ def retest_fall(folder: Path, overrides: list[str]) -> int:
     result = test_fall_model(folder, overrides[0].partition("=")[2] if overrides else None)
     print(f"test split of {result['dataset']}: {result['test_sequences']} sequences")
     print_fall_metrics(result["metrics"])
+    print_fall_directions(result["direction"])
     print(f"results: {folder / 'retest.json'}")
     return 0
 

@@ -11,7 +11,10 @@ array              shape, dtype                meaning
 ``depth``          (N, T, S, S) float16        depth along the optical axis, metres
 ``labels``         (N, T, S, S) uint8          true segmentation: 0 background (table, robot), 1 + block
 ``colour_labels``  (N, T, S, S) uint8          the same classes from ``panda_grasp_env.perception.segmentation.colour_masks``
-``poses``          (N, T, B, 7) float32        block position (m) and quaternion (w, x, y, z), world frame
+``poses``          (N, T, B, 7) float32        block position (m) and quaternion (w, x, y, z), world frame;
+                                               B: the tallest tower's blocks, NaN rows past a lower one's
+``n_blocks``       (N,) uint8                  the sequence's tower height in blocks (absent before
+                                               heights were a setting: all 4)
 ``seeds``          (N,) int64                  env reset seed of each sequence
 ``breaker``        (N,) uint8                  0 impulse, 1 push
 ``strike``         (N, 5) float32              level struck, heading (rad), impulse (N s, 0 for push), x, y (m)
@@ -38,8 +41,12 @@ import numpy as np
 
 from panda_grasp_env.tooling.runs import sha256
 
-SHARD_ARRAYS = ("rgb", "depth", "labels", "colour_labels", "poses", "seeds", "breaker", "strike", "crop_origin")
+SHARD_ARRAYS = (
+    "rgb", "depth", "labels", "colour_labels", "poses", "n_blocks", "seeds", "breaker", "strike", "crop_origin"
+)  # fmt: skip
 SPLITS = ("train", "val", "test")
+#: The tower height (blocks) of every sequence recorded before heights were a setting (no ``n_blocks`` array).
+LEGACY_TOWER_BLOCKS = 4
 
 
 def split_of(seed: int) -> str:
@@ -47,15 +54,28 @@ def split_of(seed: int) -> str:
     return "train" if seed % 10 < 8 else "val" if seed % 10 == 8 else "test"
 
 
+def tower_heights(meta: dict[str, Any]) -> list[int]:
+    """The tower heights (blocks) a dataset's recorder drew from, from its ``metadata.json``."""
+    return sorted(meta.get("tower_blocks", [LEGACY_TOWER_BLOCKS]))
+
+
 @dataclass
 class FallSequences:
-    """Segmentation sequences of one split, in memory: ``labels`` (N, T, S, S) uint8 class ids and, if loaded,
-    ``depth`` (N, T, S, S) float16 metres along the camera's optical axis."""
+    """Sequences of one split, in memory: ``labels`` (N, T, S, S) uint8 class ids, ``poses`` (N, T, B, 7)
+    float32 block positions (m) and quaternions in the world frame (NaN rows past a sequence's own blocks),
+    ``n_blocks`` (N,) each tower's height in blocks, ``crop_origin`` (N, 2) the (column, row) of each crop's
+    corner in the rendered image, ``camera`` the overhead camera of ``metadata.json`` (``render_size``, ``K``,
+    ``rotation`` camera -> world in OpenCV axes, ``position`` m) and, if loaded, ``depth`` (N, T, S, S) float16
+    metres along the camera's optical axis."""
 
     labels: np.ndarray
     seeds: np.ndarray
     classes: list[str]
     frame_interval: float
+    poses: np.ndarray
+    n_blocks: np.ndarray
+    crop_origin: np.ndarray
+    camera: dict[str, Any]
     depth: np.ndarray | None = None
 
     @property
@@ -97,20 +117,25 @@ def load_split(
     root = Path(root)
     meta = read_metadata(root)
     names = [label_source, "depth"] if depth else [label_source]
-    kept: dict[str, list[np.ndarray]] = {name: [] for name in [*names, "seeds"]}
+    kept: dict[str, list[np.ndarray]] = {name: [] for name in [*names, "seeds", "poses", "crop_origin", "n_blocks"]}
     for entry in meta["shards"]:
         if verify:
             verify_shard(root, entry)
         try:
             with np.load(root / entry["file"]) as shard:
-                arrays = {name: shard[name] for name in [*names, "seeds"]}
+                arrays = {name: shard[name] for name in [*names, "seeds", "poses", "crop_origin"]}
+                arrays["n_blocks"] = shard["n_blocks"] if "n_blocks" in shard.files else \
+                    np.full(entry["sequences"], LEGACY_TOWER_BLOCKS, dtype=np.uint8)  # fmt: skip
         except (OSError, ValueError, KeyError) as error:
             raise ValueError(f"shard {entry['file']} cannot be read: {error}") from error
-        expected = (entry["sequences"], meta["frames"], meta["crop"], meta["crop"])
-        wrong = {name: arrays[name].shape for name in names if arrays[name].shape != expected}
-        if wrong or arrays["seeds"].shape != (entry["sequences"],):
-            shapes = ", ".join(f"{name} of shape {shape}" for name, shape in wrong.items()) or "a wrong seed count"
-            raise ValueError(f"shard {entry['file']} has {shapes}, expected {expected}")
+        n, frames, crop = entry["sequences"], meta["frames"], meta["crop"]
+        shapes = {name: (n, frames, crop, crop) for name in names} | {
+            "poses": (n, frames, len(meta["classes"]) - 1, 7), "crop_origin": (n, 2), "seeds": (n,), "n_blocks": (n,)
+        }  # fmt: skip
+        wrong = [f"{name} of shape {arrays[name].shape}, expected {shape}" for name, shape in shapes.items()
+                 if arrays[name].shape != shape]  # fmt: skip
+        if wrong:
+            raise ValueError(f"shard {entry['file']} has {'; '.join(wrong)}")
         keep = np.array([split_of(int(s)) == split for s in arrays["seeds"]], dtype=bool)
         for name, array in arrays.items():
             kept[name].append(array[keep])
@@ -121,5 +146,9 @@ def load_split(
         np.concatenate(kept["seeds"]),
         list(meta["classes"]),
         float(meta["frame_interval"]),
+        np.concatenate(kept["poses"]),
+        np.concatenate(kept["n_blocks"]).astype(np.int64),
+        np.concatenate(kept["crop_origin"]),
+        dict(meta["camera"]),
         np.concatenate(kept["depth"]) if depth else None,
     )

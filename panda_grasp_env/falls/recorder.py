@@ -1,9 +1,11 @@
 """Record falling-tower sequences from the env:  python -m panda_grasp_env.falls --out data/falls --sequences 2000
 
-Each sequence: ``PandaTowerBreak-v0`` resets with its seed (a 4-block tower in
-random colour order, position and yaw), one ``env.step`` breaks it -- a random
-horizontal impulse on a random block (the source study's protocol) or a push
--- and, from the moment a block starts to move, the overhead camera is
+Each sequence: ``PandaTowerBreak-v0`` resets with its seed (a tower of one of
+``tower_blocks`` heights -- 4 blocks by default, drawn per sequence -- in random
+colour order, position and yaw), one ``env.step`` breaks it -- a random
+horizontal impulse on a block at a random level of ``strike_levels`` (the
+source study's protocol) or a push -- and, from the moment a block starts to
+move (and is ``start_shift`` from its place), the overhead camera is
 sampled every ``frame_interval`` seconds of simulated time: RGB, depth, the
 simulator's segmentation and ``perception``'s colour segmentation, cropped to
 a square around the tower, plus every block's pose.  The format and the loader
@@ -29,15 +31,23 @@ from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.actions import PRIMITIVE_Z_RANGE
 from panda_grasp_env.falls.dataset import SHARD_ARRAYS, split_of
-from panda_grasp_env.geometry import is_count
+from panda_grasp_env.geometry import is_count, is_number
+from panda_grasp_env.model.scene import SceneConfig
+from panda_grasp_env.tasks.base import TOWER_BLOCKS
 from panda_grasp_env.tooling.runs import atomic_path, interrupt_on_signals, sha256, write_atomically
 
-#: Block speed (m/s) above which the fall has begun.
+#: Block speed (m/s) above which the fall has begun (once a block is also ``start_shift`` from the tower).
 MOTION_SPEED = 0.01
+#: The highest tower level (0: the base) a strike aims at: its centre (0.275 m) is the highest under the top
+#: of ``PRIMITIVE_Z_RANGE`` (0.3 m), above which a primitive's height is clipped and it would hit another block.
+HIGHEST_STRIKE_LEVEL = int((PRIMITIVE_Z_RANGE[1] - SceneConfig().block_size / 2) // SceneConfig().block_size)
 #: Rendered image (width, height) the square crop is cut from: a block is ~10 px wide and a 64 px crop spans 0.33 m.
 RENDER_SIZE = (224, 168)
 BREAKERS = ("impulse", "push", "mixed")
+#: Settings added after the first recordings; their defaults record what the recorder did before them.
+LATER_SETTINGS = ("tower_blocks", "strike_levels", "start_shift")
 
 
 @dataclass(frozen=True)
@@ -51,6 +61,15 @@ class RecorderSettings:
     impulse: tuple[float, float] = (0.08, 0.2)
     shard_size: int = 50
     seed: int = 0  # sequence i uses env seed seed + i
+    tower_blocks: tuple[int, ...] = (4,)  # tower heights (blocks), one drawn per sequence (``tower_height``)
+    # Levels (0: the base) the struck block is drawn from, uniformly, up to the tower's top and
+    # HIGHEST_STRIKE_LEVEL: a tall tower struck low mostly stands (an impulse in the lower half of a 6-block
+    # tower toppled 3 of 19, in the upper half 19 of 26; see docs/falling-tower.md).
+    strike_levels: tuple[int, int] = (0, HIGHEST_STRIKE_LEVEL)
+    # Metres: 0 starts the frames at the first block moving faster than MOTION_SPEED; more also waits until a
+    # block is that far from where it stood (a tall tower touched by the pushing fingers jitters at up to
+    # 0.16 m/s for seconds before it moves; see docs/falling-tower.md).
+    start_shift: float = 0.0
 
     def validate(self) -> None:
         checks = [
@@ -70,17 +89,44 @@ class RecorderSettings:
             (0 < self.impulse[0] <= self.impulse[1] <= 1.0, "impulse", "(low, high) with 0 < low <= high <= 1 N s"),
             (is_count(self.shard_size) and self.shard_size >= 1, "shard_size", "an int >= 1"),
             (is_count(self.seed) and self.seed >= 0, "seed", "an int >= 0"),
+            (
+                isinstance(self.tower_blocks, tuple)
+                and len(self.tower_blocks) >= 1
+                and all(is_count(n) and TOWER_BLOCKS[0] <= n <= TOWER_BLOCKS[1] for n in self.tower_blocks)
+                and len(set(self.tower_blocks)) == len(self.tower_blocks),
+                "tower_blocks",
+                f"a non-empty tuple of distinct ints in [{TOWER_BLOCKS[0]}, {TOWER_BLOCKS[1]}]",
+            ),
+            (
+                isinstance(self.strike_levels, tuple)
+                and len(self.strike_levels) == 2
+                and all(is_count(level) for level in self.strike_levels)
+                and 0 <= self.strike_levels[0] <= self.strike_levels[1] <= HIGHEST_STRIKE_LEVEL,
+                "strike_levels",
+                f"(lowest, highest) ints with 0 <= lowest <= highest <= {HIGHEST_STRIKE_LEVEL}",
+            ),
+            (is_number(self.start_shift) and 0 <= self.start_shift <= 0.05, "start_shift", "in [0, 0.05] m"),
         ]
         for ok, name, expected in checks:
             if not ok:
                 raise ValueError(f"{name}={getattr(self, name)!r}: expected {expected}")
+        if self.strike_levels[0] >= min(self.tower_blocks):
+            raise ValueError(
+                f"strike_levels={self.strike_levels!r}: the lowest level struck must be under the top of the lowest "
+                f"tower ({min(self.tower_blocks)} blocks: levels 0-{min(self.tower_blocks) - 1})"
+            )
 
 
 class FrameGrabber:
-    """A workcell step hook: once the blocks move, grab a cropped frame every ``frame_interval`` seconds."""
+    """A workcell step hook: once the blocks move (a block faster than ``MOTION_SPEED`` and one at least
+    ``start_shift`` from its place in ``tower``, (B, 3) world positions in metres), grab a cropped frame every
+    ``frame_interval`` seconds."""
 
-    def __init__(self, env: Any, settings: RecorderSettings, origin: tuple[int, int], colours: dict) -> None:
+    def __init__(
+        self, env: Any, settings: RecorderSettings, origin: tuple[int, int], colours: dict, tower: np.ndarray
+    ) -> None:
         self.env, self.settings, self.origin, self.colours = env, settings, origin, colours
+        self.tower = tower
         self.start: float | None = None
         self.frames: list[dict[str, np.ndarray]] = []
 
@@ -89,12 +135,12 @@ class FrameGrabber:
         return len(self.frames) >= self.settings.frames
 
     def __call__(self, cell: Any) -> None:
-        from panda_grasp_env.tasks.tower_build import blocks_still
-
         if self.done:
             return
         if self.start is None:
-            if blocks_still(cell):
+            moving = np.any(cell.body_speeds(cell.block_ids) >= MOTION_SPEED)
+            shift = np.linalg.norm(cell.block_positions() - self.tower, axis=1).max()
+            if not moving or shift < self.settings.start_shift:
                 return
             self.start = cell.sim_time
         if cell.sim_time + 1e-6 >= self.start + len(self.frames) * self.settings.frame_interval:
@@ -128,13 +174,15 @@ class FrameGrabber:
         sensors.invalidate()
 
 
-def make_recorder_env() -> Any:
+def make_recorder_env(n_blocks: int) -> Any:
+    """The env that records towers of ``n_blocks``: block i (label i + 1) has ``DEFAULT_COLOURS``' colour i."""
     import gymnasium as gym
 
     import panda_grasp_env  # noqa: F401
 
     return gym.make(
         "PandaTowerBreak-v0",
+        n_blocks=n_blocks,
         action_mode="primitive",
         primitive_z=True,
         allow_impulse=True,
@@ -144,10 +192,32 @@ def make_recorder_env() -> Any:
     )
 
 
-def record_sequence(env: Any, seed: int, settings: RecorderSettings) -> dict[str, np.ndarray]:
-    """One fall: reset with ``seed``, break the tower, grab ``settings.frames`` frames."""
+class RecorderEnvs(dict):
+    """Recorder envs by tower height (blocks), each made when first asked for (offscreen: EGL unless the
+    process chose another ``MUJOCO_GL``)."""
+
+    def __missing__(self, n_blocks: int) -> Any:
+        os.environ.setdefault("MUJOCO_GL", "egl")
+        self[n_blocks] = env = make_recorder_env(n_blocks)
+        return env
+
+
+def tower_height(seed: int, settings: RecorderSettings) -> int:
+    """The tower height (blocks) of sequence ``seed``: one of ``settings.tower_blocks``, uniformly, from a
+    generator of the sequence's own, apart from the one that draws its strike (so a single height records
+    exactly what the recorder did before heights were a setting)."""
+    rng = np.random.default_rng([settings.seed, seed, 0x70E5])
+    return int(settings.tower_blocks[int(rng.integers(len(settings.tower_blocks)))])
+
+
+def record_sequence(envs: RecorderEnvs, seed: int, settings: RecorderSettings) -> dict[str, np.ndarray]:
+    """One fall: reset the env of the sequence's ``tower_height`` with ``seed``, break the tower, grab
+    ``settings.frames`` frames.  ``poses`` has a row per block of the tallest of ``settings.tower_blocks``:
+    NaN for the blocks a lower tower lacks."""
     from panda_grasp_env.actions import encode_primitive
 
+    n_blocks = tower_height(seed, settings)
+    env = envs[n_blocks]
     _, info = env.reset(seed=seed)
     cell = env.unwrapped.cell
     rng = np.random.default_rng([settings.seed, seed, 0xFA11])
@@ -161,7 +231,8 @@ def record_sequence(env: Any, seed: int, settings: RecorderSettings) -> dict[str
         int(np.clip(round(v) - half, 0, RENDER_SIZE[1] - settings.crop)),
     )
     breaker = settings.breaker if settings.breaker != "mixed" else ("impulse", "push")[int(rng.integers(2))]
-    level = int(rng.integers(len(tower)))
+    lowest, highest = settings.strike_levels
+    level = int(rng.integers(lowest, min(highest, len(tower) - 1) + 1))
     heading = float(rng.uniform(-np.pi, np.pi))
     order = np.argsort(tower[:, 2])
     target = tower[order[level]]
@@ -175,7 +246,7 @@ def record_sequence(env: Any, seed: int, settings: RecorderSettings) -> dict[str
         magnitude = 0.0
         start = target[:2] - 0.08 * np.array([np.cos(heading), np.sin(heading)])
         action = encode_primitive(primitives, True, "push", start[0], start[1], heading, target[2])
-    grabber = FrameGrabber(env, settings, origin, info["block_colours"])
+    grabber = FrameGrabber(env, settings, origin, info["block_colours"], tower)
     cell.step_hooks.append(grabber)
     try:
         env.step(action)
@@ -189,8 +260,11 @@ def record_sequence(env: Any, seed: int, settings: RecorderSettings) -> dict[str
     finally:
         cell.step_hooks.remove(grabber)
     stacked = {key: np.stack([frame[key] for frame in grabber.frames]) for key in grabber.frames[0]}
+    missing = max(settings.tower_blocks) - n_blocks
+    stacked["poses"] = np.pad(stacked["poses"], ((0, 0), (0, missing), (0, 0)), constant_values=np.nan)
     return {
         **stacked,
+        "n_blocks": np.uint8(n_blocks),
         "seeds": np.int64(seed),
         "breaker": np.uint8(BREAKERS.index(breaker)),
         "strike": np.array([level, heading, magnitude, target[0], target[1]], dtype=np.float32),
@@ -198,23 +272,16 @@ def record_sequence(env: Any, seed: int, settings: RecorderSettings) -> dict[str
     }
 
 
-_ENV: Any = None
-
-
-def _worker_init() -> None:
-    global _ENV
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    _ENV = make_recorder_env()
+#: This process's recorder envs (a pool worker's, or the recording process's own with one worker).
+_ENVS = RecorderEnvs()
 
 
 def record_shard(job: tuple[Path, int, int, RecorderSettings]) -> dict[str, Any]:
     """Record sequences [first, first + count) into ``out/shard_<index>.npz`` and its sidecar JSON (both atomic)."""
     out, index, count, settings = job
-    if _ENV is None:
-        _worker_init()
     began = time.perf_counter()
     first = settings.seed + index * settings.shard_size
-    sequences = [record_sequence(_ENV, first + i, settings) for i in range(count)]
+    sequences = [record_sequence(_ENVS, first + i, settings) for i in range(count)]
     arrays = {key: np.stack([s[key] for s in sequences]) for key in SHARD_ARRAYS}
     name = f"shard_{index:05d}.npz"
     with atomic_path(out / name) as tmp, open(tmp, "wb") as handle:
@@ -253,7 +320,11 @@ def record_dataset(
     out.mkdir(parents=True, exist_ok=True)
     settings_file = out / "settings.json"
     wanted = {"sequences": sequences, **asdict(settings)}
-    if settings_file.exists() and json.loads(settings_file.read_text()) != json.loads(json.dumps(wanted)):
+    # A folder recorded before LATER_SETTINGS existed was recorded as their defaults record.
+    defaults = {key: value for key, value in asdict(RecorderSettings()).items() if key in LATER_SETTINGS}
+    recorded = json.loads(json.dumps(defaults)) | json.loads(settings_file.read_text()) \
+        if settings_file.exists() else None  # fmt: skip
+    if recorded is not None and recorded != json.loads(json.dumps(wanted)):
         raise ValueError(f"{out} holds a recording with other settings ({settings_file}); use another --out")
     settings_file.write_text(json.dumps(wanted, indent=2))
     n_shards = -(-sequences // settings.shard_size)
@@ -275,7 +346,7 @@ def record_dataset(
                 entries[int(entry["file"][6:11])] = entry
                 bar.update(entry["sequences"])
         else:
-            with multiprocessing.get_context("spawn").Pool(workers, initializer=_worker_init) as pool:
+            with multiprocessing.get_context("spawn").Pool(workers) as pool:
                 for entry in pool.imap_unordered(record_shard, jobs):
                     entries[int(entry["file"][6:11])] = entry
                     bar.update(entry["sequences"])
@@ -293,7 +364,7 @@ def record_dataset(
 def describe(out: Path, settings: RecorderSettings, sequences: int, shards: list[dict[str, Any]]) -> dict[str, Any]:
     import importlib.metadata as md
 
-    env = make_recorder_env()
+    env = make_recorder_env(max(settings.tower_blocks))  # its colours are every height's first colours
     _, info = env.reset(seed=settings.seed)
     camera = env.unwrapped.camera_model("overhead")
     classes = ["background", *info["block_colours"]]
@@ -307,6 +378,7 @@ def describe(out: Path, settings: RecorderSettings, sequences: int, shards: list
         "frames": settings.frames,
         "frame_interval": settings.frame_interval,
         "crop": settings.crop,
+        "tower_blocks": list(settings.tower_blocks),
         "classes": classes,
         "settings": asdict(settings),
         "splits": {"rule": "seed % 10: 0-7 train, 8 val, 9 test", **counts},
@@ -324,6 +396,11 @@ def describe(out: Path, settings: RecorderSettings, sequences: int, shards: list
     }
 
 
+def int_tuple(text: str) -> tuple[int, ...]:
+    """``"6,8"`` -> ``(6, 8)`` (a command-line list)."""
+    return tuple(int(part) for part in text.split(","))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m panda_grasp_env.falls",
@@ -337,12 +414,18 @@ def main(argv: list[str] | None = None) -> int:
     for field, value in asdict(defaults).items():
         if field == "impulse":
             parser.add_argument("--impulse", type=float, nargs=2, default=value, metavar=("LOW", "HIGH"))
+        elif field == "tower_blocks":
+            parser.add_argument("--tower-blocks", type=int_tuple, default=value, metavar="N[,N...]",
+                                help="tower heights in blocks, one drawn per sequence (default 4)")  # fmt: skip
+        elif field == "strike_levels":
+            parser.add_argument("--strike-levels", type=int, nargs=2, default=value, metavar=("LOWEST", "HIGHEST"))
         else:
             parser.add_argument(f"--{field.replace('_', '-')}", type=type(value), default=value)
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     interrupt_on_signals()
-    settings = RecorderSettings(**{f: getattr(args, f) for f in asdict(defaults)} | {"impulse": tuple(args.impulse)})
+    tuples = {"impulse": tuple(args.impulse), "strike_levels": tuple(args.strike_levels)}
+    settings = RecorderSettings(**{f: getattr(args, f) for f in asdict(defaults)} | tuples)
     try:
         metadata = record_dataset(args.out, args.sequences, settings, args.workers, not args.no_progress)
     except ValueError as error:

@@ -13,8 +13,8 @@ scored, weighted by ``height_loss_weight``, on the heights it predicts (mean
 absolute error in blocks).  The run
 folder holds config.yaml, meta.json, tb/, evaluations.jsonl (validation
 metrics per epoch), curve.png, latest.pt / best.pt (atomic), and at the end
-final.json (test metrics against the baselines), card.md and strips/ (one PNG
-per test sequence: input frames, truth, prediction).
+final.json (test metrics and fall directions against the baselines), card.md and
+strips/ (one PNG per test sequence: input frames, truth, prediction).
 """
 
 from __future__ import annotations
@@ -32,18 +32,22 @@ import torch
 import torch.nn.functional as F
 import yaml
 
-from panda_grasp_env.falls.dataset import load_split, read_metadata
+from panda_grasp_env.falls.dataset import FallSequences, load_split, read_metadata, tower_heights
 from panda_grasp_env.falls.model import (
     ARCHITECTURE,
+    DIRECTION_TOLERANCE,
+    FALL_SHIFT,
     FallPredictor,
     block_displacements,
     check_compatible,
     evaluate,
+    fall_directions,
     heights,
     model_inputs,
     one_hot,
     predict_batch,
 )
+from panda_grasp_env.model.scene import DEFAULT_COLOURS
 from panda_grasp_env.tooling.runs import (
     atomic_path,
     check_run_files,
@@ -57,8 +61,9 @@ from panda_grasp_env.tooling.runs import (
     write_json,
 )
 
-#: Colours of the class maps in strips: background, then the blocks in the scene's order.
-PALETTE = np.array([[235, 235, 230], [220, 40, 40], [40, 170, 60], [50, 90, 220], [230, 200, 30]], dtype=np.uint8)
+#: Colours of the class maps in strips: background, then the blocks' own colours in the scene's order (up to 8).
+PALETTE = np.array([[235, 235, 230], *(np.round(255 * np.array(rgb)) for rgb in DEFAULT_COLOURS.values())],
+                   dtype=np.uint8)  # fmt: skip
 
 
 @dataclass
@@ -178,6 +183,25 @@ def write_strips(
         bottom = np.concatenate([blank, gap, *[label_image(f) for f in guess]], 1)
         with atomic_path(folder / f"seed{int(seed)}.png") as tmp:
             iio.imwrite(tmp, np.concatenate([top, bottom], 0), extension=".png")
+
+
+def test_scores(model: FallPredictor, test: FallSequences, context: int) -> dict[str, Any]:
+    """The test figures of ``model`` and the baselines on a split: ``metrics`` (``evaluate``) and ``direction``
+    (``fall_directions``)."""
+    return {
+        "metrics": evaluate(model, test.labels, test.classes, context, depth=test.depth),
+        "direction": fall_directions(
+            model,
+            test.labels,
+            test.poses,
+            test.n_blocks,
+            test.crop_origin,
+            test.camera,
+            test.classes,
+            context,
+            test.depth,
+        ),
+    }
 
 
 def start_fall_run(config: FallConfig, runs_dir: Path) -> Path:
@@ -328,7 +352,7 @@ def finish_fall_run(
     model, saved = load_fall_model(run_dir / "best.pt")
     test = load_split(config.dataset, "test", config.label_source, verify=False, depth=model.use_depth)
     began = time.perf_counter()
-    metrics = evaluate(model, test.labels, test.classes, config.context, depth=test.depth)
+    scores = test_scores(model, test, config.context)
     write_strips(model, test.labels, test.seeds, run_dir / "strips", config.rollout, test.depth)
     final = {
         "epochs": epochs_done,
@@ -337,7 +361,7 @@ def finish_fall_run(
         "wall_seconds": round(wall_seconds, 1),
         "test_sequences": int(len(test.labels)),
         "evaluation_seconds": round(time.perf_counter() - began, 1),
-        "metrics": metrics,
+        **scores,
     }
     write_json(run_dir / "final.json", final)
     write_atomically(run_dir / "card.md", fall_card(config, run_dir, final))
@@ -363,7 +387,7 @@ def test_fall_model(folder: Path | str, dataset: str | None = None) -> dict[str,
         "weights": weights.name,
         "test_sequences": int(len(test.labels)),
         "test_commit": commit(),
-        "metrics": evaluate(model, test.labels, test.classes, model.context, depth=test.depth),
+        **test_scores(model, test, model.context),
     }
     result["evaluation_seconds"] = round(time.perf_counter() - began, 1)
     record = folder / "retest.json"
@@ -402,9 +426,29 @@ def plot_fall_curve(run_dir: Path) -> None:
     plt.close(figure)
 
 
+def tower_words(heights: list[int]) -> str:
+    """``[4]`` -> ``"4-block"``, ``[6, 8]`` -> ``"6- or 8-block"``, ``[4, 6, 8]`` -> ``"4-, 6- or 8-block"``."""
+    names = [str(h) for h in heights]
+    return ("-, ".join(names[:-1]) + "- or " if len(names) > 1 else "") + f"{names[-1]}-block"
+
+
+def direction_rows(direction: dict[str, Any]) -> list[str]:
+    """The card's fall-direction table (``fall_directions``): each predictor over all towers, then by height."""
+    groups = {"all": direction, **{f"{h} blocks": d for h, d in direction.get("by_height", {}).items()}}
+    rows = []
+    for name in direction["predictors"]:
+        for label, group in groups.items():
+            r = group["predictors"][name]
+            within = "n/a" if r["within_45"] is None else f"**{r['within_45']:.3f}**"
+            median = "n/a" if r["median_error_deg"] is None else f"{r['median_error_deg']:.1f}°"
+            rows.append(f"| {name} | {label} | {group['did_not_fall']} | {group['fell']} | {group['hidden']} | "
+                        f"{group['scored']} | {within} | {median} | {r['no_direction']} |")  # fmt: skip
+    return rows
+
+
 def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
     meta = json.loads((run_dir / "meta.json").read_text())
-    m = final["metrics"]
+    m, direction = final["metrics"], final["direction"]
     rows = []
     for name in m:
         for horizon in ("t+1", "t+5"):
@@ -416,7 +460,8 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
         [
             f"# {config.name}",
             "",
-            "ConvLSTM encoder-decoder predicting the next segmentation frames of a falling 4-block tower "
+            "ConvLSTM encoder-decoder predicting the next segmentation frames of a falling "
+            f"{tower_words(tower_heights(read_metadata(config.dataset)))} tower "
             "(`panda_grasp_env/falls/model.py`"
             + (", reading depth as well as labels" if config.use_depth else "")
             + "), trained by this repository's `train.py` with the resolved config below on "
@@ -433,6 +478,20 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
             "| predictor | horizon | pixel accuracy | foreground accuracy | mean block IoU | IoU per class |",
             "|---|---|---|---|---|---|",
             *rows,
+            "",
+            "Which way each test tower fell (the mean position of its blocks in view at the end, world frame, "
+            "first frame to last; "
+            f"moved under {FALL_SHIFT * 100:.0f} cm: did not fall), predicted from the first {config.context} "
+            "frames (the centroid of the block pixels of the predicted last frame minus that of the first; "
+            "`fall_directions` in `panda_grasp_env/falls/model.py`), scored over the towers that fell and that the "
+            f"first frame shows (not hidden by the arm): the fraction within ±{DIRECTION_TOLERANCE:.0f}° and the "
+            "median angular error, a prediction without a direction counting as 180°; `true_labels` is the true "
+            "last frame through the same measure (a reference).",
+            "",
+            f"| predictor | towers | did not fall | fell | hidden | scored | within ±{DIRECTION_TOLERANCE:.0f}° | "
+            "median error | no direction |",
+            "|---|---|---|---|---|---|---|---|---|",
+            *direction_rows(direction),
             "",
             "![learning curve](curve.png)",
             "",
