@@ -31,9 +31,9 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks._common import machine  # noqa: E402
-from panda_grasp_env.actions import PrimitiveSettings, primitive_parameters  # noqa: E402
 from panda_grasp_env.geometry import yaw_quaternion  # noqa: E402
 from panda_grasp_env.model.scene import SceneConfig  # noqa: E402
+from panda_grasp_env.primitives.parameters import PrimitiveSettings, primitive_parameters  # noqa: E402
 from panda_grasp_env.primitives.top_down import push  # noqa: E402
 from panda_grasp_env.sim.workcell import Workcell  # noqa: E402
 from panda_grasp_env.tooling.runs import write_atomically  # noqa: E402

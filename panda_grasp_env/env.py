@@ -15,7 +15,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from panda_grasp_env.actions import EE_STEP, LOW_LEVEL_BOUNDS, ActionContext, ActionMode, PrimitiveSettings
+from panda_grasp_env.actions import EE_STEP, LOW_LEVEL_BOUNDS, ActionContext, ActionMode
 from panda_grasp_env.control.controller import ControllerLimits
 from panda_grasp_env.env_options import EnvOptions
 from panda_grasp_env.model.robot import HOME_YAW
@@ -23,6 +23,7 @@ from panda_grasp_env.model.scene import CAMERA_NAMES, SceneConfig
 from panda_grasp_env.observations import ObservationBuilder, Sensors
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
+from panda_grasp_env.primitives.parameters import PrimitiveSettings
 from panda_grasp_env.primitives.result import COUNTERS
 from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task

@@ -2,12 +2,12 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from panda_grasp_env.actions import PrimitiveSettings, primitive_parameters
 from panda_grasp_env.agents.towers import build_tower, push_tower
 from panda_grasp_env.control.controller import wrap_gripper_yaw
 from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.model.robot import HOME_QPOS
 from panda_grasp_env.model.scene import PUSH_FACE_HALF_SIZE, SceneConfig
+from panda_grasp_env.primitives.parameters import PrimitiveSettings, primitive_parameters
 from panda_grasp_env.primitives.result import REASONS
 from panda_grasp_env.primitives.top_down import MIN_GRASP_HEIGHT, grasp, place, push, run_primitive
 from panda_grasp_env.sim.stacking import blocks_displaced, wrap_quarter_turn
