@@ -93,12 +93,12 @@ def watched_push(cell: Workcell, heading: float) -> tuple[float, float]:
                 mujoco.mj_contactForce(cell.model, cell.data, i, wrench)
                 strongest = max(strongest, float(wrench[0]))
 
-    cell.step_hooks.append(watch)
+    cell.physics.add_observer(watch)
     try:
         height = primitive_parameters(cell, SETTINGS, "push", *start, heading, None)[2]
         push(cell, *start, height, heading, 0.15)
     finally:
-        cell.step_hooks.remove(watch)
+        cell.physics.remove_observer(watch)
     return deepest, strongest
 
 

@@ -124,12 +124,12 @@ def watched_push(cell: Workcell, block: int, start: np.ndarray, z: float, headin
             stroke["yaws"].append(cell.robot.ee_yaw)
 
     cell.move_to = watched_move
-    cell.step_hooks.append(watch)
+    cell.physics.add_observer(watch)
     try:
         result = push(cell, *start[:2], z, heading, distance)
     finally:
         del cell.move_to
-        cell.step_hooks.remove(watch)
+        cell.physics.remove_observer(watch)
     moved = cell.data.xpos[block] - before
     grip_heading = heading + np.pi / 2
     return {

@@ -33,7 +33,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from panda_grasp_env.control.controller import JacobianServo
+from panda_grasp_env.control.controller import JacobianServo, JointTargets
 from panda_grasp_env.geometry import is_count
 from panda_grasp_env.model.robot import FINGER_OPEN, HOME_YAW
 from panda_grasp_env.perception.heightmap import HeightmapGrid
@@ -325,30 +325,30 @@ class EEDeltaActions(ActionMode):
     def __init__(self, cell: Workcell, block_gripper: bool = False) -> None:
         self.block_gripper = block_gripper
         self.space = gym.spaces.Box(-1.0, 1.0, (3 if block_gripper else 4,), dtype=np.float32)
+        #: Steers the hand; its goal is the mode's target, integrated from the actions.
         self.servo = JacobianServo(cell.model, cell.data)
-        self.target = np.zeros(3)
 
     @classmethod
     def build(cls, context: ActionContext) -> EEDeltaActions:
         return cls(context.cell, context.block_gripper)
 
     def reset(self, cell: Workcell, rng: np.random.Generator) -> None:
-        self.target = cell.robot.ee_position
+        self.servo.set_goal(cell.robot.ee_position, HOME_YAW)
 
     def execute(self, cell: Workcell, action: np.ndarray) -> None:
         # The target integrates the commanded displacements (so a zero action holds the hand where it
         # was told to be), but never runs more than MAX_LAG ahead of the hand horizontally (pushing against
         # something).  Heights need no such limit (the target stays above the table), and clamping them
         # too would copy the hand's height error into the target during fast horizontal moves.
-        lag = self.target[:2] - cell.robot.ee_position[:2]
+        target = self.servo.goal_position
+        lag = target[:2] - cell.robot.ee_position[:2]
         distance = float(np.sqrt(lag @ lag))
         if distance > self.MAX_LAG:
-            self.target[:2] = cell.robot.ee_position[:2] + lag * (self.MAX_LAG / distance)
-        self.target = np.minimum(np.maximum(self.target + action[:3] * EE_STEP, self.LOW), self.HIGH)
-        cell.robot.command_joints(self.servo.command(self.target, HOME_YAW, cell.control_dt))
+            target[:2] = cell.robot.ee_position[:2] + lag * (self.MAX_LAG / distance)
+        self.servo.set_goal(np.minimum(np.maximum(target + action[:3] * EE_STEP, self.LOW), self.HIGH), HOME_YAW)
         closing = 1.0 if self.block_gripper else float(action[3])
         cell.robot.command_fingers(FINGER_OPEN * (1.0 - closing) / 2.0)
-        cell.step_physics(cell.control_substeps)
+        cell.physics.control_step(self.servo)
         return None
 
 
@@ -366,9 +366,9 @@ class JointActions(ActionMode):
         return cls()
 
     def execute(self, cell: Workcell, action: np.ndarray) -> None:
-        cell.robot.command_joints(cell.robot.joint_positions + action[:7] * JOINT_STEP)
+        targets = JointTargets(cell.robot.joint_positions + action[:7] * JOINT_STEP)
         cell.robot.command_fingers(FINGER_OPEN * (1.0 - action[7]) / 2.0)
-        cell.step_physics(cell.control_substeps)
+        cell.physics.control_step(targets)
         return None
 
 

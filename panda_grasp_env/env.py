@@ -29,7 +29,8 @@ from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
 from panda_grasp_env.sim.rendering import RENDER_MODES, EnvRenderer, advertised_render_modes
 from panda_grasp_env.sim.starts import draw_start, ready_position
-from panda_grasp_env.sim.workcell import PhysicsError, Workcell
+from panda_grasp_env.sim.stepping import PhysicsError
+from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks import TaskStep, dense_reward
 
 #: The ``PandaEnv`` options that set how an agent sees and acts (observation, action mode and their
@@ -140,7 +141,7 @@ class PandaEnv(gym.Env):
         # Low-level modes let the reference move EE_STEP per control step; primitives keep their own speeds.
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if mode.low_level else None
         self.cell = Workcell(options.scene_config(self.task), limits=limits)
-        self.cell.step_hooks.append(self.task.on_control_step)
+        self.cell.physics.add_observer(self.task.on_control_step)
         self.sensors = Sensors(self.cell, options.image_size, options.grid)
         settings = PrimitiveSettings(self.task.primitives, options.primitive_z, options.push_distance,
                                      getattr(self.task, "impulse_magnitude", 0.06))  # fmt: skip
@@ -163,6 +164,8 @@ class PandaEnv(gym.Env):
             self.observations.depth_filter = self.randomizer.noisy_depth
         self.renderer = EnvRenderer(self.cell, render_mode, options.render_size, self.metadata["render_fps"],
                                     lambda: self.sensors.rgbd("front", *options.render_size)[1])  # fmt: skip
+        if render_mode == "rgb_array_list":  # frames inside primitives too
+            self.cell.physics.add_observer(self.renderer.on_control_step)
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0
 

@@ -83,7 +83,7 @@ def test_the_baselines_put_the_target_in_the_bin_touching_nothing_else(agent, se
             if pair & geoms and {int(cell.model.geom_bodyid[g]) for g in pair} & robot:
                 robot_on_bin.append(cell.sim_time)
 
-    cell.step_hooks.append(watch)
+    cell.physics.add_observer(watch)
     result = play_episode(env, make_agent(spec, env), spec)["result"]
     assert result["success"] and result["actions"] == 2
     assert result["disturbed"] == 0 and result["transit_contacts"] == 0

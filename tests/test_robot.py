@@ -34,7 +34,7 @@ def test_an_opening_finger_stops_at_its_stop(rng, soften_finger_limits):
         cell.actuate_gripper(close=True)
         cell.robot.open_gripper()
         widest[limits] = 0.0
-        for _ in range(10 * cell.control_substeps):  # every physics step, so the peak is seen
+        for _ in range(10 * cell.physics.control_substeps):  # every physics step, so the peak is seen
             mujoco.mj_step(cell.model, cell.data)
             widest[limits] = max(widest[limits], float(cell.data.qpos[cell.robot.finger_qpos_idx].max()))
     assert widest["soft"] > FINGER_OPEN + 5e-3  # 9.6 mm: the stop met at 1.75 m/s
@@ -97,12 +97,16 @@ def test_cartesian_controller_reaches_targets_within_joint_limits(cell, rng, tar
 def test_reference_speed_is_bounded(cell, rng):
     cell.reset(rng)
     positions = []
-    cell.step_hooks.append(lambda c: positions.append(c.robot.ee_position))
+
+    def watch(cell):
+        positions.append(cell.robot.ee_position)
+
+    cell.physics.add_observer(watch)
     try:
         cell.move_to(np.array([0.6, 0.2, 0.2]), HOME_YAW)
     finally:
-        cell.step_hooks.clear()
-    speeds = np.linalg.norm(np.diff(positions, axis=0), axis=1) / cell.control_dt
+        cell.physics.remove_observer(watch)
+    speeds = np.linalg.norm(np.diff(positions, axis=0), axis=1) / cell.physics.control_dt
     assert speeds.max() < cell.controller.limits.linear_speed * 1.5
 
 
@@ -111,12 +115,16 @@ def test_ik_keeps_up_with_large_combined_moves(cell):
     from panda_grasp_env.agents.towers import build_tower
 
     errors = []
-    cell.step_hooks.append(lambda c: errors.append(c.controller.tracking_error()))
+
+    def watch(cell):
+        errors.append(cell.controller.tracking_error())
+
+    cell.physics.add_observer(watch)
     try:
         cell.reset(np.random.default_rng(59), "scattered")
         assert build_tower(cell).success
     finally:
-        cell.step_hooks.clear()
+        cell.physics.remove_observer(watch)
     assert max(errors) < 0.005
 
 

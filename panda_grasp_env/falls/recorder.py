@@ -77,7 +77,7 @@ class RecorderSettings:
 
 
 class FrameGrabber:
-    """A workcell step hook: once the blocks move, grab a cropped frame every ``frame_interval`` seconds."""
+    """A workcell step observer: once the blocks move, grab a cropped frame every ``frame_interval`` seconds."""
 
     def __init__(self, env: Any, settings: RecorderSettings, origin: tuple[int, int], colours: dict) -> None:
         self.env, self.settings, self.origin, self.colours = env, settings, origin, colours
@@ -88,7 +88,7 @@ class FrameGrabber:
     def done(self) -> bool:
         return len(self.frames) >= self.settings.frames
 
-    def __call__(self, cell: Any) -> None:
+    def on_control_step(self, cell: Any) -> None:
         from panda_grasp_env.tasks.tower_build import blocks_still
 
         if self.done:
@@ -176,18 +176,18 @@ def record_sequence(env: Any, seed: int, settings: RecorderSettings) -> dict[str
         start = target[:2] - 0.08 * np.array([np.cos(heading), np.sin(heading)])
         action = encode_primitive(primitives, True, "push", start[0], start[1], heading, target[2])
     grabber = FrameGrabber(env, settings, origin, info["block_colours"])
-    cell.step_hooks.append(grabber)
+    cell.physics.add_observer(grabber.on_control_step)
     try:
         env.step(action)
         deadline = cell.sim_time + settings.frames * settings.frame_interval + 2.0
         while not grabber.done and cell.sim_time < deadline:
-            cell.wait(cell.control_dt)
+            cell.wait(cell.physics.control_dt)
         if grabber.start is None:  # nothing moved (a glancing push): record the standing tower
             grabber.start = cell.sim_time
         while not grabber.done:
-            cell.wait(cell.control_dt)
+            cell.wait(cell.physics.control_dt)
     finally:
-        cell.step_hooks.remove(grabber)
+        cell.physics.remove_observer(grabber.on_control_step)
     stacked = {key: np.stack([frame[key] for frame in grabber.frames]) for key in grabber.frames[0]}
     return {
         **stacked,

@@ -20,7 +20,8 @@ import numpy as np
 
 from panda_grasp_env.geometry import is_number
 from panda_grasp_env.primitives.result import HOLD_TIME, PrimitiveResult, closed_on, lifted_and_held, record_collateral
-from panda_grasp_env.sim.workcell import WORKSPACE, PhysicsError, Workcell, body_bottom_height, body_extent_along
+from panda_grasp_env.sim.stepping import PhysicsError
+from panda_grasp_env.sim.workcell import WORKSPACE, Workcell, body_bottom_height, body_extent_along
 
 #: Lowest grasp-site height: the fingertips reach 15 mm below the site.
 MIN_GRASP_HEIGHT = 0.02
@@ -59,7 +60,7 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
         if len(args) != len(names):
             raise ValueError(f"{fn.__name__} takes {len(names)} arguments {list(names)}, got {len(args)}")
         values = [_check_number(fn.__name__, n, v) for n, v in zip(names, args)]
-        start_time, start_steps = cell.sim_time, cell.physics_steps
+        start_time, start_steps = cell.sim_time, cell.physics.steps
         cell.collateral.begin(_aimed_fixtures(cell, *values[:2]))
         try:
             result = fn(cell, *values)
@@ -70,7 +71,7 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
             raise
         record_collateral(cell, result)
         result.sim_time = cell.sim_time - start_time
-        result.physics_steps = cell.physics_steps - start_steps
+        result.physics_steps = cell.physics.steps - start_steps
         result.params = dict(zip(names, values))
         return result
 
@@ -305,9 +306,9 @@ def impulse(cell: Workcell, x: float, y: float, z: float, yaw: float, magnitude:
     body = int(cell.object_ids[nearest])
     duration = 0.01
     struck_speed = magnitude / cell.model.body_subtreemass[body]  # m/s, before anything slows it
-    with cell.collateral.work(), cell.allowing_object_speed(2 * struck_speed):
+    with cell.collateral.work(), cell.physics.allowing_object_speed(2 * struck_speed):
         cell.data.xfrc_applied[body, :2] = magnitude / duration * np.array([np.cos(yaw), np.sin(yaw)])
-        cell.step_physics(max(1, round(duration / cell.model.opt.timestep)))
+        cell.physics.step(max(1, round(duration / cell.model.opt.timestep)))
         cell.data.xfrc_applied[body] = 0.0
         cell.wait(IMPULSE_SETTLE)
     return PrimitiveResult("impulse", True, "ok", object=cell.name_of(body), targets=cell.collateral.pile({body}))

@@ -33,6 +33,7 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.model.robot import PandaRobot
+from panda_grasp_env.sim.stepping import body_speeds
 
 #: An object moved if its centre travelled further than this, metres.
 MOVE_LIMIT = 0.01
@@ -125,7 +126,7 @@ class CollateralMonitor:
         held = self.cell.robot.body_between_fingers()
         self._load = -1 if held is None else held
         if not work:
-            speeds = self.cell.body_speeds(self.cell.object_ids)
+            speeds = body_speeds(self.cell.data, self.cell.object_ids)
             self._transit_start = (*self._poses(), speeds < REST_SPEED)
 
     def _close_transit(self) -> None:
@@ -155,9 +156,9 @@ class CollateralMonitor:
         """Body ids (ncon, 2) of the two sides of every current contact."""
         return self.cell.model.geom_bodyid[self._contact_geoms()]
 
-    def after_step(self) -> None:
-        """Record the robot-object and robot-fixture contacts of the current state (called after every control
-        step)."""
+    def on_control_step(self, cell: MonitoredCell) -> None:
+        """Record the robot-object and robot-fixture contacts of the current state (the workcell's first step
+        observer: called after every control step)."""
         self.new_fixture_hit = False
         if not self.active or self.cell.data.ncon == 0:
             return

@@ -1,8 +1,9 @@
 """The workcell: one MuJoCo model and data, the robot, its controller and the blocks.
 
 This is the physics layer the motion primitives and the Gymnasium env drive.
-It owns stepping (control rate, divergence detection), motion helpers and the
-reset layouts.  World frame, metres, radians throughout.
+Its stepping (control rate, divergence detection, per-step observers) is ``physics``
+(``sim.stepping``); the workcell adds motion helpers and the reset layouts.  World
+frame, metres, radians throughout.
 """
 
 from __future__ import annotations
@@ -14,8 +15,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from panda_grasp_env.control.controller import CartesianController, ControllerLimits
-from panda_grasp_env.geometry import half_extent_along, is_count, yaw_quaternion
+from panda_grasp_env.control.controller import CartesianController, ControllerLimits, JointTargets
+from panda_grasp_env.geometry import half_extent_along, yaw_quaternion
 from panda_grasp_env.model.objects import ObjectShape, apply_shape
 from panda_grasp_env.model.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
 from panda_grasp_env.model.scene import (
@@ -29,6 +30,7 @@ from panda_grasp_env.model.scene import (
     fixture_name,
 )
 from panda_grasp_env.sim.collateral import CollateralMonitor
+from panda_grasp_env.sim.stepping import Physics
 
 #: Reachable region for primitive targets: x, y, z bounds of the grasp site, metres.
 WORKSPACE = np.array([[0.25, 0.75], [-0.35, 0.35], [0.0, 0.45]])
@@ -47,17 +49,6 @@ TRANSIT_MIN_HEIGHT = 0.12
 #: Reset IK solutions kept (least recently used dropped first).
 TELEPORT_CACHE_SIZE = 64
 _WORLD_GROUP = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # ray casts see geom group 0 only: table and objects
-#: MuJoCo's bad-state warnings, consecutive in mjtWarning: BADQPOS, BADQVEL, BADQACC.
-_WARNINGS = slice(int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQACC) + 1)
-
-#: No free object here moves faster than this (m/s) unless the contact solver threw it: a fall from the table
-#: top to the floor reaches 3.8 m/s and the arm's fastest motion under 2 m/s, while cubes thrown by a wrong
-#: Newton solve (MuJoCo 4.0.0's sparse factorisation, see ``model.scene``) left at 18-64 m/s.
-MAX_OBJECT_SPEED = 8.0
-
-
-class PhysicsError(RuntimeError):
-    """The simulation diverged (MuJoCo warning or non-finite state) or threw an object (``MAX_OBJECT_SPEED``)."""
 
 
 @dataclass
@@ -125,7 +116,7 @@ class Workcell:
     """A Panda, a table and free objects in one MuJoCo simulation.
 
     ``control_substeps`` physics steps make one control step (default 20 x 2 ms
-    = 25 Hz, the rate of the env's low-level action modes).
+    = 25 Hz, the rate of the env's low-level action modes): see ``physics``.
     """
 
     def __init__(
@@ -135,15 +126,11 @@ class Workcell:
         limits: ControllerLimits | None = None,
     ) -> None:
         self.config = config or SceneConfig()
-        if not is_count(control_substeps) or control_substeps < 1:
-            raise ValueError(f"control_substeps must be a positive int, got {control_substeps!r}")
         self.spec = build_spec(self.config)
         self.model = self.spec.compile()
         hidden = self.model.geom_group == HIDDEN_GROUP  # object-slot geoms no shape uses yet: no contacts
         self.model.geom_contype[hidden] = self.model.geom_conaffinity[hidden] = 0
         self.data = mujoco.MjData(self.model)
-        self.control_substeps = control_substeps
-        self.control_dt = control_substeps * self.model.opt.timestep
         self.robot = PandaRobot(self.model, self.data)
         self.controller = CartesianController(self.config, limits)
         self.block_names = self.config.block_names
@@ -166,18 +153,17 @@ class Workcell:
             for g in range(model.body_geomadr[b], model.body_geomadr[b] + model.body_geomnum[b])
         }
         self._dof_adr = {b: self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.object_ids}
-        #: Objects faster than this (m/s) end the step with ``PhysicsError``; see ``allowing_object_speed``.
-        self.max_object_speed = MAX_OBJECT_SPEED
-        self.physics_steps = 0
+        #: Stepping: control steps, divergence checks, and the observers called after every step.
+        self.physics: Physics[Workcell] = Physics(self, self.model, self.data, self.robot, self.object_ids,
+                                                  control_substeps)  # fmt: skip
         self._teleport_solutions: dict[tuple, np.ndarray] = {}
-        #: Called with the workcell after every control step (video recording, logging).
-        self.step_hooks: list[Callable[[Workcell], None]] = []
         #: A task's fixtures (``Task.add_fixtures``): their collision geoms, and each one's fixture name (its
         #: body's, or its own for a geom of the world body).
         self.fixture_geom_ids = fixture_geoms(self.model)
         self.fixture_names = {int(g): fixture_name(self.model, g) for g in self.fixture_geom_ids}
         #: Transit and collateral accounting of the primitive running now (see ``collateral``).
         self.collateral = CollateralMonitor(self)
+        self.physics.add_observer(self.collateral.on_control_step)  # first: later observers see it up to date
         self._scratch = mujoco.MjData(self.model)  # kinematics checks that must not touch the live state
         self.reset_robot()
         #: The fixtures' collision geoms standing on the table, as (x, y, reach, top) in metres: transit
@@ -197,10 +183,6 @@ class Workcell:
     def object_positions(self) -> np.ndarray:
         """Centres (n, 3) of all free bodies (blocks, then object slots), world frame, metres."""
         return self.data.xpos[self.object_ids].copy()
-
-    def body_speeds(self, body_ids: np.ndarray) -> np.ndarray:
-        """Speeds (n,) of the bodies' centres of mass, m/s, world frame, as of the last step."""
-        return np.linalg.norm(self.data.cvel[body_ids, 3:], axis=1)
 
     def is_parked(self, body_id: int) -> bool:
         """Whether a free body is off the table (parked, fallen or pushed off)."""
@@ -243,42 +225,11 @@ class Workcell:
         """Whether a body is in contact with the robot."""
         return any(other in self.robot.body_ids for other in self.bodies_touching(body_id))
 
-    # --- stepping ----------------------------------------------------------
-    def step_physics(self, n_steps: int) -> None:
-        """Advance the physics ``n_steps`` steps with the current controls; raise PhysicsError on divergence."""
-        mujoco.mj_step(self.model, self.data, nstep=n_steps)
-        self.physics_steps += n_steps
-        # MuJoCo's own checks catch NaN/inf and runaway values (and reset the data when they fire).
-        if np.count_nonzero(self.data.warning.number[_WARNINGS]):
-            raise PhysicsError("simulation diverged (MuJoCo reported bad qpos/qvel/qacc)")
-        fastest = float(self.body_speeds(self.object_ids).max(initial=0.0))
-        if fastest > self.max_object_speed:
-            raise PhysicsError(f"the contact solver threw an object at {fastest:.1f} m/s "
-                               f"(no object here moves faster than {self.max_object_speed:g} m/s)")  # fmt: skip
-        self.collateral.after_step()
-        for hook in self.step_hooks:
-            hook(self)
-
-    def control_step(self) -> None:
-        """One control step: advance the controller's reference, command the servos, step the physics."""
-        self.robot.command_joints(self.controller.step(self.control_dt))
-        self.step_physics(self.control_substeps)
-
+    # --- holding still ------------------------------------------------------
     def wait(self, seconds: float) -> None:
-        """Keep the current commands for ``seconds`` of simulated time."""
-        for _ in range(max(1, int(round(seconds / self.control_dt)))):
-            self.control_step()
-
-    @contextmanager
-    def allowing_object_speed(self, speed: float) -> Iterator[None]:
-        """Let objects move at up to ``speed`` m/s (when faster than ``MAX_OBJECT_SPEED``) inside the block: an
-        impulse's own push is not a solver fault."""
-        before = self.max_object_speed
-        self.max_object_speed = max(before, float(speed))
-        try:
-            yield
-        finally:
-            self.max_object_speed = before
+        """Keep the Cartesian controller's goal for ``seconds`` of simulated time."""
+        for _ in range(max(1, int(round(seconds / self.physics.control_dt)))):
+            self.physics.control_step(self.controller)
 
     # --- motion ------------------------------------------------------------
     def move_to(
@@ -300,10 +251,10 @@ class Workcell:
         """
         self.controller.set_goal(position, yaw, speed)
         goal = self.controller.goal_position
-        travel_steps = int(np.ceil(self.controller.time_to_goal / self.control_dt))
-        settle_steps = int(np.ceil(settle_timeout / self.control_dt))
+        travel_steps = int(np.ceil(self.controller.time_to_goal / self.physics.control_dt))
+        settle_steps = int(np.ceil(settle_timeout / self.physics.control_dt))
         for i in range(travel_steps + 4 + settle_steps):
-            self.control_step()
+            self.physics.control_step(self.controller)
             if self.collateral.new_fixture_hit or (stop_when is not None and stop_when()):
                 self.controller.stop()  # don't keep driving towards the goal after stopping
                 break
@@ -481,14 +432,13 @@ class Workcell:
         if not self._joint_line_stays_above(HOME_QPOS, height - 0.01):
             self.move_to(HOME_POSITION, HOME_YAW, settle_timeout=0.2, tolerance=0.03)
         start = self.robot.joint_positions
-        n = max(1, int(np.ceil(np.abs(HOME_QPOS - start).max() / (joint_speed * self.control_dt))))
+        n = max(1, int(np.ceil(np.abs(HOME_QPOS - start).max() / (joint_speed * self.physics.control_dt))))
         for fraction in np.linspace(0.0, 1.0, n + 1)[1:]:
-            self.robot.command_joints(start + fraction * (HOME_QPOS - start))
-            self.step_physics(self.control_substeps)
-        for _ in range(int(0.6 / self.control_dt)):
+            self.physics.control_step(JointTargets(start + fraction * (HOME_QPOS - start)))
+        for _ in range(int(0.6 / self.physics.control_dt)):
             if np.abs(self.robot.joint_positions - HOME_QPOS).max() < 0.01:
                 break
-            self.step_physics(self.control_substeps)
+            self.physics.control_step(None)  # the servos keep the home targets
         self.controller.sync(self.robot.joint_positions)
 
     def teleport_hand(self, position: np.ndarray, yaw: float, max_iterations: int = 300) -> float:
@@ -508,7 +458,7 @@ class Workcell:
             self.controller.sync(start)
             self.controller.set_goal(position, yaw)
             for _ in range(max_iterations):
-                self.controller.step(self.control_dt)
+                self.controller.step(self.physics.control_dt)
                 if self.controller.converged:
                     break
             solution = self.controller.commanded_qpos
@@ -529,8 +479,8 @@ class Workcell:
         else:
             self.robot.open_gripper()
         still = 0
-        for _ in range(int(np.ceil(timeout / self.control_dt))):
-            self.control_step()
+        for _ in range(int(np.ceil(timeout / self.physics.control_dt))):
+            self.physics.control_step(self.controller)
             still = still + 1 if self.robot.finger_speed < 2e-3 else 0
             if still >= 3:
                 break
@@ -596,14 +546,14 @@ class Workcell:
         for body_id in self.object_ids:
             self.park(body_id)
         self.reset_robot()
-        self.physics_steps = 0
+        self.physics.steps = 0
 
     def settle(self, seconds: float) -> None:
         """Let the scene come to rest for ``seconds``, then restart the clock (time and step count at zero)."""
         if seconds > 0:
             self.wait(seconds)
         self.data.time = 0.0
-        self.physics_steps = 0
+        self.physics.steps = 0
 
     def place_blocks(self, rng: np.random.Generator, layout: str = "scattered") -> None:
         """Put the coloured blocks on the table in a ``"scattered"`` or ``"tower"`` layout drawn from ``rng``."""

@@ -110,7 +110,8 @@ class Task(ABC):
         """Reward, success and termination after a step (``result`` is None for low-level steps)."""
 
     def on_control_step(self, cell: Workcell) -> None:  # noqa: B027 (an optional hook)
-        """Called after every 25 Hz control step (inside primitives too): track time-based conditions."""
+        """Called after every 25 Hz control step (inside primitives too; the env adds it as a step observer):
+        track time-based conditions."""
 
     def start_object(self, cell: Workcell) -> int:
         """Body id of the object the ``start_states`` are relative to (tasks that have some)."""
