@@ -40,7 +40,8 @@ from panda_grasp_env.perception.heightmap import HeightmapGrid
 from panda_grasp_env.primitives.parameters import PrimitiveSettings, primitive_parameters
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.primitives.top_down import MIN_GRASP_HEIGHT, run_primitive
-from panda_grasp_env.sim.workcell import WORKSPACE, Workcell
+from panda_grasp_env.sim.motion import WORKSPACE
+from panda_grasp_env.sim.workcell import Workcell
 
 if TYPE_CHECKING:
     from panda_grasp_env.primitives.pose_grasp import MotionStack
@@ -118,8 +119,9 @@ class ActionContext:
 
 
 class ActionMode(ABC):
-    """One way of acting.  ``low_level`` modes run one 25 Hz control step per env step; ``fixed_hand_yaw``
-    modes keep the hand at ``HOME_YAW`` (tasks then need not turn it)."""
+    """One way of acting.  ``low_level`` modes run one 25 Hz control step per env step, through the workcell's
+    ``physics.control_step`` with their controller; ``fixed_hand_yaw`` modes keep the hand at ``HOME_YAW``
+    (tasks then need not turn it)."""
 
     name: ClassVar[str]
     low_level: ClassVar[bool]

@@ -188,7 +188,7 @@ class PandaEnv(gym.Env):
         start = "ready"
         if self.actions.low_level:
             ready = ready_position(self.cell)
-            self.cell.teleport_hand(ready, HOME_YAW)
+            self.cell.motion.teleport_hand(ready, HOME_YAW)
             if self.start_curriculum:  # no draw without one
                 body = self.task.start_object(self.cell)
                 start = draw_start(self.cell, self.start_curriculum, body, ready, rng, LOW_LEVEL_BOUNDS,

@@ -33,7 +33,7 @@ def test_the_bin_is_in_the_simulation_and_in_the_planners_model():
     assert np.allclose(cell.data.xpos[cell.model.body("bin").id], [0.55, -0.1, 0.0])
     assert len(bin_geoms(MotionPlanner(cell.config).model)) == 5  # the planner plans around it
     # Transit heights clear its walls like any object; the rays that place objects see its floor.
-    assert max(top for *_, top in cell.fixture_tops) == pytest.approx(FLOOR_THICKNESS + WALL_HEIGHT)
+    assert max(top for *_, top in cell.fixtures.tops) == pytest.approx(FLOOR_THICKNESS + WALL_HEIGHT)
     assert cell.surface_below(0.55, -0.1)[0] == pytest.approx(FLOOR_THICKNESS)
     env.close()
 

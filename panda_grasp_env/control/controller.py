@@ -140,7 +140,7 @@ class CartesianController:
         A parallel gripper is symmetric under a half turn, so ``yaw`` is wrapped
         into the half-turn window that keeps joint 7 near the middle of its range
         with the hand over the goal -- or over ``heading_window_at`` while a
-        motion holds one heading through several goals (``Workcell.one_heading``).
+        motion holds one heading through several goals (``Motion.one_heading``).
         """
         self.goal_position = np.asarray(position, dtype=float).copy()
         window = self.goal_position if self.heading_window_at is None else self.heading_window_at

@@ -75,7 +75,7 @@ class MotionStack:
         self._gripper(cell, close=False)
         if retreat is not None:
             self._follow(cell, self._line(cell, *retreat, APPROACH_SPEED))
-        cell.move_home()
+        cell.motion.move_home()
         return PrimitiveResult("grasp", False, reason, object=obj)
 
     def _line(self, cell: Workcell, start: np.ndarray, end: np.ndarray, speed: float) -> np.ndarray:
@@ -84,7 +84,7 @@ class MotionStack:
     def grasp(self, cell: Workcell, position: np.ndarray, rotation: np.ndarray) -> PrimitiveResult:
         """Grasp with the grasp site at ``position`` (world, metres) and orientation ``rotation`` (3, 3)."""
         start_time, start_steps = cell.sim_time, cell.physics.steps
-        below = cell.fixture_below(float(position[0]), float(position[1]))
+        below = cell.fixtures.below(float(position[0]), float(position[1]))
         cell.collateral.begin(() if below is None else (below,))
         try:
             result = self._grasp(cell, np.asarray(position, float), np.asarray(rotation, float))
