@@ -102,7 +102,7 @@ def make_env(case: str) -> tuple[Any, Any, Any, int]:
         obs_mode = "state+rgbd" if case == "ours_rgbd" else "state"
         env = gym.make("panda_grasp_env:PandaPush-v0", action_mode="ee_delta", obs_mode=obs_mode, image_size=(84, 84))
         cell = env.unwrapped.cell
-        return env, cell.model, cell.data, cell.control_substeps
+        return env, cell.model, cell.data, cell.physics.control_substeps
     import gymnasium_robotics
 
     gym.register_envs(gymnasium_robotics)

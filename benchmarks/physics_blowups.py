@@ -36,7 +36,7 @@ FINGER_SLACK = 0.02
 
 
 class PeakTracker:
-    """A workcell step hook: the largest free-body speed and finger position since ``clear``."""
+    """A workcell step observer: the largest free-body speed and finger position since ``clear``."""
 
     def __init__(self, cell: Workcell) -> None:
         model = cell.model
@@ -60,7 +60,7 @@ def measure(name: str, episodes: int | None, speed_limit: float) -> dict:
     agent = LearnedAgent(name, env)
     cell = env.unwrapped.cell
     tracker = PeakTracker(cell)
-    cell.step_hooks.append(tracker)
+    cell.physics.add_observer(tracker)
     first = checkpoint.config.eval_seed + TEST_SEED_OFFSET
     n = episodes or checkpoint.config.final_eval_episodes
     blowups, successes = [], 0

@@ -31,9 +31,9 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks._common import machine  # noqa: E402
-from panda_grasp_env.actions import PrimitiveSettings, primitive_parameters  # noqa: E402
 from panda_grasp_env.geometry import yaw_quaternion  # noqa: E402
 from panda_grasp_env.model.scene import SceneConfig  # noqa: E402
+from panda_grasp_env.primitives.parameters import PrimitiveSettings, primitive_parameters  # noqa: E402
 from panda_grasp_env.primitives.top_down import push  # noqa: E402
 from panda_grasp_env.sim.workcell import Workcell  # noqa: E402
 from panda_grasp_env.tooling.runs import write_atomically  # noqa: E402
@@ -93,12 +93,12 @@ def watched_push(cell: Workcell, heading: float) -> tuple[float, float]:
                 mujoco.mj_contactForce(cell.model, cell.data, i, wrench)
                 strongest = max(strongest, float(wrench[0]))
 
-    cell.step_hooks.append(watch)
+    cell.physics.add_observer(watch)
     try:
         height = primitive_parameters(cell, SETTINGS, "push", *start, heading, None)[2]
         push(cell, *start, height, heading, 0.15)
     finally:
-        cell.step_hooks.remove(watch)
+        cell.physics.remove_observer(watch)
     return deepest, strongest
 
 

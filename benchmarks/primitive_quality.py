@@ -31,14 +31,15 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede th
 import numpy as np  # noqa: E402
 
 from benchmarks._common import Results, rate  # noqa: E402
-from panda_grasp_env.actions import PrimitiveSettings, primitive_parameters  # noqa: E402
 from panda_grasp_env.agents.towers import build_tower, push_tower  # noqa: E402
 from panda_grasp_env.control.controller import wrap_gripper_yaw  # noqa: E402
 from panda_grasp_env.geometry import yaw_quaternion  # noqa: E402
 from panda_grasp_env.model.scene import SceneConfig  # noqa: E402
+from panda_grasp_env.primitives.parameters import PrimitiveSettings, primitive_parameters  # noqa: E402
 from panda_grasp_env.primitives.top_down import grasp, push  # noqa: E402
+from panda_grasp_env.sim.motion import WORKSPACE  # noqa: E402
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
-from panda_grasp_env.sim.workcell import SPAWN_REGION, WORKSPACE, Workcell  # noqa: E402
+from panda_grasp_env.sim.workcell import SPAWN_REGION, Workcell  # noqa: E402
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS  # noqa: E402
 
 
@@ -107,7 +108,7 @@ def watched_push(cell: Workcell, block: int, start: np.ndarray, z: float, headin
     end = np.array([*(start[:2] + distance * along[:2]), z])
     before = cell.data.xpos[block].copy()
     stroke: dict = {"on": False, "tilt": 0.0, "yaws": [], "end_error": None, "block_at_end": None}
-    move_to = cell.move_to
+    move_to = cell.motion.move_to
 
     def watched_move(position: np.ndarray, yaw: float, **options: object) -> object:
         stroke["on"] = bool(np.allclose(np.asarray(position)[:2], end[:2], atol=0.01))  # the stroke, corrections too
@@ -123,13 +124,13 @@ def watched_push(cell: Workcell, block: int, start: np.ndarray, z: float, headin
             stroke["tilt"] = max(stroke["tilt"], float(np.arccos(np.clip(cell.data.xmat[block][8], -1, 1))))
             stroke["yaws"].append(cell.robot.ee_yaw)
 
-    cell.move_to = watched_move
-    cell.step_hooks.append(watch)
+    cell.motion.move_to = watched_move
+    cell.physics.add_observer(watch)
     try:
         result = push(cell, *start[:2], z, heading, distance)
     finally:
-        del cell.move_to
-        cell.step_hooks.remove(watch)
+        del cell.motion.move_to
+        cell.physics.remove_observer(watch)
     moved = cell.data.xpos[block] - before
     grip_heading = heading + np.pi / 2
     return {

@@ -43,12 +43,12 @@ def physics(cell: Workcell, repeats: int) -> dict[str, float]:
     targets = [np.array([0.45, 0.15, 0.3]), np.array([0.55, -0.15, 0.2])]
 
     def controlled() -> int:
-        start = cell.physics_steps
+        start = cell.physics.steps
         for i in range(100):
             if i % 25 == 0:
                 cell.controller.set_goal(targets[(i // 25) % 2], -np.pi / 2)
-            cell.control_step()
-        return cell.physics_steps - start
+            cell.physics.control_step(cell.controller)
+        return cell.physics.steps - start
 
     cell.reset(np.random.default_rng(0), "tower")
     control_rate = median_rate(controlled, repeats)
@@ -65,7 +65,7 @@ def physics(cell: Workcell, repeats: int) -> dict[str, float]:
     return {
         "raw_mj_step_per_s": raw_rate,
         "controlled_physics_steps_per_s": control_rate,
-        "control_steps_per_s": control_rate / cell.control_substeps,
+        "control_steps_per_s": control_rate / cell.physics.control_substeps,
         "controller_to_raw_ratio": control_rate / raw_rate,
         "primitives_per_s": primitive_rate,
     }

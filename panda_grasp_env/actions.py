@@ -33,89 +33,25 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from panda_grasp_env.control.controller import JacobianServo
+from panda_grasp_env.control.controller import JacobianServo, JointTargets
 from panda_grasp_env.geometry import is_count
 from panda_grasp_env.model.robot import FINGER_OPEN, HOME_YAW
 from panda_grasp_env.perception.heightmap import HeightmapGrid
+from panda_grasp_env.primitives.parameters import PrimitiveSettings, primitive_parameters
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.primitives.top_down import MIN_GRASP_HEIGHT, run_primitive
-from panda_grasp_env.sim.workcell import WORKSPACE, Workcell
+from panda_grasp_env.sim.motion import WORKSPACE
+from panda_grasp_env.sim.workcell import Workcell
 
 if TYPE_CHECKING:
     from panda_grasp_env.primitives.pose_grasp import MotionStack
 
-#: Where a grasp closes below the top surface it aims at, metres.
-GRASP_DEPTH = 0.02
-#: With push faces (``SceneConfig.push_faces``), a push through nothing taller than this (metres) runs as low
-#: as the fingers go (``MIN_GRASP_HEIGHT``:
-#: fingertips 5 mm above the table, the flat push faces from 7.5 mm up), below the height w / (2 mu) above
-#: which a pushed object of width w and table friction mu tips over its leading edge instead of sliding
-#: (7.5 mm for a 3 cm cube at the largest friction, 2, that objects take; 25 mm for a 5 cm block at 1).
-LOW_PUSH_MAX_HEIGHT = 0.075
-#: Heights (metres) between which a push through something taller runs: half its height, so that a tower
-#: topples rather than its bottom block sliding out.
-PUSH_HEIGHT_RANGE = (0.03, 0.12)
 #: Largest end-effector displacement per ee_delta step (metres; 25 Hz -> 0.75 m/s).
 EE_STEP = 0.03
 #: Largest joint change per joint step, radians.
 JOINT_STEP = 0.05
 #: Grasp-site box the ee_delta mode keeps its targets in (fingertips stay clear of the table).
 LOW_LEVEL_BOUNDS = np.array([WORKSPACE[0], WORKSPACE[1], [MIN_GRASP_HEIGHT, WORKSPACE[2, 1]]])
-
-
-@dataclass(frozen=True)
-class PrimitiveSettings:
-    """Options shared by the primitive-executing modes."""
-
-    primitives: tuple[str, ...]
-    with_z: bool = False
-    push_distance: float = 0.1  # metres (VPG)
-    impulse_magnitude: float = 0.06  # N s
-
-
-def surface_height(cell: Workcell, x: float, y: float, exclude_body: int = -1, radius: float = 0.01) -> float:
-    """Height of the highest table or object surface within ``radius`` of (x, y), metres (0 = table top).
-
-    Ray casts straight down through a 3 x 3 pattern; the robot is not seen.
-    """
-    return max(
-        cell.surface_below(x + dx, y + dy, exclude_body)[0]
-        for dx in (-radius, 0.0, radius)
-        for dy in (-radius, 0.0, radius)
-    )
-
-
-def primitive_parameters(
-    cell: Workcell, settings: PrimitiveSettings, name: str, x: float, y: float, yaw: float, z: float | None
-) -> list[float]:
-    """Full parameter vector of primitive ``name`` at (x, y) with heading ``yaw``; ``z=None`` picks it from the scene.
-
-    Automatic heights: ``grasp`` closes ``GRASP_DEPTH`` below the surface at
-    (x, y); ``place`` puts the object on that surface; ``push`` runs at half
-    the height of what lies in its path + 1 cm (within ``PUSH_HEIGHT_RANGE``: a
-    tower topples), or, with push faces, as low as the fingers go through
-    things up to ``LOW_PUSH_MAX_HEIGHT`` tall (they slide rather than tip);
-    ``impulse`` strikes the top object at (x, y).
-    """
-    held = cell.robot.body_between_fingers()
-    if name == "grasp":
-        z = max(surface_height(cell, x, y) - GRASP_DEPTH, MIN_GRASP_HEIGHT) if z is None else z
-        return [x, y, z, yaw]
-    if name == "place":
-        z = surface_height(cell, x, y, exclude_body=-1 if held is None else held, radius=0.015) if z is None else z
-        return [x, y, z, yaw]
-    if name == "push":
-        if z is None:
-            ahead = np.linspace(0.0, settings.push_distance, 6)
-            heights = [surface_height(cell, x + d * np.cos(yaw), y + d * np.sin(yaw)) for d in ahead]
-            tallest = max(heights)
-            low = cell.config.push_faces and tallest <= LOW_PUSH_MAX_HEIGHT
-            z = MIN_GRASP_HEIGHT if low else float(np.clip(tallest / 2 + 0.01, *PUSH_HEIGHT_RANGE))
-        return [x, y, z, yaw, settings.push_distance]
-    if name == "impulse":
-        z = surface_height(cell, x, y) - 0.02 if z is None else z
-        return [x, y, z, yaw, settings.impulse_magnitude]
-    raise ValueError(f"unknown primitive {name!r}")
 
 
 def validate_box_action(action: Any, space: gym.spaces.Box) -> tuple[np.ndarray, int]:
@@ -183,8 +119,9 @@ class ActionContext:
 
 
 class ActionMode(ABC):
-    """One way of acting.  ``low_level`` modes run one 25 Hz control step per env step; ``fixed_hand_yaw``
-    modes keep the hand at ``HOME_YAW`` (tasks then need not turn it)."""
+    """One way of acting.  ``low_level`` modes run one 25 Hz control step per env step, through the workcell's
+    ``physics.control_step`` with their controller; ``fixed_hand_yaw`` modes keep the hand at ``HOME_YAW``
+    (tasks then need not turn it)."""
 
     name: ClassVar[str]
     low_level: ClassVar[bool]
@@ -390,30 +327,30 @@ class EEDeltaActions(ActionMode):
     def __init__(self, cell: Workcell, block_gripper: bool = False) -> None:
         self.block_gripper = block_gripper
         self.space = gym.spaces.Box(-1.0, 1.0, (3 if block_gripper else 4,), dtype=np.float32)
+        #: Steers the hand; its goal is the mode's target, integrated from the actions.
         self.servo = JacobianServo(cell.model, cell.data)
-        self.target = np.zeros(3)
 
     @classmethod
     def build(cls, context: ActionContext) -> EEDeltaActions:
         return cls(context.cell, context.block_gripper)
 
     def reset(self, cell: Workcell, rng: np.random.Generator) -> None:
-        self.target = cell.robot.ee_position
+        self.servo.set_goal(cell.robot.ee_position, HOME_YAW)
 
     def execute(self, cell: Workcell, action: np.ndarray) -> None:
         # The target integrates the commanded displacements (so a zero action holds the hand where it
         # was told to be), but never runs more than MAX_LAG ahead of the hand horizontally (pushing against
         # something).  Heights need no such limit (the target stays above the table), and clamping them
         # too would copy the hand's height error into the target during fast horizontal moves.
-        lag = self.target[:2] - cell.robot.ee_position[:2]
+        target = self.servo.goal_position
+        lag = target[:2] - cell.robot.ee_position[:2]
         distance = float(np.sqrt(lag @ lag))
         if distance > self.MAX_LAG:
-            self.target[:2] = cell.robot.ee_position[:2] + lag * (self.MAX_LAG / distance)
-        self.target = np.minimum(np.maximum(self.target + action[:3] * EE_STEP, self.LOW), self.HIGH)
-        cell.robot.command_joints(self.servo.command(self.target, HOME_YAW, cell.control_dt))
+            target[:2] = cell.robot.ee_position[:2] + lag * (self.MAX_LAG / distance)
+        self.servo.set_goal(np.minimum(np.maximum(target + action[:3] * EE_STEP, self.LOW), self.HIGH), HOME_YAW)
         closing = 1.0 if self.block_gripper else float(action[3])
         cell.robot.command_fingers(FINGER_OPEN * (1.0 - closing) / 2.0)
-        cell.step_physics(cell.control_substeps)
+        cell.physics.control_step(self.servo)
         return None
 
 
@@ -431,9 +368,9 @@ class JointActions(ActionMode):
         return cls()
 
     def execute(self, cell: Workcell, action: np.ndarray) -> None:
-        cell.robot.command_joints(cell.robot.joint_positions + action[:7] * JOINT_STEP)
+        targets = JointTargets(cell.robot.joint_positions + action[:7] * JOINT_STEP)
         cell.robot.command_fingers(FINGER_OPEN * (1.0 - action[7]) / 2.0)
-        cell.step_physics(cell.control_substeps)
+        cell.physics.control_step(targets)
         return None
 
 

@@ -15,7 +15,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from panda_grasp_env.actions import EE_STEP, LOW_LEVEL_BOUNDS, ActionContext, ActionMode, PrimitiveSettings
+from panda_grasp_env.actions import EE_STEP, LOW_LEVEL_BOUNDS, ActionContext, ActionMode
 from panda_grasp_env.control.controller import ControllerLimits
 from panda_grasp_env.env_options import EnvOptions
 from panda_grasp_env.model.robot import HOME_YAW
@@ -23,12 +23,14 @@ from panda_grasp_env.model.scene import CAMERA_NAMES, SceneConfig
 from panda_grasp_env.observations import ObservationBuilder, Sensors
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
+from panda_grasp_env.primitives.parameters import PrimitiveSettings
 from panda_grasp_env.primitives.result import COUNTERS
 from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
 from panda_grasp_env.sim.rendering import RENDER_MODES, EnvRenderer, advertised_render_modes
 from panda_grasp_env.sim.starts import draw_start, ready_position
-from panda_grasp_env.sim.workcell import PhysicsError, Workcell
+from panda_grasp_env.sim.stepping import PhysicsError
+from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks import TaskStep, dense_reward
 
 #: The ``PandaEnv`` options that set how an agent sees and acts (observation, action mode and their
@@ -139,7 +141,7 @@ class PandaEnv(gym.Env):
         # Low-level modes let the reference move EE_STEP per control step; primitives keep their own speeds.
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if mode.low_level else None
         self.cell = Workcell(options.scene_config(self.task), limits=limits)
-        self.cell.step_hooks.append(self.task.on_control_step)
+        self.cell.physics.add_observer(self.task.on_control_step)
         self.sensors = Sensors(self.cell, options.image_size, options.grid)
         settings = PrimitiveSettings(self.task.primitives, options.primitive_z, options.push_distance,
                                      getattr(self.task, "impulse_magnitude", 0.06))  # fmt: skip
@@ -162,6 +164,8 @@ class PandaEnv(gym.Env):
             self.observations.depth_filter = self.randomizer.noisy_depth
         self.renderer = EnvRenderer(self.cell, render_mode, options.render_size, self.metadata["render_fps"],
                                     lambda: self.sensors.rgbd("front", *options.render_size)[1])  # fmt: skip
+        if render_mode == "rgb_array_list":  # frames inside primitives too
+            self.cell.physics.add_observer(self.renderer.on_control_step)
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0
 
@@ -184,7 +188,7 @@ class PandaEnv(gym.Env):
         start = "ready"
         if self.actions.low_level:
             ready = ready_position(self.cell)
-            self.cell.teleport_hand(ready, HOME_YAW)
+            self.cell.motion.teleport_hand(ready, HOME_YAW)
             if self.start_curriculum:  # no draw without one
                 body = self.task.start_object(self.cell)
                 start = draw_start(self.cell, self.start_curriculum, body, ready, rng, LOW_LEVEL_BOUNDS,

@@ -25,4 +25,4 @@ def test_video_recorder_writes_a_playable_mp4(tmp_path):
     frames = imageio.mimread(path)
     assert len(frames) == 10 and frames[0].shape == (120, 160, 3)
     assert not list(tmp_path.glob("*.partial*"))
-    assert not cell.step_hooks
+    assert cell.physics.observers == (cell.collateral.on_control_step,)  # the recorder left

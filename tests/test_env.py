@@ -342,7 +342,7 @@ def test_task_options_of_the_wrong_type_raise_value_errors_naming_them(env_id, k
 
 
 def test_an_object_thrown_faster_than_anything_here_moves_is_a_physics_error():
-    from panda_grasp_env.sim.workcell import MAX_OBJECT_SPEED
+    from panda_grasp_env.sim.stepping import MAX_OBJECT_SPEED
 
     env = make("PandaPush-v0")
     env.reset(seed=0)

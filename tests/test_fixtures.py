@@ -31,7 +31,7 @@ def walled():
 
 def test_pushing_into_a_fixture_reports_collision_and_names_it(walled):
     walled.clear()
-    walled.set_fixture_pose("wall", [0.55, 0.0, 0.04])
+    walled.fixtures.set_pose("wall", [0.55, 0.0, 0.04])
     result = push(walled, 0.45, 0.0, 0.03, 0.0, 0.15)  # the stroke ends 5 cm inside the wall
     assert (result.success, result.reason) == (False, "collision")
     assert result.work_contacts == ["wall"] and result.transit_contacts == []
@@ -41,14 +41,14 @@ def test_pushing_into_a_fixture_reports_collision_and_names_it(walled):
 
 def test_a_push_clear_of_a_moved_fixture_touches_nothing(walled):
     walled.clear()
-    walled.set_fixture_pose("wall", [0.45, 0.25, 0.04], yaw=np.pi / 2)  # along x, beside the stroke
+    walled.fixtures.set_pose("wall", [0.45, 0.25, 0.04], yaw=np.pi / 2)  # along x, beside the stroke
     result = push(walled, 0.45, 0.0, 0.03, 0.0, 0.15)
     assert (result.reason, result.work_contacts, result.transit_contacts) == ("no_contact", [], [])
 
 
 def test_a_grasp_on_a_fixture_it_is_aimed_at_is_no_collision(walled):
     walled.clear()
-    walled.set_fixture_pose("wall", [0.5, 0.0, 0.04], yaw=np.pi / 2)  # lying across: 20 cm long, 2 cm deep
+    walled.fixtures.set_pose("wall", [0.5, 0.0, 0.04], yaw=np.pi / 2)  # lying across: 20 cm long, 2 cm deep
     block = int(walled.block_ids[0])
     walled.set_body_pose(block, np.array([0.5, 0.0, 0.08 + 0.025]))
     walled.settle(0.2)
@@ -62,24 +62,24 @@ def test_fixture_poses_and_sizes_move_rays_heights_and_the_planners_model():
     cell.clear()
     assert planner.is_valid(HOME_QPOS)
     hand = cell.robot.ee_position.copy()
-    cell.set_fixture_size("crate_box", [0.08, 0.08, 0.1])
-    cell.set_fixture_pose("crate", hand, yaw=0.3)  # around the hand at home
-    assert cell.fixture_below(*hand[:2]) == "crate"
+    cell.fixtures.set_size("crate_box", [0.08, 0.08, 0.1])
+    cell.fixtures.set_pose("crate", hand, yaw=0.3)  # around the hand at home
+    assert cell.fixtures.below(*hand[:2]) == "crate"
     assert cell.surface_below(*hand[:2])[0] == pytest.approx(hand[2] + 0.1)
-    assert cell.tallest_top() == pytest.approx(hand[2] + 0.1)
+    assert cell.motion.tallest_top() == pytest.approx(hand[2] + 0.1)
     planner.sync_fixtures(cell.model)
     assert not planner.is_valid(HOME_QPOS)
-    cell.set_fixture_pose("crate", [0.5, -0.2, 0.1])
+    cell.fixtures.set_pose("crate", [0.5, -0.2, 0.1])
     planner.sync_fixtures(cell.model)
     assert planner.is_valid(HOME_QPOS)
-    assert cell.fixture_below(0.5, -0.2) == "crate" and cell.fixture_below(0.5, 0.2) is None
+    assert cell.fixtures.below(0.5, -0.2) == "crate" and cell.fixtures.below(0.5, 0.2) is None
 
 
 def test_a_resized_fixture_holds_a_block_where_only_its_new_size_reaches():
     cell = Workcell(SceneConfig(n_blocks=1, fixtures=box_fixture("crate", "crate_box", [0.03, 0.03, 0.03])))
     cell.clear()
-    cell.set_fixture_size("crate_box", [0.12, 0.12, 0.03])
-    cell.set_fixture_pose("crate", [0.5, 0.0, 0.03])
+    cell.fixtures.set_size("crate_box", [0.12, 0.12, 0.03])
+    cell.fixtures.set_pose("crate", [0.5, 0.0, 0.03])
     block = int(cell.block_ids[0])
     cell.set_body_pose(block, np.array([0.59, 0.0, 0.12]))  # over the grown top, 9 cm from its centre
     cell.wait(1.0)
@@ -89,10 +89,10 @@ def test_a_resized_fixture_holds_a_block_where_only_its_new_size_reaches():
 @pytest.mark.parametrize(
     "call,culprit",
     [
-        (lambda c: c.set_fixture_pose("table", [0.5, 0.0, 0.0]), "table"),
-        (lambda c: c.set_fixture_pose("wall", [0.5, np.nan, 0.0]), "wall"),
-        (lambda c: c.set_fixture_size("wall_plate", [0.1, 0.1]), "wall_plate"),
-        (lambda c: c.set_fixture_size("floor", [1.0, 1.0, 1.0]), "floor"),
+        (lambda c: c.fixtures.set_pose("table", [0.5, 0.0, 0.0]), "table"),
+        (lambda c: c.fixtures.set_pose("wall", [0.5, np.nan, 0.0]), "wall"),
+        (lambda c: c.fixtures.set_size("wall_plate", [0.1, 0.1]), "wall_plate"),
+        (lambda c: c.fixtures.set_size("floor", [1.0, 1.0, 1.0]), "floor"),
     ],
 )
 def test_bad_fixture_changes_name_the_culprit(walled, call, culprit):
@@ -110,12 +110,12 @@ def test_a_transit_over_a_fixture_that_moves_per_seed_touches_nothing_on_100_see
         rng = np.random.default_rng(seed)
         cell.clear()
         height = rng.uniform(0.1, 0.3)
-        cell.set_fixture_size("pillar_box", [0.03, 0.05, height / 2])
+        cell.fixtures.set_size("pillar_box", [0.03, 0.05, height / 2])
         x, y = rng.uniform(0.4, 0.6), rng.uniform(-0.1, 0.1)
-        cell.set_fixture_pose("pillar", [x, y, height / 2], rng.uniform(-np.pi, np.pi))
+        cell.fixtures.set_pose("pillar", [x, y, height / 2], rng.uniform(-np.pi, np.pi))
         cell.collateral.begin()
-        cell.transit(x - 0.15, y - 0.2, 0.0)
-        cell.transit(x + 0.1, y + 0.2, 0.0)  # the straight line passes within 4 cm of the pillar's axis
+        cell.motion.transit(x - 0.15, y - 0.2, 0.0)
+        cell.motion.transit(x + 0.1, y + 0.2, 0.0)  # the straight line passes within 4 cm of the pillar's axis
         record = cell.collateral.finish(set())
         if record.transit_fixtures:
             touched[seed] = record.transit_fixtures

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import ast
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -112,6 +113,46 @@ def test_no_module_imports_a_layer_above_its_own():
     upward = [f"{m} ({layer(m)}) -> {t} ({layer(t)})" for m, targets in import_graph().items() for t in targets
               if rank[layer(t)] > rank[layer(m)]]  # fmt: skip
     assert upward == []
+
+
+def test_the_simulation_imports_nothing_of_the_tasks_or_the_gym_api():
+    graph = import_graph()
+    found = [f"{m} -> {t}" for m, targets in graph.items() if layer(m) == "sim" for t in targets
+             if layer(t) in ("tasks", "gym_api")]  # fmt: skip
+    assert found == []
+
+
+@pytest.mark.parametrize("folder", ["sim", "primitives"])
+def test_inside_a_layer_a_module_imports_only_the_modules_the_reference_page_lists_before_it(folder):
+    """docs/reference/simulation.md lists the modules bottom first; every module of the folder is on it."""
+    page = (ROOT / "docs" / "reference" / "simulation.md").read_text()
+    order = [m for m in re.findall(r"^::: (\S+)$", page, re.M) if layer(m) == folder]
+    assert set(order) == {m for m in module_files() if layer(m) == folder and m != f"panda_grasp_env.{folder}"}
+    graph = import_graph()
+    assert [f"{m} -> {t}" for i, m in enumerate(order) for t in graph[m] if t in order[i + 1 :]] == []
+
+
+def step_observers_added() -> list[tuple[str, str]]:
+    """(module, the observer's source text) of every ``add_observer`` call in our modules."""
+    calls = []
+    for name, path in module_files().items():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "add_observer":
+                calls.append((name, ast.unparse(node.args[0])))
+    return calls
+
+
+def test_what_runs_after_every_control_step_is_added_from_above_the_simulation():
+    """The stepping calls up only through the observers the layers above add to ``cell.physics`` (a task's
+    ``on_control_step`` and the video capture from the env, recorders from tooling), never by a call the
+    import graph cannot see: inside sim/ and below, the workcell adds its own collateral monitor, nothing else."""
+    rank = {name: i for i, name in enumerate(LAYERS)}
+    added = step_observers_added()
+    assert [(m, o) for m, o in added if rank[layer(m)] <= rank["sim"]] == [
+        ("panda_grasp_env.sim.workcell", "self.collateral.on_control_step")
+    ]
+    assert ("panda_grasp_env.env", "self.task.on_control_step") in added
+    assert {layer(m) for m, _ in added} == {"sim", "gym_api", "tooling"}
 
 
 def test_every_source_package_is_installed_under_panda_grasp_env():

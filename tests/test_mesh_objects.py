@@ -25,7 +25,7 @@ from panda_grasp_env.model.meshes import (  # noqa: E402
 )
 from panda_grasp_env.model.objects import ObjectSpec  # noqa: E402
 from panda_grasp_env.model.scene import SceneConfig  # noqa: E402
-from panda_grasp_env.sim.workcell import body_bottom_height  # noqa: E402
+from panda_grasp_env.sim.extents import body_bottom_height  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TEST_IDS = [900, 905, 990]  # 990: 85 pieces merged into MAX_PARTS geoms

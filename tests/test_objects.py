@@ -45,7 +45,7 @@ def test_mass_and_friction_are_in_the_model_and_in_effect_against_table_and_fing
     def watch(cell):
         held.extend(contact_frictions(cell, geom, pads))
 
-    cell.step_hooks.append(watch)
+    cell.physics.add_observer(watch)
     position = cell.data.xpos[body].copy()
     yaw = float(np.arctan2(cell.data.xmat[body][3], cell.data.xmat[body][0]))
     _, _, _, _, info = env.step(env.unwrapped.actions.encode("grasp", position[0], position[1], yaw))

@@ -115,7 +115,8 @@ def test_the_shelf_moves_per_seed_and_the_place_on_it_is_aimed_not_a_collision(s
         assert not np.allclose(shelves[0], shelves[1])
         cell = env.unwrapped.cell
         board = cell.model.geom("shelf_board").id
-        assert cell.tallest_top() == pytest.approx(shelves[1][2]) == pytest.approx(cell.data.geom_xpos[board][2] * 2)
+        top = cell.motion.tallest_top()
+        assert top == pytest.approx(shelves[1][2]) == pytest.approx(cell.data.geom_xpos[board][2] * 2)
         agent = registry.BASELINES["Shelf"](env, 2, True)  # the oracle: true block poses
         observation, info = env.reset(seed=2)
         agent.reset(observation, info)

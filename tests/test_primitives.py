@@ -2,12 +2,12 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from panda_grasp_env.actions import PrimitiveSettings, primitive_parameters
 from panda_grasp_env.agents.towers import build_tower, push_tower
 from panda_grasp_env.control.controller import wrap_gripper_yaw
 from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.model.robot import HOME_QPOS
 from panda_grasp_env.model.scene import PUSH_FACE_HALF_SIZE, SceneConfig
+from panda_grasp_env.primitives.parameters import PrimitiveSettings, primitive_parameters
 from panda_grasp_env.primitives.result import REASONS
 from panda_grasp_env.primitives.top_down import MIN_GRASP_HEIGHT, grasp, place, push, run_primitive
 from panda_grasp_env.sim.stacking import blocks_displaced, wrap_quarter_turn
@@ -191,11 +191,15 @@ def test_a_push_across_the_edge_of_two_joint7_windows_keeps_the_hand_turned_one_
     assert abs(wrap_gripper_yaw(heading + np.pi / 2, start) - wrap_gripper_yaw(heading + np.pi / 2, end)) > 3.0
     block = _lone_block(cell, (0.5, -0.03))
     headings = []
-    cell.step_hooks.append(lambda c: headings.append(c.robot.ee_yaw))
+
+    def watch(cell):
+        headings.append(cell.robot.ee_yaw)
+
+    cell.physics.add_observer(watch)
     try:
         result = push(cell, *start[:2], 0.02, heading, distance)
     finally:
-        cell.step_hooks.clear()
+        cell.physics.remove_observer(watch)
     moved = cell.data.xpos[block][:2] - [0.5, -0.03]
     assert result.reason == "ok"
     assert moved[1] > 0.15 and abs(moved[0]) <= 0.01  # along the commanded line, <= 1 cm across it
@@ -216,13 +220,17 @@ def test_with_push_faces_a_push_slides_a_block_to_where_the_stroke_ends_without_
     centre, gap, distance = np.array([0.56, 0.0]), 0.06, 0.15
     block = _lone_block(cell, centre, yaw=0.4)
     tilts = []
-    cell.step_hooks.append(lambda c: tilts.append(np.arccos(np.clip(c.data.xmat[block][8], -1.0, 1.0))))
+
+    def watch(cell):
+        tilts.append(np.arccos(np.clip(cell.data.xmat[block][8], -1.0, 1.0)))
+
+    cell.physics.add_observer(watch)
     try:
         settings = PrimitiveSettings(primitives=("push",), push_distance=distance)
         params = primitive_parameters(cell, settings, "push", *(centre - gap * along), heading, None)
         result = push(cell, *params)
     finally:
-        cell.step_hooks.clear()
+        cell.physics.remove_observer(watch)
     assert result.reason == "ok" and params[2] == MIN_GRASP_HEIGHT  # a lone block: pushed as low as the fingers go
     assert np.degrees(max(tilts)) < 5.0  # it slid; it did not tip onto its leading edge
     # The hand stopped within 2 mm of the stroke's end and the block did not spring back: it rests against

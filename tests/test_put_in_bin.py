@@ -33,7 +33,7 @@ def test_the_bin_is_in_the_simulation_and_in_the_planners_model():
     assert np.allclose(cell.data.xpos[cell.model.body("bin").id], [0.55, -0.1, 0.0])
     assert len(bin_geoms(MotionPlanner(cell.config).model)) == 5  # the planner plans around it
     # Transit heights clear its walls like any object; the rays that place objects see its floor.
-    assert max(top for *_, top in cell.fixture_tops) == pytest.approx(FLOOR_THICKNESS + WALL_HEIGHT)
+    assert max(top for *_, top in cell.fixtures.tops) == pytest.approx(FLOOR_THICKNESS + WALL_HEIGHT)
     assert cell.surface_below(0.55, -0.1)[0] == pytest.approx(FLOOR_THICKNESS)
     env.close()
 
@@ -83,7 +83,7 @@ def test_the_baselines_put_the_target_in_the_bin_touching_nothing_else(agent, se
             if pair & geoms and {int(cell.model.geom_bodyid[g]) for g in pair} & robot:
                 robot_on_bin.append(cell.sim_time)
 
-    cell.step_hooks.append(watch)
+    cell.physics.add_observer(watch)
     result = play_episode(env, make_agent(spec, env), spec)["result"]
     assert result["success"] and result["actions"] == 2
     assert result["disturbed"] == 0 and result["transit_contacts"] == 0

@@ -35,7 +35,7 @@ def test_reset_clears_robot_and_solver_state(cell):
     np.testing.assert_allclose(cell.robot.joint_positions, HOME_QPOS, atol=2e-3)
     assert cell.robot.body_between_fingers() is None
     assert not cell.robot.gripper_closing
-    assert cell.sim_time == 0.0 and cell.physics_steps == 0
+    assert cell.sim_time == 0.0 and cell.physics.steps == 0
     np.testing.assert_allclose(cell.controller.commanded_qpos, cell.robot.joint_positions, atol=1e-4)
 
 

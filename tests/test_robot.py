@@ -34,7 +34,7 @@ def test_an_opening_finger_stops_at_its_stop(rng, soften_finger_limits):
         cell.actuate_gripper(close=True)
         cell.robot.open_gripper()
         widest[limits] = 0.0
-        for _ in range(10 * cell.control_substeps):  # every physics step, so the peak is seen
+        for _ in range(10 * cell.physics.control_substeps):  # every physics step, so the peak is seen
             mujoco.mj_step(cell.model, cell.data)
             widest[limits] = max(widest[limits], float(cell.data.qpos[cell.robot.finger_qpos_idx].max()))
     assert widest["soft"] > FINGER_OPEN + 5e-3  # 9.6 mm: the stop met at 1.75 m/s
@@ -47,13 +47,13 @@ def test_a_block_held_above_the_pads_counts_as_held(rng):
     cell = Workcell(SceneConfig(block_size=0.03))
     cell.reset(rng)
     site = np.array([0.5, 0.0, 0.2])
-    cell.teleport_hand(site, HOME_YAW)
+    cell.motion.teleport_hand(site, HOME_YAW)
     block = int(cell.block_ids[0])
     cell.set_body_pose(block, site + [0.0, 0.0, 0.03])  # its bottom 1.5 cm above the pads' centre
     cell.actuate_gripper(close=True)
     assert not pad_contacts(cell, block)
     start = cell.data.xpos[block][2]
-    cell.move_to(site + [0.0, 0.0, 0.1], HOME_YAW)
+    cell.motion.move_to(site + [0.0, 0.0, 0.1], HOME_YAW)
     cell.wait(0.5)
     assert cell.data.xpos[block][2] - start > 0.09 and not pad_contacts(cell, block)
     assert cell.robot.body_between_fingers() == block
@@ -63,7 +63,7 @@ def test_the_table_under_both_fingertips_is_not_held(rng):
     cell = Workcell()
     cell.reset(rng)
     cell.actuate_gripper(close=True)
-    cell.move_to(np.array([0.3, 0.3, 0.005]), HOME_YAW, settle_timeout=0.3)  # fingertips pressed on the table
+    cell.motion.move_to(np.array([0.3, 0.3, 0.005]), HOME_YAW, settle_timeout=0.3)  # fingertips pressed on the table
     # Both rest on it (within the contacts' 1 mm margin; stiff contacts may leave one just outside it).
     table = cell.model.geom("table").id
     for finger in cell.robot.finger_bodies:
@@ -86,7 +86,7 @@ def pad_contacts(cell: Workcell, body: int) -> set[int]:
 @pytest.mark.parametrize("target, yaw", [((0.5, 0.2, 0.15), 0.3), ((0.65, -0.25, 0.05), -1.2), ((0.3, 0.0, 0.3), 1.5)])
 def test_cartesian_controller_reaches_targets_within_joint_limits(cell, rng, target, yaw):
     cell.reset(rng)
-    outcome = cell.move_to(np.array(target), yaw)
+    outcome = cell.motion.move_to(np.array(target), yaw)
     assert outcome.reached and outcome.error < 4e-3
     # Parallel gripper: heading is defined modulo a half turn.
     assert np.sin(cell.robot.ee_yaw - yaw) == pytest.approx(0.0, abs=0.02)
@@ -97,12 +97,16 @@ def test_cartesian_controller_reaches_targets_within_joint_limits(cell, rng, tar
 def test_reference_speed_is_bounded(cell, rng):
     cell.reset(rng)
     positions = []
-    cell.step_hooks.append(lambda c: positions.append(c.robot.ee_position))
+
+    def watch(cell):
+        positions.append(cell.robot.ee_position)
+
+    cell.physics.add_observer(watch)
     try:
-        cell.move_to(np.array([0.6, 0.2, 0.2]), HOME_YAW)
+        cell.motion.move_to(np.array([0.6, 0.2, 0.2]), HOME_YAW)
     finally:
-        cell.step_hooks.clear()
-    speeds = np.linalg.norm(np.diff(positions, axis=0), axis=1) / cell.control_dt
+        cell.physics.remove_observer(watch)
+    speeds = np.linalg.norm(np.diff(positions, axis=0), axis=1) / cell.physics.control_dt
     assert speeds.max() < cell.controller.limits.linear_speed * 1.5
 
 
@@ -111,12 +115,16 @@ def test_ik_keeps_up_with_large_combined_moves(cell):
     from panda_grasp_env.agents.towers import build_tower
 
     errors = []
-    cell.step_hooks.append(lambda c: errors.append(c.controller.tracking_error()))
+
+    def watch(cell):
+        errors.append(cell.controller.tracking_error())
+
+    cell.physics.add_observer(watch)
     try:
         cell.reset(np.random.default_rng(59), "scattered")
         assert build_tower(cell).success
     finally:
-        cell.step_hooks.clear()
+        cell.physics.remove_observer(watch)
     assert max(errors) < 0.005
 
 

@@ -95,7 +95,7 @@ def test_no_object_is_launched_when_pinched_between_the_finger_capsules():
     cell = env.unwrapped.cell
     assert np.all(cell.model.geom_friction[cell.model.geom_contype > 0, 1] <= 0.01)  # no half-metre patches
     peak = PeakTracker(cell)
-    cell.step_hooks.append(peak)
+    cell.physics.add_observer(peak)
     observation, info = env.reset(seed=1100008)
     agent.reset(observation, info)
     done = False

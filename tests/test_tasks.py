@@ -598,7 +598,7 @@ def test_a_task_outside_the_package_registers_its_id_fixtures_and_options(regist
     assert (task.wall_x, task.n_blocks, task.k) == (0.75, 2, 1)  # its own option and its base class's
     assert env.spec.max_episode_steps == 3
     assert cell.data.geom_xpos[cell.model.geom("wall").id][0] == pytest.approx(0.75)
-    assert cell.tallest_top() == pytest.approx(0.2)  # transit clears the wall
+    assert cell.motion.tallest_top() == pytest.approx(0.2)  # transit clears the wall
     with pytest.raises(ValueError, match="directional2"):
         gym.make("TestWalledTowerBreak-v0", directional2=True)
     with pytest.raises(ValueError, match="already registered"):

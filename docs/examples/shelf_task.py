@@ -4,7 +4,7 @@ written outside the package, in one file.
     python evaluate.py --import docs.examples.shelf_task --tasks Shelf --agents planned,random
 
 The shelf is a fixture with state: ``add_fixtures`` builds it once, and ``reset`` moves and resizes it for
-each episode (``Workcell.set_fixture_pose`` / ``set_fixture_size``), so transit heights, the heights the
+each episode (``cell.fixtures.set_pose`` / ``set_size``), so transit heights, the heights the
 env picks for a place, the collision check of the primitives and the motion planner all see it where it
 stands now.  World frame, metres, radians.
 """
@@ -79,8 +79,8 @@ class Shelf(Task):
         side = rng.choice([-1.0, 1.0])
         self.pose = np.array([rng.uniform(0.45, 0.6), side * rng.uniform(0.14, 0.24), rng.uniform(-0.8, 0.8)])
         self.top = rng.uniform(*self.heights)
-        cell.set_fixture_size("shelf_board", [*SHELF_HALF, self.top / 2])
-        cell.set_fixture_pose("shelf", [*self.pose[:2], self.top / 2], self.pose[2])
+        cell.fixtures.set_size("shelf_board", [*SHELF_HALF, self.top / 2])
+        cell.fixtures.set_pose("shelf", [*self.pose[:2], self.top / 2], self.pose[2])
         size = cell.config.block_size
         while True:  # the block on the table, well clear of the shelf
             position = np.array([rng.uniform(*SPAWN_REGION[0]), rng.uniform(*SPAWN_REGION[1]), size / 2])

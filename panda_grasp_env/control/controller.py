@@ -1,6 +1,10 @@
-"""Cartesian controller: drives the grasp site to a target pose at bounded speed.
+"""Controllers: what sets the arm's joint targets at each control step (``JointController``).
 
-Choice: differential inverse kinematics with ``mink`` on a robot-only model
+``CartesianController`` drives the grasp site to a target pose at bounded speed (the primitives);
+``JacobianServo`` takes one closed-loop step towards a target per control step (``ee_delta``);
+``JointTargets`` holds fixed joint targets (``joint``, joint-space moves).
+
+The Cartesian controller's choice: differential inverse kinematics with ``mink`` on a robot-only model
 compiled from the same spec as the simulation (identical kinematics), feeding
 the arm's joint position servos.  Compared with an operational-space controller
 it needs no accurate dynamics model, respects joint limits as hard QP
@@ -17,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import mink
 import mujoco
@@ -32,6 +37,24 @@ REST_SPEED = 1e-3
 #: (the home arm with the fingers' IK coordinates as earlier holds left them), and solves remembered per
 #: configuration (a hold from home converges in a few).
 HOLD_MEMO_STARTS, HOLD_MEMO_STEPS = 8, 32
+
+
+class JointController(Protocol):
+    """Anything that gives the arm's joint targets for a control step (the workcell's ``physics.control_step``)."""
+
+    def step(self, dt: float) -> np.ndarray:
+        """Advance by ``dt`` seconds; the arm's joint position targets (7,), radians."""
+
+
+@dataclass
+class JointTargets:
+    """Fixed arm joint position targets (7,), radians: the ``joint`` action mode and joint-space moves."""
+
+    qpos: np.ndarray
+
+    def step(self, dt: float) -> np.ndarray:
+        """The targets, whatever ``dt``."""
+        return self.qpos
 
 
 @dataclass
@@ -117,7 +140,7 @@ class CartesianController:
         A parallel gripper is symmetric under a half turn, so ``yaw`` is wrapped
         into the half-turn window that keeps joint 7 near the middle of its range
         with the hand over the goal -- or over ``heading_window_at`` while a
-        motion holds one heading through several goals (``Workcell.one_heading``).
+        motion holds one heading through several goals (``Motion.one_heading``).
         """
         self.goal_position = np.asarray(position, dtype=float).copy()
         window = self.goal_position if self.heading_window_at is None else self.heading_window_at
@@ -226,6 +249,16 @@ class JacobianServo:
         self._rhs, self._solution = np.zeros(6), np.zeros(6)
         self._max_speed = np.asarray(self.limits.joint_speed)
         self._target_yaw, self._target_rotation = math.nan, np.eye(3)
+        #: Where ``step`` servos the grasp site to: world metres, and the closing axis's heading, radians.
+        self.goal_position, self.goal_yaw = np.zeros(3), 0.0
+
+    def set_goal(self, position: np.ndarray, yaw: float) -> None:
+        """Servo the grasp site towards ``position`` (world, metres), pointing down at ``yaw`` (radians)."""
+        self.goal_position, self.goal_yaw = position, yaw
+
+    def step(self, dt: float) -> np.ndarray:
+        """Arm joint targets (7,) one servo step towards the goal (``command``)."""
+        return self.command(self.goal_position, self.goal_yaw, dt)
 
     def command(
         self, position: np.ndarray, yaw: float, dt: float, damping: float = 0.05, posture_gain: float = 0.1

@@ -35,6 +35,7 @@ from panda_grasp_env.actions import PRIMITIVE_Z_RANGE
 from panda_grasp_env.falls.dataset import SHARD_ARRAYS, split_of
 from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.model.scene import SceneConfig
+from panda_grasp_env.sim.stepping import body_speeds
 from panda_grasp_env.tasks.base import TOWER_BLOCKS
 from panda_grasp_env.tooling.runs import atomic_path, interrupt_on_signals, sha256, write_atomically
 
@@ -118,7 +119,7 @@ class RecorderSettings:
 
 
 class FrameGrabber:
-    """A workcell step hook: once the blocks move (a block faster than ``MOTION_SPEED`` and one at least
+    """A workcell step observer: once the blocks move (a block faster than ``MOTION_SPEED`` and one at least
     ``start_shift`` from its place in ``tower``, (B, 3) world positions in metres), grab a cropped frame every
     ``frame_interval`` seconds."""
 
@@ -134,11 +135,11 @@ class FrameGrabber:
     def done(self) -> bool:
         return len(self.frames) >= self.settings.frames
 
-    def __call__(self, cell: Any) -> None:
+    def on_control_step(self, cell: Any) -> None:
         if self.done:
             return
         if self.start is None:
-            moving = np.any(cell.body_speeds(cell.block_ids) >= MOTION_SPEED)
+            moving = np.any(body_speeds(cell.data, cell.block_ids) >= MOTION_SPEED)
             shift = np.linalg.norm(cell.block_positions() - self.tower, axis=1).max()
             if not moving or shift < self.settings.start_shift:
                 return
@@ -247,18 +248,18 @@ def record_sequence(envs: RecorderEnvs, seed: int, settings: RecorderSettings) -
         start = target[:2] - 0.08 * np.array([np.cos(heading), np.sin(heading)])
         action = encode_primitive(primitives, True, "push", start[0], start[1], heading, target[2])
     grabber = FrameGrabber(env, settings, origin, info["block_colours"], tower)
-    cell.step_hooks.append(grabber)
+    cell.physics.add_observer(grabber.on_control_step)
     try:
         env.step(action)
         deadline = cell.sim_time + settings.frames * settings.frame_interval + 2.0
         while not grabber.done and cell.sim_time < deadline:
-            cell.wait(cell.control_dt)
+            cell.wait(cell.physics.control_dt)
         if grabber.start is None:  # nothing moved (a glancing push): record the standing tower
             grabber.start = cell.sim_time
         while not grabber.done:
-            cell.wait(cell.control_dt)
+            cell.wait(cell.physics.control_dt)
     finally:
-        cell.step_hooks.remove(grabber)
+        cell.physics.remove_observer(grabber.on_control_step)
     stacked = {key: np.stack([frame[key] for frame in grabber.frames]) for key in grabber.frames[0]}
     missing = max(settings.tower_blocks) - n_blocks
     stacked["poses"] = np.pad(stacked["poses"], ((0, 0), (0, missing), (0, 0)), constant_values=np.nan)

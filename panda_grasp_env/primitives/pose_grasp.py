@@ -19,10 +19,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from panda_grasp_env.control.controller import JointTargets
 from panda_grasp_env.control.ik import PoseIK, ToleranceSampler
 from panda_grasp_env.control.planning import MotionPlanner, time_parametrise
 from panda_grasp_env.primitives.result import HOLD_TIME, PrimitiveResult, closed_on, lifted_and_held, record_collateral
-from panda_grasp_env.sim.workcell import PhysicsError, Workcell
+from panda_grasp_env.sim.stepping import PhysicsError
+from panda_grasp_env.sim.workcell import Workcell
 
 PRE_GRASP = 0.10  # metres back along the approach axis
 LIFT = 0.10  # metres straight up after the retreat
@@ -47,20 +49,19 @@ class MotionStack:
 
     def _follow(self, cell: Workcell, targets: np.ndarray) -> None:
         for target in targets:
-            cell.robot.command_joints(target)
-            cell.step_physics(cell.control_substeps)
-        for _ in range(int(0.5 / cell.control_dt)):  # settle
+            cell.physics.control_step(JointTargets(target))
+        for _ in range(int(0.5 / cell.physics.control_dt)):  # settle on the last target
             if np.abs(cell.robot.joint_velocities).max() < 0.05:
                 break
-            cell.step_physics(cell.control_substeps)
+            cell.physics.control_step(None)
 
     @staticmethod
     def _hold(cell: Workcell, seconds: float, until_fingers_stop: bool = False) -> None:
         """Keep the arm's joint targets for ``seconds`` (the Cartesian controller would turn the hand
         top-down), optionally stopping once the fingers have stopped."""
         still = 0
-        for _ in range(max(1, round(seconds / cell.control_dt))):
-            cell.step_physics(cell.control_substeps)
+        for _ in range(max(1, round(seconds / cell.physics.control_dt))):
+            cell.physics.control_step(None)
             still = still + 1 if cell.robot.finger_speed < 2e-3 else 0
             if until_fingers_stop and still >= 3:
                 break
@@ -74,16 +75,16 @@ class MotionStack:
         self._gripper(cell, close=False)
         if retreat is not None:
             self._follow(cell, self._line(cell, *retreat, APPROACH_SPEED))
-        cell.move_home()
+        cell.motion.move_home()
         return PrimitiveResult("grasp", False, reason, object=obj)
 
     def _line(self, cell: Workcell, start: np.ndarray, end: np.ndarray, speed: float) -> np.ndarray:
-        return time_parametrise(np.array([start, end]), self.max_velocity * speed, cell.control_dt)
+        return time_parametrise(np.array([start, end]), self.max_velocity * speed, cell.physics.control_dt)
 
     def grasp(self, cell: Workcell, position: np.ndarray, rotation: np.ndarray) -> PrimitiveResult:
         """Grasp with the grasp site at ``position`` (world, metres) and orientation ``rotation`` (3, 3)."""
-        start_time, start_steps = cell.sim_time, cell.physics_steps
-        below = cell.fixture_below(float(position[0]), float(position[1]))
+        start_time, start_steps = cell.sim_time, cell.physics.steps
+        below = cell.fixtures.below(float(position[0]), float(position[1]))
         cell.collateral.begin(() if below is None else (below,))
         try:
             result = self._grasp(cell, np.asarray(position, float), np.asarray(rotation, float))
@@ -92,7 +93,7 @@ class MotionStack:
         if result.object is not None:
             result.targets = {cell.model.body(result.object).id}
         record_collateral(cell, result)
-        result.sim_time, result.physics_steps = cell.sim_time - start_time, cell.physics_steps - start_steps
+        result.sim_time, result.physics_steps = cell.sim_time - start_time, cell.physics.steps - start_steps
         return result
 
     def _grasp(self, cell: Workcell, position: np.ndarray, rotation: np.ndarray) -> PrimitiveResult:
@@ -117,7 +118,7 @@ class MotionStack:
         if not plan.success:
             return PrimitiveResult("grasp", False, "no_plan")
         self._gripper(cell, close=False)
-        self._follow(cell, time_parametrise(plan.path, self.max_velocity * TRANSIT_SPEED, cell.control_dt))
+        self._follow(cell, time_parametrise(plan.path, self.max_velocity * TRANSIT_SPEED, cell.physics.control_dt))
         with cell.collateral.work():  # approach, close, retreat, lift: the rest (planned path, home) is transit
             return self._close_and_lift(cell, at_grasp.qpos, at_pre.qpos, at_lift.qpos)
 

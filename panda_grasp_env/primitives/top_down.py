@@ -20,7 +20,10 @@ import numpy as np
 
 from panda_grasp_env.geometry import is_number
 from panda_grasp_env.primitives.result import HOLD_TIME, PrimitiveResult, closed_on, lifted_and_held, record_collateral
-from panda_grasp_env.sim.workcell import WORKSPACE, PhysicsError, Workcell, body_bottom_height, body_extent_along
+from panda_grasp_env.sim.extents import body_bottom_height, body_extent_along
+from panda_grasp_env.sim.motion import WORKSPACE
+from panda_grasp_env.sim.stepping import PhysicsError
+from panda_grasp_env.sim.workcell import Workcell
 
 #: Lowest grasp-site height: the fingertips reach 15 mm below the site.
 MIN_GRASP_HEIGHT = 0.02
@@ -59,7 +62,7 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
         if len(args) != len(names):
             raise ValueError(f"{fn.__name__} takes {len(names)} arguments {list(names)}, got {len(args)}")
         values = [_check_number(fn.__name__, n, v) for n, v in zip(names, args)]
-        start_time, start_steps = cell.sim_time, cell.physics_steps
+        start_time, start_steps = cell.sim_time, cell.physics.steps
         cell.collateral.begin(_aimed_fixtures(cell, *values[:2]))
         try:
             result = fn(cell, *values)
@@ -70,7 +73,7 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
             raise
         record_collateral(cell, result)
         result.sim_time = cell.sim_time - start_time
-        result.physics_steps = cell.physics_steps - start_steps
+        result.physics_steps = cell.physics.steps - start_steps
         result.params = dict(zip(names, values))
         return result
 
@@ -78,8 +81,8 @@ def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]
 
 
 def _aimed_fixtures(cell: Workcell, x: float, y: float) -> set[str]:
-    """The fixture a primitive at (x, y) works on or over (``Workcell.fixture_below``): touching it is no collision."""
-    fixture = cell.fixture_below(x, y)
+    """The fixture a primitive at (x, y) works on or over (``Fixtures.below``): touching it is no collision."""
+    fixture = cell.fixtures.below(x, y)
     return set() if fixture is None else {fixture}
 
 
@@ -107,29 +110,29 @@ def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
         return PrimitiveResult("grasp", False, "out_of_workspace")
     aimed = cell.surface_below(x, y)[1]
     cell.actuate_gripper(close=False, timeout=0.4)
-    if not cell.transit(x, y, yaw).reached:
-        cell.move_home()
+    if not cell.motion.transit(x, y, yaw).reached:
+        cell.motion.move_home()
         return PrimitiveResult("grasp", False, "unreachable", targets=_body_ids(aimed))
     body, reason = None, "ok"
-    with cell.one_heading(target), cell.collateral.work():  # the transit's heading: both are over (x, y)
-        cell.move_to(above, yaw, tolerance=0.01)
+    with cell.motion.one_heading(target), cell.collateral.work():  # the transit's heading: both are over (x, y)
+        cell.motion.move_to(above, yaw, tolerance=0.01)
         # If the fingers land on something the grasp is still attempted where they stopped.
-        cell.move_to(target, yaw, speed=SLOW_SPEED, settle_timeout=0.3)
+        cell.motion.move_to(target, yaw, speed=SLOW_SPEED, settle_timeout=0.3)
         cell.actuate_gripper(close=True)
         body = closed_on(cell)
         if body is None:
             reason = "missed"
         else:
             start_height = cell.data.xpos[body][2]
-            lift = max(z + LIFT_HEIGHT, cell.transit_height())
-            cell.move_to(np.array([x, y, lift]), yaw, settle_timeout=0.2, tolerance=0.01)
+            lift = max(z + LIFT_HEIGHT, cell.motion.transit_height())
+            cell.motion.move_to(np.array([x, y, lift]), yaw, settle_timeout=0.2, tolerance=0.01)
             cell.wait(HOLD_TIME)
             if not lifted_and_held(cell, body, start_height):
                 reason = "dropped"
         if reason != "ok":
             cell.actuate_gripper(close=False, timeout=0.4)
-            cell.rise()
-    cell.move_home()
+            cell.motion.rise()
+    cell.motion.move_home()
     if reason == "ok" and body not in cell.robot.bodies_between_fingers():
         reason = "dropped"
     if reason != "ok":
@@ -165,15 +168,15 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     above = site_goal(approach)
     if approach < MIN_PLACE_APPROACH or not _in_workspace(above, above - [0.0, 0.0, approach]):
         return PrimitiveResult("place", False, "out_of_workspace", object=name, targets={body})
-    if not cell.transit(above[0], above[1], yaw).reached:
-        cell.move_home()
+    if not cell.motion.transit(above[0], above[1], yaw).reached:
+        cell.motion.move_home()
         return PrimitiveResult("place", False, "unreachable", object=name, targets={body})
-    with cell.one_heading(above), cell.collateral.work():  # the transit's heading, kept while re-aiming
-        cell.move_to(above, yaw, tolerance=0.01)
+    with cell.motion.one_heading(above), cell.collateral.work():  # the transit's heading, kept while re-aiming
+        cell.motion.move_to(above, yaw, tolerance=0.01)
         # The object may have shifted in the fingers while travelling: re-aim from where it hangs now.
-        cell.move_to(site_goal(0.01), yaw, speed=SLOW_SPEED, settle_timeout=0.3)
+        cell.motion.move_to(site_goal(0.01), yaw, speed=SLOW_SPEED, settle_timeout=0.3)
         contact_height = site_goal(0.0)
-        cell.move_to(
+        cell.motion.move_to(
             contact_height - [0.0, 0.0, 0.02],
             yaw,
             speed=PLACE_SPEED,
@@ -181,8 +184,8 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
             stop_when=lambda: cell.touches_world(body),
         )
         cell.actuate_gripper(close=False, timeout=0.5)
-        cell.rise(max(cell.robot.ee_position[2] + 0.08, cell.transit_height()))
-    cell.move_home()
+        cell.motion.rise(max(cell.robot.ee_position[2] + 0.08, cell.motion.transit_height()))
+    cell.motion.move_home()
     centre_error = np.linalg.norm(cell.data.xpos[body][:2] - [x, y])
     bottom_error = abs(body_bottom_height(cell.model, cell.data, body) - z)
     if body in cell.robot.bodies_between_fingers() or centre_error > cell.config.block_size / 4 or bottom_error > 0.01:
@@ -195,7 +198,7 @@ def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: flo
     """Push with the closed gripper from (x, y, z) in a straight line ``distance`` metres along heading ``yaw``.
 
     The fingers' flat side faces the motion, and the hand keeps one heading from the transit to the retreat
-    (``Workcell.one_heading``).  Transit above the start at the transit height; the work segment: come
+    (``Motion.one_heading``).  Transit above the start at the transit height; the work segment: come
     straight down slowly to the start, stop at the first touch -- ``"collision"``: the start is taken by
     something -- push until the grasp site is within ``PUSH_END_TOLERANCE`` of the stroke's end, back off
     ``PUSH_BACK_OFF`` along the stroke (so that the fingers leave the block's face instead of dragging it
@@ -216,19 +219,19 @@ def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: flo
     grip_yaw = yaw + np.pi / 2
     cell.actuate_gripper(close=True, timeout=0.4)
     reason = "ok"
-    with cell.one_heading(start, end):
-        if not cell.transit(x, y, grip_yaw).reached:
+    with cell.motion.one_heading(start, end):
+        if not cell.motion.transit(x, y, grip_yaw).reached:
             reason = "unreachable"
         else:
             struck = cell.collateral.record.work_contacts
             on_line = push_line_targets(cell, start, end)
             with cell.collateral.work():
                 # Quickly down to where the hand still clears everything around the start, then slowly.
-                clear = max(cell.clear_height_near(x, y), z + PUSH_SLOW_DESCENT)
+                clear = max(cell.motion.clear_height_near(x, y), z + PUSH_SLOW_DESCENT)
                 if clear < cell.robot.ee_position[2]:
-                    cell.move_to(np.array([x, y, clear]), grip_yaw, settle_timeout=0.1, tolerance=0.02,
+                    cell.motion.move_to(np.array([x, y, clear]), grip_yaw, settle_timeout=0.1, tolerance=0.02,
                                  stop_when=lambda: bool(struck))  # fmt: skip
-                down = cell.move_to(start, grip_yaw, speed=SLOW_SPEED, settle_timeout=0.3, tolerance=0.01,
+                down = cell.motion.move_to(start, grip_yaw, speed=SLOW_SPEED, settle_timeout=0.3, tolerance=0.01,
                                     stop_when=lambda: bool(struck))  # fmt: skip
                 if struck or not down.reached:
                     reason = "collision"
@@ -237,11 +240,11 @@ def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: flo
                     strays = lambda: bool(struck - on_line or record.fixture_collisions)  # noqa: E731
                     _stroke(cell, end, grip_yaw, strays)
                     reason = "collision" if strays() else "ok" if struck else "no_contact"
-                    cell.move_to(cell.robot.ee_position - PUSH_BACK_OFF * along, grip_yaw, speed=SLOW_SPEED,
+                    cell.motion.move_to(cell.robot.ee_position - PUSH_BACK_OFF * along, grip_yaw, speed=SLOW_SPEED,
                                  settle_timeout=0.1, tolerance=0.005)  # fmt: skip
-                cell.rise()
+                cell.motion.rise()
             targets = cell.collateral.pile(struck & on_line)
-    cell.move_home()
+    cell.motion.move_home()
     cell.actuate_gripper(close=False, timeout=0.3)
     return PrimitiveResult("push", reason == "ok", reason, targets=targets if reason != "unreachable" else set())
 
@@ -253,7 +256,7 @@ def _stroke(cell: Workcell, end: np.ndarray, grip_yaw: float, stop_when: Callabl
     times; the stroke stops at once when ``stop_when()`` is true."""
     goal = end.copy()
     for _ in range(1 + PUSH_END_CORRECTIONS):
-        cell.move_to(goal, grip_yaw, speed=SLOW_SPEED, settle_timeout=PUSH_END_SETTLE, tolerance=PUSH_END_TOLERANCE,
+        cell.motion.move_to(goal, grip_yaw, speed=SLOW_SPEED, settle_timeout=PUSH_END_SETTLE, tolerance=PUSH_END_TOLERANCE,
                      stop_when=stop_when)  # fmt: skip
         short = (end - cell.robot.ee_position)[:2]
         if stop_when() or np.linalg.norm(short) <= PUSH_END_TOLERANCE:
@@ -305,9 +308,9 @@ def impulse(cell: Workcell, x: float, y: float, z: float, yaw: float, magnitude:
     body = int(cell.object_ids[nearest])
     duration = 0.01
     struck_speed = magnitude / cell.model.body_subtreemass[body]  # m/s, before anything slows it
-    with cell.collateral.work(), cell.allowing_object_speed(2 * struck_speed):
+    with cell.collateral.work(), cell.physics.allowing_object_speed(2 * struck_speed):
         cell.data.xfrc_applied[body, :2] = magnitude / duration * np.array([np.cos(yaw), np.sin(yaw)])
-        cell.step_physics(max(1, round(duration / cell.model.opt.timestep)))
+        cell.physics.step(max(1, round(duration / cell.model.opt.timestep)))
         cell.data.xfrc_applied[body] = 0.0
         cell.wait(IMPULSE_SETTLE)
     return PrimitiveResult("impulse", True, "ok", object=cell.name_of(body), targets=cell.collateral.pile({body}))

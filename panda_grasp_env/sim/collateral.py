@@ -33,6 +33,8 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.model.robot import PandaRobot
+from panda_grasp_env.sim.fixtures import Fixtures
+from panda_grasp_env.sim.stepping import body_speeds
 
 #: An object moved if its centre travelled further than this, metres.
 MOVE_LIMIT = 0.01
@@ -70,8 +72,7 @@ class MonitoredCell(Protocol):
     data: mujoco.MjData
     robot: PandaRobot
     object_ids: np.ndarray
-    #: Fixture collision geom id -> the fixture's name.
-    fixture_names: dict[int, str]
+    fixtures: Fixtures
 
 
 class CollateralMonitor:
@@ -85,11 +86,11 @@ class CollateralMonitor:
         self._is_object = np.zeros(model.nbody, dtype=bool)
         self._is_object[cell.object_ids] = True
         self._is_fixture_geom = np.zeros(model.ngeom, dtype=bool)
-        self._is_fixture_geom[list(cell.fixture_names)] = True
-        self._has_fixtures = bool(cell.fixture_names)
+        self._is_fixture_geom[list(cell.fixtures.names)] = True
+        self._has_fixtures = bool(cell.fixtures.names)
         self.active = False
         #: Whether the last control step's contacts included a first touch, in the work segment, of a fixture
-        #: the primitive was not aimed at (``Workcell.move_to`` stops there).
+        #: the primitive was not aimed at (``Motion.move_to`` stops there).
         self.new_fixture_hit = False
         self.in_work = False
         self.record = Collateral()
@@ -125,7 +126,7 @@ class CollateralMonitor:
         held = self.cell.robot.body_between_fingers()
         self._load = -1 if held is None else held
         if not work:
-            speeds = self.cell.body_speeds(self.cell.object_ids)
+            speeds = body_speeds(self.cell.data, self.cell.object_ids)
             self._transit_start = (*self._poses(), speeds < REST_SPEED)
 
     def _close_transit(self) -> None:
@@ -155,9 +156,9 @@ class CollateralMonitor:
         """Body ids (ncon, 2) of the two sides of every current contact."""
         return self.cell.model.geom_bodyid[self._contact_geoms()]
 
-    def after_step(self) -> None:
-        """Record the robot-object and robot-fixture contacts of the current state (called after every control
-        step)."""
+    def on_control_step(self, cell: MonitoredCell) -> None:
+        """Record the robot-object and robot-fixture contacts of the current state (the workcell's first step
+        observer: called after every control step)."""
         self.new_fixture_hit = False
         if not self.active or self.cell.data.ncon == 0:
             return
@@ -176,7 +177,7 @@ class CollateralMonitor:
         fixtures = self._is_fixture_geom[geoms]
         hit = np.concatenate([geoms[robot_side[:, 0] & fixtures[:, 1], 1], geoms[robot_side[:, 1] & fixtures[:, 0], 0]])
         if hit.size:
-            names = {self.cell.fixture_names[int(g)] for g in hit}
+            names = {self.cell.fixtures.names[int(g)] for g in hit}
             if self.in_work:
                 self.new_fixture_hit = bool(names - self.record.aimed_fixtures - self.record.work_fixtures)
                 self.record.work_fixtures |= names

@@ -195,8 +195,9 @@ class EnvRenderer:
     """What an env's ``render_mode`` shows of ``cell``, from the front camera at ``size`` (width, height) pixels:
     ``rgb_array`` a (height, width, 3) uint8 frame (``pretty`` profile); ``depth_array`` the (height, width)
     float32 metres of ``depth()``; ``rgb_array_list`` the frames since the episode began or the last
-    ``render``, one each time simulated time passes a multiple of ``1 / fps`` seconds (a control-step hook:
-    inside primitives too); ``human`` MuJoCo's passive viewer.  None: nothing (no hook, no renderer)."""
+    ``render``, one each time simulated time passes a multiple of ``1 / fps`` seconds (``on_control_step``, a
+    step observer the env adds: inside primitives too); ``human`` MuJoCo's passive viewer.  None: nothing (no
+    renderer)."""
 
     def __init__(
         self, cell: Workcell, mode: str | None, size: tuple[int, int], fps: float, depth: Callable[[], np.ndarray]
@@ -206,8 +207,6 @@ class EnvRenderer:
         self._viewer: Any = None
         self._frames: list[np.ndarray] = []
         self._next_frame_time = np.inf  # set at each episode's start
-        if mode == "rgb_array_list":
-            cell.step_hooks.append(self._capture)
 
     def pause(self) -> None:
         """Take no frames until ``start_episode`` (none of a scene being laid out and settled)."""
@@ -246,7 +245,8 @@ class EnvRenderer:
             self._renderer = CameraRenderer(self.cell.model, *self.size, "pretty")
         return self._renderer.render(self.cell.data, "front", "rgb")
 
-    def _capture(self, cell: Workcell) -> None:
+    def on_control_step(self, cell: Workcell) -> None:
+        """``rgb_array_list``: take a frame if simulated time has passed the next multiple of ``1 / fps``."""
         if cell.sim_time + 1e-9 < self._next_frame_time:
             return
         self._frames.append(self._rgb_frame())

@@ -41,7 +41,7 @@ def start_in_hand(cell: Workcell, body: int, ready: np.ndarray, rng: np.random.G
     return False."""
     position, orientation = cell.data.xpos[body].copy(), cell.data.xquat[body].copy()
     centre = np.array([*position[:2], max(position[2], bounds[2, 0])])
-    cell.teleport_hand(centre, HOME_YAW)
+    cell.motion.teleport_hand(centre, HOME_YAW)
     held = not cell.touches_robot(body)  # the open hand must be around the object, not in it
     if held:
         cell.actuate_gripper(close=True, timeout=0.5)
@@ -49,7 +49,7 @@ def start_in_hand(cell: Workcell, body: int, ready: np.ndarray, rng: np.random.G
     if not held or np.linalg.norm(cell.data.xpos[body] - position) > HOLD_START_DRIFT:
         cell.set_body_pose(body, position, orientation)
         cell.robot.teleport_fingers(FINGER_OPEN)
-        cell.teleport_hand(ready, HOME_YAW)
+        cell.motion.teleport_hand(ready, HOME_YAW)
         held = False
     cell.settle(0.0)
     return held
@@ -61,9 +61,9 @@ def start_above_object(cell: Workcell, body: int, ready: np.ndarray, rng: np.ran
     up to the height of ``ready``; if it touches the object there, back to ``ready`` and return False."""
     position = cell.data.xpos[body]
     low = max(position[2], bounds[2, 0])
-    cell.teleport_hand(np.array([*position[:2], low + rng.random() * (ready[2] - low)]), HOME_YAW)
+    cell.motion.teleport_hand(np.array([*position[:2], low + rng.random() * (ready[2] - low)]), HOME_YAW)
     if cell.touches_robot(body):
-        cell.teleport_hand(ready, HOME_YAW)
+        cell.motion.teleport_hand(ready, HOME_YAW)
         return False
     return True
 
@@ -88,14 +88,14 @@ def start_behind_object(cell: Workcell, body: int, ready: np.ndarray, rng: np.ra
     for clear in np.arange(radius, radius + 0.085, 0.01):
         start = site(clear + further)
         inside = np.all(start >= bounds[:, 0]) and np.all(start <= bounds[:, 1])
-        cell.teleport_hand(site(clear), HOME_YAW)
+        cell.motion.teleport_hand(site(clear), HOME_YAW)
         if not cell.touches_robot(body):
             if inside:
-                cell.teleport_hand(start, HOME_YAW)
+                cell.motion.teleport_hand(start, HOME_YAW)
                 return True
             break
     cell.robot.teleport_fingers(FINGER_OPEN)
-    cell.teleport_hand(ready, HOME_YAW)
+    cell.motion.teleport_hand(ready, HOME_YAW)
     return False
 
 

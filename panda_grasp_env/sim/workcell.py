@@ -1,23 +1,23 @@
-"""The workcell: one MuJoCo model and data, the robot, its controller and the blocks.
+"""The workcell: one MuJoCo model and data, the robot, its controller, the free objects and a task's fixtures.
 
-This is the physics layer the motion primitives and the Gymnasium env drive.
-It owns stepping (control rate, divergence detection), motion helpers and the
-reset layouts.  World frame, metres, radians throughout.
+This is the physics layer the motion primitives and the Gymnasium env drive, and the one object they talk to.
+It answers scene queries (where objects are, what touches what, what surface is below a point), sets objects
+(poses, shapes, friction), holds the hand still while time passes, and resets the scene.  Its parts do the
+rest: ``physics`` steps the simulation (control steps, divergence checks, per-step observers;
+``sim.stepping``), ``motion`` moves the grasp site (``sim.motion``), ``fixtures`` are a task's fixtures
+(``sim.fixtures``), ``collateral`` watches what a primitive disturbs (``sim.collateral``).  World frame,
+metres, radians throughout.
 """
 
 from __future__ import annotations
-
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from panda_grasp_env.control.controller import CartesianController, ControllerLimits
-from panda_grasp_env.geometry import half_extent_along, is_count, yaw_quaternion
+from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.model.objects import ObjectShape, apply_shape
-from panda_grasp_env.model.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
+from panda_grasp_env.model.robot import PandaRobot
 from panda_grasp_env.model.scene import (
     CONTACT_SOLIMP,
     CONTACT_SOLREF,
@@ -25,107 +25,28 @@ from panda_grasp_env.model.scene import (
     OWN_FRICTION_PRIORITY,
     SceneConfig,
     build_spec,
-    fixture_geoms,
-    fixture_name,
 )
 from panda_grasp_env.sim.collateral import CollateralMonitor
+from panda_grasp_env.sim.extents import body_bottom_height  # noqa: F401 (tasks.grasp imports it from here)
+from panda_grasp_env.sim.fixtures import WORLD_GROUP, Fixtures
+from panda_grasp_env.sim.motion import Motion
+from panda_grasp_env.sim.stepping import Physics
 
-#: Reachable region for primitive targets: x, y, z bounds of the grasp site, metres.
-WORKSPACE = np.array([[0.25, 0.75], [-0.35, 0.35], [0.0, 0.45]])
-#: Region in which reset places blocks (inside WORKSPACE with a margin).
+#: Region in which reset places blocks (inside ``motion.WORKSPACE`` with a margin).
 SPAWN_REGION = np.array([[0.35, 0.65], [-0.22, 0.22]])
 #: Candidate block centres ``scattered_layout`` draws for one layout before it starts over.
 LAYOUT_DRAWS = 2000
 #: Where removed objects wait, out of every camera's view: a row on the floor behind the front camera.
 PARKING_ORIGIN = np.array([2.5, 1.5, -0.75])
 PARKING_SPACING = 0.3  # more than twice the largest object's bounding radius
-#: Transit: the lowest point of the hand (fingertips, 15 mm below the grasp site) or of the object it carries
-#: crosses this far above the tallest object, metres; and the grasp site never lower than TRANSIT_MIN_HEIGHT.
-TRANSIT_CLEARANCE = 0.03
-FINGERTIP_DEPTH = 0.015
-TRANSIT_MIN_HEIGHT = 0.12
-#: Reset IK solutions kept (least recently used dropped first).
-TELEPORT_CACHE_SIZE = 64
-_WORLD_GROUP = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # ray casts see geom group 0 only: table and objects
-#: MuJoCo's bad-state warnings, consecutive in mjtWarning: BADQPOS, BADQVEL, BADQACC.
-_WARNINGS = slice(int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQACC) + 1)
-
-#: No free object here moves faster than this (m/s) unless the contact solver threw it: a fall from the table
-#: top to the floor reaches 3.8 m/s and the arm's fastest motion under 2 m/s, while cubes thrown by a wrong
-#: Newton solve (MuJoCo 4.0.0's sparse factorisation, see ``model.scene``) left at 18-64 m/s.
-MAX_OBJECT_SPEED = 8.0
-
-
-class PhysicsError(RuntimeError):
-    """The simulation diverged (MuJoCo warning or non-finite state) or threw an object (``MAX_OBJECT_SPEED``)."""
-
-
-@dataclass
-class MoveOutcome:
-    """How a Cartesian move of the grasp site ended: within tolerance of its goal or not, and how far off."""
-
-    reached: bool
-    #: Distance between the grasp site and the goal when the move ended, metres.
-    error: float
-
-
-#: MuJoCo geom types ``half_extent_along`` knows exactly, by its names.
-_EXACT_TYPES = {
-    int(mujoco.mjtGeom.mjGEOM_BOX): "box",
-    int(mujoco.mjtGeom.mjGEOM_SPHERE): "sphere",
-    int(mujoco.mjtGeom.mjGEOM_CAPSULE): "capsule",
-    int(mujoco.mjtGeom.mjGEOM_CYLINDER): "cylinder",
-}
-
-
-def geom_extent_along(model: mujoco.MjModel, data: mujoco.MjData, geom: int, axis: np.ndarray) -> tuple[float, float]:
-    """Lowest and highest coordinate of a geom along the world unit vector ``axis``, metres (exact for boxes,
-    spheres, capsules, cylinders and meshes; bounding spheres otherwise)."""
-    kind = _EXACT_TYPES.get(int(model.geom_type[geom]))
-    if int(model.geom_type[geom]) == int(mujoco.mjtGeom.mjGEOM_MESH):
-        mesh = model.geom_dataid[geom]
-        start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
-        heights = model.mesh_vert[start : start + count] @ (data.geom_xmat[geom].reshape(3, 3).T @ axis)
-        centre = float(data.geom_xpos[geom] @ axis)
-        return centre + float(heights.min()), centre + float(heights.max())
-    if kind is None:
-        half = float(model.geom_rbound[geom])
-    else:
-        half = half_extent_along(kind, model.geom_size[geom], data.geom_xmat[geom].reshape(3, 3), axis)
-    centre = float(data.geom_xpos[geom] @ axis)
-    return centre - half, centre + half
-
-
-def body_extent_along(
-    model: mujoco.MjModel, data: mujoco.MjData, body_id: int, axis: np.ndarray | Sequence[float]
-) -> tuple[float, float]:
-    """Lowest and highest coordinate of a body's collision geoms along the world unit vector ``axis``, metres
-    (see ``geom_extent_along``)."""
-    axis = np.asarray(axis, dtype=float)
-    lowest, highest = np.inf, -np.inf
-    start, count = model.body_geomadr[body_id], model.body_geomnum[body_id]
-    for g in range(start, start + count):
-        if model.geom_contype[g] or model.geom_conaffinity[g]:  # else visual only
-            low, high = geom_extent_along(model, data, g, axis)
-            lowest, highest = min(lowest, low), max(highest, high)
-    return lowest, highest
-
-
-def body_vertical_extent(model: mujoco.MjModel, data: mujoco.MjData, body_id: int) -> tuple[float, float]:
-    """Lowest and highest world z of a body's collision geoms, metres (see ``body_extent_along``)."""
-    return body_extent_along(model, data, body_id, (0.0, 0.0, 1.0))
-
-
-def body_bottom_height(model: mujoco.MjModel, data: mujoco.MjData, body_id: int) -> float:
-    """Lowest world z of a body's collision geoms, metres (see ``body_vertical_extent``)."""
-    return body_vertical_extent(model, data, body_id)[0]
 
 
 class Workcell:
     """A Panda, a table and free objects in one MuJoCo simulation.
 
     ``control_substeps`` physics steps make one control step (default 20 x 2 ms
-    = 25 Hz, the rate of the env's low-level action modes).
+    = 25 Hz, the rate of the env's low-level action modes): see ``physics``.
+    ``limits`` bound the Cartesian controller's speeds.
     """
 
     def __init__(
@@ -135,15 +56,11 @@ class Workcell:
         limits: ControllerLimits | None = None,
     ) -> None:
         self.config = config or SceneConfig()
-        if not is_count(control_substeps) or control_substeps < 1:
-            raise ValueError(f"control_substeps must be a positive int, got {control_substeps!r}")
         self.spec = build_spec(self.config)
         self.model = self.spec.compile()
         hidden = self.model.geom_group == HIDDEN_GROUP  # object-slot geoms no shape uses yet: no contacts
         self.model.geom_contype[hidden] = self.model.geom_conaffinity[hidden] = 0
         self.data = mujoco.MjData(self.model)
-        self.control_substeps = control_substeps
-        self.control_dt = control_substeps * self.model.opt.timestep
         self.robot = PandaRobot(self.model, self.data)
         self.controller = CartesianController(self.config, limits)
         self.block_names = self.config.block_names
@@ -166,23 +83,17 @@ class Workcell:
             for g in range(model.body_geomadr[b], model.body_geomadr[b] + model.body_geomnum[b])
         }
         self._dof_adr = {b: self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.object_ids}
-        #: Objects faster than this (m/s) end the step with ``PhysicsError``; see ``allowing_object_speed``.
-        self.max_object_speed = MAX_OBJECT_SPEED
-        self.physics_steps = 0
-        self._teleport_solutions: dict[tuple, np.ndarray] = {}
-        #: Called with the workcell after every control step (video recording, logging).
-        self.step_hooks: list[Callable[[Workcell], None]] = []
-        #: A task's fixtures (``Task.add_fixtures``): their collision geoms, and each one's fixture name (its
-        #: body's, or its own for a geom of the world body).
-        self.fixture_geom_ids = fixture_geoms(self.model)
-        self.fixture_names = {int(g): fixture_name(self.model, g) for g in self.fixture_geom_ids}
+        #: Stepping: control steps, divergence checks, and the observers called after every step.
+        self.physics: Physics[Workcell] = Physics(self, self.model, self.data, self.robot, self.object_ids,
+                                                  control_substeps)  # fmt: skip
+        self.reset_robot()  # home: the kinematics the fixtures' heights are read from
+        #: A task's fixtures (``Task.add_fixtures``): their geoms, heights, moves and resizes.
+        self.fixtures = Fixtures(self.model, self.data, self.robot.body_ids, self.object_ids)
         #: Transit and collateral accounting of the primitive running now (see ``collateral``).
         self.collateral = CollateralMonitor(self)
-        self._scratch = mujoco.MjData(self.model)  # kinematics checks that must not touch the live state
-        self.reset_robot()
-        #: The fixtures' collision geoms standing on the table, as (x, y, reach, top) in metres: transit
-        #: heights clear them as they clear objects (kept current by ``set_fixture_pose``/``set_fixture_size``).
-        self.fixture_tops = self._fixture_tops()
+        self.physics.add_observer(self.collateral.on_control_step)  # first: later observers see it up to date
+        #: Moves of the grasp site (Cartesian, transit, home) and teleports of the hand for resets.
+        self.motion = Motion(self)
 
     # --- state -------------------------------------------------------------
     @property
@@ -197,10 +108,6 @@ class Workcell:
     def object_positions(self) -> np.ndarray:
         """Centres (n, 3) of all free bodies (blocks, then object slots), world frame, metres."""
         return self.data.xpos[self.object_ids].copy()
-
-    def body_speeds(self, body_ids: np.ndarray) -> np.ndarray:
-        """Speeds (n,) of the bodies' centres of mass, m/s, world frame, as of the last step."""
-        return np.linalg.norm(self.data.cvel[body_ids, 3:], axis=1)
 
     def is_parked(self, body_id: int) -> bool:
         """Whether a free body is off the table (parked, fallen or pushed off)."""
@@ -219,7 +126,7 @@ class Workcell:
         the body id of that object, -1 for the table or nothing).  The robot is not seen."""
         geom = np.zeros(1, dtype=np.int32)
         start, down = np.array([x, y, 1.0]), np.array([0.0, 0.0, -1.0])
-        distance = mujoco.mj_ray(self.model, self.data, start, down, _WORLD_GROUP, 1, exclude_body, geom)
+        distance = mujoco.mj_ray(self.model, self.data, start, down, WORLD_GROUP, 1, exclude_body, geom)
         if distance < 0:
             return 0.0, -1
         body = int(self.model.geom_bodyid[geom[0]])
@@ -243,284 +150,11 @@ class Workcell:
         """Whether a body is in contact with the robot."""
         return any(other in self.robot.body_ids for other in self.bodies_touching(body_id))
 
-    # --- stepping ----------------------------------------------------------
-    def step_physics(self, n_steps: int) -> None:
-        """Advance the physics ``n_steps`` steps with the current controls; raise PhysicsError on divergence."""
-        mujoco.mj_step(self.model, self.data, nstep=n_steps)
-        self.physics_steps += n_steps
-        # MuJoCo's own checks catch NaN/inf and runaway values (and reset the data when they fire).
-        if np.count_nonzero(self.data.warning.number[_WARNINGS]):
-            raise PhysicsError("simulation diverged (MuJoCo reported bad qpos/qvel/qacc)")
-        fastest = float(self.body_speeds(self.object_ids).max(initial=0.0))
-        if fastest > self.max_object_speed:
-            raise PhysicsError(f"the contact solver threw an object at {fastest:.1f} m/s "
-                               f"(no object here moves faster than {self.max_object_speed:g} m/s)")  # fmt: skip
-        self.collateral.after_step()
-        for hook in self.step_hooks:
-            hook(self)
-
-    def control_step(self) -> None:
-        """One control step: advance the controller's reference, command the servos, step the physics."""
-        self.robot.command_joints(self.controller.step(self.control_dt))
-        self.step_physics(self.control_substeps)
-
+    # --- holding still ------------------------------------------------------
     def wait(self, seconds: float) -> None:
-        """Keep the current commands for ``seconds`` of simulated time."""
-        for _ in range(max(1, int(round(seconds / self.control_dt)))):
-            self.control_step()
-
-    @contextmanager
-    def allowing_object_speed(self, speed: float) -> Iterator[None]:
-        """Let objects move at up to ``speed`` m/s (when faster than ``MAX_OBJECT_SPEED``) inside the block: an
-        impulse's own push is not a solver fault."""
-        before = self.max_object_speed
-        self.max_object_speed = max(before, float(speed))
-        try:
-            yield
-        finally:
-            self.max_object_speed = before
-
-    # --- motion ------------------------------------------------------------
-    def move_to(
-        self,
-        position: np.ndarray,
-        yaw: float,
-        speed: float | None = None,
-        tolerance: float = 0.004,
-        settle_timeout: float = 1.0,
-        stop_when: Callable[[], bool] | None = None,
-    ) -> MoveOutcome:
-        """Drive the grasp site in a straight line to ``position`` with closing-axis heading ``yaw``.
-
-        The reference moves at ``speed`` m/s (default and cap: the controller's limit).
-        Returns once within ``tolerance`` metres of the goal at rest, after the
-        settle timeout, or as soon as ``stop_when()`` is true -- or, in a primitive's
-        work segment, as soon as the robot first touches a fixture the primitive was not
-        aimed at (a protective stop; ``collateral``).
-        """
-        self.controller.set_goal(position, yaw, speed)
-        goal = self.controller.goal_position
-        travel_steps = int(np.ceil(self.controller.time_to_goal / self.control_dt))
-        settle_steps = int(np.ceil(settle_timeout / self.control_dt))
-        for i in range(travel_steps + 4 + settle_steps):
-            self.control_step()
-            if self.collateral.new_fixture_hit or (stop_when is not None and stop_when()):
-                self.controller.stop()  # don't keep driving towards the goal after stopping
-                break
-            error = float(np.linalg.norm(self.robot.ee_position - goal))
-            if i >= travel_steps and error < tolerance and np.abs(self.robot.joint_velocities).max() < 0.05:
-                break
-        error = float(np.linalg.norm(self.robot.ee_position - goal))
-        return MoveOutcome(reached=error < tolerance, error=error)
-
-    @contextmanager
-    def one_heading(self, *points: np.ndarray) -> Iterator[None]:
-        """Within the block every move turns the hand to the same half-turn branch of its goal heading: the one
-        that puts joint 7 mid-range over the centre of ``points`` (world, metres), chosen once.  A primitive
-        runs in one so that its hand does not turn half a revolution between goals whose own joint-7 windows
-        differ (a push stroke across the line where they meet did)."""
-        previous = self.controller.heading_window_at
-        self.controller.heading_window_at = np.mean([np.asarray(p, dtype=float)[:2] for p in points], axis=0)
-        try:
-            yield
-        finally:
-            self.controller.heading_window_at = previous
-
-    def _fixture_tops(self) -> list[tuple[float, float, float, float]]:
-        model, data = self.model, self.data
-        fixtures = []
-        for g in self.fixture_geom_ids:
-            top = geom_extent_along(model, data, g, np.array([0.0, 0.0, 1.0]))[1]
-            if top > 1e-6:  # the table's top is the zero of heights: a fixture below it is out of the way
-                fixtures.append((*map(float, data.geom_xpos[g][:2]), float(model.geom_rbound[g]), top))
-        return fixtures
-
-    # --- fixtures with state -------------------------------------------------
-    def set_fixture_pose(
-        self, name: str, position: Sequence[float], yaw: float = 0.0, quaternion: Sequence[float] | None = None
-    ) -> None:
-        """Move fixture ``name`` (a fixture body, or a fixture geom of the world body) to ``position`` (world,
-        metres: the body's frame, or the geom's centre) turned by ``yaw`` about world z (radians), or to
-        ``quaternion`` (w, x, y, z) if given.  For a task's ``reset``: the model changes, nothing is
-        recompiled, and heights, ray casts, transit clearance and the motion planner's model follow."""
-        position = np.asarray(position, dtype=float)
-        if position.shape != (3,) or not np.all(np.isfinite(position)) or not np.isfinite(yaw):
-            raise ValueError(
-                f"fixture {name!r}: position must be 3 finite metres and yaw finite, got {position}, {yaw}"
-            )
-        orientation = yaw_quaternion(yaw) if quaternion is None else np.asarray(quaternion, dtype=float)
-        if orientation.shape != (4,) or not np.isclose(np.linalg.norm(orientation), 1.0):
-            raise ValueError(f"fixture {name!r}: quaternion must be a unit (w, x, y, z), got {quaternion!r}")
-        body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name)
-        if body > 0 and self.model.body_weldid[body] == 0 and body not in self.robot.body_ids:  # a static body
-            self.model.body_pos[body], self.model.body_quat[body] = position, orientation
-        else:
-            geom = self._world_fixture_geom(name)
-            self.model.geom_pos[geom], self.model.geom_quat[geom] = position, orientation
-        self._fixtures_changed()
-
-    def set_fixture_size(self, geom_name: str, size: Sequence[float]) -> None:
-        """Resize a fixture's collision geom ``geom_name`` (box, sphere, capsule, cylinder or ellipsoid: MuJoCo's
-        ``size`` of that type, metres) without recompiling; its bounding sphere and box follow.  For a task's
-        ``reset``, like ``set_fixture_pose``."""
-        geom = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, geom_name)
-        if geom not in self.fixture_names:
-            raise ValueError(f"unknown fixture geom {geom_name!r}; valid: {self._named_fixture_geoms()}")
-        bounds = _primitive_bounds(int(self.model.geom_type[geom]), size)
-        if bounds is None:
-            raise ValueError(
-                f"fixture geom {geom_name!r}: a size of 1-3 positive metres fitting its type is needed, and only "
-                f"boxes, spheres, capsules, cylinders and ellipsoids resize without recompiling; got {size!r}"
-            )
-        self.model.geom_size[geom], self.model.geom_rbound[geom], self.model.geom_aabb[geom, 3:] = bounds
-        self._fixtures_changed()
-
-    def _world_fixture_geom(self, name: str) -> int:
-        geom = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, name)
-        if geom not in self.fixture_names or self.model.geom_bodyid[geom] != 0:
-            bodies = sorted({n for g, n in self.fixture_names.items() if self.model.geom_bodyid[g] != 0})
-            world = [n for n in self._named_fixture_geoms() if self.model.geom(n).bodyid[0] == 0]
-            raise ValueError(f"unknown fixture {name!r}; fixture bodies: {bodies}, fixture geoms of the world: {world}")
-        return geom
-
-    def _named_fixture_geoms(self) -> list[str]:
-        names = (mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_GEOM, int(g)) for g in self.fixture_geom_ids)
-        return sorted(n for n in names if n)
-
-    def _fixtures_changed(self) -> None:
-        mujoco.mj_kinematics(self.model, self.data)  # geom poses (ray casts, heights) as the model now says
-        self.fixture_tops = self._fixture_tops()
-
-    def fixture_below(self, x: float, y: float) -> str | None:
-        """The fixture whose surface is the first one straight below (x, y) once free objects are seen through
-        (what a primitive at (x, y) works on or over), or None (the table or nothing)."""
-        if not self.fixture_names:  # no fixture to find: no ray casts at every primitive's start
-            return None
-        geom = np.zeros(1, dtype=np.int32)
-        start, down = np.array([x, y, 1.0]), np.array([0.0, 0.0, -1.0])
-        exclude = -1
-        for _ in range(len(self.object_ids) + 1):
-            distance = mujoco.mj_ray(self.model, self.data, start, down, _WORLD_GROUP, 1, exclude, geom)
-            if distance < 0:
-                return None
-            body = int(self.model.geom_bodyid[geom[0]])
-            if body not in self._qpos_adr:
-                return self.fixture_names.get(int(geom[0]))
-            start, exclude = start + distance * down, body  # an object: look on below it
-        return None
-
-    def tallest_top(self, exclude: int | None = None, near: tuple[float, float, float] | None = None) -> float:
-        """Highest top (world z, metres; 0 if none) of the objects on the table and the fixtures, leaving out
-        ``exclude`` and, with ``near`` = (x, y, radius), everything whose footprint stays further than radius
-        from (x, y)."""
-        tops = [
-            top
-            for x, y, reach, top in self.fixture_tops
-            if near is None or np.hypot(x - near[0], y - near[1]) < near[2] + reach
-        ]
-        tops.append(0.0)
-        for b in map(int, self.object_ids):
-            if b == exclude or self.is_parked(b):
-                continue
-            reach = self.model.geom_rbound[self.model.body_geomadr[b]]
-            if near is not None and np.hypot(*(self.data.xpos[b][:2] - near[:2])) >= near[2] + reach:
-                continue
-            tops.append(body_vertical_extent(self.model, self.data, b)[1])
-        return max(tops)
-
-    def transit_height(self) -> float:
-        """Grasp-site height (metres) at which the hand, and whatever it carries, clears every object on the
-        table by ``TRANSIT_CLEARANCE``; at least ``TRANSIT_MIN_HEIGHT``, at most the workspace's top."""
-        held = self.robot.body_between_fingers()
-        hang = FINGERTIP_DEPTH
-        if held is not None:
-            hang = max(hang, self.robot.ee_position[2] - body_vertical_extent(self.model, self.data, held)[0])
-        height = self.tallest_top(exclude=held) + TRANSIT_CLEARANCE + hang
-        return float(min(max(height, TRANSIT_MIN_HEIGHT), WORKSPACE[2, 1]))
-
-    def clear_height_near(self, x: float, y: float, radius: float = 0.12) -> float:
-        """Grasp-site height (metres) at which the empty hand over (x, y) clears, by ``TRANSIT_CLEARANCE``, every
-        object whose footprint comes within ``radius`` of (x, y) (the hand's half-span)."""
-        return self.tallest_top(near=(x, y, radius)) + TRANSIT_CLEARANCE + FINGERTIP_DEPTH
-
-    def rise(self, height: float | None = None) -> None:
-        """Straight up to ``height`` (default: the transit height), if the grasp site is lower."""
-        height = self.transit_height() if height is None else height
-        position = self.robot.ee_position
-        if position[2] < height - 0.005:
-            self.move_to(np.array([*position[:2], height]), self.robot.ee_yaw, settle_timeout=0.2, tolerance=0.02)
-
-    def transit(self, x: float, y: float, yaw: float) -> MoveOutcome:
-        """Travel to (x, y) at the transit height, the hand turned to ``yaw``: straight up first, then in a
-        straight line, which never dips below the transit height since it starts at or above it (home is
-        higher than any transit height)."""
-        height = self.transit_height()
-        self.rise(height)
-        return self.move_to(np.array([x, y, height]), yaw, tolerance=0.01)
-
-    def _joint_line_stays_above(self, goal: np.ndarray, height: float, samples: int = 12) -> bool:
-        """Whether the grasp site stays at least ``height`` (metres) high all along the straight joint-space
-        line from the arm's current joints to ``goal`` (the hand is the robot's lowest part there)."""
-        scratch = self._scratch
-        scratch.qpos[:] = self.data.qpos
-        start = self.robot.joint_positions
-        for fraction in np.linspace(0.0, 1.0, samples + 1)[1:]:
-            scratch.qpos[self.robot.arm_qpos_idx] = start + fraction * (goal - start)
-            mujoco.mj_kinematics(self.model, scratch)
-            if scratch.site_xpos[self.robot.site_id][2] < height:
-                return False
-        return True
-
-    def move_home(self, joint_speed: float = 1.2) -> None:
-        """Back to the home configuration without sweeping through the scene: straight up to the transit
-        height, then a joint-space move at ``joint_speed`` rad/s onto the home joint angles if the hand stays
-        above the transit height all along it, else across to the home position in a straight line first
-        (home is higher than any transit); settle."""
-        height = self.transit_height()
-        self.rise(height)
-        if not self._joint_line_stays_above(HOME_QPOS, height - 0.01):
-            self.move_to(HOME_POSITION, HOME_YAW, settle_timeout=0.2, tolerance=0.03)
-        start = self.robot.joint_positions
-        n = max(1, int(np.ceil(np.abs(HOME_QPOS - start).max() / (joint_speed * self.control_dt))))
-        for fraction in np.linspace(0.0, 1.0, n + 1)[1:]:
-            self.robot.command_joints(start + fraction * (HOME_QPOS - start))
-            self.step_physics(self.control_substeps)
-        for _ in range(int(0.6 / self.control_dt)):
-            if np.abs(self.robot.joint_positions - HOME_QPOS).max() < 0.01:
-                break
-            self.step_physics(self.control_substeps)
-        self.controller.sync(self.robot.joint_positions)
-
-    def teleport_hand(self, position: np.ndarray, yaw: float, max_iterations: int = 300) -> float:
-        """Put the arm, at rest, in the configuration that holds the grasp site at ``position`` with heading ``yaw``.
-
-        Solves the IK on its own (no physics time passes); for resets.  Returns
-        the remaining position error, metres.
-        """
-        # The IK is deterministic, so each (start, goal) is solved once; goals are rounded to 0.1 mm
-        # first, so the answer never depends on which nearby goal came first.
-        position = np.round(np.asarray(position, dtype=float), 4)
-        yaw = round(float(yaw), 4)
-        start = self.robot.joint_positions
-        key = (*position, yaw, *start)
-        solution = self._teleport_solutions.pop(key, None)
-        if solution is None:
-            self.controller.sync(start)
-            self.controller.set_goal(position, yaw)
-            for _ in range(max_iterations):
-                self.controller.step(self.control_dt)
-                if self.controller.converged:
-                    break
-            solution = self.controller.commanded_qpos
-            if len(self._teleport_solutions) >= TELEPORT_CACHE_SIZE:
-                del self._teleport_solutions[next(iter(self._teleport_solutions))]  # least recently used
-        self._teleport_solutions[key] = solution
-        self.data.qpos[self.robot.arm_qpos_idx] = solution
-        self.data.qvel[self.robot.arm_qvel_idx] = 0.0
-        self.robot.command_joints(solution)
-        mujoco.mj_forward(self.model, self.data)
-        self.controller.sync(self.robot.joint_positions)
-        return float(np.linalg.norm(self.robot.ee_position - position))
+        """Keep the Cartesian controller's goal for ``seconds`` of simulated time."""
+        for _ in range(max(1, int(round(seconds / self.physics.control_dt)))):
+            self.physics.control_step(self.controller)
 
     def actuate_gripper(self, close: bool, timeout: float = 0.8) -> None:
         """Open or close the gripper and wait until the fingers stop (or ``timeout`` seconds)."""
@@ -529,11 +163,15 @@ class Workcell:
         else:
             self.robot.open_gripper()
         still = 0
-        for _ in range(int(np.ceil(timeout / self.control_dt))):
-            self.control_step()
+        for _ in range(int(np.ceil(timeout / self.physics.control_dt))):
+            self.physics.control_step(self.controller)
             still = still + 1 if self.robot.finger_speed < 2e-3 else 0
             if still >= 3:
                 break
+
+    def move_home(self) -> None:
+        """Back to the home configuration (``motion.move_home``; kept here for the tasks that call it)."""
+        self.motion.move_home()
 
     # --- objects -----------------------------------------------------------
     def set_body_pose(self, body_id: int, position: np.ndarray, quaternion: np.ndarray | None = None) -> None:
@@ -596,14 +234,14 @@ class Workcell:
         for body_id in self.object_ids:
             self.park(body_id)
         self.reset_robot()
-        self.physics_steps = 0
+        self.physics.steps = 0
 
     def settle(self, seconds: float) -> None:
         """Let the scene come to rest for ``seconds``, then restart the clock (time and step count at zero)."""
         if seconds > 0:
             self.wait(seconds)
         self.data.time = 0.0
-        self.physics_steps = 0
+        self.physics.steps = 0
 
     def place_blocks(self, rng: np.random.Generator, layout: str = "scattered") -> None:
         """Put the coloured blocks on the table in a ``"scattered"`` or ``"tower"`` layout drawn from ``rng``."""
@@ -627,29 +265,6 @@ class Workcell:
         self.clear()
         self.place_blocks(rng, layout)
         self.settle(settle)
-
-
-def _primitive_bounds(geom_type: int, size: Sequence[float]) -> tuple[np.ndarray, float, np.ndarray] | None:
-    """MuJoCo's (size, bounding-sphere radius, local bounding-box half sizes) of a box, sphere, capsule,
-    cylinder or ellipsoid of ``size`` (metres: as many as the type uses), or None for another type or a bad
-    size."""
-    values = np.asarray(size, dtype=float).ravel()
-    used = {int(mujoco.mjtGeom.mjGEOM_BOX): 3, int(mujoco.mjtGeom.mjGEOM_ELLIPSOID): 3,
-            int(mujoco.mjtGeom.mjGEOM_SPHERE): 1, int(mujoco.mjtGeom.mjGEOM_CAPSULE): 2,
-            int(mujoco.mjtGeom.mjGEOM_CYLINDER): 2}.get(geom_type)  # fmt: skip
-    if used is None or values.size != used or not np.all(np.isfinite(values) & (values > 0)):
-        return None
-    full = np.zeros(3)
-    full[:used] = values
-    if used == 3:
-        return full, float(np.linalg.norm(full) if geom_type == mujoco.mjtGeom.mjGEOM_BOX else full.max()), full
-    radius = full[0]
-    if used == 1:
-        return full, radius, np.full(3, radius)
-    half = full[1]
-    if geom_type == mujoco.mjtGeom.mjGEOM_CAPSULE:
-        return full, radius + half, np.array([radius, radius, radius + half])
-    return full, float(np.hypot(radius, half)), np.array([radius, radius, half])
 
 
 def scattered_layout(

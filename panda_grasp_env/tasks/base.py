@@ -96,8 +96,8 @@ class Task(ABC):
         metres, geoms in group 0 (seen by cameras and ray casts).  Called on every model of the scene (the
         simulation's and the motion planner's), so collision checks and transit heights see them.
 
-        Fixtures have state: ``reset`` may move them (``cell.set_fixture_pose``) and resize their primitive
-        geoms (``cell.set_fixture_size``) for each episode, from its ``rng``; heights, ray casts, transit
+        Fixtures have state: ``reset`` may move them (``cell.fixtures.set_pose``) and resize their primitive
+        geoms (``cell.fixtures.set_size``) for each episode, from its ``rng``; heights, ray casts, transit
         clearance and the planner's model follow.  The robot's contacts with them count (``collateral``):
         in transit, and in a work segment as a ``collision`` unless the primitive was aimed at the fixture."""
 
@@ -110,7 +110,8 @@ class Task(ABC):
         """Reward, success and termination after a step (``result`` is None for low-level steps)."""
 
     def on_control_step(self, cell: Workcell) -> None:  # noqa: B027 (an optional hook)
-        """Called after every 25 Hz control step (inside primitives too): track time-based conditions."""
+        """Called after every 25 Hz control step (inside primitives too; the env adds it as a step observer):
+        track time-based conditions."""
 
     def start_object(self, cell: Workcell) -> int:
         """Body id of the object the ``start_states`` are relative to (tasks that have some)."""

@@ -11,6 +11,7 @@ from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
 from panda_grasp_env.sim.stacking import stack_column
+from panda_grasp_env.sim.stepping import body_speeds
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.base import (
     Task,
@@ -31,7 +32,7 @@ STILL_SPEED = 0.01
 
 def blocks_still(cell: Workcell) -> bool:
     """Every block moving slower than ``STILL_SPEED``."""
-    return bool(np.all(cell.body_speeds(cell.block_ids) < STILL_SPEED))
+    return bool(np.all(body_speeds(cell.data, cell.block_ids) < STILL_SPEED))
 
 
 def holding_a_block(cell: Workcell) -> bool:

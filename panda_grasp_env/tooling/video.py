@@ -33,15 +33,16 @@ class VideoRecorder:
         self.cell = cell
         self.camera = camera
         self.every = every
-        self.fps = 1.0 / (cell.control_dt * every)
+        self.fps = 1.0 / (cell.physics.control_dt * every)
         self.renderer = CameraRenderer(cell.model, width, height, profile=profile)
         self.frames: list[np.ndarray] = []
         self.caption = ""
         self.frames_written = 0
         self._count = 0
-        cell.step_hooks.append(self._on_step)
+        cell.physics.add_observer(self.on_control_step)
 
-    def _on_step(self, cell: Workcell) -> None:
+    def on_control_step(self, cell: Workcell) -> None:
+        """Count the step; every ``every``-th, grab a frame with the caption and the simulated time."""
         self._count += 1
         if self._count % self.every:
             return
@@ -54,8 +55,8 @@ class VideoRecorder:
 
     def save(self, path: Path) -> Path:
         """Write the frames to ``path`` atomically (temp file + rename) and detach from the workcell."""
-        if self._on_step in self.cell.step_hooks:
-            self.cell.step_hooks.remove(self._on_step)
+        if self.on_control_step in self.cell.physics.observers:
+            self.cell.physics.remove_observer(self.on_control_step)
         path = Path(path)
         tmp = path.with_name(path.stem + ".partial" + path.suffix)
         imageio.mimwrite(tmp, self.frames, fps=self.fps, codec="libx264", macro_block_size=8)
