@@ -1,11 +1,10 @@
 """The tall-tower page's figure: the front camera on towers of 6 and 8 blocks.
 
-    python benchmarks/tall_tower_still.py [--builder tower_build6_dqn] [--seed 6900000] [--out docs/images/tall_towers.png]
+    python benchmarks/tall_tower_still.py [--seed 6900000] [--out docs/images/tall_towers.png]
 
 Three frames side by side, each the env's ``rgb_array`` render (front camera, 400 x 300):
 
-1. the 6-block tower the learned builder (``--builder``, a shipped checkpoint) built on ``TowerBuild6`` with
-   ``--seed`` (the first seed from there whose tower it completes);
+1. the 6-block tower the planned agent built on ``TowerBuild6``, seed ``--seed``;
 2. ``TowerBreak8``'s 40 cm tower at reset, seed ``--seed``;
 3. the same scene after the planned agent's push (the frame when the step returns: blocks at rest).
 
@@ -27,7 +26,6 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.agents.evaluation import PERCEPTION
-from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent
 from panda_grasp_env.agents.registry import BASELINES
 from panda_grasp_env.registration import BENCHMARKS
 
@@ -45,19 +43,14 @@ def play(env: gym.Env, agent, seed: int) -> tuple[bool, int]:
     raise RuntimeError("an episode without a step limit")
 
 
-def learned_tower(builder: str, first_seed: int, tries: int = 10) -> np.ndarray:
-    checkpoint = Checkpoint(builder)
-    _, options = BENCHMARKS["TowerBuild6"]
-    env = checkpoint.make_env(**options, **RENDER)
-    agent = LearnedAgent(builder, env)
-    for seed in range(first_seed, first_seed + tries):
-        built, actions = play(env, agent, seed)
-        print(f"{builder} on TowerBuild6, seed {seed}: {'built' if built else 'not built'} in {actions} actions")
-        if built:
-            frame = env.render()
-            env.close()
-            return frame
-    raise RuntimeError(f"{builder} built none of seeds {first_seed}-{first_seed + tries - 1}")
+def planned_tower(seed: int) -> np.ndarray:
+    env_id, options = BENCHMARKS["TowerBuild6"]
+    env = gym.make(f"panda_grasp_env:{env_id}", **options, **PERCEPTION, **RENDER)
+    built, actions = play(env, BASELINES["TowerBuild6"](env, seed, False), seed)
+    print(f"planned on TowerBuild6, seed {seed}: {'built' if built else 'not built'} in {actions} actions")
+    frame = env.render()
+    env.close()
+    return frame
 
 
 def planned_break(seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -76,13 +69,12 @@ def planned_break(seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--builder", default="tower_build6_dqn", help="a shipped checkpoint that builds 6 blocks")
     parser.add_argument("--seed", type=int, default=6_900_000)
     parser.add_argument("--out", type=Path, default=Path("docs/images/tall_towers.png"))
     args = parser.parse_args()
     import imageio.v3 as iio
 
-    frames = [learned_tower(args.builder, args.seed), *planned_break(args.seed)]
+    frames = [planned_tower(args.seed), *planned_break(args.seed)]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     iio.imwrite(args.out, np.concatenate(frames, axis=1))
     print(f"wrote {args.out}")
