@@ -29,11 +29,12 @@ ALGORITHMS: dict[str, tuple[str, str]] = {
     "sac": ("stable_baselines3:SAC", "MultiInputPolicy"),
     "tqc": ("sb3_contrib:TQC", "MultiInputPolicy"),
     "ppo": ("stable_baselines3:PPO", "MultiInputPolicy"),
-    # Learning from demonstrations (agents/imitation.py); algo_kwargs.demonstrations names the dataset.
+    # Learning from demonstrations (agents/imitation.py, heightmap_imitation.py); algo_kwargs.demonstrations
+    # names the dataset.
     "bc": ("panda_grasp_env.agents.imitation:BehaviourCloning", "MultiInputPolicy"),
     "tqc_demos": ("panda_grasp_env.agents.imitation:TQCFromDemonstrations", "MultiInputPolicy"),
     "heightmap_dqn_demos": (
-        "panda_grasp_env.agents.imitation:HeightmapDQNFromDemonstrations",
+        "panda_grasp_env.agents.heightmap_imitation:HeightmapDQNFromDemonstrations",
         "panda_grasp_env.agents.heightmap_policy:HeightmapQPolicy",
     ),
 }

@@ -176,11 +176,8 @@ def pixel_dataset_path(tmp_path_factory):
 def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_them_first(
     pixel_dataset_path, monkeypatch
 ):
+    from panda_grasp_env.agents.heightmap_imitation import FULL_MARGIN_DISTANCE, HeightmapDQNFromDemonstrations
     from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap, HeightmapQPolicy, encode_heightmap
-    from panda_grasp_env.agents.imitation import (
-        FULL_MARGIN_DISTANCE,
-        HeightmapDQNFromDemonstrations,
-    )
 
     demos = {"dataset": PIXEL_DATASET, "episodes": 1, "path": pixel_dataset_path}
     episode = Demonstrations.of(demos).episodes_data()[0]

@@ -6,21 +6,22 @@ import numpy as np
 import pytest
 
 from panda_grasp_env.agents.evaluation import PERCEPTION
-from panda_grasp_env.agents.grasping import PackedGraspOracle, PlannedGraspAgent, PushPlanner, camera_scene
+from panda_grasp_env.agents.grasping import PackedGraspOracle, PlannedGraspAgent
+from panda_grasp_env.agents.push_planner import PushPlanner, camera_scene
 from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS, GAP, random_packed_layout
 
 
 def test_every_hand_designed_layout_stands_still_with_all_its_objects_in_play():
-    env = gym.make("panda_grasp_env:PandaGraspAdversarial-v0", obs_mode="state")
-    cell = env.unwrapped.cell
     for index, (name, layout) in enumerate(ADVERSARIAL_LAYOUTS.items()):
-        env.unwrapped.task.layout = index
+        env = gym.make("panda_grasp_env:PandaGraspAdversarial-v0", obs_mode="state", layout=index)
+        cell = env.unwrapped.cell
         _, info = env.reset(seed=index)
         assert info["layout"] == name and info["objects_remaining"] == len(layout), name
         # The unused slots too: parked ones still falling would be blamed on the first primitive as collateral.
         before = cell.object_positions()
         cell.wait(0.5)
         assert np.abs(cell.object_positions() - before).max() < 1e-3, name
+        env.close()
     assert len(ADVERSARIAL_LAYOUTS) >= 11
 
 
@@ -38,7 +39,7 @@ def test_heap_share_drops_heaps_instead_of_some_packed_layouts():
     """PandaGraspMixed-v0: about half its episodes are heaps of HEAP_OBJECTS, the rest hand-designed layouts; the
     seed decides which, and the slots a layout left spare get the heap's shapes."""
     from panda_grasp_env.model.objects import ObjectShape
-    from panda_grasp_env.tasks.grasp import HEAP_OBJECTS, SPARE_SHAPE
+    from panda_grasp_env.tasks.grasp_layouts import HEAP_OBJECTS, SPARE_SHAPE
 
     env = gym.make("panda_grasp_env:PandaGraspMixed-v0", obs_mode="state")
     layouts = [env.reset(seed=seed)[1]["layout"] for seed in range(24)]

@@ -2,6 +2,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from panda_grasp_env.model.panda_asset import franka_asset_dir
 from panda_grasp_env.model.scene import (
     CAMERA_NAMES,
     CONTACT_SOLIMP,
@@ -9,7 +10,6 @@ from panda_grasp_env.model.scene import (
     GRASP_SITE,
     SceneConfig,
     build_model,
-    franka_asset_dir,
 )
 from panda_grasp_env.sim.workcell import Workcell
 

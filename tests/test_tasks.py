@@ -214,7 +214,7 @@ def width_across_the_fingers(env) -> float:
 
 
 def test_objects_to_lift_fit_between_the_fingers_of_a_hand_that_cannot_turn():
-    from panda_grasp_env.tasks.grasp import HAND_FIT_WIDTH
+    from panda_grasp_env.tasks.grasp_layouts import HAND_FIT_WIDTH
 
     unturned = []
     for shape in ("cube", "box", "capsule"):  # the shapes that can be wider one way than the 73 mm opening

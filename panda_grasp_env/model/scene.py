@@ -1,10 +1,9 @@
 """The Panda workcell, built programmatically with ``mujoco.MjSpec``.
 
-The Franka Panda arm and hand come from the MJCF files shipped inside the
-installed ``gymnasium-robotics`` package (``kitchen_franka/franka_assets``); they
-are read from there at build time, never copied into this repository.  On top of
-them this module adds a table, free blocks, finger pads, gravity compensation,
-a grasp site between the fingertips and three cameras.
+The Franka Panda arm and hand come from the MJCF files shipped inside the installed
+``gymnasium-robotics`` package (``panda_asset``).  On top of them this module adds a table, free blocks,
+finger pads, gravity compensation, a grasp site between the fingertips, and the cameras and lights of
+``cameras``.
 
 World frame: origin at the robot base on the table top, +x away from the robot,
 +z up.  All lengths are metres, all angles radians, masses kilograms.
@@ -12,16 +11,22 @@ World frame: origin at the robot base on the table top, +x away from the robot,
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from panda_grasp_env.geometry import is_count
+from panda_grasp_env.model.cameras import (
+    CAMERA_NAMES,
+    CameraConfig,
+    add_fixed_cameras,
+    add_lights,
+    add_wrist_camera,
+)
 from panda_grasp_env.model.meshes import MAX_PARTS, add_mesh_assets, split_of
+from panda_grasp_env.model.panda_asset import panda_spec
 
 ARM_JOINTS = tuple(f"robot:panda0_joint{i}" for i in range(1, 8))
 FINGER_JOINTS = ("robot:panda0_finger_joint1", "robot:panda0_finger_joint2")
@@ -52,7 +57,6 @@ PUSH_FACE_HALF_SIZE = (0.0201, 0.006, 0.03375)
 PUSH_FACE_CENTRE = (0.0, 0.010, 0.05875)
 #: Geom priorities: a contact takes the friction, solref and solimp of its higher-priority geom.
 PAD_PRIORITY, OWN_FRICTION_PRIORITY = 1, 2
-CAMERA_NAMES = ("overhead", "front", "wrist")
 MAX_OBJECTS = 30
 #: Geom group of geoms that are not drawn: an object slot's geoms its current shape does not use.
 HIDDEN_GROUP = 3
@@ -77,15 +81,6 @@ DEFAULT_COLOURS: dict[str, tuple[float, float, float]] = {
 #: Every block's colour where a block task's ``block_colours`` option is ``"uniform"``: a light grey, without
 #: hue, so that domain randomisation's per-block hue shifts leave the blocks alike (r, g, b in 0-1).
 UNIFORM_BLOCK_COLOUR = (0.85, 0.85, 0.85)
-
-
-@dataclass(frozen=True)
-class CameraConfig:
-    """A fixed or hand-mounted camera.  ``fovy`` is the vertical field of view in degrees."""
-
-    width: int = 640
-    height: int = 480
-    fovy: float = 45.0
 
 
 @dataclass(frozen=True)
@@ -186,57 +181,6 @@ class SceneConfig:
         return [f"object_{i}" for i in range(self.n_objects)]
 
 
-def franka_asset_dir() -> Path:
-    """Folder of the Franka MJCF files inside the installed ``gymnasium-robotics``."""
-    import importlib.util
-
-    spec = importlib.util.find_spec("gymnasium_robotics")
-    if spec is None or spec.origin is None:
-        raise ImportError("gymnasium-robotics is required: it ships the Franka Panda model this scene loads")
-    folder = Path(spec.origin).parent / "envs" / "assets" / "kitchen_franka" / "franka_assets"
-    if not (folder / "chain.xml").is_file():
-        raise FileNotFoundError(f"Franka assets not found in the installed gymnasium-robotics: {folder}")
-    return folder
-
-
-def _inner_xml(path: Path) -> str:
-    """Contents of a ``<mujocoinclude>`` file without the wrapper tag and comments."""
-    text = re.sub(r"<!--.*?-->", "", path.read_text(), flags=re.S)
-    match = re.search(r"<mujocoinclude>(.*)</mujocoinclude>", text, flags=re.S)
-    if match is None:
-        raise ValueError(f"{path} is not a <mujocoinclude> file")
-    return match.group(1)
-
-
-def _panda_spec() -> mujoco.MjSpec:
-    folder = franka_asset_dir()
-    assets = _inner_xml(folder / "assets.xml").replace(
-        'meshdir="franka_assets/meshes"', f'meshdir="{folder / "meshes"}"'
-    )
-    xml = (
-        "<mujoco model='panda_workcell'>"
-        + assets
-        + _inner_xml(folder / "actuator.xml")
-        + "<worldbody>"
-        + _inner_xml(folder / "chain.xml")
-        + "</worldbody></mujoco>"
-    )
-    return mujoco.MjSpec.from_string(xml)
-
-
-def _look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
-    """Quaternion (w, x, y, z) of a MuJoCo camera at ``eye`` looking at ``target`` (camera looks along -z)."""
-    forward = target - eye
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right)
-    cam_up = np.cross(right, forward)
-    rotation = np.column_stack([right, cam_up, -forward])
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, rotation.flatten())
-    return quat
-
-
 def _set_damping(joint: mujoco.MjsJoint, value: float) -> None:
     # MuJoCo 4 made joint damping a 3-vector (polynomial coefficients); 3.x has a scalar.
     if np.ndim(joint.damping) == 0:
@@ -253,7 +197,7 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
     ``self_collision=True`` lets the links collide with each other (the motion
     planner's model; the simulation leaves it off).
     """
-    spec = _panda_spec()
+    spec = panda_spec()
     spec.modelname = "panda_workcell"
 
     # Physics.  2 ms steps keep 5 cm / 0.1 kg block contacts (solref time constant
@@ -365,12 +309,7 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
         face.mass = 0.0
         face.margin = 0.0
 
-    # Wrist camera looking along the approach direction, image up = hand +x.
-    wrist = hand.add_camera()
-    wrist.name = "wrist"
-    wrist.pos = [0.05, 0.0, 0.11]
-    wrist.quat = [0.0, 0.0, 1.0, 0.0]  # rotate pi about y: look along +z of the hand
-    wrist.fovy = config.cameras.get("wrist", CameraConfig()).fovy
+    add_wrist_camera(hand, config.cameras)
 
     if config.stiff_contacts:
         # The world's contacts as stiff as the step allows, through the default class: the table, the objects
@@ -412,13 +351,7 @@ def _add_environment(spec: mujoco.MjSpec, config: SceneConfig) -> None:
     floor_mat.name = "floor_mat"
     floor_mat.rgba = [0.25, 0.27, 0.30, 1.0]
 
-    for direction, diffuse in (([0.3, 0.3, -1.0], 0.6), ([-0.4, -0.2, -1.0], 0.35)):
-        light = world.add_light()
-        light.pos = [0.5 - direction[0], -direction[1], 2.0]
-        light.dir = direction
-        light.diffuse = [diffuse] * 3
-        light.specular = [0.1] * 3
-        light.castshadow = diffuse > 0.5
+    add_lights(world)
 
     # Table top at z = 0 under the robot base; a floor catches anything pushed off.
     table = world.add_geom()
@@ -465,20 +398,7 @@ def _add_environment(spec: mujoco.MjSpec, config: SceneConfig) -> None:
     marker.pos = [0.5, 0.0, -0.5]
     marker.rgba = [0.1, 0.9, 0.2, 0.5]
     marker.group = 0
-
-    overhead = world.add_camera()
-    overhead.name = "overhead"
-    overhead.pos = [0.45, 0.0, 1.05]
-    # Straight down; image up = world +x (robot at the bottom), image right = world -y.
-    overhead.quat = [0.70710678, 0.0, 0.0, -0.70710678]
-    overhead.fovy = config.cameras.get("overhead", CameraConfig()).fovy
-
-    front = world.add_camera()
-    front.name = "front"
-    eye = np.array([1.25, 0.4, 0.6])
-    front.pos = eye
-    front.quat = _look_at(eye, np.array([0.45, 0.0, 0.12]))
-    front.fovy = config.cameras.get("front", CameraConfig()).fovy
+    add_fixed_cameras(world, config.cameras)
 
 
 def _add_free_cube(

@@ -1,4 +1,7 @@
-"""Grasp: pick objects of many shapes off the table, one at a time (VPG's clutter protocol)."""
+"""Grasp: pick objects of many shapes off the table, one at a time (VPG's clutter protocol).
+
+The task judges and rewards; how each episode's objects lie on the table (scattered, a heap, packed, or mixed)
+is a layout generator of ``grasp_layouts`` that the options, and through them the ids, choose."""
 
 from __future__ import annotations
 
@@ -13,22 +16,11 @@ from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import Benchmark, EnvId, register_task
-from panda_grasp_env.sim.workcell import SPAWN_REGION, Workcell, body_bottom_height
+from panda_grasp_env.sim.workcell import Workcell, body_bottom_height
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, with_scene
-from panda_grasp_env.tasks.packed_layouts import (
-    ADVERSARIAL_LAYOUTS,
-    CENTRE_JITTER,
-    CUBE,
-    MAX_OBJECTS,
-    TURN_JITTER,
-    jittered,
-    random_packed_layout,
-)
+from panda_grasp_env.tasks.grasp_layouts import HEAP_OBJECTS, adversarial_layout_index, grasp_layout
+from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS, MAX_OBJECTS
 
-#: VPG drops its clutter into the middle of the workspace; a 0.2 m square here.
-CLUTTER_REGION = np.array([[0.4, 0.6], [-0.1, 0.1]])
-#: Objects in a heap that stands in for a packed layout (``heap_share``): as many as ``clutter`` drops.
-HEAP_OBJECTS = 10
 #: A push "changed the scene" if some object moved at least this far (metres): VPG's push reward condition.
 SCENE_CHANGE = 0.01
 #: After a grasp the hand is home, ~0.45 m up: an object touching the hand or the grasped one with its bottom
@@ -38,18 +30,8 @@ CARRIED_MIN_HEIGHT = 0.15
 #: VPG's workspace.  As in VPG, one pushed or rolled beyond it is out of the episode: no policy that sees
 #: the workspace through the heightmap could find it.
 PLAY_REGION = np.array(DEFAULT_BOUNDS[:2])
-#: Where packed layouts stand (world xy, metres): the hand-designed ones at the centre (then jittered),
-#: random ones anywhere in the square around it.
-PACKED_CENTRE, RANDOM_PACKED_REGION = np.array([0.5, 0.0]), np.array([[0.45, 0.55], [-0.05, 0.05]])
-#: The (kind, geom size) of the object slots a packed layout leaves unused (parked).
-SPARE_SHAPE = CUBE
 #: Low-level lift goal: this many metres above the object's resting centre (range).
 LIFT_GOAL_HEIGHT = (0.05, 0.15)
-
-#: Widest an object may be across the fingers of a hand that cannot turn (metres): the 73 mm opening
-#: between the pads less 6.5 mm each side for the approach's error.  Every default size fits at some yaw.
-HAND_FIT_WIDTH = 0.06
-
 
 #: ``properties`` entries per object: kind one-hot, geom size (3), mass, friction, lying.
 OBJECT_PROPERTIES = len(SHAPES) + 6
@@ -78,18 +60,6 @@ def parsed_specs(values: list | tuple, name: str) -> list[ObjectSpec]:
         except (TypeError, ValueError) as error:
             raise ValueError(f"{name}[{index}]: {error}") from None
     return specs
-
-
-def fitting_yaw(shape: ObjectShape, yaw: float, hand_yaw: float, rng: np.random.Generator) -> float:
-    """``yaw`` if the shape resting at it is at most ``HAND_FIT_WIDTH`` wide across the fingers of a hand
-    at heading ``hand_yaw`` (radians, world; the fingers close along that heading), else a yaw drawn
-    uniformly among those where it fits (the narrowest of the draws if none does: sizes past the defaults)."""
-    if shape.width_across(yaw, hand_yaw) <= HAND_FIT_WIDTH:
-        return yaw
-    draws = rng.uniform(-np.pi / 2, np.pi / 2, 256)
-    widths = np.array([shape.width_across(y, hand_yaw) for y in draws])
-    fits = np.flatnonzero(widths <= HAND_FIT_WIDTH)
-    return float(draws[fits[0]] if fits.size else draws[np.argmin(widths)])
 
 
 #: Actions a single mesh object gets (``PandaGraspMesh-v0``): success within this budget.
@@ -230,7 +200,7 @@ class Grasp(Task):
     ) -> None:
         check_option("clutter", clutter, isinstance(clutter, bool), "a bool")
         check_option("packed", packed, packed in (None, "adversarial", "random"), 'None, "adversarial" or "random"')
-        self.packed, self.layout = packed, self._checked_layout(packed, layout)
+        self.packed, self.layout = packed, adversarial_layout_index(packed, layout)
         valid = is_number(heap_share) and 0 <= heap_share <= 1 and (packed is not None or heap_share == 0)
         check_option("heap_share", heap_share, valid, "a share in [0, 1], given with packed only")
         self.heap_share = float(heap_share)
@@ -258,6 +228,8 @@ class Grasp(Task):
             raise ValueError(f"task option n_objects={n_objects} does not match the {len(specs)} object specs")
         self.specs = specs * n_objects if len(specs) == 1 else specs
         self.n_objects, self.clutter, self.max_failures = n_objects, clutter, max_failures
+        #: How each episode's objects come to lie on the table (``grasp_layouts``), as the options choose.
+        self.layout_generator = grasp_layout(n_objects, clutter, packed, self.layout, self.heap_share)
         #: State-vector entries per object when specs are given (see ``properties``).
         self.properties_size = 0 if objects is None else n_objects * OBJECT_PROPERTIES
         self.drawn: list[ObjectShape] = []
@@ -269,20 +241,6 @@ class Grasp(Task):
         self.in_play = 0  # objects on the table after the reset drop
         self._remaining = 0  # objects in play after the previous step
         self._goal_body = 0
-
-    @staticmethod
-    def _checked_layout(packed: str | None, layout: int | str | None) -> int | None:
-        """The index in ``ADVERSARIAL_LAYOUTS`` of the ``layout`` option (an index or a name), or None."""
-        if layout is None:
-            return None
-        names = list(ADVERSARIAL_LAYOUTS)
-        check_option("layout", layout, packed == "adversarial", 'given with packed="adversarial" only')
-        if isinstance(layout, str):
-            check_option("layout", layout, layout in names, f"an index or one of {names}")
-            return names.index(layout)
-        valid = isinstance(layout, (int, np.integer)) and not isinstance(layout, bool) and 0 <= layout < len(names)
-        check_option("layout", layout, valid, f"an index in [0, {len(names) - 1}] or one of {names}")
-        return int(layout)
 
     def scene_config(self, base: SceneConfig) -> SceneConfig:
         meshes = tuple(sorted({i for spec in self.specs for i in spec.mesh_ids}))
@@ -311,75 +269,15 @@ class Grasp(Task):
             )
         self._episode_specs = specs * self.n_objects if len(specs) == 1 else specs
 
-    def _lay_out_packed(self, cell: Workcell, rng: np.random.Generator) -> tuple[str, list[ObjectShape]]:
-        """Put a packed layout on the table (the unused object slots stay parked); its name and shapes."""
-        if self.packed == "adversarial":
-            index = self.layout if self.layout is not None else int(rng.integers(len(ADVERSARIAL_LAYOUTS)))
-            name = list(ADVERSARIAL_LAYOUTS)[index]
-            centre = PACKED_CENTRE + rng.uniform(-CENTRE_JITTER, CENTRE_JITTER, 2)
-            placed = jittered(ADVERSARIAL_LAYOUTS[name], rng, centre, rng.uniform(-TURN_JITTER, TURN_JITTER))
-        else:
-            name = "random"
-            layout = random_packed_layout(rng)
-            centre = rng.uniform(RANDOM_PACKED_REGION[:, 0], RANDOM_PACKED_REGION[:, 1])
-            placed = jittered(layout, rng, centre, rng.uniform(-np.pi, np.pi))
-        shapes = [shape for shape, _, _ in placed]
-        self._set_shapes(cell, shapes)
-        for body, (shape, xy, yaw) in zip(cell.object_ids, placed):
-            cell.set_body_pose(body, [*xy, shape.resting_half_height + 0.0005], shape.resting_quaternion(yaw))
-        cell.settle(0.3)
-        return name, shapes
-
-    @staticmethod
-    def _set_shapes(cell: Workcell, shapes: list[ObjectShape]) -> None:
-        """Give the first object slots ``shapes``; the slots left over get one fixed shape and stay parked:
-        what they held in the previous episode must not show in this one's state."""
-        spare = ObjectShape(*SPARE_SHAPE)
-        cell.set_object_shapes(
-            {int(body): shapes[i] if i < len(shapes) else spare for i, body in enumerate(cell.object_ids)}
-        )
-        for body in cell.object_ids[len(shapes) :]:
-            cell.park(int(body))
-
     @property
     def ideal_actions(self) -> int:
         return self.n_objects
 
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
         cell.clear()
-        layout = None
-        heap = self.clutter or (self.heap_share > 0 and rng.random() < self.heap_share)
-        if self.packed is not None and not heap:
-            layout, shapes = self._lay_out_packed(cell, rng)
-            self.drawn = shapes
-        else:
-            if self.packed is not None:  # a heap instead of the packed layout (heap_share)
-                layout = "heap"
-            count = HEAP_OBJECTS if self.packed is not None else self.n_objects
-            specs = self.specs if self._episode_specs is None else self._episode_specs
-            shapes = self.drawn = [spec.sample(rng) for spec in specs[:count]]
-            self._set_shapes(cell, shapes)
-            if heap:
-                for level, (body, shape) in enumerate(zip(cell.object_ids, shapes)):
-                    xy = [rng.uniform(*CLUTTER_REGION[0]), rng.uniform(*CLUTTER_REGION[1])]
-                    height = shape.bounding_radius + 0.01 + 0.06 * level  # staggered, so they fall onto each other
-                    cell.set_body_pose(body, [*xy, height], shape.resting_quaternion(rng.uniform(-np.pi, np.pi)))
-                cell.settle(1.5)
-            else:
-                placed: list[tuple[np.ndarray, float]] = []
-                for body, shape, spec in zip(cell.object_ids, shapes, specs):
-                    for _ in range(1000):  # rejection sampling; the region holds 30 small objects easily
-                        xy = np.array([rng.uniform(*SPAWN_REGION[0]), rng.uniform(*SPAWN_REGION[1])])
-                        if all(np.linalg.norm(xy - p) >= shape.bounding_radius + r + 0.04 for p, r in placed):
-                            break
-                    placed.append((xy, shape.bounding_radius))
-                    yaw = spec.sample_yaw(rng)
-                    if self.fixed_hand_yaw is not None:  # a hand that cannot turn must fit around the object
-                        yaw = fitting_yaw(shape, yaw, self.fixed_hand_yaw, rng)
-                    position = [*xy, shape.resting_half_height + 0.001]
-                    cell.set_body_pose(body, position, shape.resting_quaternion(yaw))
-                # A mesh set down at a drawn orientation tips onto a face: give it time to come to rest.
-                cell.settle(1.0 if any(shape.kind == "mesh" for shape in shapes) else 0.3)
+        specs = self.specs if self._episode_specs is None else self._episode_specs
+        laid_out = self.layout_generator.lay_out(cell, rng, specs, self.fixed_hand_yaw)
+        shapes = self.drawn = laid_out.shapes
         # Objects that rolled out of the play region or off the table in the drop are removed from the
         # scene, and so are the rare ones a heap pressed into the table top (soft contacts; they could never
         # be lifted): what is left on the table is exactly what is in play.
@@ -411,7 +309,7 @@ class Grasp(Task):
             }  # fmt: skip
             for o in shapes
         ]
-        extra = {} if layout is None else {"layout": layout}
+        extra = {} if laid_out.name is None else {"layout": laid_out.name}
         return {"shapes": [o.kind for o in shapes], "objects": objects, **extra, **self._info(cell)}
 
     def properties(self) -> np.ndarray:

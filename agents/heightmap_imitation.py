@@ -1,0 +1,181 @@
+"""Deep Q-learning from demonstrations (DQfD) for the ``pixel`` mode's heightmap Q-network: ``heightmap_dqn_demos``.
+
+``HeightmapDQNFromDemonstrations`` reads ``algo_kwargs.demonstrations`` as the other learners from
+demonstrations do (``imitation.Demonstrations``).  Distances are metres on the table, turns radians.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3.common.utils import polyak_update
+
+from panda_grasp_env.agents.heightmap_policy import DIRECTED_PRIMITIVES, HeightmapDQN, encode_heightmap
+from panda_grasp_env.agents.imitation import BufferedDemonstrationMixin, Demonstrations, check_demonstrations
+from panda_grasp_env.geometry import is_number
+
+#: Cells this close to the demonstrated one (metres, Euclidean on the table), with the same primitive and
+#: heading, count as the demonstrated action itself: the Q-maps are scored at a quarter of the heightmap's
+#: resolution and upsampled, so no margin can part neighbouring cells.
+SAME_ACTION_RADIUS = 0.012
+#: The margin grows linearly from nothing at ``SAME_ACTION_RADIUS`` to the whole ``margin`` at this distance
+#: (metres): a cell 2 cm away is nearly the same grasp, and a Q-map smooth at 16 mm cannot rank it far below.
+FULL_MARGIN_DISTANCE = 0.04
+#: Likewise over headings (radians): the whole margin from this turn on, half of it at 22.5 degrees.
+FULL_MARGIN_TURN = np.pi / 4
+
+
+class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
+    """``HeightmapDQN`` with demonstrations (DQfD, Hester et al. 2018, "Deep Q-learning from demonstrations"):
+    the demonstrated transitions start in the replay buffer, where they stay (a ``buffer_size`` below them and
+    the run's steps is refused), and after each round of TD updates the Q-network takes one large-margin step
+    on ``batch_size`` demonstrated steps, ``margin_weight * mean(max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E))``
+    (DQfD's supervised loss).  The margin ``l`` is graded, as the actions are alike: ``margin`` against
+    another primitive; for the same primitive, ``margin`` times the larger of how far (0 within
+    ``SAME_ACTION_RADIUS``, rising to 1 at ``FULL_MARGIN_DISTANCE``) and how much turned (rising to 1 at
+    ``FULL_MARGIN_TURN``) it is from a_E.  A flat margin against neighbouring cells and headings, which the
+    Q-maps cannot part, is never met and only flattens them.  The maximum runs over the demonstrated
+    heading's map and one other heading drawn at random (two network passes per sample, not all
+    ``rotations``; never the half-turned grasp, which is the same grasp), so over the run every heading
+    is held below the demonstrated action.  With ``pretrain_steps``, that many such updates on the
+    demonstrations alone come before the first env step (DQfD's pretraining).
+
+    The demonstrations are episodes in ``obs_mode='heightmap'`` and ``action_mode='pixel'``, e.g. the
+    push-aware oracle's (``python -m panda_grasp_env.agents.demonstrations --agent oracle --task
+    GraspAdversarial --task-options obs_mode=heightmap action_mode=pixel ...``), with the rewards they were
+    recorded under; policies with the holding or command planes cannot learn from them (their episodes do
+    not say what was held or commanded)."""
+
+    def __init__(
+        self,
+        policy: Any,
+        env: Any,
+        demonstrations: dict[str, Any] | None = None,
+        margin: float = 0.2,
+        margin_weight: float = 1.0,
+        pretrain_steps: int = 0,
+        **kwargs: Any,
+    ) -> None:
+        if kwargs.get("_init_setup_model", True):
+            check_demonstrations(demonstrations, "heightmap_dqn_demos")
+        for name, value in (("margin", margin), ("margin_weight", margin_weight)):
+            if not (is_number(value) and value >= 0):
+                raise ValueError(f"heightmap_dqn_demos: {name} must be a number >= 0, got {value!r}")
+        if not (isinstance(pretrain_steps, int) and not isinstance(pretrain_steps, bool) and pretrain_steps >= 0):
+            raise ValueError(f"heightmap_dqn_demos: pretrain_steps must be an int >= 0, got {pretrain_steps!r}")
+        self.demonstrations, self.margin, self.margin_weight = demonstrations, float(margin), float(margin_weight)
+        self.pretrain_steps = pretrain_steps
+        #: Pretraining steps taken so far (saved with the model: a run stopped while pretraining goes on with it).
+        self.pretrained_steps = 0
+        super().__init__(policy, env, **kwargs)
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        if self.n_envs != 1:
+            raise ValueError(f"heightmap_dqn_demos: n_envs must be 1 (the demonstrations enter the buffer one "
+                             f"step at a time), got {self.n_envs}")  # fmt: skip
+        spec = Demonstrations.of(self.demonstrations)
+        planes, rows, cols = self.observation_space.shape
+        if planes != 4:
+            raise ValueError(f"heightmap_dqn_demos: the policy sees {planes} planes; demonstrations give the "
+                             f"heightmap's 4 (no holding or command planes)")  # fmt: skip
+        episodes = []
+        for episode in spec.episodes_data():
+            heightmaps = np.asarray(episode.observations)
+            if heightmaps.shape[1:] != (rows, cols, 4):
+                raise ValueError(f"demonstrations {spec.dataset}: observations of shape {heightmaps.shape[1:]}, "
+                                 f"the env's heightmap ({rows}, {cols}, 4) (obs_mode='heightmap')")  # fmt: skip
+            actions = np.asarray(episode.actions).reshape(-1)
+            if actions.dtype.kind not in "iu" or actions.min() < 0 or actions.max() >= self.action_space.n:
+                raise ValueError(f"demonstrations {spec.dataset}: actions are not indices of this env's "
+                                 f"{self.action_space} (action_mode='pixel' with the same grid and rotations)")  # fmt: skip
+            encoded = np.stack([encode_heightmap(h) for h in heightmaps])
+            episodes.append((encoded, actions.astype(np.int64), episode))
+        self._keep_demonstrations(np.concatenate([e[0][:-1] for e in episodes]),
+                                  np.concatenate([e[1] for e in episodes]))  # fmt: skip
+        self._episodes_for_buffer = episodes
+
+    def _setup_learn(self, total_timesteps: int, *args: Any, **kwargs: Any) -> Any:
+        result = super()._setup_learn(total_timesteps, *args, **kwargs)
+        steps = result[0]  # the run's whole length, a resumed run's steps so far included
+        if self.buffer_size < self.demonstration_steps + steps:
+            raise ValueError(f"heightmap_dqn_demos: buffer_size {self.buffer_size} cannot keep the "
+                             f"{self.demonstration_steps} demonstrated steps and the run's {steps}")  # fmt: skip
+        self._pretrain()
+        return result
+
+    def _fill_buffer(self, episodes: list[Any]) -> None:
+        for encoded, actions, episode in episodes:
+            for t, action in enumerate(actions):
+                terminated, truncated = bool(episode.terminations[t]), bool(episode.truncations[t])
+                self.replay_buffer.add(encoded[t][None], encoded[t + 1][None], np.array([[action]]),
+                                       np.array([episode.rewards[t]], dtype=np.float32),
+                                       np.array([terminated or truncated]),
+                                       [{"TimeLimit.truncated": truncated and not terminated}])  # fmt: skip
+
+    def _pretrain(self) -> None:
+        """DQfD's pretraining: before the first env step, ``pretrain_steps`` updates (a TD step and a
+        large-margin step each) on the buffer, which then holds the demonstrations alone; the target network
+        follows every ``target_update_interval`` of them, as it does env steps."""
+        while self.pretrained_steps < self.pretrain_steps:
+            self.train(1, self.batch_size)
+            self.pretrained_steps += 1
+            if self.pretrained_steps % self.target_update_interval == 0 or self.pretrained_steps == self.pretrain_steps:
+                polyak_update(self.q_net.parameters(), self.q_net_target.parameters(), 1.0)
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        super().train(gradient_steps, batch_size)
+        if self.margin_weight == 0:
+            return
+        loss, met = self.margin_loss(*self.demo_batch(batch_size))
+        self.policy.optimizer.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+        self.policy.optimizer.step()
+        self.logger.record("train/margin_loss", loss.item())
+        self.logger.record("train/margin_met", met)
+
+    def margin_loss(self, observations: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, float]:
+        """(the weighted large-margin loss of demonstrated ``actions`` (B,) on encoded heightmaps
+        ``observations``, the share of them that already beat every other allowed action by the margin at the
+        headings tried)."""
+        q_net = self.q_net
+        rotations, rows, cols = q_net.rotations, q_net.rows, q_net.cols
+        shape = (q_net.n_primitives, rotations, rows, cols)
+        primitive, rotation, row, col = (torch.as_tensor(i) for i in np.unravel_index(actions.cpu().numpy(), shape))
+        index = torch.arange(len(actions))
+        allowed = q_net.allowed(observations).view(len(actions), *shape)[:, :, 0]  # alike at every heading
+        allowed[index, primitive, row, col] = True
+
+        def best_allowed(scores: torch.Tensor) -> torch.Tensor:
+            return scores.masked_fill(~allowed, -torch.inf).flatten(1).amax(1)
+
+        demonstrated = q_net.q_maps(observations, rotation)
+        chosen = demonstrated[index, primitive, row, col]
+        cell = self.policy.network_args["cell_size"]
+        distance = cell * torch.hypot((torch.arange(rows)[None, :, None] - row[:, None, None]).float(),
+                                      (torch.arange(cols)[None, None, :] - col[:, None, None]).float())  # fmt: skip
+        apart = ((distance - SAME_ACTION_RADIUS) / (FULL_MARGIN_DISTANCE - SAME_ACTION_RADIUS)).clamp(0.0, 1.0)
+
+        def margins(turned: torch.Tensor) -> torch.Tensor:
+            """(B, P, H, W) margins on a map turned by ``turned`` (B,) of ``FULL_MARGIN_TURN``s from a_E's."""
+            graded = torch.full_like(demonstrated, self.margin)
+            graded[index, primitive] = self.margin * torch.maximum(apart, turned.clamp(max=1.0)[:, None, None])
+            return graded
+
+        best = best_allowed(demonstrated + margins(torch.zeros(len(actions))))
+        # One other heading, never one that is the same action: a grasp turned by half a turn is.
+        symmetric = torch.tensor([rotations % 2 == 0 and q_net.primitives[p] not in DIRECTED_PRIMITIVES
+                                  for p in primitive.tolist()])  # fmt: skip
+        choices = rotations - 1 - symmetric.long()
+        if bool((choices > 0).any()):
+            turn = 1 + (torch.rand(len(actions), generator=self._demo_generator) * choices).long()
+            turn = turn + (symmetric & (turn >= rotations // 2)).long()
+            period = torch.where(symmetric, rotations // 2, rotations)  # headings until the same action again
+            steps = turn % period
+            turned = torch.minimum(steps, period - steps) * (2 * np.pi / rotations) / FULL_MARGIN_TURN
+            elsewhere = best_allowed(q_net.q_maps(observations, (rotation + turn) % rotations) + margins(turned))
+            best = torch.where(choices > 0, torch.maximum(best, elsewhere), best)
+        return self.margin_weight * (best - chosen).mean(), float((best - chosen <= 1e-6).float().mean())
