@@ -12,7 +12,7 @@ import pytest
 from panda_grasp_env.agents import registry
 from panda_grasp_env.agents.evaluation import EpisodeSpec, make_env, run_episode, task_options_from_pairs
 from panda_grasp_env.commands import evaluate
-from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS, ENV_IDS, TASKS
+from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS, DEFAULT_BENCHMARKS, ENV_IDS, TASKS
 
 SHELF = Path(__file__).resolve().parents[1] / "docs" / "examples" / "shelf_task.py"
 
@@ -25,8 +25,15 @@ def shelf_example():
 
     import_modules([str(SHELF)])
     yield sys.modules["shelf_task"]
+    unregister_shelf()
+
+
+def unregister_shelf() -> None:
+    """Undo what importing the shelf example registered (a default benchmark too: a later test's default
+    protocol must not name it)."""
     del TASKS["Shelf"], ENV_IDS["ShelfPlace-v0"], gym.registry["ShelfPlace-v0"]
     del BENCHMARKS["Shelf"], BENCHMARK_SEEDS["Shelf"], registry.BASELINES["Shelf"], sys.modules["shelf_task"]
+    DEFAULT_BENCHMARKS.remove("Shelf")
 
 
 OBJECTS = "objects=[{shape: cube, size: [0.025], mass: 0.4}, {shape: sphere, size: [0.02]}]"
@@ -80,8 +87,7 @@ def test_a_protocol_file_takes_mappings_and_imports(tmp_path):
             "randomization": {"hue_shift": 0.02},
         }
     finally:
-        del TASKS["Shelf"], ENV_IDS["ShelfPlace-v0"], gym.registry["ShelfPlace-v0"]
-        del BENCHMARKS["Shelf"], BENCHMARK_SEEDS["Shelf"], registry.BASELINES["Shelf"], sys.modules["shelf_task"]
+        unregister_shelf()
 
 
 def test_a_module_that_does_not_import_is_named(capsys):
