@@ -9,7 +9,6 @@ from __future__ import annotations
 import dataclasses
 import html
 import io
-import warnings
 from typing import Any
 
 import numpy as np
@@ -48,11 +47,16 @@ def aggregate_runs(scores: np.ndarray) -> dict[str, Any]:
     def every(x: np.ndarray) -> np.ndarray:
         return np.array([f(x) for f in functions.values()])
 
-    def estimates(function: Any) -> tuple[np.ndarray, np.ndarray]:  # rliable's stratified bootstrap, seeded
-        with warnings.catch_warnings():  # arch 7 deprecates the random_state that rliable hands it
-            warnings.filterwarnings("ignore", "random_state is deprecated", FutureWarning)
-            points, intervals = rly.get_interval_estimates({"runs": scores}, function, reps=BOOTSTRAP_REPS,
-                                                           random_state=np.random.RandomState(BOOTSTRAP_SEED))  # fmt: skip
+    def estimates(function: Any) -> tuple[np.ndarray, np.ndarray]:
+        # rliable's StratifiedBootstrap draws its resamples from numpy's global generator (its update_indices
+        # calls np.random.choice and ignores the random_state it hands arch), so the bootstrap is seeded by
+        # seeding that generator, and the caller's global state is put back afterwards.
+        saved = np.random.get_state()
+        np.random.seed(BOOTSTRAP_SEED)
+        try:
+            points, intervals = rly.get_interval_estimates({"runs": scores}, function, reps=BOOTSTRAP_REPS)
+        finally:
+            np.random.set_state(saved)
         return points["runs"], intervals["runs"]
 
     points, intervals = estimates(every)
