@@ -84,8 +84,9 @@ class Workcell:
         }
         self._dof_adr = {b: self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.object_ids}
         #: Stepping: control steps, divergence checks, and the observers called after every step.
-        self.physics: Physics[Workcell] = Physics(self, self.model, self.data, self.robot, self.object_ids,
-                                                  control_substeps)  # fmt: skip
+        self.physics: Physics[Workcell] = Physics(
+            self, self.model, self.data, self.robot, self.object_ids, control_substeps
+        )
         self.reset_robot()  # home: the kinematics the fixtures' heights are read from
         #: A task's fixtures (``Task.add_fixtures``): their geoms, heights, moves and resizes.
         self.fixtures = Fixtures(self.model, self.data, self.robot.body_ids, self.object_ids)
