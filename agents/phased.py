@@ -30,7 +30,7 @@ class PhasedPolicies:
     @property
     def first(self) -> str:
         """The checkpoint whose env options (heightmap, action mode) the task's env is made with
-        (``panda_grasp_env.agents.evaluation.phased_env``)."""
+        (``panda_grasp_env.agents.evaluation.protocol.phased_env``)."""
         return next(iter(self.phases.values()))
 
 

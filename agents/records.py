@@ -15,7 +15,8 @@ import yaml
 
 from panda_grasp_env.agents import learned
 from panda_grasp_env.agents.config import HEIGHTMAP_ALGORITHMS, TrainConfig, load_run, steps_label
-from panda_grasp_env.agents.evaluation import describe_rate, is_low_level, task_label
+from panda_grasp_env.agents.evaluation.metrics import describe_rate
+from panda_grasp_env.agents.evaluation.protocol import is_low_level, task_label
 from panda_grasp_env.agents.imitation import Demonstrations
 from panda_grasp_env.agents.learned import SHIPPED_FILES
 from panda_grasp_env.agents.policy_files import load_policy, policy_paths, save_policy

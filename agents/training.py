@@ -39,12 +39,9 @@ from panda_grasp_env.agents.config import (
     steps_label,
     training_env,
 )
-from panda_grasp_env.agents.evaluation import (
-    EpisodeSpec,
-    aggregate,
-    play_episode,
-    task_label,
-)
+from panda_grasp_env.agents.evaluation.episodes import play_episode
+from panda_grasp_env.agents.evaluation.metrics import aggregate
+from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, task_label
 from panda_grasp_env.agents.learned import Checkpoint
 from panda_grasp_env.agents.policy_agent import PolicyAgent
 from panda_grasp_env.agents.policy_files import class_name
@@ -156,7 +153,7 @@ def evaluate_policy(
     first_seed: int | None = None,
     avoid_failures: bool = False,
 ) -> dict[str, Any]:
-    """Task metrics (``panda_grasp_env.agents.evaluation.aggregate``) of ``model`` (an SB3 model or policy) acting as a
+    """Task metrics (``panda_grasp_env.agents.evaluation.metrics.aggregate``) of ``model`` (an SB3 model or policy) acting as a
     ``PolicyAgent`` over ``episodes`` episodes seeded ``first_seed``, ``first_seed + 1``, ... (default: the
     validation seeds, ``eval_seed``...)."""
     import torch

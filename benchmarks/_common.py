@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from panda_grasp_env.agents.config import HEIGHTMAP_ALGORITHMS
-from panda_grasp_env.agents.evaluation import clustered_rate, describe_rate, rate, wilson  # noqa: F401  (one implementation each)
+from panda_grasp_env.agents.evaluation.metrics import clustered_rate, describe_rate, rate, wilson  # noqa: F401  (one implementation each)
 from panda_grasp_env.agents.learned import Checkpoint, available_checkpoints
 from panda_grasp_env.tooling.runs import machine as machine_name
 from panda_grasp_env.tooling.runs import write_atomically
@@ -33,7 +33,7 @@ def median_rate(run: Callable[[], int], repeats: int = 5) -> float:
 
 
 def policy_figures(metrics: dict[str, Any]) -> dict[str, Any]:
-    """The task figures a policy benchmark saves from ``panda_grasp_env.agents.evaluation.aggregate``'s metrics."""
+    """The task figures a policy benchmark saves from ``panda_grasp_env.agents.evaluation.metrics.aggregate``'s metrics."""
     keys = ("trial_success", "completion", "grasp_success", "action_efficiency", "failures", "episodes", "seeds")
     return {key: metrics[key] for key in keys}
 

@@ -40,7 +40,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import gymnasium as gym  # noqa: E402
 
 from benchmarks._common import Results, wilson  # noqa: E402
-from panda_grasp_env.agents.evaluation import learned_env  # noqa: E402
+from panda_grasp_env.agents.evaluation.protocol import learned_env  # noqa: E402
 from panda_grasp_env.agents.grasping import PackedGraspOracle  # noqa: E402
 from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent, available_checkpoints  # noqa: E402
 from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS  # noqa: E402

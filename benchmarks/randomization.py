@@ -33,7 +33,8 @@ import gymnasium as gym
 import numpy as np
 
 from benchmarks._common import Results, rate
-from panda_grasp_env.agents.evaluation import EpisodeSpec, make_agent, make_env, play_episode
+from panda_grasp_env.agents.evaluation.episodes import make_agent, make_env, play_episode
+from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
 from panda_grasp_env.perception.noise import DepthNoise, RGBNoise
 from panda_grasp_env.perception.pose import View, estimate_block_poses
 from panda_grasp_env.perception.segmentation import colour_masks

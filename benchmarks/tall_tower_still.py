@@ -25,7 +25,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede th
 import gymnasium as gym
 import numpy as np
 
-from panda_grasp_env.agents.evaluation import PERCEPTION
+from panda_grasp_env.agents.evaluation.protocol import PERCEPTION
 from panda_grasp_env.agents.registry import BASELINES
 from panda_grasp_env.registration import BENCHMARKS
 

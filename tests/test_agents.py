@@ -150,7 +150,7 @@ def test_tower_builder_needs_both_cameras():
 def test_the_phased_agent_acts_with_each_phase_policy_in_that_policy_slot():
     """build_and_break_dqn: the builder's grasp while building; while breaking, the breaker's own push (same
     heading and cell) moved into the push slot of BuildAndBreak's grasp-place-push layout."""
-    from panda_grasp_env.agents.evaluation import phased_env
+    from panda_grasp_env.agents.evaluation.protocol import phased_env
     from panda_grasp_env.agents.learned import LearnedAgent
     from panda_grasp_env.agents.phased import PhasedAgent
 

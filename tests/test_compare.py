@@ -21,7 +21,7 @@ CELLS = {
 def write_run(folder, draw_seed, weaken=None, seeds=SEEDS, versions=None):
     """A results folder as evaluate.py writes it, with episodes drawn at random from ``CELLS``' rates;
     ``weaken``: an (agent, task) whose success rate falls to 0.3 (and its actions, on failure, double)."""
-    from panda_grasp_env.agents.evaluation import aggregate
+    from panda_grasp_env.agents.evaluation.metrics import aggregate
     from panda_grasp_env.registration import BENCHMARKS
 
     rng = np.random.default_rng(draw_seed)

@@ -5,6 +5,8 @@ import re
 
 import pytest
 
+from panda_grasp_env.agents.evaluation import runner
+from panda_grasp_env.agents.evaluation.report import applicable
 from panda_grasp_env.commands import evaluate
 
 ARGS = ["--agents", "random,oracle", "--tasks", "TowerBreak", "--seeds", "2", "--no-video"]
@@ -75,23 +77,24 @@ def test_bad_arguments_exit_with_a_message(bad, capsys):
 def test_figures_that_do_not_apply_are_left_blank():
     none_attempted = {"grasp_success": {"rate": 0.0, "n": 0}, "action_efficiency": 0.02, "cycles_per_sim_hour": 0.0,
                       "collateral_per_action": 0.0}  # fmt: skip
-    assert set(evaluate.applicable("Lift", none_attempted).values()) == {None}  # low-level: runs to the time limit
+    assert set(applicable("Lift", none_attempted).values()) == {None}  # low-level: runs to the time limit
     grasped = {"grasp_success": {"rate": 0.9, "n": 10}, "action_efficiency": 0.8, "cycles_per_sim_hour": 0.0,
                "collateral_per_action": 0.1}  # fmt: skip
-    assert evaluate.applicable("GraspClutter", grasped) == {
+    assert applicable("GraspClutter", grasped) == {
         "grasp_success": 0.9,
         "action_efficiency": 0.8,
         "cycles_per_sim_hour": None,
         "collateral_per_action": 0.1,
     }
-    assert evaluate.applicable("BuildAndBreak", grasped)["cycles_per_sim_hour"] == 0.0
+    assert applicable("BuildAndBreak", grasped)["cycles_per_sim_hour"] == 0.0
 
 
 def test_a_diverged_step_keeps_the_cycles_the_episode_completed():
     import gymnasium as gym
     import numpy as np
 
-    from panda_grasp_env.agents.evaluation import EpisodeSpec, play_episode
+    from panda_grasp_env.agents.evaluation.episodes import play_episode
+    from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
     from panda_grasp_env.agents.random_agent import RandomAgent
 
     class CycleThenDiverge(gym.Wrapper):  # a cycle done from the first step; the physics diverges at the second
@@ -119,7 +122,7 @@ def test_a_fresh_run_keeps_the_previous_runs_episodes(tmp_path):
 
 
 def test_grasp_success_interval_widens_when_an_episodes_grasps_fail_together():
-    from panda_grasp_env.agents.evaluation import clustered_rate, wilson
+    from panda_grasp_env.agents.evaluation.metrics import clustered_rate, wilson
 
     spread = clustered_rate([3, 3, 3, 3], [4, 4, 4, 4])  # every episode 3 of 4: no sign of clustering
     assert spread["ci95"] == wilson(12, 16) and spread["design_effect"] == 1.0
@@ -172,8 +175,8 @@ def test_any_seeds_and_task_options(tmp_path):
     assert all(e["actions"] <= 3 * 3 for e in episodes)  # three objects to clear, not the default ten
     assert "5000,5002" in (out / "report.md").read_text()
     # --seed-start shifts the default count of seeds.
-    assert evaluate.chosen_seeds(evaluate.parse_args(["--tasks", "TowerBreak", "--seed-start", "7", "--seeds", "2"]),
-                                 "TowerBreak") == [7, 8]  # fmt: skip
+    protocol = evaluate.parse_args(["--tasks", "TowerBreak", "--seed-start", "7", "--seeds", "2"]).protocol
+    assert protocol.seeds_of("TowerBreak") == [7, 8]
 
 
 @pytest.mark.parametrize(
@@ -215,11 +218,11 @@ def test_the_default_protocols_cover_every_registered_benchmark(protocol):
     from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS, DEFAULT_BENCHMARKS
     from panda_grasp_env.tasks.base import TALL_TOWERS
 
-    args = evaluate.parse_args(protocol)
-    specs = evaluate.episode_specs(args)
+    chosen = evaluate.parse_args(protocol).protocol
+    specs, _ = chosen.episode_specs()
     named_only = {t for t in BENCHMARKS if t.startswith("GraspMesh") or t.endswith(tuple(map(str, TALL_TOWERS)))}
-    assert named_only and set(args.tasks) == set(BENCHMARKS) - named_only == set(DEFAULT_BENCHMARKS)
-    assert set(args.tasks) == {spec.task for spec in specs}
+    assert named_only and set(chosen.tasks) == set(BENCHMARKS) - named_only == set(DEFAULT_BENCHMARKS)
+    assert set(chosen.tasks) == {spec.task for spec in specs}
     for task in DEFAULT_BENCHMARKS:
         expected = BENCHMARK_SEEDS[task][1 if protocol else 0]
         assert {spec.seed for spec in specs if spec.task == task and spec.agent == "random"} == set(range(expected))
@@ -230,7 +233,7 @@ def test_a_heightmap_policy_plays_the_other_scenes_of_its_task():
     a policy that cannot see or act in another scene of its task is skipped with the reason."""
     import inspect
 
-    from panda_grasp_env.agents.evaluation import learned_env, skip_reason
+    from panda_grasp_env.agents.evaluation.protocol import learned_env, skip_reason
     from panda_grasp_env.agents.learned import Checkpoint
     from panda_grasp_env.env import AGENT_OPTIONS, PandaEnv
 
@@ -254,7 +257,7 @@ def _states(env, spec):
 
     import numpy as np
 
-    from panda_grasp_env.agents.evaluation import make_agent
+    from panda_grasp_env.agents.evaluation.episodes import make_agent
 
     def digest(observation):
         parts = observation.values() if isinstance(observation, dict) else [observation]
@@ -276,7 +279,8 @@ def _states(env, spec):
 
 @pytest.mark.parametrize("agent,task", [("expert", "Push"), ("expert", "Stack"), ("oracle", "TowerBreak")])
 def test_the_env_kept_from_the_last_episode_plays_the_episode_a_new_env_plays(agent, task):
-    from panda_grasp_env.agents.evaluation import EpisodeSpec, close_kept_env, episode_env, make_env, run_episode
+    from panda_grasp_env.agents.evaluation.episodes import close_kept_env, episode_env, make_env, run_episode
+    from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
 
     later = EpisodeSpec(agent, task, 2)
     new_env = make_env(later)
@@ -301,7 +305,7 @@ def test_the_env_kept_from_the_last_episode_plays_the_episode_a_new_env_plays(ag
 
 def refused(argv, capsys, monkeypatch):
     """``evaluate.main(argv)``'s exit code and error output; no episode may run."""
-    monkeypatch.setattr(evaluate, "_run_job", lambda spec: pytest.fail(f"episode {spec.key} ran"))
+    monkeypatch.setattr(runner, "_run_job", lambda spec: pytest.fail(f"episode {spec.key} ran"))
     code = evaluate.main(argv)
     err = capsys.readouterr().err
     assert "Traceback" not in err

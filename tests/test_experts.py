@@ -4,8 +4,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from panda_grasp_env.agents.evaluation import EXPERTS, EpisodeSpec, make_agent, make_env, play_episode, skip_reason
+from panda_grasp_env.agents.evaluation.episodes import make_agent, make_env, play_episode
+from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, skip_reason
 from panda_grasp_env.agents.experts import LiftExpert
+from panda_grasp_env.agents.registry import EXPERTS
 
 
 @pytest.mark.parametrize("task", sorted(EXPERTS))

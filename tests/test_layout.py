@@ -153,6 +153,20 @@ def test_what_runs_after_every_control_step_is_added_from_above_the_simulation()
     assert {layer(m) for m, _ in added} == {"sim", "gym_api", "tooling"}
 
 
+#: The evaluation sub-package, bottom first: a module imports only those before it.  Metrics stand alone; an
+#: episode is played from the protocol's spec; the runner and the report build on episodes.
+EVALUATION = ("metrics", "protocol", "episodes", "runner", "report")
+
+
+def test_the_evaluation_modules_import_only_those_below_them():
+    package = "panda_grasp_env.agents.evaluation"
+    rank = {f"{package}.{name}": i for i, name in enumerate(EVALUATION)}
+    assert {m for m in module_files() if m.startswith(f"{package}.")} == set(rank)  # a new module takes a place
+    graph = import_graph()
+    upward = [f"{m} -> {t}" for m in rank for t in graph[m] if rank.get(t, -1) > rank[m]]
+    assert upward == []
+
+
 def test_every_source_package_is_installed_under_panda_grasp_env():
     tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
     config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]

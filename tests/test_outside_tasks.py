@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from panda_grasp_env.agents import registry
-from panda_grasp_env.agents.evaluation import EpisodeSpec, make_env, run_episode, task_options_from_pairs
+from panda_grasp_env.agents.evaluation.episodes import make_env, run_episode
+from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, task_options_from_pairs
 from panda_grasp_env.commands import evaluate
 from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS, DEFAULT_BENCHMARKS, ENV_IDS, TASKS
 
@@ -21,7 +22,7 @@ SHELF = Path(__file__).resolve().parents[1] / "docs" / "examples" / "shelf_task.
 def shelf_example():
     """The shelf example imported as ``--import`` does it; its task, id, benchmark and agent unregistered
     afterwards."""
-    from panda_grasp_env.agents.evaluation import import_modules
+    from panda_grasp_env.agents.evaluation.protocol import import_modules
 
     import_modules([str(SHELF)])
     yield sys.modules["shelf_task"]

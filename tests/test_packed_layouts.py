@@ -5,7 +5,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from panda_grasp_env.agents.evaluation import PERCEPTION
+from panda_grasp_env.agents.evaluation.protocol import PERCEPTION
 from panda_grasp_env.agents.grasping import PackedGraspOracle, PlannedGraspAgent
 from panda_grasp_env.agents.push_planner import PushPlanner, camera_scene
 from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS, GAP, random_packed_layout

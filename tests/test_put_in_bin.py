@@ -5,7 +5,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from panda_grasp_env.agents.evaluation import EpisodeSpec, make_agent, play_episode
+from panda_grasp_env.agents.evaluation.episodes import make_agent, play_episode
+from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
 from panda_grasp_env.control.planning import MotionPlanner
 from panda_grasp_env.registration import BENCHMARKS, ENV_IDS, TASKS
 from panda_grasp_env.tasks.put_in_bin import FLOOR_THICKNESS, INNER_HALF_WIDTH, WALL_HEIGHT, PutInBin

@@ -7,7 +7,7 @@ import shutil
 
 import pytest
 
-from panda_grasp_env.agents.evaluation import episode_failure
+from panda_grasp_env.agents.evaluation.episodes import episode_failure
 from panda_grasp_env.commands import evaluate, results_page
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -30,7 +30,8 @@ def run(tmp_path_factory):
     with contextlib.redirect_stdout(printed):
         assert evaluate.main(argv) == 0
     # one clip, as the videos step writes them (a run with videos renders 4 of them: minutes)
-    from panda_grasp_env.agents.evaluation import EpisodeSpec, close_kept_env, run_episode
+    from panda_grasp_env.agents.evaluation.episodes import close_kept_env, run_episode
+    from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
 
     (out / "videos").mkdir()
     run_episode(EpisodeSpec("oracle", "TowerBreak", 0), video=out / "videos" / "oracle_TowerBreak.mp4")
@@ -72,8 +73,10 @@ def test_a_tower_toppled_the_wrong_way_is_a_failure_with_its_reason():
     import gymnasium as gym
     import numpy as np
 
-    from panda_grasp_env.agents.evaluation import BENCHMARKS, EpisodeSpec, play_episode
+    from panda_grasp_env.agents.evaluation.episodes import play_episode
+    from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
     from panda_grasp_env.agents.towers import OracleBlocks, TowerBreakerAgent
+    from panda_grasp_env.registration import BENCHMARKS
 
     class Contrary(TowerBreakerAgent):
         def act(self, observation, info):  # +x <-> -x, +y <-> -y

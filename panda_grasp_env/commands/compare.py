@@ -29,7 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.agents.evaluation import is_low_level
+from panda_grasp_env.agents.evaluation.protocol import is_low_level
+from panda_grasp_env.agents.evaluation.report import describe_seeds
 from panda_grasp_env.commands.results_page import agent_order, page_html, split_key, table_html
 from panda_grasp_env.registration import BENCHMARKS
 from panda_grasp_env.tooling.runs import write_atomically
@@ -78,7 +79,7 @@ def protocol_differences(a: dict[str, Any], b: dict[str, Any]) -> tuple[list[str
     for task in sorted(set(pa["tasks"]) & set(pb["tasks"])):
         if pa["seeds"][task] != pb["seeds"][task]:
             refuse.append(
-                f"{task} ran on other seeds: {_seeds(pa['seeds'][task])} in A, {_seeds(pb['seeds'][task])} in B"
+                f"{task} ran on other seeds: {describe_seeds(pa['seeds'][task])} in A, {describe_seeds(pb['seeds'][task])} in B"
             )
         if pa.get("env_ids", {}).get(task) != pb.get("env_ids", {}).get(task):
             refuse.append(
@@ -103,12 +104,6 @@ def protocol_differences(a: dict[str, Any], b: dict[str, Any]) -> tuple[list[str
     if ma != mb:
         warn.append(f"other machines ({ma} / {mb}): only wall-clock figures should depend on it")
     return refuse, warn
-
-
-def _seeds(seeds: list[int]) -> str:
-    from panda_grasp_env.commands.results_page import describe_seeds
-
-    return describe_seeds(seeds)
 
 
 def fisher(successes_a: int, n_a: int, successes_b: int, n_b: int) -> float:

@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.agents.evaluation import AGENTS
+from panda_grasp_env.agents.evaluation.protocol import AGENTS
+from panda_grasp_env.agents.evaluation.report import describe_seeds
 from panda_grasp_env.tooling.runs import write_atomically
 
 #: Agent family -> bar colour (Okabe–Ito).  The built-in agents' families; every other agent is a learned checkpoint.
@@ -122,7 +123,7 @@ def published_cells(markdown: str) -> dict[tuple[str, str], dict[str, Any]]:
     table evaluate.py writes into report.md (columns agent, task, N, "trial success (95 % CI)", ...), as the
     docs publish it (agent names may be bold and tagged "(learned)").  The counts are exact: a whole percent
     of N <= 100 episodes names one count; the interval is Wilson's, recomputed from them."""
-    from panda_grasp_env.agents.evaluation import rate
+    from panda_grasp_env.agents.evaluation.metrics import rate
 
     cells, in_table = {}, False
     for line in markdown.splitlines():
@@ -261,13 +262,6 @@ def svg(figure: Any) -> str:
 
 
 # --- pieces of the page ----------------------------------------------------------------------------------------
-
-
-def describe_seeds(seeds: list[int]) -> str:
-    """``"a..b (n)"`` for a run of consecutive seeds, else the list."""
-    if seeds == list(range(seeds[0], seeds[0] + len(seeds))):
-        return f"{seeds[0]}..{seeds[-1]} ({len(seeds)})"
-    return ",".join(map(str, seeds))
 
 
 def data_uri(data: bytes, mime: str) -> str:
