@@ -7,17 +7,13 @@ import pytest
 import torch
 
 from panda_grasp_env.commands import train
+from panda_grasp_env.falls import records as fall_records
 from panda_grasp_env.falls import training as fall_training
+from panda_grasp_env.falls.baselines import constant_velocity, copy_last
 from panda_grasp_env.falls.dataset import load_split, split_of
-from panda_grasp_env.falls.model import (
-    Confusion,
-    FallPredictor,
-    constant_velocity,
-    copy_last,
-    evaluate,
-    fall_directions,
-    image_to_world_direction,
-)
+from panda_grasp_env.falls.directions import fall_directions, image_to_world_direction
+from panda_grasp_env.falls.metrics import Confusion, evaluate
+from panda_grasp_env.falls.model import FallPredictor, load_fall_model
 from panda_grasp_env.falls.recorder import (
     LATER_SETTINGS,
     RecorderEnvs,
@@ -27,7 +23,7 @@ from panda_grasp_env.falls.recorder import (
     record_sequence,
     tower_height,
 )
-from panda_grasp_env.falls.training import load_fall_model, tower_words
+from panda_grasp_env.falls.records import tower_words
 from panda_grasp_env.model.scene import DEFAULT_COLOURS
 from panda_grasp_env.perception.camera import CameraModel
 
@@ -263,7 +259,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     model, saved = load_fall_model(run / "best.pt")
     assert model.context == 3 and model.use_depth and saved["classes"][0] == "background"
     assert load_split(dataset, "val", depth=True).depth.dtype == np.float16
-    monkeypatch.setattr(fall_training, "FALL_CHECKPOINTS", tmp_path / "shipped")
+    monkeypatch.setattr(fall_records, "FALL_CHECKPOINTS", tmp_path / "shipped")
     assert train.main(["--ship", str(run), "--name", "tiny", "--avoid-failures"]) == 2  # no FailureMemory here
     assert train.main(["--ship", str(run), "--name", "tiny"]) == 0
     shipped, _ = load_fall_model(tmp_path / "shipped" / "tiny" / "model.pt")
@@ -345,7 +341,7 @@ def test_labels_only_model_trains_without_depth(dataset, tmp_path):
 
 
 def test_the_shipped_fall_model_loads_and_matches_its_card():
-    path = fall_training.FALL_CHECKPOINTS / "fall_convlstm"
+    path = fall_records.FALL_CHECKPOINTS / "fall_convlstm"
     model, saved = load_fall_model(path / "model.pt")
     final = json.loads((path / "final.json").read_text())
     assert saved["classes"][0] == "background" and model.n_classes == len(saved["classes"])
