@@ -270,10 +270,11 @@ def checked_config(cls: type[Config], raw: Any, source: str) -> Config:
         problems = error.errors(include_url=False)
     fields = cls.__pydantic_fields__  # type: ignore[attr-defined]
     valid = list(fields)
-    unknown = [p["loc"][0] for p in problems if p["type"] in ("unexpected_keyword_argument", "invalid_key")]
+    keys = [p for p in problems if len(p["loc"]) == 1]  # a tuple too short also reports items "missing"
+    unknown = [p["loc"][0] for p in keys if p["type"] in ("unexpected_keyword_argument", "invalid_key")]
     if unknown:
         raise ValueError(f"unknown key(s) {unknown} in {source}; valid keys: {valid}")
-    missing = [p["loc"][0] for p in problems if p["type"] == "missing"]
+    missing = [p["loc"][0] for p in keys if p["type"] == "missing"]
     if missing:
         raise ValueError(f"{source} lacks required key(s) {missing}; valid keys: {valid}")
     first = problems[0]
