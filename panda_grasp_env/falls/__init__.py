@@ -6,7 +6,8 @@
 * ``baselines`` -- the mask-shifting predictors it is compared with;
 * ``metrics`` and ``directions`` -- how well a predictor segments the frames, and which way it says a
   tower falls;
-* ``config`` -- the checked config of a training run (``train.py`` with a ``kind: fall_dynamics`` config);
+* ``config`` -- the checked configs: the recorder's settings and a training run's (``train.py`` with a
+  ``kind: fall_dynamics`` config);
 * ``training`` -- training runs of the model, its final test against the baselines and re-scoring on any
   recorded dataset (``train.py --retest``);
 * ``records`` -- what a run leaves (strips, curve, card) and the shipped models in ``checkpoints/``.
