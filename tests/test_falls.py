@@ -1,35 +1,28 @@
 """The falling-tower recorder, its shard format and loader, the ConvLSTM and its metrics and baselines."""
 
+import dataclasses
 import json
+import re
 
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from panda_grasp_env.commands import train
+from panda_grasp_env.falls import records as fall_records
 from panda_grasp_env.falls import training as fall_training
+from panda_grasp_env.falls.baselines import constant_velocity, copy_last
+from panda_grasp_env.falls.config import LATER_SETTINGS, RecorderSettings, fall_config
 from panda_grasp_env.falls.dataset import load_split, split_of
-from panda_grasp_env.falls.model import (
-    Confusion,
-    FallPredictor,
-    constant_velocity,
-    copy_last,
-    evaluate,
-    fall_directions,
-    image_to_world_direction,
-)
-from panda_grasp_env.falls.recorder import (
-    LATER_SETTINGS,
-    RecorderEnvs,
-    RecorderSettings,
-    main,
-    record_dataset,
-    record_sequence,
-    tower_height,
-)
-from panda_grasp_env.falls.training import load_fall_model, tower_words
+from panda_grasp_env.falls.directions import fall_directions, image_to_world_direction
+from panda_grasp_env.falls.metrics import Confusion, evaluate
+from panda_grasp_env.falls.model import FallPredictor, load_fall_model
+from panda_grasp_env.falls.recorder import RecorderEnvs, main, record_dataset, record_sequence, tower_height
+from panda_grasp_env.falls.records import tower_words
 from panda_grasp_env.model.scene import DEFAULT_COLOURS
 from panda_grasp_env.perception.camera import CameraModel
+from panda_grasp_env.tooling.runs import checked_config
 
 SETTINGS = RecorderSettings(frames=10, shard_size=2, seed=7)
 
@@ -78,21 +71,32 @@ def test_recording_is_deterministic_and_resumes(dataset, tmp_path):
     assert record_dataset(out, 4, SETTINGS, workers=1, progress=False)["recording"]["sequences_recorded_now"] == 0
 
 
+def recorder_settings(**raw):
+    return checked_config(RecorderSettings, raw, "test settings")
+
+
 def test_bad_recorder_settings_fail_with_the_name():
-    with pytest.raises(ValueError, match="frame_interval"):
-        RecorderSettings(frame_interval=0.05).validate()
-    with pytest.raises(ValueError, match="breaker"):
-        RecorderSettings(breaker="kick").validate()
-    for heights in [(9,), (1,), (), (6, 6), [6, 8], (6.0,)]:
-        with pytest.raises(ValueError, match="tower_blocks"):
-            RecorderSettings(tower_blocks=heights).validate()
+    with pytest.raises(ValueError, match=r"config frame_interval=0\.05: expected a multiple of the 0\.04 s"):
+        recorder_settings(frame_interval=0.05)
+    with pytest.raises(ValueError, match="config breaker='kick': expected one of"):
+        recorder_settings(breaker="kick")
+    for heights in [(9,), (1,), (), (6, 6), (6.0,), (True,)]:
+        with pytest.raises(ValueError, match="config tower_blocks="):
+            recorder_settings(tower_blocks=heights)
     for levels in [(0, 6), (3, 2), (-1, 2), (0,)]:
-        with pytest.raises(ValueError, match="strike_levels"):
-            RecorderSettings(strike_levels=levels).validate()
+        with pytest.raises(ValueError, match="config strike_levels="):
+            recorder_settings(strike_levels=levels)
     with pytest.raises(ValueError, match="strike_levels.*lowest tower"):
-        RecorderSettings(tower_blocks=(4, 8), strike_levels=(4, 5)).validate()
+        recorder_settings(tower_blocks=(4, 8), strike_levels=(4, 5))
     with pytest.raises(ValueError, match="start_shift"):
-        RecorderSettings(start_shift=-0.01).validate()
+        recorder_settings(start_shift=-0.01)
+    with pytest.raises(ValueError, match=r"unknown key\(s\) \['frame'\] in test settings; valid keys: \['frames'"):
+        recorder_settings(frame=10)
+    with pytest.raises(ValueError, match="frames"):
+        RecorderSettings(frames=1)  # made directly, checked too
+    assert recorder_settings(tower_blocks=[6, 8], impulse=[0.1, 0.3]) == RecorderSettings(
+        tower_blocks=(6, 8), impulse=(0.1, 0.3)
+    )  # lists, as config files and the command line give them, are tuples
     assert main(["--out", "/nonexistent/x", "--sequences", "0", "--no-progress"]) == 2
     assert main(["--out", "/nonexistent/x", "--tower-blocks", "6,9", "--no-progress"]) == 2
 
@@ -263,7 +267,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     model, saved = load_fall_model(run / "best.pt")
     assert model.context == 3 and model.use_depth and saved["classes"][0] == "background"
     assert load_split(dataset, "val", depth=True).depth.dtype == np.float16
-    monkeypatch.setattr(fall_training, "FALL_CHECKPOINTS", tmp_path / "shipped")
+    monkeypatch.setattr(fall_records, "FALL_CHECKPOINTS", tmp_path / "shipped")
     assert train.main(["--ship", str(run), "--name", "tiny", "--avoid-failures"]) == 2  # no FailureMemory here
     assert train.main(["--ship", str(run), "--name", "tiny"]) == 0
     shipped, _ = load_fall_model(tmp_path / "shipped" / "tiny" / "model.pt")
@@ -344,8 +348,36 @@ def test_labels_only_model_trains_without_depth(dataset, tmp_path):
     assert train.main(["--config", config, "--runs", str(tmp_path), f"dataset={dataset}", "use_depth=1"]) == 2
 
 
+def test_bad_fall_configs_fail_with_the_name_and_the_shipped_config_loads(dataset, tmp_path):
+    raw = {"kind": "fall_dynamics", "name": "tiny", "dataset": str(dataset)}
+    assert fall_config(raw, "tiny.yaml").context == 4
+    with pytest.raises(ValueError, match=r"unknown key\(s\) \['epoch'\] in tiny.yaml; valid keys: \['kind'"):
+        fall_config({**raw, "epoch": 3}, "tiny.yaml")
+    with pytest.raises(ValueError, match=r"tiny.yaml lacks required key\(s\) \['dataset'\]"):
+        fall_config({"kind": "fall_dynamics", "name": "tiny"}, "tiny.yaml")
+    for key, value, expected in [
+        ("kind", "policy", "'fall_dynamics'"),
+        ("label_source", "rgb", "one of ['labels', 'colour_labels']"),
+        ("epochs", 0, "an int >= 1"),
+        ("context", True, "an int >= 1"),
+        ("learning_rate", 1.5, "a number in (0, 1)"),
+        ("motion_loss_weight", -1, "a number >= 0"),
+        ("use_depth", 1, "true or false"),
+        ("seed", -1, "an int >= 0"),
+        ("max_minutes", 0, "a positive number or null"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(f"config {key}={value!r}: expected {expected}")):
+            fall_config({**raw, key: value}, "tiny.yaml")
+    with pytest.raises(ValueError, match="is not a fall dataset: metadata.json missing"):
+        fall_config({**raw, "dataset": str(tmp_path)}, "tiny.yaml")
+    # The shipped model's config, as its run saved it, reads back unchanged (its dataset is not here).
+    saved = yaml.safe_load((fall_records.FALL_CHECKPOINTS / "fall_convlstm" / "config.yaml").read_text())
+    config = fall_config({**saved, "dataset": str(dataset)}, "config.yaml")
+    assert {**dataclasses.asdict(config), "dataset": saved["dataset"]} == saved
+
+
 def test_the_shipped_fall_model_loads_and_matches_its_card():
-    path = fall_training.FALL_CHECKPOINTS / "fall_convlstm"
+    path = fall_records.FALL_CHECKPOINTS / "fall_convlstm"
     model, saved = load_fall_model(path / "model.pt")
     final = json.loads((path / "final.json").read_text())
     assert saved["classes"][0] == "background" and model.n_classes == len(saved["classes"])

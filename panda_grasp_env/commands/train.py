@@ -34,13 +34,8 @@ import yaml
 
 from panda_grasp_env.agents.config import check_policy_resume, config_from_dict, load_run, read_config
 from panda_grasp_env.agents.training import retest, start_run, train
-from panda_grasp_env.falls.training import (
-    FALL_RESUME_CHANGEABLE,
-    fall_config,
-    start_fall_run,
-    test_fall_model,
-    train_fall_model,
-)
+from panda_grasp_env.falls.config import FALL_RESUME_CHANGEABLE, fall_config
+from panda_grasp_env.falls.training import start_fall_run, test_fall_model, train_fall_model
 from panda_grasp_env.tooling.runs import (
     check_resume_changes,
     forget_failed_resume,
@@ -131,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"attached to {attach_study(args.ship, CHECKPOINTS / args.name)}")
                 return 0
             if (args.ship / "best.pt").exists():
-                from panda_grasp_env.falls.training import ship_fall_run
+                from panda_grasp_env.falls.records import ship_fall_run
 
                 if args.avoid_failures:
                     raise ValueError("--avoid-failures: a fall-dynamics model keeps no FailureMemory")

@@ -45,6 +45,8 @@ SHARD_ARRAYS = (
     "rgb", "depth", "labels", "colour_labels", "poses", "n_blocks", "seeds", "breaker", "strike", "crop_origin"
 )  # fmt: skip
 SPLITS = ("train", "val", "test")
+#: The class maps a model may learn from: the simulator's segmentation, or perception's colour segmentation.
+LABEL_SOURCES = ("labels", "colour_labels")
 #: The tower height (blocks) of every sequence recorded before heights were a setting (no ``n_blocks`` array).
 LEGACY_TOWER_BLOCKS = 4
 
@@ -112,8 +114,8 @@ def load_split(
     ``colour_labels``; with ``depth`` also their depth images."""
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r}; valid: {list(SPLITS)}")
-    if label_source not in ("labels", "colour_labels"):
-        raise ValueError(f"label_source must be 'labels' or 'colour_labels', got {label_source!r}")
+    if label_source not in LABEL_SOURCES:
+        raise ValueError(f"label_source must be one of {list(LABEL_SOURCES)}, got {label_source!r}")
     root = Path(root)
     meta = read_metadata(root)
     names = [label_source, "depth"] if depth else [label_source]

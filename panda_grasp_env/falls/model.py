@@ -22,35 +22,20 @@ of class masks cannot tell a block about to land from one still falling.  The
 model then also predicts the next height map (each block's heights carried by
 its warp, plus a learned correction), which multi-step rollouts feed back.
 
-Metrics (``evaluate``), over every evaluated (sequence, t) of a split, for the
-prediction of frame t + h from frames t - context + 1 ... t:
-
-* pixel accuracy: predicted class == true class, over all pixels;
-* foreground accuracy: the same over pixels whose *true* class is a block;
-* IoU of class c: sum of |pred = c and true = c| / sum of |pred = c or true = c|
-  over all evaluated frames (dataset-level); mean block IoU: mean over the block classes.
-
-Baselines: ``copy_last`` (frame t is the prediction) and ``constant_velocity``
-(each block's mask at t shifted by h times its centroid displacement from t - 1 to t).
-Reference, not a predictor: ``translation_oracle`` shifts each block's mask at t by
-its true centroid displacement to t + h -- the ceiling of mask translation.
-
-Fall direction (``fall_directions``): which way each tower fell, from its block
-poses, against the direction of the block pixels' centroid in each predictor's
-last frame, predicted from the first frames.
+Here too: the model's inputs from labels and depth images, its predictions as labels, and its checkpoints'
+loader.  The baselines it is compared with are in ``baselines``, its metrics in ``metrics`` and
+``directions``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
-
-from panda_grasp_env.perception.camera import CameraModel
 
 #: Changes whenever the same weights would mean another model; saved in checkpoints and checked on load.
 ARCHITECTURE = 3
@@ -281,92 +266,6 @@ def check_compatible(model: FallPredictor, labels: np.ndarray, classes: list[str
         raise ValueError(f"dataset labels reach {int(labels.max())}, the model knows classes 0-{model.n_classes - 1}")
 
 
-# --- baselines ----------------------------------------------------------------------------------
-
-
-def copy_last(labels: np.ndarray, t: int, horizon: int) -> np.ndarray:
-    return labels[t]
-
-
-def centroid(mask: np.ndarray) -> np.ndarray | None:
-    """(row, column) mean of a boolean mask's pixels, or None if it is empty."""
-    rows, cols = np.nonzero(mask)
-    return np.array([rows.mean(), cols.mean()]) if len(rows) else None
-
-
-def translate_blocks(frame: np.ndarray, displacement: dict[int, np.ndarray]) -> np.ndarray:
-    """Each block's mask in ``frame`` moved by ``displacement[class]`` (rows, columns; rounded to pixels)."""
-    size = frame.shape[0]
-    moved = np.zeros_like(frame)
-    for c, (dr, dc) in displacement.items():
-        rows, cols = np.nonzero(frame == c)
-        r = np.round(rows + dr).astype(int)
-        k = np.round(cols + dc).astype(int)
-        keep = (r >= 0) & (r < size) & (k >= 0) & (k < size)
-        moved[r[keep], k[keep]] = c
-    return moved
-
-
-def displacements(frame: np.ndarray, other: np.ndarray) -> dict[int, np.ndarray]:
-    """Centroid displacement from ``frame`` to ``other`` of each block in ``frame`` (zero if gone in ``other``)."""
-    moves = {}
-    for c in np.unique(frame[frame > 0]):
-        start, end = centroid(frame == c), centroid(other == c)
-        moves[int(c)] = np.zeros(2) if end is None else end - start
-    return moves
-
-
-def constant_velocity(labels: np.ndarray, t: int, horizon: int) -> np.ndarray:
-    """Each block's mask at ``t`` moved by ``horizon`` times its centroid step from t - 1 to t."""
-    steps = displacements(labels[t - 1], labels[t])
-    current = displacements(labels[t], labels[t])  # every block at t, unmoved
-    return translate_blocks(labels[t], {c: horizon * steps.get(c, zero) for c, zero in current.items()})
-
-
-def translation_oracle(labels: np.ndarray, t: int, horizon: int) -> np.ndarray:
-    """Not a predictor: each block's mask at ``t`` moved by its *true* centroid displacement to t + horizon.
-
-    The best any pure mask translation can do; the gap to the truth is rotation, occlusion and blocks coming
-    into view -- the ceiling of copy-and-shift predictors, reported beside the baselines."""
-    return translate_blocks(labels[t], displacements(labels[t], labels[t + horizon]))
-
-
-BASELINES = {"copy_last": copy_last, "constant_velocity": constant_velocity, "translation_oracle": translation_oracle}
-
-
-# --- metrics -------------------------------------------------------------------------------------
-
-
-@dataclass
-class Confusion:
-    """Accumulated (true, predicted) class counts."""
-
-    n_classes: int
-
-    def __post_init__(self) -> None:
-        self.matrix = np.zeros((self.n_classes, self.n_classes), dtype=np.int64)
-        self.frames = 0
-
-    def add(self, truth: np.ndarray, predicted: np.ndarray) -> None:
-        index = truth.astype(np.int64).ravel() * self.n_classes + predicted.astype(np.int64).ravel()
-        self.matrix += np.bincount(index, minlength=self.n_classes**2).reshape(self.n_classes, self.n_classes)
-        self.frames += truth.shape[0] if truth.ndim == 3 else 1
-
-    def summary(self, classes: list[str]) -> dict[str, Any]:
-        m = self.matrix
-        correct = np.diag(m)
-        union = m.sum(0) + m.sum(1) - correct
-        iou = np.where(union > 0, correct / np.maximum(union, 1), np.nan)
-        foreground = m[1:].sum()
-        return {
-            "frames": int(self.frames),
-            "pixel_accuracy": round(float(correct.sum() / m.sum()), 4),
-            "foreground_accuracy": round(float(correct[1:].sum() / foreground), 4) if foreground else None,
-            "iou": {name: round(float(v), 4) for name, v in zip(classes, iou)},
-            "mean_block_iou": round(float(np.nanmean(iou[1:])), 4),
-        }
-
-
 def predict_batch(
     model: FallPredictor, windows: np.ndarray, horizon: int, depth: np.ndarray | None = None
 ) -> np.ndarray:
@@ -376,177 +275,23 @@ def predict_batch(
         return model.rollout(model_inputs(model, windows, depth), horizon).argmax(2).numpy().astype(np.uint8)
 
 
-def evaluate(
-    model: FallPredictor | None,
-    labels: np.ndarray,
-    classes: list[str],
-    context: int,
-    horizons: tuple[int, ...] = (1, 5),
-    batch_size: int = 64,
-    depth: np.ndarray | None = None,
-    baselines: bool = True,
-) -> dict[str, dict[str, Any]]:
-    """Metrics of the model (if given) and, with ``baselines``, the baselines at each horizon over sequences
-    ``labels`` (N, T, S, S) (with their depth images (N, T, S, S) for a ``use_depth`` model).
-
-    Evaluated at every t with ``context`` frames up to t and t + max(horizons) inside the sequence.
-    """
-    n, length = labels.shape[:2]
-    last = length - 1 - max(horizons)
-    if last < context - 1:
+def load_fall_model(path: Path | str) -> tuple[FallPredictor, dict[str, Any]]:
+    """A trained model and its saved facts (classes, image size, context) from a ``.pt`` checkpoint."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"fall-dynamics checkpoint {path} not found")
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=True)  # tensors and plain data: nothing runs
+    except Exception as error:
+        raise ValueError(f"cannot load fall-dynamics checkpoint {path}: {error}") from error
+    if saved.get("architecture") != ARCHITECTURE:
         raise ValueError(
-            f"sequences of {length} frames are too short for context {context} and horizon {max(horizons)}"
+            f"fall-dynamics checkpoint {path} is of model architecture {saved.get('architecture', 1)}; "
+            f"this code runs architecture {ARCHITECTURE}: retrain it with train.py"
         )
-    starts = [(i, t) for i in range(n) for t in range(max(context - 1, 1), last + 1)]
-    n_classes = len(classes)
-    compared = BASELINES if baselines else {}
-    scores = {name: {h: Confusion(n_classes) for h in horizons} for name in (["model"] if model else []) + [*compared]}
-    for name, baseline in compared.items():
-        for i, t in starts:
-            for h in horizons:
-                scores[name][h].add(labels[i, t + h], baseline(labels[i], t, h))
-    if model is not None:
-        check_compatible(model, labels, classes, depth)
-        model.eval()
-        for b in range(0, len(starts), batch_size):
-            chunk = starts[b : b + batch_size]
-            windows = np.stack([labels[i, t - context + 1 : t + 1] for i, t in chunk])
-            depths = np.stack([depth[i, t - context + 1 : t + 1] for i, t in chunk]) if model.use_depth else None
-            predicted = predict_batch(model, windows, max(horizons), depths)
-            truth_frames = {h: np.stack([labels[i, t + h] for i, t in chunk]) for h in horizons}
-            for h in horizons:
-                scores["model"][h].add(truth_frames[h], predicted[:, h - 1])
-    return {name: {f"t+{h}": c.summary(classes) for h, c in by_h.items()} for name, by_h in scores.items()}
-
-
-# --- fall direction ------------------------------------------------------------------------------
-
-#: Horizontal shift (m) of a tower's mean block position, first frame to last, below which it did not fall.
-FALL_SHIFT = 0.02
-#: Predicted shift (pixels) of the block pixels' centroid below which a prediction gives no direction.
-DIRECTION_MIN_PIXELS = 0.5
-#: Angular error (degrees) up to which a predicted fall direction counts as right (``within_45`` of the results).
-DIRECTION_TOLERANCE = 45.0
-
-
-def image_to_world_direction(shift: np.ndarray, camera: dict[str, Any]) -> np.ndarray:
-    """World-frame horizontal vectors (..., 2) (x, y) along image displacements ``shift`` (..., 2) (rows,
-    columns; pixels) of a straight-down camera (``camera``: ``K``, and ``rotation`` camera -> world in OpenCV
-    axes, as ``metadata.json`` holds them): each displacement as the camera-frame vector (columns / fx,
-    rows / fy, 0) turned into the world.  A direction only: the length depends on depth, and parallax (points
-    nearing the principal point as they fall away from the camera) is ignored."""
-    K, rotation = np.asarray(camera["K"], dtype=float), np.asarray(camera["rotation"], dtype=float)
-    shift = np.asarray(shift, dtype=float)
-    along = np.stack([shift[..., 1] / K[0, 0], shift[..., 0] / K[1, 1], np.zeros(shift.shape[:-1])], -1)
-    return (along @ rotation.T)[..., :2]
-
-
-def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Unsigned angles (degrees, 0-180) between 2-D vectors ``a`` and ``b`` (..., 2)."""
-    turn = np.arctan2(a[..., 1], a[..., 0]) - np.arctan2(b[..., 1], b[..., 0])
-    return np.degrees(np.abs((turn + np.pi) % (2 * np.pi) - np.pi))
-
-
-def fall_directions(
-    model: FallPredictor | None,
-    labels: np.ndarray,
-    poses: np.ndarray,
-    n_blocks: np.ndarray,
-    crop_origin: np.ndarray,
-    camera: dict[str, Any],
-    classes: list[str],
-    context: int,
-    depth: np.ndarray | None = None,
-    batch_size: int = 64,
-) -> dict[str, Any]:
-    """Which way each tower fell, predicted from its first frames, against what happened.
-
-    Sequences: ``labels`` (N, T, S, S) cut at ``crop_origin`` (N, 2) (column, row) from the renders of the
-    overhead ``camera`` of ``metadata.json`` (``render_size``, ``K``, ``rotation``, ``position``), block
-    ``poses`` (N, T, B, 7) (world frame, metres; rows past a sequence's ``n_blocks`` are ignored); ``depth``
-    (N, T, S, S) for a ``use_depth`` model.  With t = max(context - 1, 1), the newest context frame as in
-    ``evaluate``:
-
-    * true direction: the horizontal (x, y) displacement, in the world frame, of the mean position of the
-      sequence's blocks from frame 0 to frame T - 1, over the blocks whose centre lies inside the crop in
-      frame T - 1.  A tower whose mean moved under ``FALL_SHIFT`` did not fall: it is counted in
-      ``did_not_fall`` and not scored (so is a tower that stood while a struck block flew out of view).  The
-      world frame and the poses, not the images, because they say where the blocks went: the pixels see
-      only the blocks' visible faces, and the top of a tall tower seen from above sits off its base by
-      parallax.
-    * predicted direction: the centroid of every block pixel (any block class) of the predictor's frame
-      T - 1, predicted from frames up to t (the model rolled out T - 1 - t steps from frames
-      t - context + 1 ... t; a baseline of ``BASELINES`` called with (t, T - 1 - t)), minus the centroid of
-      the block pixels of the true frame 0, in image coordinates, turned into a world direction by
-      ``image_to_world_direction``.  A fallen tower of whose blocks frame 0 shows no pixel (the arm of a
-      push above it) gives no predictor a place to start: it is counted in ``hidden`` and not scored.  Under
-      ``DIRECTION_MIN_PIXELS`` of shift, or with no block pixel in the predicted frame, a prediction has no
-      direction: counted in ``no_direction`` and scored as 180 degrees.
-    * ``true_labels``, a reference rather than a predictor: the true frame T - 1 through the same mapping,
-      what a perfect segmentation predictor scores; its shortfall is the mapping's (occlusion, parallax,
-      blocks leaving the crop).
-
-    Per predictor, over the ``scored`` sequences (the tower fell and frame 0 shows it): ``within_45``, the
-    fraction whose angular error is at most ``DIRECTION_TOLERANCE`` degrees, and ``median_error_deg``.  The
-    summary covers all sequences and, where they hold several tower heights, each height (``by_height``,
-    keyed by the number of blocks).
-    """
-    n, length = labels.shape[:2]
-    t = max(context - 1, 1)
-    horizon = length - 1 - t
-    if horizon < 1:
-        raise ValueError(f"sequences of {length} frames leave nothing to predict after context {context}")
-    ends = {name: np.stack([baseline(labels[i], t, horizon) for i in range(n)]) for name, baseline in BASELINES.items()}
-    if model is not None:
-        check_compatible(model, labels, classes, depth)
-        model.eval()
-        windows = labels[:, t - context + 1 : t + 1]
-        contexts = depth[:, t - context + 1 : t + 1] if model.use_depth else None
-        ends["model"] = np.concatenate([
-            predict_batch(model, windows[b : b + batch_size], horizon,
-                          None if contexts is None else contexts[b : b + batch_size])[:, -1]
-            for b in range(0, n, batch_size)
-        ])  # fmt: skip
-    ends["true_labels"] = labels[:, -1]
-    start = [centroid(frame > 0) for frame in labels[:, 0]]
-    view = CameraModel(
-        *camera["render_size"], *(np.asarray(camera[k], dtype=float) for k in ("K", "rotation", "position"))
-    )
-    truth = np.zeros((n, 2))
-    for i in range(n):
-        blocks = poses[i, :, : n_blocks[i], :3]
-        pixels = view.world_to_pixel(blocks[-1])[0] - crop_origin[i]  # (column, row) in the crop
-        seen = np.all((pixels >= -0.5) & (pixels < labels.shape[-1] - 0.5), axis=1)
-        if seen.any():
-            truth[i] = (blocks[-1, seen, :2] - blocks[0, seen, :2]).mean(0)
-    fell = np.hypot(*truth.T) >= FALL_SHIFT
-    errors = {}
-    for name, frames in ends.items():
-        error = np.full(n, np.nan)  # NaN: no direction
-        for i, frame in enumerate(frames):
-            end = centroid(frame > 0)
-            if start[i] is not None and end is not None and np.hypot(*(end - start[i])) >= DIRECTION_MIN_PIXELS:
-                error[i] = angle_between(image_to_world_direction(end - start[i], camera), truth[i])
-        errors[name] = error
-
-    seen = np.array([first is not None for first in start])
-
-    def summary(chosen: np.ndarray) -> dict[str, Any]:
-        scored = chosen & fell & seen
-        predictors = {}
-        for name, error in errors.items():
-            worst = np.where(np.isnan(error[scored]), 180.0, error[scored])
-            predictors[name] = {
-                "within_45": round(float(np.mean(worst <= DIRECTION_TOLERANCE)), 4) if scored.any() else None,
-                "median_error_deg": round(float(np.median(worst)), 1) if scored.any() else None,
-                "no_direction": int(np.isnan(error[scored]).sum()),
-            }
-        return {"sequences": int(chosen.sum()), "did_not_fall": int((chosen & ~fell).sum()),
-                "fell": int((chosen & fell).sum()), "hidden": int((chosen & fell & ~seen).sum()),
-                "scored": int(scored.sum()), "predictors": predictors}  # fmt: skip
-
-    result = summary(np.ones(n, dtype=bool))
-    heights = np.unique(n_blocks)
-    if len(heights) > 1:
-        result["by_height"] = {str(int(h)): summary(n_blocks == h) for h in heights}
-    return result
+    try:
+        model = FallPredictor(**saved["model_args"])
+        model.load_state_dict(saved["model"])
+    except Exception as error:
+        raise ValueError(f"cannot load fall-dynamics checkpoint {path}: {error}") from error
+    return model, saved

@@ -8,8 +8,8 @@ source study's protocol) or a push -- and, from the moment a block starts to
 move (and is ``start_shift`` from its place), the overhead camera is
 sampled every ``frame_interval`` seconds of simulated time: RGB, depth, the
 simulator's segmentation and ``perception``'s colour segmentation, cropped to
-a square around the tower, plus every block's pose.  The format and the loader
-are in ``panda_grasp_env/falls/dataset.py``.
+a square around the tower, plus every block's pose.  The settings (``RecorderSettings``) are in
+``panda_grasp_env/falls/config.py``, the format and the loader in ``panda_grasp_env/falls/dataset.py``.
 
 Shards are written atomically by parallel workers; a rerun with the same
 arguments keeps the finished shards (checked by size and SHA-256) and records
@@ -25,97 +25,25 @@ import os
 import platform
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.actions import PRIMITIVE_Z_RANGE
+from panda_grasp_env.falls.config import BREAKERS, LATER_SETTINGS, RENDER_SIZE, RecorderSettings
 from panda_grasp_env.falls.dataset import SHARD_ARRAYS, split_of
-from panda_grasp_env.geometry import is_count, is_number
-from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.sim.stepping import body_speeds
-from panda_grasp_env.tasks.base import TOWER_BLOCKS
-from panda_grasp_env.tooling.runs import atomic_path, interrupt_on_signals, sha256, write_atomically
+from panda_grasp_env.tooling.runs import (
+    atomic_path,
+    checked_config,
+    interrupt_on_signals,
+    sha256,
+    write_atomically,
+)
 
 #: Block speed (m/s) above which the fall has begun (once a block is also ``start_shift`` from the tower).
 MOTION_SPEED = 0.01
-#: The highest tower level (0: the base) a strike aims at: its centre (0.275 m) is the highest under the top
-#: of ``PRIMITIVE_Z_RANGE`` (0.3 m), above which a primitive's height is clipped and it would hit another block.
-HIGHEST_STRIKE_LEVEL = int((PRIMITIVE_Z_RANGE[1] - SceneConfig().block_size / 2) // SceneConfig().block_size)
-#: Rendered image (width, height) the square crop is cut from: a block is ~10 px wide and a 64 px crop spans 0.33 m.
-RENDER_SIZE = (224, 168)
-BREAKERS = ("impulse", "push", "mixed")
-#: Settings added after the first recordings; their defaults record what the recorder did before them.
-LATER_SETTINGS = ("tower_blocks", "strike_levels", "start_shift")
-
-
-@dataclass(frozen=True)
-class RecorderSettings:
-    """How sequences are recorded.  Times in seconds, impulses in N s, distances in metres."""
-
-    frames: int = 15
-    frame_interval: float = 0.04  # one 25 Hz control step: 25 frames per second
-    crop: int = 64  # pixels, square, centred on the tower's base
-    breaker: str = "impulse"  # impulse | push | mixed (half each)
-    impulse: tuple[float, float] = (0.08, 0.2)
-    shard_size: int = 50
-    seed: int = 0  # sequence i uses env seed seed + i
-    tower_blocks: tuple[int, ...] = (4,)  # tower heights (blocks), one drawn per sequence (``tower_height``)
-    # Levels (0: the base) the struck block is drawn from, uniformly, up to the tower's top and
-    # HIGHEST_STRIKE_LEVEL: a tall tower struck low mostly stands (an impulse in the lower half of a 6-block
-    # tower toppled 3 of 19, in the upper half 19 of 26; see docs/falling-tower.md).
-    strike_levels: tuple[int, int] = (0, HIGHEST_STRIKE_LEVEL)
-    # Metres: 0 starts the frames at the first block moving faster than MOTION_SPEED; more also waits until a
-    # block is that far from where it stood (a tall tower touched by the pushing fingers jitters at up to
-    # 0.16 m/s for seconds before it moves; see docs/falling-tower.md).
-    start_shift: float = 0.0
-
-    def validate(self) -> None:
-        checks = [
-            (is_count(self.frames) and 2 <= self.frames <= 100, "frames", "an int in [2, 100]"),
-            (
-                0.04 <= self.frame_interval <= 1.0
-                and abs(self.frame_interval / 0.04 - round(self.frame_interval / 0.04)) < 1e-6,
-                "frame_interval",
-                "a multiple of the 0.04 s control step, up to 1 s",
-            ),  # fmt: skip
-            (
-                is_count(self.crop) and 16 <= self.crop <= min(RENDER_SIZE),
-                "crop",
-                f"an int in [16, {min(RENDER_SIZE)}]",
-            ),
-            (self.breaker in BREAKERS, "breaker", f"one of {list(BREAKERS)}"),
-            (0 < self.impulse[0] <= self.impulse[1] <= 1.0, "impulse", "(low, high) with 0 < low <= high <= 1 N s"),
-            (is_count(self.shard_size) and self.shard_size >= 1, "shard_size", "an int >= 1"),
-            (is_count(self.seed) and self.seed >= 0, "seed", "an int >= 0"),
-            (
-                isinstance(self.tower_blocks, tuple)
-                and len(self.tower_blocks) >= 1
-                and all(is_count(n) and TOWER_BLOCKS[0] <= n <= TOWER_BLOCKS[1] for n in self.tower_blocks)
-                and len(set(self.tower_blocks)) == len(self.tower_blocks),
-                "tower_blocks",
-                f"a non-empty tuple of distinct ints in [{TOWER_BLOCKS[0]}, {TOWER_BLOCKS[1]}]",
-            ),
-            (
-                isinstance(self.strike_levels, tuple)
-                and len(self.strike_levels) == 2
-                and all(is_count(level) for level in self.strike_levels)
-                and 0 <= self.strike_levels[0] <= self.strike_levels[1] <= HIGHEST_STRIKE_LEVEL,
-                "strike_levels",
-                f"(lowest, highest) ints with 0 <= lowest <= highest <= {HIGHEST_STRIKE_LEVEL}",
-            ),
-            (is_number(self.start_shift) and 0 <= self.start_shift <= 0.05, "start_shift", "in [0, 0.05] m"),
-        ]
-        for ok, name, expected in checks:
-            if not ok:
-                raise ValueError(f"{name}={getattr(self, name)!r}: expected {expected}")
-        if self.strike_levels[0] >= min(self.tower_blocks):
-            raise ValueError(
-                f"strike_levels={self.strike_levels!r}: the lowest level struck must be under the top of the lowest "
-                f"tower ({min(self.tower_blocks)} blocks: levels 0-{min(self.tower_blocks) - 1})"
-            )
 
 
 class FrameGrabber:
@@ -315,7 +243,6 @@ def record_dataset(
     """Record ``sequences`` sequences into ``out``; returns the metadata (also written to ``out/metadata.json``)."""
     from tqdm import tqdm
 
-    settings.validate()
     if sequences < 1 or workers < 1:
         raise ValueError(f"sequences and workers must be >= 1, got {sequences} and {workers}")
     out.mkdir(parents=True, exist_ok=True)
@@ -425,9 +352,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     interrupt_on_signals()
-    tuples = {"impulse": tuple(args.impulse), "strike_levels": tuple(args.strike_levels)}
-    settings = RecorderSettings(**{f: getattr(args, f) for f in asdict(defaults)} | tuples)
     try:
+        settings = checked_config(RecorderSettings, {f: getattr(args, f) for f in asdict(defaults)}, "the command line")
         metadata = record_dataset(args.out, args.sequences, settings, args.workers, not args.no_progress)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)

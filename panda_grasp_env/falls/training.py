@@ -19,11 +19,8 @@ strips/ (one PNG per test sequence: input frames, truth, prediction).
 
 from __future__ import annotations
 
-import dataclasses
 import json
-import os
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,90 +29,30 @@ import torch
 import torch.nn.functional as F
 import yaml
 
-from panda_grasp_env.falls.dataset import FallSequences, load_split, read_metadata, tower_heights
+from panda_grasp_env.falls.config import FallConfig, fall_config
+from panda_grasp_env.falls.dataset import load_split, read_metadata
+from panda_grasp_env.falls.metrics import evaluate, test_scores
 from panda_grasp_env.falls.model import (
     ARCHITECTURE,
-    DIRECTION_TOLERANCE,
-    FALL_SHIFT,
     FallPredictor,
     block_displacements,
     check_compatible,
-    evaluate,
-    fall_directions,
     heights,
+    load_fall_model,
     model_inputs,
     one_hot,
-    predict_batch,
 )
-from panda_grasp_env.model.scene import DEFAULT_COLOURS
+from panda_grasp_env.falls.records import fall_card, plot_fall_curve, write_strips
 from panda_grasp_env.tooling.runs import (
     atomic_path,
     check_run_files,
     commit,
-    config_from_mapping,
     new_run_folder,
-    resume_summary,
     run_key,
     sign_run_files,
     write_atomically,
     write_json,
 )
-
-#: Colours of the class maps in strips: background, then the blocks' own colours in the scene's order (up to 8).
-PALETTE = np.array([[235, 235, 230], *(np.round(255 * np.array(rgb)) for rgb in DEFAULT_COLOURS.values())],
-                   dtype=np.uint8)  # fmt: skip
-
-
-@dataclass
-class FallConfig:
-    """A fall-dynamics training run.  ``dataset``: a folder written by ``python -m panda_grasp_env.falls``."""
-
-    kind: str
-    name: str
-    dataset: str
-    label_source: str = "labels"  # labels (simulator) | colour_labels (perception's colour segmentation)
-    context: int = 4
-    rollout: int = 5
-    hidden: int = 32
-    epochs: int = 30
-    batch_size: int = 16
-    learning_rate: float = 0.002
-    motion_loss_weight: float = 1.0
-    next_frame_loss_weight: float = 0.0  # extra weight of the t+1 prediction's loss (the headline metric)
-    use_depth: bool = False  # also read the depth images (height maps; see panda_grasp_env/falls/model.py)
-    height_loss_weight: float = 1.0
-    seed: int = 0
-    max_minutes: float | None = None
-    torch_threads: int = 2
-
-    def validate(self) -> None:
-        for key in ("context", "rollout", "hidden", "epochs", "batch_size", "torch_threads"):
-            value = getattr(self, key)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"config {key}={value!r}: expected an int >= 1")
-        if self.kind != "fall_dynamics":
-            raise ValueError(f"config kind={self.kind!r}: expected 'fall_dynamics'")
-        if self.label_source not in ("labels", "colour_labels"):
-            raise ValueError(f"config label_source={self.label_source!r}: expected 'labels' or 'colour_labels'")
-        if not (isinstance(self.learning_rate, (int, float)) and 0 < self.learning_rate < 1):
-            raise ValueError(f"config learning_rate={self.learning_rate!r}: expected a number in (0, 1)")
-        for key in ("motion_loss_weight", "next_frame_loss_weight", "height_loss_weight"):
-            value = getattr(self, key)
-            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0):
-                raise ValueError(f"config {key}={value!r}: expected a number >= 0")
-        if not isinstance(self.use_depth, bool):
-            raise ValueError(f"config use_depth={self.use_depth!r}: expected true or false")
-        if self.max_minutes is not None and not self.max_minutes > 0:
-            raise ValueError(f"config max_minutes={self.max_minutes!r}: expected a positive number or null")
-        read_metadata(self.dataset)  # a clear error now, not after the model is built
-
-
-#: What ``--resume`` may change in a fall-dynamics run; every other key built its model, data or optimiser.
-FALL_RESUME_CHANGEABLE = ("epochs", "max_minutes", "torch_threads")
-
-
-def fall_config(raw: dict[str, Any], source: str) -> FallConfig:
-    return config_from_mapping(FallConfig, raw, source)
 
 
 def prediction_loss(logits: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
@@ -137,71 +74,6 @@ def motion_loss(displacements: torch.Tensor, before: torch.Tensor, after: torch.
     target, area = block_displacements(before, after)
     distance = F.smooth_l1_loss(displacements, target, reduction="none", beta=0.1).sum(2)
     return (distance * area).sum() / area.sum().clamp_min(1.0)
-
-
-def load_fall_model(path: Path | str) -> tuple[FallPredictor, dict[str, Any]]:
-    """A trained model and its saved facts (classes, image size, context) from a ``.pt`` checkpoint."""
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"fall-dynamics checkpoint {path} not found")
-    try:
-        saved = torch.load(path, map_location="cpu", weights_only=True)  # tensors and plain data: nothing runs
-    except Exception as error:
-        raise ValueError(f"cannot load fall-dynamics checkpoint {path}: {error}") from error
-    if saved.get("architecture") != ARCHITECTURE:
-        raise ValueError(
-            f"fall-dynamics checkpoint {path} is of model architecture {saved.get('architecture', 1)}; "
-            f"this code runs architecture {ARCHITECTURE}: retrain it with train.py"
-        )
-    try:
-        model = FallPredictor(**saved["model_args"])
-        model.load_state_dict(saved["model"])
-    except Exception as error:
-        raise ValueError(f"cannot load fall-dynamics checkpoint {path}: {error}") from error
-    return model, saved
-
-
-def label_image(labels: np.ndarray, scale: int = 2) -> np.ndarray:
-    image = PALETTE[np.clip(labels, 0, len(PALETTE) - 1)]
-    return np.repeat(np.repeat(image, scale, 0), scale, 1)
-
-
-def write_strips(
-    model: FallPredictor, labels: np.ndarray, seeds: np.ndarray, folder: Path, rollout: int, depth: Any = None
-) -> None:
-    """One PNG per sequence: the context frames, then truth (top) and prediction (bottom) for ``rollout`` steps."""
-    import imageio.v3 as iio
-
-    folder.mkdir(parents=True, exist_ok=True)
-    k = model.context
-    predicted = predict_batch(model, labels[:, :k], rollout, None if depth is None else depth[:, :k])
-    gap = np.full((labels.shape[-1] * 2, 4, 3), 255, dtype=np.uint8)
-    for sequence, truth, guess, seed in zip(labels, labels[:, k : k + rollout], predicted, seeds):
-        inputs = np.concatenate([label_image(f) for f in sequence[:k]], 1)
-        blank = np.full_like(inputs, 255)
-        top = np.concatenate([inputs, gap, *[label_image(f) for f in truth]], 1)
-        bottom = np.concatenate([blank, gap, *[label_image(f) for f in guess]], 1)
-        with atomic_path(folder / f"seed{int(seed)}.png") as tmp:
-            iio.imwrite(tmp, np.concatenate([top, bottom], 0), extension=".png")
-
-
-def test_scores(model: FallPredictor, test: FallSequences, context: int) -> dict[str, Any]:
-    """The test figures of ``model`` and the baselines on a split: ``metrics`` (``evaluate``) and ``direction``
-    (``fall_directions``)."""
-    return {
-        "metrics": evaluate(model, test.labels, test.classes, context, depth=test.depth),
-        "direction": fall_directions(
-            model,
-            test.labels,
-            test.poses,
-            test.n_blocks,
-            test.crop_origin,
-            test.camera,
-            test.classes,
-            context,
-            test.depth,
-        ),
-    }
 
 
 def start_fall_run(config: FallConfig, runs_dir: Path) -> Path:
@@ -394,143 +266,3 @@ def test_fall_model(folder: Path | str, dataset: str | None = None) -> dict[str,
     results = json.loads(record.read_text()) if record.is_file() else {}
     write_json(record, {**results, str(path): result})
     return result
-
-
-def plot_fall_curve(run_dir: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = [json.loads(line) for line in (run_dir / "evaluations.jsonl").read_text().splitlines() if line.strip()]
-    figure, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
-    for axis, x, label in ((axes[0], [r["epoch"] for r in rows], "epoch"),
-                           (axes[1], [r["wall_seconds"] / 60 for r in rows], "wall time, minutes")):  # fmt: skip
-        for horizon in ("t+1", "t+5"):
-            axis.plot(
-                x, [r["val"][horizon]["mean_block_iou"] for r in rows], marker="o", label=f"mean block IoU {horizon}"
-            )
-            axis.plot(
-                x,
-                [r["val"][horizon]["foreground_accuracy"] for r in rows],
-                marker="s",
-                label=f"foreground acc. {horizon}",
-            )
-        axis.set_xlabel(label)
-        axis.grid(alpha=0.3)
-    axes[0].set_ylabel("validation")
-    axes[0].legend(loc="lower right", fontsize=8)
-    figure.tight_layout()
-    with atomic_path(run_dir / "curve.png") as tmp:
-        figure.savefig(tmp, dpi=100, format="png")
-    plt.close(figure)
-
-
-def tower_words(heights: list[int]) -> str:
-    """``[4]`` -> ``"4-block"``, ``[6, 8]`` -> ``"6- or 8-block"``, ``[4, 6, 8]`` -> ``"4-, 6- or 8-block"``."""
-    names = [str(h) for h in heights]
-    return ("-, ".join(names[:-1]) + "- or " if len(names) > 1 else "") + f"{names[-1]}-block"
-
-
-def direction_rows(direction: dict[str, Any]) -> list[str]:
-    """The card's fall-direction table (``fall_directions``): each predictor over all towers, then by height."""
-    groups = {"all": direction, **{f"{h} blocks": d for h, d in direction.get("by_height", {}).items()}}
-    rows = []
-    for name in direction["predictors"]:
-        for label, group in groups.items():
-            r = group["predictors"][name]
-            within = "n/a" if r["within_45"] is None else f"**{r['within_45']:.3f}**"
-            median = "n/a" if r["median_error_deg"] is None else f"{r['median_error_deg']:.1f}°"
-            rows.append(f"| {name} | {label} | {group['did_not_fall']} | {group['fell']} | {group['hidden']} | "
-                        f"{group['scored']} | {within} | {median} | {r['no_direction']} |")  # fmt: skip
-    return rows
-
-
-def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
-    meta = json.loads((run_dir / "meta.json").read_text())
-    m, direction = final["metrics"], final["direction"]
-    rows = []
-    for name in m:
-        for horizon in ("t+1", "t+5"):
-            r = m[name][horizon]
-            iou = ", ".join(f"{k} {v:.3f}" for k, v in r["iou"].items())
-            rows.append(f"| {name} | {horizon} | {r['pixel_accuracy']:.4f} | {r['foreground_accuracy']:.4f} | "
-                        f"**{r['mean_block_iou']:.4f}** | {iou} |")  # fmt: skip
-    return "\n".join(
-        [
-            f"# {config.name}",
-            "",
-            "ConvLSTM encoder-decoder predicting the next segmentation frames of a falling "
-            f"{tower_words(tower_heights(read_metadata(config.dataset)))} tower "
-            "(`panda_grasp_env/falls/model.py`"
-            + (", reading depth as well as labels" if config.use_depth else "")
-            + "), trained by this repository's `train.py` with the resolved config below on "
-            f"`{config.dataset}` ({meta['dataset']['sequences']} sequences, splits {meta['dataset']['splits']}).",
-            "",
-            f"- seed {config.seed}; {final['epochs']} of {config.epochs} epochs (stopped by {final['stopped_by']}; "
-            f"best on validation: epoch {final['best_epoch']}); "
-            f"wall time {final['wall_seconds'] / 60:.1f} min on {meta['machine']}",
-            f"- commit {meta['commit']}; {', '.join(f'{k} {v}' for k, v in meta['versions'].items())}",
-            *([f"- {resumed}"] if (resumed := resume_summary(meta)) else []),
-            f"- test: {final['test_sequences']} held-out sequences, every t with {config.context} context frames; "
-            f"{m['copy_last']['t+1']['frames']} predictions per horizon",
-            "",
-            "| predictor | horizon | pixel accuracy | foreground accuracy | mean block IoU | IoU per class |",
-            "|---|---|---|---|---|---|",
-            *rows,
-            "",
-            "Which way each test tower fell (the mean position of its blocks in view at the end, world frame, "
-            "first frame to last; "
-            f"moved under {FALL_SHIFT * 100:.0f} cm: did not fall), predicted from the first {config.context} "
-            "frames (the centroid of the block pixels of the predicted last frame minus that of the first; "
-            "`fall_directions` in `panda_grasp_env/falls/model.py`), scored over the towers that fell and that the "
-            f"first frame shows (not hidden by the arm): the fraction within ±{DIRECTION_TOLERANCE:.0f}° and the "
-            "median angular error, a prediction without a direction counting as 180°; `true_labels` is the true "
-            "last frame through the same measure (a reference).",
-            "",
-            f"| predictor | towers | did not fall | fell | hidden | scored | within ±{DIRECTION_TOLERANCE:.0f}° | "
-            "median error | no direction |",
-            "|---|---|---|---|---|---|---|---|---|",
-            *direction_rows(direction),
-            "",
-            "![learning curve](curve.png)",
-            "",
-            "```yaml",
-            yaml.safe_dump(dataclasses.asdict(config), sort_keys=False).rstrip(),
-            "```",
-            "",
-        ]
-    )
-
-
-#: Where shipped fall-dynamics models live (``load_fall_model(FALL_CHECKPOINTS / name / "model.pt")``).
-FALL_CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
-
-
-def ship_fall_run(run_dir: Path, name: str, strips: int = 5) -> Path:
-    """Copy a finished fall run's best model (weights only), card, curve, results and a few strips to
-    ``panda_grasp_env/falls/checkpoints/<name>`` (staged, then renamed into place)."""
-    import shutil
-
-    run_dir = Path(run_dir)
-    missing = [
-        f for f in ("best.pt", "final.json", "card.md", "curve.png", "config.yaml") if not (run_dir / f).is_file()
-    ]
-    if missing:
-        raise ValueError(f"{run_dir} is not a finished fall-dynamics run: {missing} missing")
-    model, saved = load_fall_model(run_dir / "best.pt")
-    staging = FALL_CHECKPOINTS / f".{name}.tmp"
-    shutil.rmtree(staging, ignore_errors=True)
-    (staging / "strips").mkdir(parents=True)
-    torch.save({"model": model.state_dict(), "model_args": model.describe(), "classes": saved["classes"],
-                "architecture": ARCHITECTURE, "epoch": saved["epoch"], "frame_interval": saved["frame_interval"],
-                "label_source": saved["label_source"]}, staging / "model.pt")  # fmt: skip
-    for f in ("final.json", "card.md", "curve.png", "config.yaml", "meta.json", "evaluations.jsonl"):
-        shutil.copy2(run_dir / f, staging / f)
-    for strip in sorted((run_dir / "strips").glob("*.png"))[:strips]:
-        shutil.copy2(strip, staging / "strips" / strip.name)
-    target = FALL_CHECKPOINTS / name
-    if target.exists():
-        shutil.rmtree(target)
-    os.replace(staging, target)
-    return target

@@ -238,23 +238,6 @@ def check_run_files(run_dir: Path, names: list[str]) -> None:
             )
 
 
-def config_from_mapping(cls: type[Config], raw: dict[str, Any], source: str) -> Config:
-    """The config dataclass ``cls`` from a mapping, then its ``validate()``; unknown or missing keys raise
-    ``ValueError`` listing the valid keys."""
-    fields = dataclasses.fields(cls)  # type: ignore[arg-type]
-    valid = [f.name for f in fields]
-    unknown = [k for k in raw if k not in valid]
-    if unknown:
-        raise ValueError(f"unknown key(s) {unknown} in {source}; valid keys: {valid}")
-    required = [f.name for f in fields if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
-    missing = [k for k in required if k not in raw]
-    if missing:
-        raise ValueError(f"{source} lacks required key(s) {missing}; valid keys: {valid}")
-    config = cls(**raw)
-    config.validate()  # type: ignore[attr-defined]
-    return config
-
-
 def config_value_error(key: str, value: Any, expected: str) -> ValueError:
     """The error of a config key's bad value: ``config <key>=<value>: expected <what it takes>``."""
     return ValueError(f"config {key}={value!r}: expected {expected}")
@@ -270,10 +253,11 @@ def checked_config(cls: type[Config], raw: Any, source: str) -> Config:
         problems = error.errors(include_url=False)
     fields = cls.__pydantic_fields__  # type: ignore[attr-defined]
     valid = list(fields)
-    unknown = [p["loc"][0] for p in problems if p["type"] in ("unexpected_keyword_argument", "invalid_key")]
+    keys = [p for p in problems if len(p["loc"]) == 1]  # a tuple too short also reports items "missing"
+    unknown = [p["loc"][0] for p in keys if p["type"] in ("unexpected_keyword_argument", "invalid_key")]
     if unknown:
         raise ValueError(f"unknown key(s) {unknown} in {source}; valid keys: {valid}")
-    missing = [p["loc"][0] for p in problems if p["type"] == "missing"]
+    missing = [p["loc"][0] for p in keys if p["type"] == "missing"]
     if missing:
         raise ValueError(f"{source} lacks required key(s) {missing}; valid keys: {valid}")
     first = problems[0]
