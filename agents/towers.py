@@ -151,6 +151,12 @@ class TowerBuilderAgent:
     top of the tower carried that offset up -- eight blocks on seeds 3-5 stood 14-17 mm off the base's axis
     at the top, past the task's 1 cm -- while aiming at the base's axis left every level within 2.1 mm of it.
 
+    Two recoveries keep a long BuildAndBreak going.  If the base is not among the blocks seen (colour-blind
+    perception can hand its name to another block when a broken tower leaves its blocks in a touching row),
+    the block seen nearest where the base was last seen becomes the base.  If every block seen is in the tower
+    and the env still has not called it built one action later, the tower is off (a block beyond the task's
+    tolerance): its top block is taken off and placed again.
+
     Needs ``action_mode='primitive'`` and, with camera perception, ``obs_mode='rgbd'``
     with ``cameras=('overhead', 'front')`` at 640 x 480.
     """
@@ -165,8 +171,11 @@ class TowerBuilderAgent:
         self.write = PrimitiveActionWriter(info, self.name, ("grasp", "place"))
         self.perceiver.reset(observation, info, self.name)
         self.base = info["base"]
+        #: Where the base was last seen (world, metres), or None before it is seen.
+        self.base_seen_at: np.ndarray | None = None
         self.held: tuple[str, float] | None = None  # name, block yaw relative to the closing axis
         self.pending: tuple[str, float, float] | None = None
+        self.waited = False  # the last action waited for the env's verdict on a tower with no block loose
         self.failures = Counter()
 
     def observe(self, info: dict[str, Any]) -> None:
@@ -183,10 +192,14 @@ class TowerBuilderAgent:
     def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
         self.observe(info)
         blocks = self.perceiver(observation)
+        if self.base not in blocks and blocks and self.base_seen_at is not None:
+            self.base = min(blocks, key=lambda n: float(np.linalg.norm(blocks[n].position - self.base_seen_at)))
         if self.base not in blocks:
             self.failures["no_candidate"] += 1
             return self.write("grasp", 0.5, 0.0, 0.0, 0.02)  # nothing sensible: a harmless miss
         base = blocks[self.base]
+        self.base_seen_at = base.position
+        waited, self.waited = self.waited, False
         if self.held is not None:
             _, relative_yaw = self.held
             return self.write("place", base.position[0], base.position[1], base.yaw - relative_yaw, None)
@@ -199,12 +212,16 @@ class TowerBuilderAgent:
             [],
         )
         loose = [name for name in blocks if name not in tower]
-        if not loose:  # everything stacked: nothing to do but wait for the env's verdict
+        if not loose and (not waited or len(tower) < 2):  # everything stacked: wait for the env's verdict
             self.failures["no_candidate"] += 1
+            self.waited = True
             return self.write("grasp", 0.3, 0.3, 0.0, 0.02)
         names = list(blocks)
         positions = np.array([blocks[n].position for n in names])
-        target = min(loose, key=lambda n: np.linalg.norm(blocks[n].position[:2] - base.position[:2]))
+        if loose:
+            target = min(loose, key=lambda n: np.linalg.norm(blocks[n].position[:2] - base.position[:2]))
+        else:  # the tower stood a whole action and is not built: take its top block off to place it again
+            target = tower[-1]
         heading = clearest_grasp_heading(positions, names.index(target), blocks[target].yaw)
         self.pending = (target, float(wrap_quarter(blocks[target].yaw - heading)), heading)
         block = blocks[target]

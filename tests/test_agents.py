@@ -169,3 +169,58 @@ def test_the_phased_agent_acts_with_each_phase_policy_in_that_policy_slot():
     with pytest.raises(ValueError, match="phase"):
         agent.act(observation, {**info, "phase": "rest"})
     env.close()
+
+
+class ScriptedBlocks:
+    """A perceiver that sees whatever blocks the test sets in ``scene`` (name -> (x, y, z), yaw 0)."""
+
+    name = "scripted"
+
+    def __init__(self, block_size: float) -> None:
+        self.block_size = block_size
+        self.scene: dict[str, tuple[float, float, float]] = {}
+
+    def reset(self, observation, info, agent) -> None:
+        pass
+
+    def __call__(self, observation):
+        from panda_grasp_env.agents.towers import SeenBlock
+
+        return {name: SeenBlock(np.array(xyz, dtype=float), 0.0) for name, xyz in self.scene.items()}
+
+
+def scripted_builder() -> tuple[TowerBuilderAgent, ScriptedBlocks, dict]:
+    env = gym.make("panda_grasp_env:PandaTowerBuild-v0")
+    observation, info = env.reset(seed=0)
+    env.close()
+    perceiver = ScriptedBlocks(info["block_size"])
+    agent = TowerBuilderAgent(perceiver)  # type: ignore[arg-type]
+    agent.reset(observation, info)
+    return agent, perceiver, info
+
+
+def written(agent: TowerBuilderAgent, action: np.ndarray, primitive: str, x: float, y: float) -> bool:
+    """Whether ``action`` runs ``primitive`` at (x, y) (its heading and height aside)."""
+    expected = agent.write(primitive, x, y, 0.0, 0.0)
+    return bool(np.allclose(action[:4], expected[:4], atol=1e-6))
+
+
+def test_the_builder_takes_the_block_nearest_where_the_base_was_as_the_base_when_the_base_is_not_seen():
+    """A broken tower's touching row of blocks can hand the base's name to another block (BuildAndBreak seed
+    6300001 looped 931 actions on it): the block seen nearest the base's last place becomes the base."""
+    agent, perceiver, info = scripted_builder()
+    perceiver.scene = {agent.base: (0.50, 0.0, 0.025), "b": (0.40, 0.10, 0.025)}
+    assert written(agent, agent.act(None, {}), "grasp", 0.40, 0.10)
+    perceiver.scene = {"c": (0.46, 0.0, 0.025)}  # the base, under another name; "b" is in the hand
+    action = agent.act(None, {"primitive": "grasp", "primitive_success": True})
+    assert agent.base == "c" and written(agent, action, "place", 0.46, 0.0)
+    assert agent.failures["no_candidate"] == 0
+
+
+def test_the_builder_takes_the_top_block_off_a_tower_the_env_has_not_called_built_after_one_wait():
+    agent, perceiver, info = scripted_builder()
+    size = info["block_size"]
+    perceiver.scene = {agent.base: (0.50, 0.0, size / 2), "b": (0.50, 0.0, 1.5 * size), "c": (0.502, 0.0, 2.5 * size)}
+    assert written(agent, agent.act(None, {}), "grasp", 0.3, 0.3)  # everything stacked: wait for the verdict
+    assert agent.failures["no_candidate"] == 1
+    assert written(agent, agent.act(None, {"primitive": "grasp", "primitive_success": False}), "grasp", 0.502, 0.0)
