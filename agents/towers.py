@@ -19,6 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
+from panda_grasp_env.agents.evaluation.benchmarks import tall_tower_names
 from panda_grasp_env.agents.registry import BaselineFactory, register_baseline
 from panda_grasp_env.perception.pose import (
     detect_towers,
@@ -36,7 +37,6 @@ from panda_grasp_env.sim.stacking import (
     wrap_quarter_turn,
 )
 from panda_grasp_env.sim.workcell import Workcell
-from panda_grasp_env.tasks.base import tall_tower_names
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
 #: Where a push starts: this far from the tower's axis (half a block plus a finger's clearance).

@@ -25,9 +25,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede th
 import gymnasium as gym
 import numpy as np
 
+from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 from panda_grasp_env.agents.evaluation.protocol import PERCEPTION
 from panda_grasp_env.agents.registry import BASELINES
-from panda_grasp_env.registration import BENCHMARKS
 
 RENDER = {"render_mode": "rgb_array", "render_size": (400, 300)}
 
@@ -44,8 +44,8 @@ def play(env: gym.Env, agent, seed: int) -> tuple[bool, int]:
 
 
 def planned_tower(seed: int) -> np.ndarray:
-    env_id, options = BENCHMARKS["TowerBuild6"]
-    env = gym.make(f"panda_grasp_env:{env_id}", **options, **PERCEPTION, **RENDER)
+    benchmark = BENCHMARKS["TowerBuild6"]
+    env = gym.make(f"panda_grasp_env:{benchmark.env_id}", **benchmark.options, **PERCEPTION, **RENDER)
     built, actions = play(env, BASELINES["TowerBuild6"](env, seed, False), seed)
     print(f"planned on TowerBuild6, seed {seed}: {'built' if built else 'not built'} in {actions} actions")
     frame = env.render()
@@ -54,8 +54,8 @@ def planned_tower(seed: int) -> np.ndarray:
 
 
 def planned_break(seed: int) -> tuple[np.ndarray, np.ndarray]:
-    env_id, options = BENCHMARKS["TowerBreak8"]
-    env = gym.make(f"panda_grasp_env:{env_id}", **options, **PERCEPTION, **RENDER)
+    benchmark = BENCHMARKS["TowerBreak8"]
+    env = gym.make(f"panda_grasp_env:{benchmark.env_id}", **benchmark.options, **PERCEPTION, **RENDER)
     observation, info = env.reset(seed=seed)
     standing = env.render()
     agent = BASELINES["TowerBreak8"](env, seed, False)

@@ -113,8 +113,8 @@ def results_heatmaps() -> dict[str, str]:
     final tests of the shipped checkpoints (their final.json)."""
     import json
 
+    from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
     from panda_grasp_env.commands.results_page import HEATMAP_STYLE, heatmap_html, published_cells
-    from panda_grasp_env.registration import BENCHMARKS
 
     quick = published_cells((ROOT / "docs" / "benchmark.md").read_text())
     tasks = [t for t in BENCHMARKS if any(task == t for _, task in quick)]

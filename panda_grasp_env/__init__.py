@@ -55,7 +55,7 @@ if _in_a_checkout(_root) and not any(isinstance(f, _CheckoutFolders) for f in sy
     sys.meta_path.insert(0, _CheckoutFolders(_root))
 
 import panda_grasp_env.tasks  # noqa: E402, F401  (registers the tasks and their ids)
-from panda_grasp_env.registration import BENCHMARKS, ENV_IDS, TASKS  # noqa: E402
+from panda_grasp_env.registration import ENV_IDS, TASKS  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["BENCHMARKS", "ENV_IDS", "TASKS"]
+__all__ = ["ENV_IDS", "TASKS"]

@@ -42,10 +42,10 @@ def test_tower_builder_stacks_four_blocks_in_six_actions(oracle):
 def test_planned_builder_stacks_a_tall_tower_in_ideal_actions(n_blocks):
     """The benchmark's planned agent on TowerBuild6 / TowerBuild8: the eighth block's place starts within
     the workspace's top (its hover lowered), and every level stays on the base's axis."""
-    from panda_grasp_env.registration import BENCHMARKS
+    from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 
-    env_id, options = BENCHMARKS[f"TowerBuild{n_blocks}"]
-    env = gym.make(f"panda_grasp_env:{env_id}", cameras=("overhead", "front"), **RGBD, **options)
+    benchmark = BENCHMARKS[f"TowerBuild{n_blocks}"]
+    env = gym.make(f"panda_grasp_env:{benchmark.env_id}", cameras=("overhead", "front"), **RGBD, **benchmark.options)
     agent = BASELINES[f"TowerBuild{n_blocks}"](env, 0, False)
     info, actions = run(env, agent, seed=0)
     positions = env.unwrapped.cell.block_positions()
@@ -79,10 +79,10 @@ def test_tower_breaker_breaks_the_tower_with_one_push():
 def test_planned_breaker_topples_a_tall_tower_with_one_push(n_blocks):
     """The benchmark's planned agent on TowerBreak6 / TowerBreak8: from the tall-tower start the arm's wrist
     and forearm clear the tower on the way down, so the push is not stopped as a collision."""
-    from panda_grasp_env.registration import BENCHMARKS
+    from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 
-    env_id, options = BENCHMARKS[f"TowerBreak{n_blocks}"]
-    env = gym.make(f"panda_grasp_env:{env_id}", cameras=("overhead", "front"), **RGBD, **options)
+    benchmark = BENCHMARKS[f"TowerBreak{n_blocks}"]
+    env = gym.make(f"panda_grasp_env:{benchmark.env_id}", cameras=("overhead", "front"), **RGBD, **benchmark.options)
     # Seed 1's push towards the middle starts beyond the tower (from the robot), where the forearm strikes it.
     info, actions = run(env, BASELINES[f"TowerBreak{n_blocks}"](env, 0, False), seed=1)
     assert info["is_success"] and actions == 1 and info["primitive_reason"] == "ok"

@@ -21,8 +21,8 @@ CELLS = {
 def write_run(folder, draw_seed, weaken=None, seeds=SEEDS, versions=None):
     """A results folder as evaluate.py writes it, with episodes drawn at random from ``CELLS``' rates;
     ``weaken``: an (agent, task) whose success rate falls to 0.3 (and its actions, on failure, double)."""
+    from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
     from panda_grasp_env.agents.evaluation.metrics import aggregate
-    from panda_grasp_env.registration import BENCHMARKS
 
     rng = np.random.default_rng(draw_seed)
     episodes = []
@@ -42,7 +42,7 @@ def write_run(folder, draw_seed, weaken=None, seeds=SEEDS, versions=None):
     tasks = sorted({t for _, t in CELLS})
     results = {
         "protocol": {"agents": sorted({a for a, _ in CELLS}), "tasks": tasks, "full": False,
-                     "env_ids": {t: BENCHMARKS[t][0] for t in tasks}, "seeds": {t: list(seeds) for t in tasks},
+                     "env_ids": {t: BENCHMARKS[t].env_id for t in tasks}, "seeds": {t: list(seeds) for t in tasks},
                      "task_options": {}, "skipped": {}},
         "provenance": {"commit": "abc1234", "versions": versions or {"mujoco": "4.0.0"}, "machine": "test"},
         "metrics": aggregate(episodes),

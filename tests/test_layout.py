@@ -153,9 +153,10 @@ def test_what_runs_after_every_control_step_is_added_from_above_the_simulation()
     assert {layer(m) for m, _ in added} == {"sim", "gym_api", "tooling"}
 
 
-#: The evaluation sub-package, bottom first: a module imports only those before it.  Metrics stand alone; an
-#: episode is played from the protocol's spec; the runner and the report build on episodes.
-EVALUATION = ("metrics", "protocol", "episodes", "runner", "report")
+#: The evaluation sub-package, bottom first: a module imports only those before it.  The benchmarks (ids, options,
+#: seed counts) and the metrics stand alone; an episode is played from the protocol's spec; the runner and the
+#: report build on episodes.
+EVALUATION = ("benchmarks", "metrics", "protocol", "episodes", "runner", "report")
 
 
 def test_the_evaluation_modules_import_only_those_below_them():

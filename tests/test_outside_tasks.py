@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 
 from panda_grasp_env.agents import registry
+from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS, Benchmark, register_benchmark
 from panda_grasp_env.agents.evaluation.episodes import make_env, run_episode
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, task_options_from_pairs
 from panda_grasp_env.commands import evaluate
-from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS, DEFAULT_BENCHMARKS, ENV_IDS, TASKS
+from panda_grasp_env.registration import ENV_IDS, TASKS
 
 SHELF = Path(__file__).resolve().parents[1] / "docs" / "examples" / "shelf_task.py"
 
@@ -33,8 +34,7 @@ def unregister_shelf() -> None:
     """Undo what importing the shelf example registered (a default benchmark too: a later test's default
     protocol must not name it)."""
     del TASKS["Shelf"], ENV_IDS["ShelfPlace-v0"], gym.registry["ShelfPlace-v0"]
-    del BENCHMARKS["Shelf"], BENCHMARK_SEEDS["Shelf"], registry.BASELINES["Shelf"], sys.modules["shelf_task"]
-    DEFAULT_BENCHMARKS.remove("Shelf")
+    del BENCHMARKS["Shelf"], registry.BASELINES["Shelf"], sys.modules["shelf_task"]
 
 
 OBJECTS = "objects=[{shape: cube, size: [0.025], mass: 0.4}, {shape: sphere, size: [0.02]}]"
@@ -103,6 +103,14 @@ def test_agents_register_by_decorator_and_a_second_one_for_a_task_is_a_clash():
         registry.register_baseline("PutInBin")(lambda env, seed, oracle: None)
     with pytest.raises(ValueError, match="task names"):
         registry.register_baseline()
+
+
+def test_a_benchmark_needs_a_new_name_and_a_registered_id():
+    with pytest.raises(ValueError, match="PutInBin"):
+        register_benchmark("PutInBin", Benchmark("PandaPutInBin-v0", quick_seeds=1, full_seeds=1))
+    with pytest.raises(ValueError, match="NoSuchId-v0"):
+        register_benchmark("Nowhere", Benchmark("NoSuchId-v0", quick_seeds=1, full_seeds=1))
+    assert "Nowhere" not in BENCHMARKS
 
 
 def test_the_shelf_example_runs_through_evaluate_with_spawned_workers(shelf_example, tmp_path):

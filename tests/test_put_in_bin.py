@@ -5,10 +5,11 @@ import mujoco
 import numpy as np
 import pytest
 
+from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS, Benchmark
 from panda_grasp_env.agents.evaluation.episodes import make_agent, play_episode
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
 from panda_grasp_env.control.planning import MotionPlanner
-from panda_grasp_env.registration import BENCHMARKS, ENV_IDS, TASKS
+from panda_grasp_env.registration import ENV_IDS, TASKS
 from panda_grasp_env.tasks.put_in_bin import FLOOR_THICKNESS, INNER_HALF_WIDTH, WALL_HEIGHT, PutInBin
 
 
@@ -20,10 +21,10 @@ def bin_geoms(model: mujoco.MjModel) -> set[int]:
     return {g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name == "bin"}
 
 
-def test_the_task_file_registers_the_task_its_id_and_its_benchmark():
+def test_the_task_file_registers_the_task_and_its_id_and_evaluation_its_benchmark():
     assert TASKS["PutInBin"] is PutInBin
     assert ENV_IDS["PandaPutInBin-v0"] == ({"task": "PutInBin"}, 10)
-    assert BENCHMARKS["PutInBin"] == ("PandaPutInBin-v0", {})
+    assert BENCHMARKS["PutInBin"] == Benchmark("PandaPutInBin-v0", quick_seeds=10, full_seeds=100)
 
 
 def test_the_bin_is_in_the_simulation_and_in_the_planners_model():

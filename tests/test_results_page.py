@@ -73,17 +73,17 @@ def test_a_tower_toppled_the_wrong_way_is_a_failure_with_its_reason():
     import gymnasium as gym
     import numpy as np
 
+    from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
     from panda_grasp_env.agents.evaluation.episodes import play_episode
     from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
     from panda_grasp_env.agents.towers import OracleBlocks, TowerBreakerAgent
-    from panda_grasp_env.registration import BENCHMARKS
 
     class Contrary(TowerBreakerAgent):
         def act(self, observation, info):  # +x <-> -x, +y <-> -y
             return super().act({**observation, "command": np.roll(observation["command"], 2)}, info)
 
-    env_id, options = BENCHMARKS["TowerBreakDirectional"]
-    with gym.make(f"panda_grasp_env:{env_id}", **options) as env:
+    benchmark = BENCHMARKS["TowerBreakDirectional"]
+    with gym.make(f"panda_grasp_env:{benchmark.env_id}", **benchmark.options) as env:
         result = play_episode(env, Contrary(OracleBlocks(env)), EpisodeSpec("contrary", "TowerBreakDirectional", 0))
     assert not result["result"]["success"] and result["result"]["failure"] == "wrong_direction"
     assert result["result"]["failures"] == {}  # every primitive did what it reported: no failed action

@@ -15,10 +15,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 from panda_grasp_env.agents.evaluation.protocol import AGENTS, PERCEPTION, EpisodeSpec, learned_env, phased_env
 from panda_grasp_env.agents.random_agent import RandomAgent
 from panda_grasp_env.agents.registry import BASELINES, EXPERTS
-from panda_grasp_env.registration import BENCHMARK_RESET_OPTIONS, BENCHMARKS
 
 
 def make_env(spec: EpisodeSpec) -> gym.Env:
@@ -33,11 +33,11 @@ def make_env(spec: EpisodeSpec) -> gym.Env:
         from panda_grasp_env.agents.learned import Checkpoint
 
         return learned_env(Checkpoint(spec.agent), spec.task, **spec.make_options)
-    env_id, options = BENCHMARKS[spec.task]
-    options = dict(options)
+    benchmark = BENCHMARKS[spec.task]
+    options = dict(benchmark.options)
     if spec.agent in ("planned", "oracle"):  # they see the scene through cameras
         options |= PERCEPTION
-    return gym.make(f"panda_grasp_env:{env_id}", **(options | spec.make_options))  # the spec's options win
+    return gym.make(f"panda_grasp_env:{benchmark.env_id}", **(options | spec.make_options))  # the spec's options win
 
 
 def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
@@ -110,7 +110,7 @@ def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
 def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = None) -> dict[str, Any]:
     """The benchmark's step loop: reset ``env`` with ``spec.seed`` and let ``agent`` act until the episode ends."""
     began = time.perf_counter()
-    reset_options = BENCHMARK_RESET_OPTIONS.get(spec.task)
+    reset_options = BENCHMARKS[spec.task].reset_options
     observation, info = env.reset(seed=spec.seed, options=None if reset_options is None else reset_options(spec.seed))
     agent.reset(observation, info)
     meshes = [o["mesh"] for o in info.get("objects", []) if "mesh" in o]

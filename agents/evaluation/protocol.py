@@ -3,8 +3,8 @@
 An episode is fully determined by its ``EpisodeSpec`` (agent, task, seed, options): the env is reset with the
 seed and every agent draws from generators seeded from it, so results repeat bit for bit, in any process, in
 any order.  A ``Protocol`` is one run's set of them (``evaluate.py``'s agents, tasks, seeds and task options).
-The benchmark tasks themselves, their env ids and their quick and full seed counts, are declared by the task
-modules (``panda_grasp_env.registration.BENCHMARKS``).
+The benchmark tasks themselves, their env ids and their quick and full seed counts, are declared in
+``benchmarks``.
 """
 
 from __future__ import annotations
@@ -28,9 +28,10 @@ import panda_grasp_env.agents.grasping
 import panda_grasp_env.agents.put_in_bin
 import panda_grasp_env.agents.towers  # noqa: F401
 from panda_grasp_env.actions import ACTION_MODES
+from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 from panda_grasp_env.agents.registry import BASELINES, EXPERTS
 from panda_grasp_env.env import AGENT_OPTIONS
-from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS, ENV_IDS, TASKS
+from panda_grasp_env.registration import ENV_IDS, TASKS
 
 if TYPE_CHECKING:
     from panda_grasp_env.agents.learned import Checkpoint
@@ -86,8 +87,8 @@ def is_low_level(env_id: str, options: dict[str, Any]) -> bool:
 def task_label(env_id: str, env_kwargs: dict[str, Any]) -> str:
     """The ``evaluate.py`` task whose env (id, low-level or not) a policy trained on ``env_id`` plays, else ``env_id``."""
     low_level = is_low_level(env_id, env_kwargs)
-    for task, (task_env_id, options) in BENCHMARKS.items():
-        if task_env_id == env_id and is_low_level(task_env_id, options) == low_level:
+    for task, benchmark in BENCHMARKS.items():
+        if benchmark.env_id == env_id and is_low_level(benchmark.env_id, benchmark.options) == low_level:
             return task
     return env_id
 
@@ -107,7 +108,7 @@ def skip_reason(agent: str, task: str) -> str | None:
     if agent == "expert":
         return None if task in EXPERTS else f"no scripted low-level expert is written for {task}"
     if agent in AGENTS:
-        if is_low_level(*BENCHMARKS[task]):
+        if is_low_level(BENCHMARKS[task].env_id, BENCHMARKS[task].options):
             return f"the {agent} baselines act through motion primitives; {task} is a low-level ee_delta task"
         if task not in BASELINES:
             return f"no {agent} agent is written for {task}"
@@ -134,10 +135,10 @@ def learned_skip_reason(agent: str, task: str) -> str | None:
     if checkpoint.task == task:
         return None
     trained_for = f"checkpoint {agent} was trained for {checkpoint.task} ({config.env_id})"
-    env_id, options = BENCHMARKS[task]
-    if ENV_IDS[env_id][0]["task"] != ENV_IDS[config.env_id][0]["task"]:
+    benchmark = BENCHMARKS[task]
+    if ENV_IDS[benchmark.env_id][0]["task"] != ENV_IDS[config.env_id][0]["task"]:
         return trained_for
-    if is_low_level(env_id, options) != is_low_level(config.env_id, config.env_kwargs):
+    if is_low_level(benchmark.env_id, benchmark.options) != is_low_level(config.env_id, config.env_kwargs):
         return f"{trained_for}, at the other level of action"
     card = (checkpoint.path / "checkpoint.json").read_text()
     differs = _space_differing(checkpoint.path.resolve(), card, checkpoint.provenance()["policy_sha256"], task)
@@ -164,10 +165,10 @@ def learned_env(checkpoint: Checkpoint, task: str, **options: Any) -> gym.Env:
     on as the checkpoint was trained (its ``AGENT_OPTIONS``); ``options`` on top of either."""
     if task == checkpoint.task:
         return checkpoint.make_env(**options)
-    env_id, benchmark = BENCHMARKS[task]
-    scene = {key: value for key, value in benchmark.items() if key not in AGENT_OPTIONS}
+    benchmark = BENCHMARKS[task]
+    scene = {key: value for key, value in benchmark.options.items() if key not in AGENT_OPTIONS}
     agent = {key: value for key, value in checkpoint.config.env_kwargs.items() if key in AGENT_OPTIONS}
-    return gym.make(f"panda_grasp_env:{env_id}", **(scene | agent | options))
+    return gym.make(f"panda_grasp_env:{benchmark.env_id}", **(scene | agent | options))
 
 
 def phased_env(name: str, task: str, **options: Any) -> gym.Env:
@@ -258,11 +259,11 @@ def task_options_from_pairs(pairs: list[str], tasks: list[str]) -> dict[str, Any
             raise ValueError(f"--task-options {key}: {error}") from None
         options[key.strip()] = value
     for task in tasks if options else ():
-        env_id, task_defaults = BENCHMARKS[task]
+        benchmark = BENCHMARKS[task]
         try:  # an option the protocol sets too (max_episode_steps on BuildAndBreak) is overridden
-            gym.make(f"panda_grasp_env:{env_id}", **(task_defaults | options)).close()
+            gym.make(f"panda_grasp_env:{benchmark.env_id}", **(benchmark.options | options)).close()
         except (ValueError, TypeError) as error:
-            raise ValueError(f"--task-options on {task} ({env_id}): {error}") from None
+            raise ValueError(f"--task-options on {task} ({benchmark.env_id}): {error}") from None
     return options
 
 
@@ -290,7 +291,7 @@ class Protocol:
         count) from ``seed_start``."""
         if self.seed_list is not None:
             return list(self.seed_list)
-        count = self.seeds or BENCHMARK_SEEDS[task][1 if self.full else 0]
+        count = self.seeds or BENCHMARKS[task].seeds(self.full)
         return list(range(self.seed_start, self.seed_start + count))
 
     def episode_specs(self) -> tuple[list[EpisodeSpec], dict[str, str]]:
@@ -323,7 +324,7 @@ class Protocol:
             "agents": list(self.agents),
             "tasks": list(self.tasks),
             "full": self.full,
-            "env_ids": {t: BENCHMARKS[t][0] for t in self.tasks},
+            "env_ids": {t: BENCHMARKS[t].env_id for t in self.tasks},
             "seeds": {t: self.seeds_of(t) for t in self.tasks},
             "task_options": dict(self.task_options),
             "imports": list(self.imports),

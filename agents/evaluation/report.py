@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 from panda_grasp_env.agents.evaluation.episodes import run_episode
 from panda_grasp_env.agents.evaluation.metrics import aggregate
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, Protocol, is_low_level
-from panda_grasp_env.registration import BENCHMARKS
 from panda_grasp_env.tooling.runs import commit, machine, versions, write_atomically
 
 
@@ -32,11 +32,12 @@ def applicable(task: str, metrics: dict) -> dict[str, float | None]:
     apply: no grasp primitives attempted, low-level episodes (they run to the time limit, so actions per ideal
     action say nothing), or a task without build-and-break cycles."""
     grasps = metrics["grasp_success"]
+    low_level = is_low_level(BENCHMARKS[task].env_id, BENCHMARKS[task].options)
     return {
         "grasp_success": grasps["rate"] if grasps["n"] else None,
-        "action_efficiency": None if is_low_level(*BENCHMARKS[task]) else metrics["action_efficiency"],
+        "action_efficiency": None if low_level else metrics["action_efficiency"],
         "cycles_per_sim_hour": metrics["cycles_per_sim_hour"] if task == "BuildAndBreak" else None,
-        "collateral_per_action": None if is_low_level(*BENCHMARKS[task]) else metrics["collateral_per_action"],
+        "collateral_per_action": None if low_level else metrics["collateral_per_action"],
     }
 
 
@@ -203,7 +204,7 @@ def write_report(
         "",
         f"- seeds per (agent, task): {json.dumps({t: describe_seeds(protocol.seeds_of(t)) for t in protocol.tasks})}",
         f"- options on top of each task's (--task-options): {json.dumps(dict(protocol.task_options)) if protocol.task_options else 'none'}",
-        f"- env ids and options: {json.dumps({t: BENCHMARKS[t] for t in protocol.tasks})}; a learned checkpoint plays its own task in "
+        f"- env ids and options: {json.dumps({t: [BENCHMARKS[t].env_id, BENCHMARKS[t].options] for t in protocol.tasks})}; a learned checkpoint plays its own task in "
         "the env it was trained in, and another in that task's scene, seeing and acting as it was trained",
         f"- commit {commit()}; versions: {', '.join(f'{k} {v}' for k, v in versions().items())}",
         f"- workers: {workers}",

@@ -1,5 +1,5 @@
-"""Shelf: put the block on a shelf that stands somewhere else every episode -- a task and its planned agent
-written outside the package, in one file.
+"""Shelf: put the block on a shelf that stands somewhere else every episode -- a task, its benchmark and its
+planned agent written outside the package, in one file.
 
     python evaluate.py --import docs.examples.shelf_task --tasks Shelf --agents planned,random
 
@@ -18,12 +18,13 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.agents.base import PrimitiveActionWriter, record_failure, require
+from panda_grasp_env.agents.evaluation.benchmarks import Benchmark, register_benchmark
 from panda_grasp_env.agents.registry import register_baseline
 from panda_grasp_env.agents.towers import CameraBlocks, OracleBlocks, block_baseline
 from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.registration import Benchmark, EnvId, register_task
+from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.sim.stacking import clearest_grasp_heading
 from panda_grasp_env.sim.workcell import SPAWN_REGION, Workcell
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, is_interval, with_scene
@@ -44,7 +45,7 @@ class Shelf(Task):
 
     name = "Shelf"
     primitives = ("grasp", "place")
-    env_ids = {"ShelfPlace-v0": EnvId(10, benchmarks={"Shelf": Benchmark(quick_seeds=10, full_seeds=100)})}
+    env_ids = {"ShelfPlace-v0": EnvId(10)}
 
     def __init__(self, heights: tuple[float, float] = (0.04, 0.1)) -> None:
         valid = is_interval(heights) and 0.02 <= heights[0] and heights[1] <= 0.15
@@ -131,4 +132,5 @@ class ShelfAgent:
         return self.write("grasp", block.position[0], block.position[1], self.heading, block.position[2])
 
 
+register_benchmark("Shelf", Benchmark("ShelfPlace-v0", quick_seeds=10, full_seeds=100))
 register_baseline("Shelf")(block_baseline(ShelfAgent))

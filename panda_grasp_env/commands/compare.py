@@ -29,10 +29,10 @@ from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 from panda_grasp_env.agents.evaluation.protocol import is_low_level
 from panda_grasp_env.agents.evaluation.report import describe_seeds
 from panda_grasp_env.commands.results_page import agent_order, page_html, split_key, table_html
-from panda_grasp_env.registration import BENCHMARKS
 from panda_grasp_env.tooling.runs import write_atomically
 
 #: Shuffles of the permutation tests, and the seed they are drawn from.
@@ -152,7 +152,8 @@ def cell_tests(key: str, a: dict[str, Any], b: dict[str, Any], ea: list[dict], e
                               np.array([e["grasps_attempted"] for e in episodes], float), in_a)  # fmt: skip
         tests.append(Test(agent, task, "grasp_success", a["grasp_success"]["rate"], b["grasp_success"]["rate"],
                           a["grasp_success"]["n"], b["grasp_success"]["n"], "episode permutation", p))  # fmt: skip
-    if not is_low_level(*BENCHMARKS[task]):
+    benchmark = BENCHMARKS[task]
+    if not is_low_level(benchmark.env_id, benchmark.options):
         p = ratio_permutation(np.array([e["ideal_actions"] * e["completion"] for e in episodes], float),
                               np.array([e["actions"] for e in episodes], float), in_a)  # fmt: skip
         tests.append(Test(agent, task, "action_efficiency", a["action_efficiency"], b["action_efficiency"],

@@ -17,7 +17,7 @@ learned checkpoint by name (agents/checkpoints/): on its own task, and on the ot
 task its observation and action spaces fit (a heightmap grasping policy on heaps and packed layouts);
 and build_and_break_dqn, BuildAndBreak played by the shipped builder and breaker, each in its phase
 (``panda_grasp_env.agents.phased``).
-Tasks: the benchmarks the task modules register (``panda_grasp_env.registration.BENCHMARKS``): Grasp,
+Tasks: the benchmarks evaluation declares (``panda_grasp_env.agents.evaluation.benchmarks``): Grasp,
 GraspClutter, GraspAdversarial, TowerBuild, TowerBreak, TowerBreakDirectional, BuildAndBreak, PutInBin (primitive actions),
 Push, Lift, Stack (low-level ee_delta); played only when named: the mesh benchmarks (GraspMesh*) and the towers
 of 6 and 8 blocks (TowerBuild6, TowerBuild8, TowerBreak6, ..., BuildAndBreak8).  An agent that does not apply to a task is skipped (one line counts them;
@@ -40,13 +40,13 @@ from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS, default_benchmarks
 from panda_grasp_env.agents.evaluation.episodes import close_kept_env
 from panda_grasp_env.agents.evaluation.protocol import Protocol, all_agents, import_modules, task_options_from_pairs
 from panda_grasp_env.agents.evaluation.report import results_table, videos, write_report, write_results
 from panda_grasp_env.agents.evaluation.runner import run_episodes
 from panda_grasp_env.agents.towers import build_tower, push_tower
 from panda_grasp_env.commands.results_page import save_pngs, write_page
-from panda_grasp_env.registration import BENCHMARKS, DEFAULT_BENCHMARKS
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tooling.runs import interrupt_on_signals
@@ -168,7 +168,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--full", action="store_true", help="the publication protocol instead of the quick one")
     agents = all_agents()
     parser.add_argument("--agents", default=",".join(agents), help=f"comma-separated, from {list(agents)}")
-    parser.add_argument("--tasks", default=",".join(DEFAULT_BENCHMARKS),
+    parser.add_argument("--tasks", default=",".join(default_benchmarks()),
                         help=f"comma-separated, from {list(BENCHMARKS)} (default: all but the mesh benchmarks, "
                              "which need the objects extra, and the 6- and 8-block towers)")  # fmt: skip
     parser.add_argument("--seeds", type=int, default=None,

@@ -31,7 +31,7 @@ import numpy as np
 from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.model.scene import UNIFORM_BLOCK_COLOUR, SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.registration import Benchmark, EnvId
+from panda_grasp_env.registration import EnvId
 from panda_grasp_env.sim.workcell import Workcell
 
 #: Distance (metres) under which an achieved goal counts as reached (Fetch and panda-gym use 5 cm).
@@ -193,26 +193,6 @@ def check_block_colours(block_colours: Any) -> None:
 #: Blocks the tower tasks (TowerBuild, TowerBreak, BuildAndBreak) take, fewest and most: a base and one block on
 #: it, up to a 40 cm tower of eight (one per default colour, ``DEFAULT_COLOURS``).
 TOWER_BLOCKS = (2, 8)
-#: Heights (blocks) of the tall-tower benchmarks (``TowerBuild6``, ``TowerBreak8``, ...): played only when named,
-#: since an episode takes two to three times a four-block one.
-TALL_TOWERS = (6, 8)
-
-
-def tall_tower_names(name: str) -> list[str]:
-    """The tall-tower variants of benchmark ``name``: ``name6``, ``name8`` (``TALL_TOWERS``)."""
-    return [f"{name}{n}" for n in TALL_TOWERS]
-
-
-def with_tall_towers(name: str, benchmark: Benchmark, steps_per_block: int | None = None) -> dict[str, Benchmark]:
-    """``{name: benchmark}`` and its ``tall_tower_names``: the same protocol on ``n_blocks`` 6 and 8, played only
-    when named; ``steps_per_block`` gives them that many ``max_episode_steps`` per block to stack (None: the
-    benchmark's own)."""
-    benchmarks = {name: benchmark}
-    for n, tall in zip(TALL_TOWERS, tall_tower_names(name)):
-        steps = {} if steps_per_block is None else {"max_episode_steps": steps_per_block * (n - 1)}
-        options = {"n_blocks": n, **benchmark.options, **steps}
-        benchmarks[tall] = replace(benchmark, options=options, by_default=False)
-    return benchmarks
 
 
 def check_tower_blocks(n_blocks: Any) -> None:

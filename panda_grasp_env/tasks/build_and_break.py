@@ -8,9 +8,9 @@ import numpy as np
 
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.registration import Benchmark, EnvId, register_task
+from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.sim.workcell import Workcell
-from panda_grasp_env.tasks.base import Task, TaskStep, with_tall_towers
+from panda_grasp_env.tasks.base import Task, TaskStep
 from panda_grasp_env.tasks.tower_break import TowerBreak
 from panda_grasp_env.tasks.tower_build import TowerBuild
 
@@ -34,14 +34,7 @@ class BuildAndBreak(Task):
     """
 
     name = "BuildAndBreak"
-    env_ids = {
-        "PandaBuildAndBreak-v0": EnvId(
-            100,
-            benchmarks=with_tall_towers(
-                "BuildAndBreak", Benchmark({"max_episode_steps": 30}, quick_seeds=1, full_seeds=10)
-            ),
-        )
-    }
+    env_ids = {"PandaBuildAndBreak-v0": EnvId(100)}
     primitives = ("grasp", "place", "push")
 
     def __init__(self, n_blocks: int = 4, block_colours: str = "distinct") -> None:

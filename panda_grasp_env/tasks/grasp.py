@@ -10,16 +10,15 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.geometry import is_count, is_number
-from panda_grasp_env.model.meshes import EVALUATION_OBJECTS, object_by_seed
 from panda_grasp_env.model.objects import SHAPES, ObjectShape, ObjectSpec
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.registration import Benchmark, EnvId, register_task
+from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.sim.workcell import Workcell, body_bottom_height
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, with_scene
 from panda_grasp_env.tasks.grasp_layouts import HEAP_OBJECTS, adversarial_layout_index, grasp_layout
-from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS, MAX_OBJECTS
+from panda_grasp_env.tasks.packed_layouts import MAX_OBJECTS
 
 #: A push "changed the scene" if some object moved at least this far (metres): VPG's push reward condition.
 SCENE_CHANGE = 0.01
@@ -116,69 +115,15 @@ class Grasp(Task):
     name = "Grasp"
     # Primitive steps by default; with action_mode="ee_delta" PandaGrasp-v0 is the goal-conditioned lift task.
     env_ids = {
-        "PandaGrasp-v0": EnvId(
-            50,
-            benchmarks={
-                "Grasp": Benchmark({"primitive_z": True}, quick_seeds=10, full_seeds=100),
-                "Lift": Benchmark({"action_mode": "ee_delta"}, quick_seeds=20, full_seeds=100),
-            },
-        ),
-        "PandaGraspClutter-v0": EnvId(
-            60,
-            {"clutter": True},
-            benchmarks={"GraspClutter": Benchmark({"primitive_z": True}, quick_seeds=2, full_seeds=30)},
-        ),
-        "PandaGraspAdversarial-v0": EnvId(
-            40,
-            {"packed": "adversarial"},
-            benchmarks={
-                "GraspAdversarial": Benchmark(
-                    {"primitive_z": True}, quick_seeds=2, full_seeds=5 * len(ADVERSARIAL_LAYOUTS)
-                )
-            },
-        ),
+        "PandaGrasp-v0": EnvId(50),
+        "PandaGraspClutter-v0": EnvId(60, {"clutter": True}),
+        "PandaGraspAdversarial-v0": EnvId(40, {"packed": "adversarial"}),
         "PandaGraspPacked-v0": EnvId(40, {"packed": "random"}),
         # The procedural mesh set (the objects extra): one object dropped at a random pose, a budget of
-        # MESH_ATTEMPTS actions; the benchmarks sweep 100 objects of a split, one per seed in turn.
-        "PandaGraspMesh-v0": EnvId(
-            MESH_ATTEMPTS,
-            {"objects": [{"shape": "mesh", "split": "train"}]},
-            benchmarks={
-                "GraspMeshTrain": Benchmark(
-                    {
-                        "primitive_z": True,
-                        "objects": [{"shape": "mesh", "split": "train", "ids": list(EVALUATION_OBJECTS["train"])}],
-                    },
-                    quick_seeds=10,
-                    full_seeds=300,
-                    reset_options=object_by_seed("train"),
-                    by_default=False,
-                ),
-                "GraspMeshTest": Benchmark(
-                    {"primitive_z": True, "objects": [{"shape": "mesh", "split": "test"}]},
-                    quick_seeds=10,
-                    full_seeds=300,
-                    reset_options=object_by_seed("test"),
-                    by_default=False,
-                ),
-            },
-        ),
+        # MESH_ATTEMPTS actions.
+        "PandaGraspMesh-v0": EnvId(MESH_ATTEMPTS, {"objects": [{"shape": "mesh", "split": "train"}]}),
         # VPG's protocol on 10 mesh objects of one split dropped in a heap.
-        "PandaGraspMeshClutter-v0": EnvId(
-            60,
-            {"objects": [{"shape": "mesh", "split": "train"}], "clutter": True},
-            benchmarks={
-                "GraspMeshClutterTrain": Benchmark(
-                    {"primitive_z": True}, quick_seeds=2, full_seeds=30, by_default=False
-                ),
-                "GraspMeshClutterTest": Benchmark(
-                    {"primitive_z": True, "objects": [{"shape": "mesh", "split": "test"}]},
-                    quick_seeds=2,
-                    full_seeds=30,
-                    by_default=False,
-                ),
-            },
-        ),
+        "PandaGraspMeshClutter-v0": EnvId(60, {"objects": [{"shape": "mesh", "split": "train"}], "clutter": True}),
         # The hand-designed packed layouts and VPG's heaps, half each: one validation for both.
         "PandaGraspMixed-v0": EnvId(60, {"packed": "adversarial", "heap_share": 0.5}),
     }

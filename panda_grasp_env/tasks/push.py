@@ -9,7 +9,7 @@ import numpy as np
 from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.model.scene import GOAL_MARKER, SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.registration import Benchmark, EnvId, register_task
+from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.sim.workcell import SPAWN_REGION, Workcell
 from panda_grasp_env.tasks.base import (
     GOAL_THRESHOLD,
@@ -33,9 +33,7 @@ class Push(Task):
     """
 
     name = "Push"
-    env_ids = {
-        "PandaPush-v0": EnvId(50, benchmarks={"Push": Benchmark(quick_seeds=20, full_seeds=100)})
-    }  # 50 steps of 40 ms
+    env_ids = {"PandaPush-v0": EnvId(50)}  # 50 steps of 40 ms
     primitives = ("push",)
     goal_conditioned = True
     default_action_mode = "ee_delta"

@@ -14,7 +14,7 @@ import numpy as np
 from panda_grasp_env.geometry import is_count, is_number, yaw_quaternion
 from panda_grasp_env.model.scene import DEFAULT_COLOURS, SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.registration import Benchmark, EnvId, register_task
+from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.sim.workcell import SPAWN_REGION, Workcell, scattered_layout
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, with_scene
 
@@ -43,7 +43,7 @@ class PutInBin(Task):
 
     name = "PutInBin"
     primitives = ("grasp", "place")
-    env_ids = {"PandaPutInBin-v0": EnvId(10, benchmarks={"PutInBin": Benchmark(quick_seeds=10, full_seeds=100)})}
+    env_ids = {"PandaPutInBin-v0": EnvId(10)}
 
     def __init__(
         self, n_blocks: int = 3, target: str | None = None, bin_position: tuple[float, float] = (0.6, 0.15)

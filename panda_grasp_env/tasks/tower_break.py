@@ -9,7 +9,7 @@ import numpy as np
 from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.registration import Benchmark, EnvId, register_task
+from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.base import (
     Task,
@@ -18,7 +18,6 @@ from panda_grasp_env.tasks.base import (
     check_block_colours,
     check_option,
     check_tower_blocks,
-    with_tall_towers,
 )
 
 #: The source study's four push directions, as headings about world z (radians).
@@ -52,14 +51,8 @@ class TowerBreak(Task):
 
     name = "TowerBreak"
     env_ids = {
-        "PandaTowerBreak-v0": EnvId(
-            5, benchmarks=with_tall_towers("TowerBreak", Benchmark(quick_seeds=5, full_seeds=100))
-        ),
-        "PandaTowerBreakDirectional-v0": EnvId(
-            5,
-            {"directional": True},
-            benchmarks=with_tall_towers("TowerBreakDirectional", Benchmark(quick_seeds=5, full_seeds=100)),
-        ),
+        "PandaTowerBreak-v0": EnvId(5),
+        "PandaTowerBreakDirectional-v0": EnvId(5, {"directional": True}),
     }
     primitives = ("push",)
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.registration import Benchmark, EnvId, register_task
+from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.sim.stacking import stack_column
 from panda_grasp_env.sim.stepping import body_speeds
 from panda_grasp_env.sim.workcell import Workcell
@@ -21,7 +21,6 @@ from panda_grasp_env.tasks.base import (
     check_option,
     check_tower_blocks,
     goals_reached,
-    with_tall_towers,
 )
 
 #: A tower must stand still this long, with the gripper released, to count as built (seconds).
@@ -64,16 +63,9 @@ class TowerBuild(Task):
 
     name = "TowerBuild"
     env_ids = {
-        # Tall towers get the four-block tower's step limit per block to stack: five times the ideal actions.
-        "PandaTowerBuild-v0": EnvId(
-            30, benchmarks=with_tall_towers("TowerBuild", Benchmark(quick_seeds=5, full_seeds=100), steps_per_block=10)
-        ),
+        "PandaTowerBuild-v0": EnvId(30),
         # Two blocks, goal-conditioned at 25 Hz: panda-gym's Stack.
-        "PandaStack-v0": EnvId(
-            100,
-            {"n_blocks": 2, "action_mode": "ee_delta"},
-            benchmarks={"Stack": Benchmark(quick_seeds=20, full_seeds=100)},
-        ),
+        "PandaStack-v0": EnvId(100, {"n_blocks": 2, "action_mode": "ee_delta"}),
     }
     primitives = ("grasp", "place", "push")
     goal_conditioned = True
