@@ -151,9 +151,10 @@ class TowerBuilderAgent:
     top of the tower carried that offset up -- eight blocks on seeds 3-5 stood 14-17 mm off the base's axis
     at the top, past the task's 1 cm -- while aiming at the base's axis left every level within 2.1 mm of it.
 
-    Two recoveries keep a long BuildAndBreak going.  If the base is not among the blocks seen (colour-blind
-    perception can hand its name to another block when a broken tower leaves its blocks in a touching row),
-    the block seen nearest where the base was last seen becomes the base.  If every block seen is in the tower
+    Two recoveries keep a long BuildAndBreak going.  Colour-blind perception can hand the base's name to
+    another block when a break leaves the blocks in a touching row: when a build starts (``base_position`` in
+    ``info``), or when the base is not among the blocks seen, the block seen nearest where the base lies (or
+    was last seen) becomes the base.  If every block seen is in the tower
     and the env still has not called it built one action later, the tower is off (a block beyond the task's
     tolerance): its top block is taken off and placed again.
 
@@ -192,7 +193,9 @@ class TowerBuilderAgent:
     def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
         self.observe(info)
         blocks = self.perceiver(observation)
-        if self.base not in blocks and blocks and self.base_seen_at is not None:
+        if "base_position" in info:  # a build starts (BuildAndBreak's after each break): the base lies there
+            self.base_seen_at = np.asarray(info["base_position"], dtype=float)
+        if (self.base not in blocks or "base_position" in info) and blocks and self.base_seen_at is not None:
             self.base = min(blocks, key=lambda n: float(np.linalg.norm(blocks[n].position - self.base_seen_at)))
         if self.base not in blocks:
             self.failures["no_candidate"] += 1

@@ -635,3 +635,21 @@ def test_a_grasp_that_brings_a_second_object_home_sets_both_aside():
     assert info["objects_grasped"] == 2 and info["objects_lost"] == 0 and reward == 2.0
     assert info["disturbed"] == 1  # the second object is still collateral: it was not the one aimed at
     env.close()
+
+
+def test_build_and_break_says_where_the_base_lies_when_a_new_build_starts():
+    """Blocks may look alike: the step whose break starts a new build gives the base's centre, as reset does."""
+    from panda_grasp_env.agents.towers import BuildAndBreakAgent, OracleBlocks
+
+    env = gym.make("panda_grasp_env:PandaBuildAndBreak-v0", max_episode_steps=20)
+    agent = BuildAndBreakAgent(OracleBlocks(env))
+    observation, info = env.reset(seed=0)
+    agent.reset(observation, info)
+    assert "base_position" in info
+    while info["breaks"] == 0:
+        observation, _, terminated, truncated, info = env.step(agent.act(observation, info))
+        assert not (terminated or truncated)
+        assert ("base_position" in info) == (info["breaks"] == 1)
+    assert info["phase"] == "build"
+    assert np.allclose(info["base_position"], env.unwrapped.cell.block_positions()[0])
+    env.close()

@@ -27,8 +27,9 @@ class BuildAndBreak(Task):
     ``builds`` and ``breaks``; ``is_success`` is true once a full build-and-break
     cycle is complete.  At reset ``info`` also names the base and gives its
     centre (``base``, ``base_position``, as TowerBuild); every build is on that
-    block.  Options: ``n_blocks`` (2-8, default 4) and ``block_colours``
-    (``"distinct"`` or ``"uniform"``), as TowerBuild's.  Reward: the phase's own reward (stack progress while
+    block, and the step that starts a new build gives the base's centre again (``base_position``).
+    Options: ``n_blocks`` (2-8, default 4) and ``block_colours`` (``"distinct"`` or ``"uniform"``), as
+    TowerBuild's.  Reward: the phase's own reward (stack progress while
     building, blocks moved while breaking), +1 per completed phase.  Terminates
     only if a block leaves the table.
     """
@@ -65,6 +66,7 @@ class BuildAndBreak(Task):
             self.build.on_control_step(cell)
 
     def evaluate(self, cell: Workcell, result: PrimitiveResult | None) -> TaskStep:
+        restarted: dict[str, Any] = {}
         if self.phase == "build":
             reward = self.build.evaluate(cell, result).reward if result is not None else 0.0
             if self.build.built(cell):
@@ -80,5 +82,7 @@ class BuildAndBreak(Task):
                     reward += 1.0
                 self.phase = "build"
                 self.build.restart(cell)
+                # Where the base lies for the new build, as at reset: blocks may look alike.
+                restarted = {"base_position": cell.block_positions()[0].copy()}
         lost = any(cell.is_parked(b) for b in cell.block_ids)
-        return TaskStep(reward, self.breaks > 0, lost, self._info(cell))
+        return TaskStep(reward, self.breaks > 0, lost, self._info(cell) | restarted)
