@@ -26,7 +26,7 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.agents.evaluation.protocol import PERCEPTION
-from panda_grasp_env.agents.registry import BASELINES
+from panda_grasp_env.agents.policies.registry import BASELINES
 from panda_grasp_env.registration import BENCHMARKS
 
 RENDER = {"render_mode": "rgb_array", "render_size": (400, 300)}

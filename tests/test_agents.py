@@ -4,9 +4,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from panda_grasp_env.agents.grasping import OracleGraspAgent, PlannedGraspAgent
-from panda_grasp_env.agents.registry import BASELINES
-from panda_grasp_env.agents.towers import (
+from panda_grasp_env.agents.policies.grasping import OracleGraspAgent, PlannedGraspAgent
+from panda_grasp_env.agents.policies.registry import BASELINES
+from panda_grasp_env.agents.policies.towers import (
     CameraBlocks,
     DepthBlocks,
     OracleBlocks,
@@ -151,8 +151,8 @@ def test_the_phased_agent_acts_with_each_phase_policy_in_that_policy_slot():
     """build_and_break_dqn: the builder's grasp while building; while breaking, the breaker's own push (same
     heading and cell) moved into the push slot of BuildAndBreak's grasp-place-push layout."""
     from panda_grasp_env.agents.evaluation.protocol import phased_env
-    from panda_grasp_env.agents.learned import LearnedAgent
-    from panda_grasp_env.agents.phased import PhasedAgent
+    from panda_grasp_env.agents.policies.learned import LearnedAgent
+    from panda_grasp_env.agents.policies.phased import PhasedAgent
 
     env = phased_env("build_and_break_dqn", "BuildAndBreak")
     observation, info = env.reset(seed=0)

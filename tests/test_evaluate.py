@@ -95,7 +95,7 @@ def test_a_diverged_step_keeps_the_cycles_the_episode_completed():
 
     from panda_grasp_env.agents.evaluation.episodes import play_episode
     from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
-    from panda_grasp_env.agents.random_agent import RandomAgent
+    from panda_grasp_env.agents.policies.random_agent import RandomAgent
 
     class CycleThenDiverge(gym.Wrapper):  # a cycle done from the first step; the physics diverges at the second
         def step(self, action):
@@ -140,7 +140,7 @@ def test_random_agent_does_not_replay_the_scene_draws():
     import gymnasium as gym
     import numpy as np
 
-    from panda_grasp_env.agents.random_agent import RandomAgent
+    from panda_grasp_env.agents.policies.random_agent import RandomAgent
 
     env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
     towers, bare, agent_actions = [], [], []
@@ -234,7 +234,7 @@ def test_a_heightmap_policy_plays_the_other_scenes_of_its_task():
     import inspect
 
     from panda_grasp_env.agents.evaluation.protocol import learned_env, skip_reason
-    from panda_grasp_env.agents.learned import Checkpoint
+    from panda_grasp_env.agents.policies.learned import Checkpoint
     from panda_grasp_env.env import AGENT_OPTIONS, PandaEnv
 
     assert AGENT_OPTIONS <= set(inspect.signature(PandaEnv.__init__).parameters)

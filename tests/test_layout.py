@@ -179,7 +179,7 @@ def test_every_source_package_is_installed_under_panda_grasp_env():
 def test_outside_the_repository_only_panda_grasp_env_is_importable(tmp_path):
     script = (
         "import importlib.util as u, json\n"
-        "import panda_grasp_env.agents.learned, panda_grasp_env.perception.heightmap\n"
+        "import panda_grasp_env.agents.policies.learned, panda_grasp_env.perception.heightmap\n"
         "print(json.dumps({n: u.find_spec(n) is not None for n in ('agents', 'perception')}))\n"
     )
     done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=300)
@@ -207,9 +207,9 @@ def test_a_second_checkout_runs_its_own_code(tmp_path, installed):
     script = (
         "import json, sys\n"
         + ("" if installed else forget_the_install)
-        + "import panda_grasp_env, panda_grasp_env.agents.towers, panda_grasp_env.perception.heightmap\n"
+        + "import panda_grasp_env, panda_grasp_env.agents.policies.towers, panda_grasp_env.perception.heightmap\n"
         "print(json.dumps([sys.modules[n].__file__ for n in ('panda_grasp_env', 'panda_grasp_env.agents',\n"
-        "    'panda_grasp_env.perception', 'panda_grasp_env.agents.towers')]))\n"
+        "    'panda_grasp_env.perception', 'panda_grasp_env.agents.policies.towers')]))\n"
     )
     done = subprocess.run([sys.executable, "-c", script], cwd=checkout, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -226,7 +226,7 @@ def test_a_runs_commit_label_sees_changes_anywhere_in_the_repository(monkeypatch
 
     def fake_git(command, **kwargs):
         calls.append(command)
-        changed = " M agents/training.py\n" if "status" in command else ""
+        changed = " M agents/learning/training.py\n" if "status" in command else ""
         return subprocess.CompletedProcess(command, 0, stdout=changed or "abc1234\n", stderr="")
 
     monkeypatch.setattr(runs.subprocess, "run", fake_git)

@@ -12,9 +12,8 @@ import torch as th
 import yaml
 
 from panda_grasp_env.actions import PixelActions
-from panda_grasp_env.agents import learned
-from panda_grasp_env.agents.config import OutcomeReward, TrainConfig, load_config
-from panda_grasp_env.agents.heightmap_policy import (
+from panda_grasp_env.agents.learning.config import OutcomeReward, TrainConfig, load_config
+from panda_grasp_env.agents.learning.heightmap_policy import (
     HEIGHT_RANGE,
     EncodedHeightmap,
     FailureMemory,
@@ -26,10 +25,11 @@ from panda_grasp_env.agents.heightmap_policy import (
     rotation_grid,
     sample,
 )
-from panda_grasp_env.agents.policy_agent import PolicyAgent
-from panda_grasp_env.agents.policy_files import load_policy
-from panda_grasp_env.agents.records import load_best_policy, save_best_policy, ship
-from panda_grasp_env.agents.training import validation_score
+from panda_grasp_env.agents.learning.policy_files import load_policy
+from panda_grasp_env.agents.learning.records import load_best_policy, save_best_policy, ship
+from panda_grasp_env.agents.learning.training import validation_score
+from panda_grasp_env.agents.policies import learned
+from panda_grasp_env.agents.policies.policy_agent import PolicyAgent
 from panda_grasp_env.commands import train
 from panda_grasp_env.perception.heightmap import HeightmapGrid
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
@@ -484,8 +484,8 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
 
 
 def test_init_policy_starts_a_run_from_a_checkpoints_weights(finished_run, tmp_path, monkeypatch):
-    from panda_grasp_env.agents.config import make_vec_env
-    from panda_grasp_env.agents.training import build_model, initial_policy_source, load_initial_policy
+    from panda_grasp_env.agents.learning.config import make_vec_env
+    from panda_grasp_env.agents.learning.training import build_model, initial_policy_source, load_initial_policy
 
     monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path / "checkpoints")
     ship(finished_run, "tiny")
@@ -563,7 +563,7 @@ def test_her_pipeline_runs_with_vectorised_envs(tmp_path):
 
 
 def test_train_env_kwargs_reach_the_training_envs_only():
-    from panda_grasp_env.agents.config import make_env, make_vec_env
+    from panda_grasp_env.agents.learning.config import make_env, make_vec_env
 
     config = load_config(CONFIGS / "lift_sac_her.yaml", ["n_envs=2", "train_env_kwargs={start_in_hand: 0.5}"])
     training = make_vec_env(config)
@@ -649,7 +649,7 @@ def test_evaluate_runs_a_shipped_checkpoint_by_name_and_skips_other_tasks(finish
 
 def test_evaluation_plays_the_seeds_it_is_given():
     """Validation and the held-out test must be different episodes: evaluate_policy seeds from first_seed."""
-    from panda_grasp_env.agents.training import evaluate_policy
+    from panda_grasp_env.agents.learning.training import evaluate_policy
 
     class Still:  # a stand-in policy: do nothing
         def predict(self, observation, deterministic=True):
@@ -754,7 +754,7 @@ def test_resume_rebuilds_a_policy_pickled_under_a_retired_module_name(finished_r
     assert train.main(["--resume", str(old), "total_steps=14", "--no-progress", "--trust"]) == 0
     with zipfile.ZipFile(old / "latest.zip") as rewritten:
         policy_class = json.loads(rewritten.read("data"))["policy_class"]
-    assert policy_class["__module__"] == "panda_grasp_env.agents.heightmap_policy"
+    assert policy_class["__module__"] == "panda_grasp_env.agents.learning.heightmap_policy"
     assert isinstance(load_policy(old / "best_policy"), HeightmapQPolicy)
 
 
@@ -790,7 +790,7 @@ def test_maskable_ppo_cnn_policy_takes_the_encoded_heightmap_as_it_is():
     from sb3_contrib import MaskablePPO
     from stable_baselines3.common.preprocessing import is_image_space
 
-    from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap
+    from panda_grasp_env.agents.learning.heightmap_policy import EncodedHeightmap
 
     raw = gym.make(
         "panda_grasp_env:PandaGrasp-v0",

@@ -23,20 +23,20 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 
 # The built-in planned agents and experts register themselves (``registry``) when their modules are imported.
-import panda_grasp_env.agents.experts
-import panda_grasp_env.agents.grasping
-import panda_grasp_env.agents.put_in_bin
-import panda_grasp_env.agents.towers  # noqa: F401
+import panda_grasp_env.agents.policies.experts
+import panda_grasp_env.agents.policies.grasping
+import panda_grasp_env.agents.policies.put_in_bin
+import panda_grasp_env.agents.policies.towers  # noqa: F401
 from panda_grasp_env.actions import ACTION_MODES
-from panda_grasp_env.agents.registry import BASELINES, EXPERTS
+from panda_grasp_env.agents.policies.registry import BASELINES, EXPERTS
 from panda_grasp_env.env import AGENT_OPTIONS
 from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS, ENV_IDS, TASKS
 
 if TYPE_CHECKING:
-    from panda_grasp_env.agents.learned import Checkpoint
+    from panda_grasp_env.agents.policies.learned import Checkpoint
 
-#: The built-in agents; every shipped checkpoint (``panda_grasp_env.agents.learned.available_checkpoints``) is an
-#: agent too.
+#: The built-in agents; every shipped checkpoint (``panda_grasp_env.agents.policies.learned.available_checkpoints``)
+#: is an agent too.
 AGENTS = ("random", "planned", "oracle", "expert")
 #: What the perception agents (``planned``, ``oracle``) see: RGB-D from both cameras at 640 x 480.
 PERCEPTION = {"obs_mode": "rgbd", "cameras": ("overhead", "front"), "image_size": (640, 480)}
@@ -94,8 +94,8 @@ def task_label(env_id: str, env_kwargs: dict[str, Any]) -> str:
 
 def all_agents() -> tuple[str, ...]:
     """Built-in agents, then the shipped learned checkpoints by name, then the phased agents made of them."""
-    from panda_grasp_env.agents.learned import available_checkpoints
-    from panda_grasp_env.agents.phased import PHASED_AGENTS
+    from panda_grasp_env.agents.policies.learned import available_checkpoints
+    from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
 
     return (*AGENTS, *available_checkpoints(), *PHASED_AGENTS)
 
@@ -112,7 +112,7 @@ def skip_reason(agent: str, task: str) -> str | None:
         if task not in BASELINES:
             return f"no {agent} agent is written for {task}"
         return None
-    from panda_grasp_env.agents.phased import PHASED_AGENTS
+    from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
 
     if agent in PHASED_AGENTS:
         tasks = PHASED_AGENTS[agent].tasks
@@ -127,7 +127,7 @@ def learned_skip_reason(agent: str, task: str) -> str | None:
     at the same level of action (motion primitives or 25 Hz control) whose env, seen and acted on as the
     checkpoint was trained (``learned_env``), has the observation and action spaces it was trained on: a
     heightmap grasping policy trained on packed layouts plays random heaps and single objects too."""
-    from panda_grasp_env.agents.learned import Checkpoint
+    from panda_grasp_env.agents.policies.learned import Checkpoint
 
     checkpoint = Checkpoint(agent)
     config = checkpoint.config
@@ -148,7 +148,7 @@ def learned_skip_reason(agent: str, task: str) -> str | None:
 def _space_differing(path: Path, card: str, weights: str, task: str) -> str | None:
     """The space (observation or action) in which ``task``'s env for the checkpoint at ``path`` differs from the
     one it was trained on, or None; once per checkpoint folder, card, weights and task: it makes two envs."""
-    from panda_grasp_env.agents.learned import Checkpoint
+    from panda_grasp_env.agents.policies.learned import Checkpoint
 
     checkpoint = Checkpoint(path)
     with checkpoint.make_env() as trained, learned_env(checkpoint, task) as benchmark:
@@ -173,8 +173,8 @@ def learned_env(checkpoint: Checkpoint, task: str, **options: Any) -> gym.Env:
 def phased_env(name: str, task: str, **options: Any) -> gym.Env:
     """The env phased agent ``name`` plays ``task`` in: the task's scene, seen and acted on as its first part
     was trained (``learned_env``)."""
-    from panda_grasp_env.agents.learned import Checkpoint
-    from panda_grasp_env.agents.phased import PHASED_AGENTS
+    from panda_grasp_env.agents.policies.learned import Checkpoint
+    from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
 
     return learned_env(Checkpoint(PHASED_AGENTS[name].first), task, **options)
 
@@ -308,8 +308,8 @@ class Protocol:
 
     def checkpoints(self) -> list[Checkpoint]:
         """The shipped checkpoints among the agents (a phased agent's parts) that play at least one of the tasks."""
-        from panda_grasp_env.agents.learned import Checkpoint
-        from panda_grasp_env.agents.phased import PHASED_AGENTS
+        from panda_grasp_env.agents.policies.learned import Checkpoint
+        from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
 
         names: list[str] = []
         for agent in self.agents:

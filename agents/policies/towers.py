@@ -18,8 +18,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
-from panda_grasp_env.agents.registry import BaselineFactory, register_baseline
+from panda_grasp_env.agents.policies.base import CameraViews, PrimitiveActionWriter, record_failure, require
+from panda_grasp_env.agents.policies.registry import BaselineFactory, register_baseline
 from panda_grasp_env.perception.pose import (
     detect_towers,
     estimate_block_poses,

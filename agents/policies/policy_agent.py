@@ -20,7 +20,7 @@ class PolicyAgent:
     def __init__(
         self, model: Any, transform: Callable[[Any, dict[str, Any]], Any], name: str, avoid_failures: bool = False
     ) -> None:
-        from panda_grasp_env.agents.heightmap_policy import FailureMemory, HeightmapQPolicy
+        from panda_grasp_env.agents.learning.heightmap_policy import FailureMemory, HeightmapQPolicy
 
         self.model, self.transform, self.name = model, transform, name
         self.policy = getattr(model, "policy", model)  # an SB3 model's policy, or the policy itself
