@@ -425,6 +425,10 @@ class HeightmapQPolicy(DQNPolicy):
             avoid = None if excluded is None else th.as_tensor(excluded, device=self.device)[None]
             return int(self._best_allowed(batch, avoid))
 
+    def failure_memory(self) -> FailureMemory:
+        """An empty ``FailureMemory`` for this policy's actions (``PolicyAgent(avoid_failures=True)`` keeps one)."""
+        return FailureMemory(self.shape, self.network_args["cell_size"], self.network_args["primitives"])
+
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return {
             "observation_space": self.observation_space,
