@@ -167,6 +167,33 @@ def test_the_evaluation_modules_import_only_those_below_them():
     assert upward == []
 
 
+#: The agents' sub-packages, bottom first: evaluation plays the policies; learning validates its runs through
+#: evaluation's episodes and metrics.  Nothing else sits in agents/ (its ``checkpoints/`` are package data).
+AGENT_PACKAGES = ("policies", "evaluation", "learning")
+#: The only imports against that order: a learned agent reads what learning wrote, its training config (the env
+#: and the view of it the policy was trained on) and its policy files.  They close a loop between the
+#: sub-packages, never between modules (``test_no_import_cycles``): config and policy_files import nothing of
+#: evaluation or of the policies.
+LEARNED_AGENT_READS = {
+    "panda_grasp_env.agents.policies.learned -> panda_grasp_env.agents.learning.config",
+    "panda_grasp_env.agents.policies.learned -> panda_grasp_env.agents.learning.policy_files",
+}
+
+
+def test_the_agents_sub_packages_import_only_those_below_them():
+    rank = {name: i for i, name in enumerate(AGENT_PACKAGES)}
+    package_of = {m: m.split(".")[2] for m in module_files() if m.startswith("panda_grasp_env.agents.")}
+    assert set(package_of.values()) == set(rank)  # every module is in a sub-package
+    graph = import_graph()
+    upward = {
+        f"{m} -> {t}"
+        for m in package_of
+        for t in graph[m] & package_of.keys()
+        if rank[package_of[t]] > rank[package_of[m]]
+    }
+    assert upward == LEARNED_AGENT_READS
+
+
 def test_every_source_package_is_installed_under_panda_grasp_env():
     tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
     config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
