@@ -57,7 +57,8 @@ def marker(tmp_path):
 
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
-    from tests.test_training import CONFIGS, TINY_DQN
+    from tests.test_train_config import CONFIGS
+    from tests.test_training import TINY_DQN
 
     runs = tmp_path_factory.mktemp("runs")
     config = str(CONFIGS / "grasp_clutter_dqn.yaml")
@@ -118,7 +119,8 @@ def test_evaluate_refuses_a_payload_checkpoint_with_one_error_line(shipped, tmp_
 
 
 def test_init_policy_refuses_a_payload_checkpoint(shipped, tmp_path, marker, capsys):
-    from tests.test_training import CONFIGS, TINY_DQN
+    from tests.test_train_config import CONFIGS
+    from tests.test_training import TINY_DQN
 
     pickled_checkpoint(shipped, marker)
     runs = tmp_path / "runs"

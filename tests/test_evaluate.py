@@ -7,6 +7,8 @@ import pytest
 
 from panda_grasp_env.agents.evaluation import runner
 from panda_grasp_env.agents.evaluation.report import applicable
+from panda_grasp_env.agents.learning.records import ship
+from panda_grasp_env.agents.policies import learned
 from panda_grasp_env.commands import evaluate
 
 ARGS = ["--agents", "random,oracle", "--tasks", "TowerBreak", "--seeds", "2", "--no-video"]
@@ -395,3 +397,20 @@ def test_negative_seeds_get_the_projects_message(capsys):
             evaluate.parse_args(argv)
         err = capsys.readouterr().err
         assert "--seed-list must hold distinct seeds >= 0" in err and "expected one argument" not in err
+
+
+def test_evaluate_runs_a_shipped_checkpoint_by_name_and_skips_other_tasks(finished_run, tmp_path, monkeypatch):
+    from panda_grasp_env.commands import evaluate
+
+    monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path / "checkpoints")
+    ship(finished_run, "tiny")
+    out = tmp_path / "results"
+    args = ["--agents", "tiny,random", "--tasks", "Grasp,Push", "--seeds", "1", "--no-video", "--out", str(out)]
+    assert evaluate.main(args) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert set(results["metrics"]) == {"tiny/Grasp", "random/Grasp", "random/Push"}
+    report = (out / "report.md").read_text()
+    assert "skipped tiny/Push: checkpoint tiny was trained for Grasp" in report
+    assert (out / "curve_tiny.png").exists()
+    with pytest.raises(SystemExit):
+        evaluate.main(["--agents", "nope", "--out", str(out)])
