@@ -1,10 +1,13 @@
-"""Decision makers that choose actions, and how the learned ones are trained.
+"""Decision makers: the agents that act, the benchmark that evaluates them, and how the learned ones are made.
 
-Agents (``base.Agent``): random, planned (perception-based: ``towers``, ``grasping`` with ``push_planner``,
-``put_in_bin``), oracle (the same on true poses), scripted low-level experts (``experts``) and shipped learned
-policies (``learned``, ``policy_agent``), registered for ``evaluate.py`` in ``registry``.  Learning: configs and
-runs (``config``, ``training``, ``seed_runs``, ``records``, ``policy_files``), the heightmap Q-network
-(``heightmap_policy``), demonstrations and imitation (``demonstrations``, ``datasets``, ``imitation``,
-``heightmap_imitation``).  Evaluation: the benchmark's protocol, episodes, runner, metrics and report
-(the ``evaluation`` package), and training seeds' figures (``seed_figures``).
+Three sub-packages, bottom first (``tests/test_layout.py`` keeps their imports to this order):
+
+``policies``: the agents -- the ``Agent`` protocol, the random, planned and oracle baselines, scripted low-level
+experts, shipped learned policies and the phased agents made of them, and the registry ``evaluate.py`` finds
+them in.  ``evaluation``: the benchmark ``evaluate.py`` runs -- its protocol, episodes, runner, metrics and
+report.  ``learning``: what ``train.py`` runs -- training configs and runs (validated through ``evaluation``'s
+episodes), the heightmap Q-network, policies as files, demonstrations and imitation, run records and shipping,
+figures over training seeds.  The one import against the order: a learned agent (``policies.learned``) reads
+what learning wrote, its training config and its policy files.  ``checkpoints/`` holds the shipped learned
+policies' files (package data).
 """

@@ -13,9 +13,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from panda_grasp_env.agents.config import HEIGHTMAP_ALGORITHMS
 from panda_grasp_env.agents.evaluation.metrics import clustered_rate, describe_rate, rate, wilson  # noqa: F401  (one implementation each)
-from panda_grasp_env.agents.learned import Checkpoint, available_checkpoints
+from panda_grasp_env.agents.learning.config import HEIGHTMAP_ALGORITHMS
+from panda_grasp_env.agents.policies.learned import Checkpoint, available_checkpoints
 from panda_grasp_env.tooling.runs import machine as machine_name
 from panda_grasp_env.tooling.runs import write_atomically
 
@@ -40,7 +40,7 @@ def policy_figures(metrics: dict[str, Any]) -> dict[str, Any]:
 
 def check_selection_episodes(parser: argparse.ArgumentParser, episodes: int) -> None:
     """``parser.error`` unless ``episodes`` episodes from the selection seeds stay clear of the test seeds."""
-    from panda_grasp_env.agents.config import MOST_SELECTION_EPISODES
+    from panda_grasp_env.agents.learning.config import MOST_SELECTION_EPISODES
 
     if not 1 <= episodes <= MOST_SELECTION_EPISODES:
         parser.error(f"--episodes must be in [1, {MOST_SELECTION_EPISODES}] (clear of the test seeds)")

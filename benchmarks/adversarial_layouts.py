@@ -7,7 +7,7 @@
 ``PandaGraspAdversarial-v0`` with ``layout=i``; run ``k`` of a layout is seed ``--first-seed + 100 * i + k``
 (the seed draws the layout's pose jitter).  Agents:
 
-* ``grasp_only``: true object poses (``panda_grasp_env.agents.grasping.PackedGraspOracle``), the best grasp
+* ``grasp_only``: true object poses (``panda_grasp_env.agents.policies.grasping.PackedGraspOracle``), the best grasp
   whose fingers clear every other object, never a push;
 * ``push_aware``: the same, and a planned push when no such grasp is left;
 * any shipped heightmap checkpoint by name (e.g. ``grasp_clutter_dqn``, grasps only; ``push_grasp_dqn``),
@@ -41,8 +41,8 @@ import gymnasium as gym  # noqa: E402
 
 from benchmarks._common import Results, wilson  # noqa: E402
 from panda_grasp_env.agents.evaluation.protocol import learned_env  # noqa: E402
-from panda_grasp_env.agents.grasping import PackedGraspOracle  # noqa: E402
-from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent, available_checkpoints  # noqa: E402
+from panda_grasp_env.agents.policies.grasping import PackedGraspOracle  # noqa: E402
+from panda_grasp_env.agents.policies.learned import Checkpoint, LearnedAgent, available_checkpoints  # noqa: E402
 from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS  # noqa: E402
 
 AGENTS = {"grasp_only": False, "push_aware": True}

@@ -32,8 +32,8 @@ for _threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import gymnasium as gym
 
 from benchmarks._common import Results, clustered_rate, describe_rate, rate
-from panda_grasp_env.agents.grasping import PlannedGraspAgent
-from panda_grasp_env.agents.towers import OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
+from panda_grasp_env.agents.policies.grasping import PlannedGraspAgent
+from panda_grasp_env.agents.policies.towers import OracleBlocks, TowerBreakerAgent, TowerBuilderAgent
 
 RGBD = {"obs_mode": "rgbd", "image_size": (640, 480)}
 

@@ -3,7 +3,7 @@
     python benchmarks/cnn_policy.py [--env PandaGraspClutter-v0] [--steps 256] [--resolution 0.004] [--rotations 4]
 
 The env's ``heightmap`` observation is (rows, cols, 4) float32, channels last (colour 0-1, height in metres),
-which SB3's ``CnnPolicy`` cannot take; ``panda_grasp_env.agents.heightmap_policy.EncodedHeightmap`` gives it as
+which SB3's ``CnnPolicy`` cannot take; ``panda_grasp_env.agents.learning.heightmap_policy.EncodedHeightmap`` gives it as
 (4, rows, cols) uint8, channels first (height in millimetres up to 255), which it takes as it is.  This runs
 MaskablePPO (``CnnPolicy``: SB3's NatureCNN, the env's ``action_masks``) for ``--steps`` env steps on one torch
 thread and prints the policy's parameter count, the process's peak resident memory and the wall time.
@@ -32,7 +32,7 @@ def main() -> None:
     import torch
     from sb3_contrib import MaskablePPO
 
-    from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap
+    from panda_grasp_env.agents.learning.heightmap_policy import EncodedHeightmap
 
     torch.set_num_threads(1)
     start = time.perf_counter()

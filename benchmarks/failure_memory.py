@@ -23,9 +23,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from benchmarks._common import Results, check_selection_episodes, policy_figures, shipped_checkpoints
-from panda_grasp_env.agents.config import SELECTION_SEED_OFFSET, TEST_SEED_OFFSET
-from panda_grasp_env.agents.learned import Checkpoint
-from panda_grasp_env.agents.training import evaluate_policy
+from panda_grasp_env.agents.learning.config import SELECTION_SEED_OFFSET, TEST_SEED_OFFSET
+from panda_grasp_env.agents.learning.training import evaluate_policy
+from panda_grasp_env.agents.policies.learned import Checkpoint
 
 SEED_OFFSETS = {"test": TEST_SEED_OFFSET, "selection": SELECTION_SEED_OFFSET}
 

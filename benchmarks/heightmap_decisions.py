@@ -33,7 +33,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import torch as th  # noqa: E402
 
 from benchmarks._common import Results, shipped_checkpoints  # noqa: E402
-from panda_grasp_env.agents.learned import LearnedAgent  # noqa: E402
+from panda_grasp_env.agents.policies.learned import LearnedAgent  # noqa: E402
 
 RECORDED = ROOT / "tests" / "data" / "heightmap_decisions.npz"
 #: Env steps per episode while recording: enough to see towers half built and tables half cleared.

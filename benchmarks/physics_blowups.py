@@ -26,8 +26,8 @@ import mujoco
 import numpy as np
 
 from benchmarks._common import Results, rate, shipped_checkpoints
-from panda_grasp_env.agents.config import TEST_SEED_OFFSET
-from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent
+from panda_grasp_env.agents.learning.config import TEST_SEED_OFFSET
+from panda_grasp_env.agents.policies.learned import Checkpoint, LearnedAgent
 from panda_grasp_env.model.robot import FINGER_OPEN
 from panda_grasp_env.sim.workcell import Workcell
 

@@ -31,7 +31,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede th
 import numpy as np  # noqa: E402
 
 from benchmarks._common import Results, rate  # noqa: E402
-from panda_grasp_env.agents.towers import build_tower, push_tower  # noqa: E402
+from panda_grasp_env.agents.policies.towers import build_tower, push_tower  # noqa: E402
 from panda_grasp_env.control.controller import wrap_gripper_yaw  # noqa: E402
 from panda_grasp_env.geometry import yaw_quaternion  # noqa: E402
 from panda_grasp_env.model.scene import SceneConfig  # noqa: E402

@@ -23,10 +23,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from benchmarks._common import Results, check_selection_episodes, policy_figures
-from panda_grasp_env.agents.config import load_run
 from panda_grasp_env.agents.evaluation.metrics import describe_rate
-from panda_grasp_env.agents.records import load_best_policy
-from panda_grasp_env.agents.training import evaluate_on_selection_seeds, validation_score
+from panda_grasp_env.agents.learning.config import load_run
+from panda_grasp_env.agents.learning.records import load_best_policy
+from panda_grasp_env.agents.learning.training import evaluate_on_selection_seeds, validation_score
 
 
 def measure(run_dir: Path, episodes: int) -> dict:

@@ -26,8 +26,7 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
-from panda_grasp_env.agents.evaluation.protocol import PERCEPTION
-from panda_grasp_env.agents.registry import BASELINES
+from panda_grasp_env.agents.evaluation.protocol import PERCEPTION, baseline
 
 RENDER = {"render_mode": "rgb_array", "render_size": (400, 300)}
 
@@ -46,7 +45,7 @@ def play(env: gym.Env, agent, seed: int) -> tuple[bool, int]:
 def planned_tower(seed: int) -> np.ndarray:
     benchmark = BENCHMARKS["TowerBuild6"]
     env = gym.make(f"panda_grasp_env:{benchmark.env_id}", **benchmark.options, **PERCEPTION, **RENDER)
-    built, actions = play(env, BASELINES["TowerBuild6"](env, seed, False), seed)
+    built, actions = play(env, baseline("TowerBuild6")(env, seed, False), seed)
     print(f"planned on TowerBuild6, seed {seed}: {'built' if built else 'not built'} in {actions} actions")
     frame = env.render()
     env.close()
@@ -58,7 +57,7 @@ def planned_break(seed: int) -> tuple[np.ndarray, np.ndarray]:
     env = gym.make(f"panda_grasp_env:{benchmark.env_id}", **benchmark.options, **PERCEPTION, **RENDER)
     observation, info = env.reset(seed=seed)
     standing = env.render()
-    agent = BASELINES["TowerBreak8"](env, seed, False)
+    agent = baseline("TowerBreak8")(env, seed, False)
     agent.reset(observation, info)
     _, _, _, _, info = env.step(agent.act(observation, info))
     print(f"planned on TowerBreak8, seed {seed}: push {info['primitive_reason']}, success {info['is_success']}")

@@ -34,7 +34,7 @@ import gymnasium as gym
 import numpy as np
 
 from benchmarks._common import Results, rate
-from panda_grasp_env.agents.random_agent import RandomAgent
+from panda_grasp_env.agents.policies.random_agent import RandomAgent
 
 SCENES = ("PandaTowerBuild-v0", "PandaTowerBreak-v0", "PandaBuildAndBreak-v0", "PandaGraspClutter-v0")
 #: Episode seeds start here (apart from the evaluation and training seeds).

@@ -27,7 +27,7 @@ import gymnasium as gym
 import numpy as np
 
 from benchmarks._common import rate
-from panda_grasp_env.agents.config import TEST_SEED_OFFSET, TrainConfig
+from panda_grasp_env.agents.learning.config import TEST_SEED_OFFSET, TrainConfig
 
 #: Where the held-out test seeds of this repository's own runs start (default ``eval_seed`` + offset).
 TEST_SEED_START = TrainConfig.eval_seed + TEST_SEED_OFFSET

@@ -1,5 +1,7 @@
+import json
 import os
 from collections.abc import Callable
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -42,3 +44,21 @@ def rng() -> np.random.Generator:
 def private_run_key(tmp_path_factory: pytest.TempPathFactory) -> None:
     """Run files are signed with a key under ``$XDG_STATE_HOME``: one for the session, not the user's own."""
     os.environ["XDG_STATE_HOME"] = str(tmp_path_factory.mktemp("state"))
+
+
+@pytest.fixture(scope="session")
+def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny pixel-mode DQN run, trained in two sessions (the second resumes the first); one per test process,
+    for the tests of training, records, shipped checkpoints and evaluate.py."""
+    from test_train_config import CONFIGS
+    from test_training import TINY_DQN
+
+    from panda_grasp_env.commands import train
+
+    runs = tmp_path_factory.mktemp("runs")
+    config = str(CONFIGS / "grasp_clutter_dqn.yaml")
+    assert train.main(["--config", config, "--runs", str(runs), "--no-progress", *TINY_DQN, "total_steps=6"]) == 0
+    run = runs / "grasp_clutter_dqn-seed0"
+    assert json.loads((run / "progress.json").read_text())["steps"] == 6
+    assert train.main(["--resume", str(run), "total_steps=12", "--no-progress"]) == 0
+    return run

@@ -4,9 +4,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from panda_grasp_env.agents.grasping import OracleGraspAgent, PlannedGraspAgent
-from panda_grasp_env.agents.registry import BASELINES
-from panda_grasp_env.agents.towers import (
+from panda_grasp_env.agents.evaluation.protocol import baseline
+from panda_grasp_env.agents.policies.grasping import OracleGraspAgent, PlannedGraspAgent
+from panda_grasp_env.agents.policies.registry import BASELINES
+from panda_grasp_env.agents.policies.towers import (
     CameraBlocks,
     DepthBlocks,
     OracleBlocks,
@@ -46,7 +47,7 @@ def test_planned_builder_stacks_a_tall_tower_in_ideal_actions(n_blocks):
 
     benchmark = BENCHMARKS[f"TowerBuild{n_blocks}"]
     env = gym.make(f"panda_grasp_env:{benchmark.env_id}", cameras=("overhead", "front"), **RGBD, **benchmark.options)
-    agent = BASELINES[f"TowerBuild{n_blocks}"](env, 0, False)
+    agent = baseline(f"TowerBuild{n_blocks}")(env, 0, False)
     info, actions = run(env, agent, seed=0)
     positions = env.unwrapped.cell.block_positions()
     assert info["is_success"] and info["stack_height"] == n_blocks and actions == 2 * (n_blocks - 1)
@@ -84,7 +85,7 @@ def test_planned_breaker_topples_a_tall_tower_with_one_push(n_blocks):
     benchmark = BENCHMARKS[f"TowerBreak{n_blocks}"]
     env = gym.make(f"panda_grasp_env:{benchmark.env_id}", cameras=("overhead", "front"), **RGBD, **benchmark.options)
     # Seed 1's push towards the middle starts beyond the tower (from the robot), where the forearm strikes it.
-    info, actions = run(env, BASELINES[f"TowerBreak{n_blocks}"](env, 0, False), seed=1)
+    info, actions = run(env, baseline(f"TowerBreak{n_blocks}")(env, 0, False), seed=1)
     assert info["is_success"] and actions == 1 and info["primitive_reason"] == "ok"
     env.close()
 
@@ -151,8 +152,8 @@ def test_the_phased_agent_acts_with_each_phase_policy_in_that_policy_slot():
     """build_and_break_dqn: the builder's grasp while building; while breaking, the breaker's own push (same
     heading and cell) moved into the push slot of BuildAndBreak's grasp-place-push layout."""
     from panda_grasp_env.agents.evaluation.protocol import phased_env
-    from panda_grasp_env.agents.learned import LearnedAgent
-    from panda_grasp_env.agents.phased import PhasedAgent
+    from panda_grasp_env.agents.policies.learned import LearnedAgent
+    from panda_grasp_env.agents.policies.phased import PhasedAgent
 
     env = phased_env("build_and_break_dqn", "BuildAndBreak")
     observation, info = env.reset(seed=0)
@@ -184,7 +185,7 @@ class ScriptedBlocks:
         pass
 
     def __call__(self, observation):
-        from panda_grasp_env.agents.towers import SeenBlock
+        from panda_grasp_env.agents.policies.towers import SeenBlock
 
         return {name: SeenBlock(np.array(xyz, dtype=float), 0.0) for name, xyz in self.scene.items()}
 

@@ -18,8 +18,7 @@ import numpy as np
 import pytest
 import torch as th
 
-from panda_grasp_env.agents import learned
-from panda_grasp_env.agents.policy_files import (
+from panda_grasp_env.agents.learning.policy_files import (
     export_sb3,
     load_policy,
     load_sb3,
@@ -28,7 +27,8 @@ from panda_grasp_env.agents.policy_files import (
     space_from_json,
     space_to_json,
 )
-from panda_grasp_env.agents.records import ship
+from panda_grasp_env.agents.learning.records import ship
+from panda_grasp_env.agents.policies import learned
 from panda_grasp_env.commands import evaluate, train
 from panda_grasp_env.tooling.runs import sign_run_files
 
@@ -57,7 +57,8 @@ def marker(tmp_path):
 
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
-    from tests.test_training import CONFIGS, TINY_DQN
+    from tests.test_train_config import CONFIGS
+    from tests.test_training import TINY_DQN
 
     runs = tmp_path_factory.mktemp("runs")
     config = str(CONFIGS / "grasp_clutter_dqn.yaml")
@@ -118,7 +119,8 @@ def test_evaluate_refuses_a_payload_checkpoint_with_one_error_line(shipped, tmp_
 
 
 def test_init_policy_refuses_a_payload_checkpoint(shipped, tmp_path, marker, capsys):
-    from tests.test_training import CONFIGS, TINY_DQN
+    from tests.test_train_config import CONFIGS
+    from tests.test_training import TINY_DQN
 
     pickled_checkpoint(shipped, marker)
     runs = tmp_path / "runs"
@@ -181,6 +183,21 @@ def test_policy_files_round_trip_with_identical_actions(shipped, tmp_path):
     weights.write_bytes(policy_paths(shipped / "policy")[1].read_bytes()[:-4] + b"\0\0\0\0")
     with pytest.raises(ValueError, match="is not the weights"):
         load_policy(tmp_path / "again")
+
+
+def test_policy_files_name_the_heightmap_policy_by_a_name_its_module_can_move_under():
+    """Shipped files name the policy class as it was first saved; moving its module renames nothing in them."""
+    from panda_grasp_env.agents.learning.heightmap_policy import HeightmapQPolicy
+    from panda_grasp_env.agents.learning.policy_files import class_name, policy_classes
+
+    folders = [learned.CHECKPOINTS / name for name in learned.available_checkpoints()]
+    files = [
+        json.loads((folder / file).read_text()) for folder in folders for file in ("policy.json", "checkpoint.json")
+    ]
+    named = {facts["policy_class"] for facts in files if "policy_class" in facts}
+    assert named <= set(policy_classes())
+    heightmap = class_name(HeightmapQPolicy)
+    assert heightmap in named and not heightmap.startswith(HeightmapQPolicy.__module__)
 
 
 def test_a_policy_with_one_feature_extractor_for_actor_and_critics_round_trips(tmp_path):
@@ -363,7 +380,7 @@ def test_policy_files_beyond_a_bound_are_refused_naming_the_file_and_the_field(s
 
 
 def test_weights_beyond_the_size_limit_are_refused_before_they_are_read(sac_folder, monkeypatch):
-    from panda_grasp_env.agents import policy_files
+    from panda_grasp_env.agents.learning import policy_files
 
     monkeypatch.setattr(policy_files, "MAX_WEIGHTS_BYTES", 1000)
     with pytest.raises(ValueError, match=r"policy.safetensors holds \d+ bytes, more than the 1000"):

@@ -8,7 +8,7 @@ import pytest
 
 minari = pytest.importorskip("minari")
 
-from panda_grasp_env.agents import demonstrations  # noqa: E402
+from panda_grasp_env.agents.learning import demonstrations  # noqa: E402
 
 
 def record(tmp_path, *argv):
@@ -90,7 +90,7 @@ def test_replay_never_builds_the_env_a_datasets_entry_point_names(push_dataset, 
             demonstrations.replay(minari.MinariDataset(folder))
     finally:
         assert not (tmp_path / "payload-ran").exists(), "the dataset's payload ran"
-    from panda_grasp_env.agents import datasets
+    from panda_grasp_env.agents.learning import datasets
 
     with pytest.raises(ValueError, match="metadata.json: env_spec"):
         datasets.open_dataset(folder)
@@ -100,7 +100,7 @@ def test_replay_never_builds_the_env_a_datasets_entry_point_names(push_dataset, 
 
 
 def test_a_dataset_without_its_spaces_is_refused_before_minari_would_build_its_env(push_dataset, tmp_path):
-    from panda_grasp_env.agents import datasets
+    from panda_grasp_env.agents.learning import datasets
 
     folder = tmp_path / "data"
     shutil.copytree(push_dataset, folder)

@@ -195,7 +195,7 @@ def test_a_zero_height_action_holds_the_height_while_the_hand_moves_fast():
 
 
 def test_pixel_mode_publishes_its_action_layout():
-    from panda_grasp_env.agents.base import PrimitiveActionWriter
+    from panda_grasp_env.agents.policies.base import PrimitiveActionWriter
 
     env = make("PandaTowerBreak-v0", action_mode="pixel", rotations=8)
     _, info = env.reset(seed=0)

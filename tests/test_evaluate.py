@@ -7,6 +7,8 @@ import pytest
 
 from panda_grasp_env.agents.evaluation import runner
 from panda_grasp_env.agents.evaluation.report import applicable
+from panda_grasp_env.agents.learning.records import ship
+from panda_grasp_env.agents.policies import learned
 from panda_grasp_env.commands import evaluate
 
 ARGS = ["--agents", "random,oracle", "--tasks", "TowerBreak", "--seeds", "2", "--no-video"]
@@ -95,7 +97,7 @@ def test_a_diverged_step_keeps_the_cycles_the_episode_completed():
 
     from panda_grasp_env.agents.evaluation.episodes import play_episode
     from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
-    from panda_grasp_env.agents.random_agent import RandomAgent
+    from panda_grasp_env.agents.policies.random_agent import RandomAgent
 
     class CycleThenDiverge(gym.Wrapper):  # a cycle done from the first step; the physics diverges at the second
         def step(self, action):
@@ -140,7 +142,7 @@ def test_random_agent_does_not_replay_the_scene_draws():
     import gymnasium as gym
     import numpy as np
 
-    from panda_grasp_env.agents.random_agent import RandomAgent
+    from panda_grasp_env.agents.policies.random_agent import RandomAgent
 
     env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
     towers, bare, agent_actions = [], [], []
@@ -233,7 +235,7 @@ def test_a_heightmap_policy_plays_the_other_scenes_of_its_task():
     import inspect
 
     from panda_grasp_env.agents.evaluation.protocol import learned_env, skip_reason
-    from panda_grasp_env.agents.learned import Checkpoint
+    from panda_grasp_env.agents.policies.learned import Checkpoint
     from panda_grasp_env.env import AGENT_OPTIONS, PandaEnv
 
     assert AGENT_OPTIONS <= set(inspect.signature(PandaEnv.__init__).parameters)
@@ -394,3 +396,20 @@ def test_negative_seeds_get_the_projects_message(capsys):
             evaluate.parse_args(argv)
         err = capsys.readouterr().err
         assert "--seed-list must hold distinct seeds >= 0" in err and "expected one argument" not in err
+
+
+def test_evaluate_runs_a_shipped_checkpoint_by_name_and_skips_other_tasks(finished_run, tmp_path, monkeypatch):
+    from panda_grasp_env.commands import evaluate
+
+    monkeypatch.setattr(learned, "CHECKPOINTS", tmp_path / "checkpoints")
+    ship(finished_run, "tiny")
+    out = tmp_path / "results"
+    args = ["--agents", "tiny,random", "--tasks", "Grasp,Push", "--seeds", "1", "--no-video", "--out", str(out)]
+    assert evaluate.main(args) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert set(results["metrics"]) == {"tiny/Grasp", "random/Grasp", "random/Push"}
+    report = (out / "report.md").read_text()
+    assert "skipped tiny/Push: checkpoint tiny was trained for Grasp" in report
+    assert (out / "curve_tiny.png").exists()
+    with pytest.raises(SystemExit):
+        evaluate.main(["--agents", "nope", "--out", str(out)])

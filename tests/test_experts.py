@@ -6,8 +6,8 @@ import pytest
 
 from panda_grasp_env.agents.evaluation.episodes import make_agent, make_env, play_episode
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, skip_reason
-from panda_grasp_env.agents.experts import LiftExpert
-from panda_grasp_env.agents.registry import EXPERTS
+from panda_grasp_env.agents.policies.experts import LiftExpert
+from panda_grasp_env.agents.policies.registry import EXPERTS
 
 
 @pytest.mark.parametrize("task", sorted(EXPERTS))

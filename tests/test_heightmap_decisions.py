@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from panda_grasp_env.agents.config import HEIGHTMAP_ALGORITHMS
-from panda_grasp_env.agents.learned import Checkpoint, available_checkpoints
+from panda_grasp_env.agents.learning.config import HEIGHTMAP_ALGORITHMS
+from panda_grasp_env.agents.policies.learned import Checkpoint, available_checkpoints
 
 RECORDED = Path(__file__).parent / "data" / "heightmap_decisions.npz"
 

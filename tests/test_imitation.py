@@ -8,10 +8,10 @@ import torch
 
 pytest.importorskip("minari")
 
-from panda_grasp_env.agents import demonstrations  # noqa: E402
-from panda_grasp_env.agents.config import config_from_dict  # noqa: E402
-from panda_grasp_env.agents.imitation import BehaviourCloning, Demonstrations, TQCFromDemonstrations  # noqa: E402
-from panda_grasp_env.agents.training import start_run, train  # noqa: E402
+from panda_grasp_env.agents.learning import demonstrations  # noqa: E402
+from panda_grasp_env.agents.learning.config import config_from_dict  # noqa: E402
+from panda_grasp_env.agents.learning.imitation import BehaviourCloning, Demonstrations, TQCFromDemonstrations  # noqa: E402
+from panda_grasp_env.agents.learning.training import start_run, train  # noqa: E402
 
 DATASET = "panda_grasp_env/stack-expert-v0"
 
@@ -122,7 +122,7 @@ def test_configs_without_demonstrations_are_refused():
 
 
 def test_a_camera_policy_sees_only_the_observation_keys_it_names():
-    from panda_grasp_env.agents.config import observation_transform, training_env
+    from panda_grasp_env.agents.learning.config import observation_transform, training_env
 
     raw = {"name": "x", "env_id": "PandaGrasp-v0", "algo": "sac", "total_steps": 10,
            "env_kwargs": {"action_mode": "ee_delta", "obs_mode": "proprio+rgb", "cameras": ["overhead", "wrist"],
@@ -143,7 +143,7 @@ def test_a_camera_policy_sees_only_the_observation_keys_it_names():
 
 
 def test_image_shift_moves_each_image_within_its_padding_and_leaves_vectors_alone():
-    from panda_grasp_env.agents.imitation import _shifted
+    from panda_grasp_env.agents.learning.imitation import _shifted
 
     images = torch.randint(0, 256, (8, 3, 12, 10), dtype=torch.uint8)
     vector = torch.randn(8, 5)
@@ -176,8 +176,8 @@ def pixel_dataset_path(tmp_path_factory):
 def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_them_first(
     pixel_dataset_path, monkeypatch
 ):
-    from panda_grasp_env.agents.heightmap_imitation import FULL_MARGIN_DISTANCE, HeightmapDQNFromDemonstrations
-    from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap, HeightmapQPolicy, encode_heightmap
+    from panda_grasp_env.agents.learning.heightmap_imitation import FULL_MARGIN_DISTANCE, HeightmapDQNFromDemonstrations
+    from panda_grasp_env.agents.learning.heightmap_policy import EncodedHeightmap, HeightmapQPolicy, encode_heightmap
 
     demos = {"dataset": PIXEL_DATASET, "episodes": 1, "path": pixel_dataset_path}
     episode = Demonstrations.of(demos).episodes_data()[0]

@@ -168,6 +168,33 @@ def test_the_evaluation_modules_import_only_those_below_them():
     assert upward == []
 
 
+#: The agents' sub-packages, bottom first: evaluation plays the policies; learning validates its runs through
+#: evaluation's episodes and metrics.  Nothing else sits in agents/ (its ``checkpoints/`` are package data).
+AGENT_PACKAGES = ("policies", "evaluation", "learning")
+#: The only imports against that order: a learned agent reads what learning wrote, its training config (the env
+#: and the view of it the policy was trained on) and its policy files.  They close a loop between the
+#: sub-packages, never between modules (``test_no_import_cycles``): config and policy_files import nothing of
+#: evaluation or of the policies.
+LEARNED_AGENT_READS = {
+    "panda_grasp_env.agents.policies.learned -> panda_grasp_env.agents.learning.config",
+    "panda_grasp_env.agents.policies.learned -> panda_grasp_env.agents.learning.policy_files",
+}
+
+
+def test_the_agents_sub_packages_import_only_those_below_them():
+    rank = {name: i for i, name in enumerate(AGENT_PACKAGES)}
+    package_of = {m: m.split(".")[2] for m in module_files() if m.startswith("panda_grasp_env.agents.")}
+    assert set(package_of.values()) == set(rank)  # every module is in a sub-package
+    graph = import_graph()
+    upward = {
+        f"{m} -> {t}"
+        for m in package_of
+        for t in graph[m] & package_of.keys()
+        if rank[package_of[t]] > rank[package_of[m]]
+    }
+    assert upward == LEARNED_AGENT_READS
+
+
 def test_every_source_package_is_installed_under_panda_grasp_env():
     tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
     config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
@@ -180,7 +207,7 @@ def test_every_source_package_is_installed_under_panda_grasp_env():
 def test_outside_the_repository_only_panda_grasp_env_is_importable(tmp_path):
     script = (
         "import importlib.util as u, json\n"
-        "import panda_grasp_env.agents.learned, panda_grasp_env.perception.heightmap\n"
+        "import panda_grasp_env.agents.policies.learned, panda_grasp_env.perception.heightmap\n"
         "print(json.dumps({n: u.find_spec(n) is not None for n in ('agents', 'perception')}))\n"
     )
     done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=300)
@@ -208,9 +235,9 @@ def test_a_second_checkout_runs_its_own_code(tmp_path, installed):
     script = (
         "import json, sys\n"
         + ("" if installed else forget_the_install)
-        + "import panda_grasp_env, panda_grasp_env.agents.towers, panda_grasp_env.perception.heightmap\n"
+        + "import panda_grasp_env, panda_grasp_env.agents.policies.towers, panda_grasp_env.perception.heightmap\n"
         "print(json.dumps([sys.modules[n].__file__ for n in ('panda_grasp_env', 'panda_grasp_env.agents',\n"
-        "    'panda_grasp_env.perception', 'panda_grasp_env.agents.towers')]))\n"
+        "    'panda_grasp_env.perception', 'panda_grasp_env.agents.policies.towers')]))\n"
     )
     done = subprocess.run([sys.executable, "-c", script], cwd=checkout, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -227,7 +254,7 @@ def test_a_runs_commit_label_sees_changes_anywhere_in_the_repository(monkeypatch
 
     def fake_git(command, **kwargs):
         calls.append(command)
-        changed = " M agents/training.py\n" if "status" in command else ""
+        changed = " M agents/learning/training.py\n" if "status" in command else ""
         return subprocess.CompletedProcess(command, 0, stdout=changed or "abc1234\n", stderr="")
 
     monkeypatch.setattr(runs.subprocess, "run", fake_git)

@@ -101,7 +101,7 @@ def test_a_mesh_object_falls_onto_a_face_and_collides_through_its_pieces():
 
 def test_a_resting_mesh_object_sleeps_and_the_hand_still_lifts_it():
     """Mesh scenes turn on MuJoCo's island sleeping (SceneConfig.sleep None); the fingers' contact wakes it."""
-    from panda_grasp_env.agents.grasping import OracleGraspAgent
+    from panda_grasp_env.agents.policies.grasping import OracleGraspAgent
 
     env = make(TEST_IDS, primitive_z=True)
     observation, info = env.reset(seed=3)

@@ -9,10 +9,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from panda_grasp_env.agents import registry
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS, Benchmark, register_benchmark
 from panda_grasp_env.agents.evaluation.episodes import make_env, run_episode
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, task_options_from_pairs
+from panda_grasp_env.agents.policies import registry
 from panda_grasp_env.commands import evaluate
 from panda_grasp_env.registration import ENV_IDS, TASKS
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from panda_grasp_env.agents.evaluation.protocol import PERCEPTION
-from panda_grasp_env.agents.grasping import PackedGraspOracle, PlannedGraspAgent
-from panda_grasp_env.agents.push_planner import PushPlanner, camera_scene
+from panda_grasp_env.agents.policies.grasping import PackedGraspOracle, PlannedGraspAgent
+from panda_grasp_env.agents.policies.push_planner import PushPlanner, camera_scene
 from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS, GAP, random_packed_layout
 
 

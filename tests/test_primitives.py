@@ -2,7 +2,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from panda_grasp_env.agents.towers import build_tower, push_tower
+from panda_grasp_env.agents.policies.towers import build_tower, push_tower
 from panda_grasp_env.control.controller import wrap_gripper_yaw
 from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.model.robot import HOME_QPOS

@@ -76,7 +76,7 @@ def test_a_tower_toppled_the_wrong_way_is_a_failure_with_its_reason():
     from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
     from panda_grasp_env.agents.evaluation.episodes import play_episode
     from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
-    from panda_grasp_env.agents.towers import OracleBlocks, TowerBreakerAgent
+    from panda_grasp_env.agents.policies.towers import OracleBlocks, TowerBreakerAgent
 
     class Contrary(TowerBreakerAgent):
         def act(self, observation, info):  # +x <-> -x, +y <-> -y

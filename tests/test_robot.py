@@ -112,7 +112,7 @@ def test_reference_speed_is_bounded(cell, rng):
 
 def test_ik_keeps_up_with_large_combined_moves(cell):
     """Regression: a 30 cm carry with a 78 degree turn once outran a 1.5 rad/s joint cap and sagged 12 cm."""
-    from panda_grasp_env.agents.towers import build_tower
+    from panda_grasp_env.agents.policies.towers import build_tower
 
     errors = []
 

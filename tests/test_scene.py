@@ -87,7 +87,7 @@ def test_no_object_is_launched_when_pinched_between_the_finger_capsules():
     # Held-out seed 1100008 of the shipped lift policy: with the asset's torsional friction (0.5 m) on the
     # finger capsules this episode pinched the cube between them and launched it at 8.8 m/s.
     from benchmarks.physics_blowups import PeakTracker
-    from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent
+    from panda_grasp_env.agents.policies.learned import Checkpoint, LearnedAgent
 
     checkpoint = Checkpoint("lift_sac_her")
     env = checkpoint.make_env()

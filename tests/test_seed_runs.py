@@ -5,11 +5,12 @@ import json
 
 import numpy as np
 import pytest
-from test_training import CONFIGS, TINY_DQN
+from test_train_config import CONFIGS
+from test_training import TINY_DQN
 
-from panda_grasp_env.agents import learned
-from panda_grasp_env.agents.seed_figures import aggregate_runs, study_html, study_markdown
-from panda_grasp_env.agents.seed_runs import parse_seeds
+from panda_grasp_env.agents.learning.seed_figures import aggregate_runs, study_html, study_markdown
+from panda_grasp_env.agents.learning.seed_runs import parse_seeds
+from panda_grasp_env.agents.policies import learned
 from panda_grasp_env.commands import train
 
 pytest.importorskip("rliable", reason="train.py --seeds needs rliable: pip install -e '.[seeds]'")

@@ -623,7 +623,7 @@ def test_an_id_another_package_registered_is_a_clash():
 def test_a_grasp_that_brings_a_second_object_home_sets_both_aside():
     # Seed 1300005 of the heap: grasp_clutter_dqn's first grasp closes on an object with another lying on it
     # and brings both home.  Only the grasped one was set aside; the other fell by the robot's base: lost.
-    from panda_grasp_env.agents.learned import Checkpoint, LearnedAgent
+    from panda_grasp_env.agents.policies.learned import Checkpoint, LearnedAgent
 
     checkpoint = Checkpoint("grasp_clutter_dqn")
     env = checkpoint.make_env()
@@ -639,7 +639,7 @@ def test_a_grasp_that_brings_a_second_object_home_sets_both_aside():
 
 def test_build_and_break_says_where_the_base_lies_when_a_new_build_starts():
     """Blocks may look alike: the step whose break starts a new build gives the base's centre, as reset does."""
-    from panda_grasp_env.agents.towers import BuildAndBreakAgent, OracleBlocks
+    from panda_grasp_env.agents.policies.towers import BuildAndBreakAgent, OracleBlocks
 
     env = gym.make("panda_grasp_env:PandaBuildAndBreak-v0", max_episode_steps=20)
     agent = BuildAndBreakAgent(OracleBlocks(env))

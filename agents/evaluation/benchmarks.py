@@ -35,6 +35,9 @@ class Benchmark:
     #: Whether ``evaluate.py`` without ``--tasks`` plays it (False: only when named, e.g. the mesh benchmarks,
     #: which need the objects extra and minutes an episode, and the 6- and 8-block towers).
     by_default: bool = field(default=True, kw_only=True)
+    #: The benchmark this one varies (``TowerBuild`` for ``TowerBuild6``), or None: its planned baseline plays
+    #: this one too (``panda_grasp_env.agents.evaluation.protocol.baseline``).
+    variant_of: str | None = field(default=None, kw_only=True)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "options", dict(self.options))
@@ -81,7 +84,7 @@ def with_tall_towers(name: str, benchmark: Benchmark, steps_per_block: int | Non
     for n, tall in zip(TALL_TOWERS, tall_tower_names(name)):
         steps = {} if steps_per_block is None else {"max_episode_steps": steps_per_block * (n - 1)}
         options = {"n_blocks": n, **benchmark.options, **steps}
-        benchmarks[tall] = replace(benchmark, options=options, by_default=False)
+        benchmarks[tall] = replace(benchmark, options=options, by_default=False, variant_of=name)
     return benchmarks
 
 

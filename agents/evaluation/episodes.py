@@ -16,21 +16,28 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
-from panda_grasp_env.agents.evaluation.protocol import AGENTS, PERCEPTION, EpisodeSpec, learned_env, phased_env
-from panda_grasp_env.agents.random_agent import RandomAgent
-from panda_grasp_env.agents.registry import BASELINES, EXPERTS
+from panda_grasp_env.agents.evaluation.protocol import (
+    AGENTS,
+    PERCEPTION,
+    EpisodeSpec,
+    baseline,
+    learned_env,
+    phased_env,
+)
+from panda_grasp_env.agents.policies.random_agent import RandomAgent
+from panda_grasp_env.agents.policies.registry import EXPERTS
 
 
 def make_env(spec: EpisodeSpec) -> gym.Env:
     """A new env for ``spec``: the task's benchmark env (with ``PERCEPTION`` for the planned and oracle agents,
     a learned checkpoint's own observations and actions for it: ``learned_env``; a phased agent's: ``phased_env``),
     the spec's options on top."""
-    from panda_grasp_env.agents.phased import PHASED_AGENTS
+    from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
 
     if spec.agent in PHASED_AGENTS:
         return phased_env(spec.agent, spec.task, **spec.make_options)
     if spec.agent not in AGENTS:  # a learned checkpoint: its env options on the task's scene
-        from panda_grasp_env.agents.learned import Checkpoint
+        from panda_grasp_env.agents.policies.learned import Checkpoint
 
         return learned_env(Checkpoint(spec.agent), spec.task, **spec.make_options)
     benchmark = BENCHMARKS[spec.task]
@@ -46,15 +53,15 @@ def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
         return RandomAgent(env.action_space, seed=spec.seed)
     if spec.agent == "expert":
         return EXPERTS[spec.task]()
-    from panda_grasp_env.agents.phased import PHASED_AGENTS, PhasedAgent
+    from panda_grasp_env.agents.policies.phased import PHASED_AGENTS, PhasedAgent
 
     if spec.agent in PHASED_AGENTS:
         return PhasedAgent(spec.agent, env)
     if spec.agent not in AGENTS:
-        from panda_grasp_env.agents.learned import LearnedAgent
+        from panda_grasp_env.agents.policies.learned import LearnedAgent
 
         return LearnedAgent(spec.agent, env)
-    return BASELINES[spec.task](env, spec.seed, spec.agent == "oracle")
+    return baseline(spec.task)(env, spec.seed, spec.agent == "oracle")  # type: ignore[misc]
 
 
 #: The env of this process's last episode and what it was made for (agent, task, options), or None: the next

@@ -23,21 +23,21 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 
 # The built-in planned agents and experts register themselves (``registry``) when their modules are imported.
-import panda_grasp_env.agents.experts
-import panda_grasp_env.agents.grasping
-import panda_grasp_env.agents.put_in_bin
-import panda_grasp_env.agents.towers  # noqa: F401
+import panda_grasp_env.agents.policies.experts
+import panda_grasp_env.agents.policies.grasping
+import panda_grasp_env.agents.policies.put_in_bin
+import panda_grasp_env.agents.policies.towers  # noqa: F401
 from panda_grasp_env.actions import ACTION_MODES
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
-from panda_grasp_env.agents.registry import BASELINES, EXPERTS
+from panda_grasp_env.agents.policies.registry import BASELINES, EXPERTS, BaselineFactory
 from panda_grasp_env.env import AGENT_OPTIONS
 from panda_grasp_env.registration import ENV_IDS, TASKS
 
 if TYPE_CHECKING:
-    from panda_grasp_env.agents.learned import Checkpoint
+    from panda_grasp_env.agents.policies.learned import Checkpoint
 
-#: The built-in agents; every shipped checkpoint (``panda_grasp_env.agents.learned.available_checkpoints``) is an
-#: agent too.
+#: The built-in agents; every shipped checkpoint (``panda_grasp_env.agents.policies.learned.available_checkpoints``)
+#: is an agent too.
 AGENTS = ("random", "planned", "oracle", "expert")
 #: What the perception agents (``planned``, ``oracle``) see: RGB-D from both cameras at 640 x 480.
 PERCEPTION = {"obs_mode": "rgbd", "cameras": ("overhead", "front"), "image_size": (640, 480)}
@@ -95,10 +95,16 @@ def task_label(env_id: str, env_kwargs: dict[str, Any]) -> str:
 
 def all_agents() -> tuple[str, ...]:
     """Built-in agents, then the shipped learned checkpoints by name, then the phased agents made of them."""
-    from panda_grasp_env.agents.learned import available_checkpoints
-    from panda_grasp_env.agents.phased import PHASED_AGENTS
+    from panda_grasp_env.agents.policies.learned import available_checkpoints
+    from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
 
     return (*AGENTS, *available_checkpoints(), *PHASED_AGENTS)
+
+
+def baseline(task: str) -> BaselineFactory | None:
+    """The planned baseline of benchmark ``task``: the one registered for it, else for the benchmark it is a
+    variant of (``Benchmark.variant_of``), else None."""
+    return BASELINES.get(task) or BASELINES.get(BENCHMARKS[task].variant_of or "")
 
 
 def skip_reason(agent: str, task: str) -> str | None:
@@ -110,10 +116,10 @@ def skip_reason(agent: str, task: str) -> str | None:
     if agent in AGENTS:
         if is_low_level(BENCHMARKS[task].env_id, BENCHMARKS[task].options):
             return f"the {agent} baselines act through motion primitives; {task} is a low-level ee_delta task"
-        if task not in BASELINES:
+        if baseline(task) is None:
             return f"no {agent} agent is written for {task}"
         return None
-    from panda_grasp_env.agents.phased import PHASED_AGENTS
+    from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
 
     if agent in PHASED_AGENTS:
         tasks = PHASED_AGENTS[agent].tasks
@@ -128,7 +134,7 @@ def learned_skip_reason(agent: str, task: str) -> str | None:
     at the same level of action (motion primitives or 25 Hz control) whose env, seen and acted on as the
     checkpoint was trained (``learned_env``), has the observation and action spaces it was trained on: a
     heightmap grasping policy trained on packed layouts plays random heaps and single objects too."""
-    from panda_grasp_env.agents.learned import Checkpoint
+    from panda_grasp_env.agents.policies.learned import Checkpoint
 
     checkpoint = Checkpoint(agent)
     config = checkpoint.config
@@ -149,7 +155,7 @@ def learned_skip_reason(agent: str, task: str) -> str | None:
 def _space_differing(path: Path, card: str, weights: str, task: str) -> str | None:
     """The space (observation or action) in which ``task``'s env for the checkpoint at ``path`` differs from the
     one it was trained on, or None; once per checkpoint folder, card, weights and task: it makes two envs."""
-    from panda_grasp_env.agents.learned import Checkpoint
+    from panda_grasp_env.agents.policies.learned import Checkpoint
 
     checkpoint = Checkpoint(path)
     with checkpoint.make_env() as trained, learned_env(checkpoint, task) as benchmark:
@@ -174,8 +180,8 @@ def learned_env(checkpoint: Checkpoint, task: str, **options: Any) -> gym.Env:
 def phased_env(name: str, task: str, **options: Any) -> gym.Env:
     """The env phased agent ``name`` plays ``task`` in: the task's scene, seen and acted on as its first part
     was trained (``learned_env``)."""
-    from panda_grasp_env.agents.learned import Checkpoint
-    from panda_grasp_env.agents.phased import PHASED_AGENTS
+    from panda_grasp_env.agents.policies.learned import Checkpoint
+    from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
 
     return learned_env(Checkpoint(PHASED_AGENTS[name].first), task, **options)
 
@@ -309,8 +315,8 @@ class Protocol:
 
     def checkpoints(self) -> list[Checkpoint]:
         """The shipped checkpoints among the agents (a phased agent's parts) that play at least one of the tasks."""
-        from panda_grasp_env.agents.learned import Checkpoint
-        from panda_grasp_env.agents.phased import PHASED_AGENTS
+        from panda_grasp_env.agents.policies.learned import Checkpoint
+        from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
 
         names: list[str] = []
         for agent in self.agents:

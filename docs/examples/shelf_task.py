@@ -17,10 +17,10 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from panda_grasp_env.agents.base import PrimitiveActionWriter, record_failure, require
 from panda_grasp_env.agents.evaluation.benchmarks import Benchmark, register_benchmark
-from panda_grasp_env.agents.registry import register_baseline
-from panda_grasp_env.agents.towers import CameraBlocks, OracleBlocks, block_baseline
+from panda_grasp_env.agents.policies.base import PrimitiveActionWriter, record_failure, require
+from panda_grasp_env.agents.policies.registry import register_baseline
+from panda_grasp_env.agents.policies.towers import CameraBlocks, OracleBlocks, block_baseline
 from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult

@@ -16,7 +16,7 @@ true poses), expert (scripted ee_delta state machines for Lift, Push and Stack),
 learned checkpoint by name (agents/checkpoints/): on its own task, and on the other scenes of that
 task its observation and action spaces fit (a heightmap grasping policy on heaps and packed layouts);
 and build_and_break_dqn, BuildAndBreak played by the shipped builder and breaker, each in its phase
-(``panda_grasp_env.agents.phased``).
+(``panda_grasp_env.agents.policies.phased``).
 Tasks: the benchmarks evaluation declares (``panda_grasp_env.agents.evaluation.benchmarks``): Grasp,
 GraspClutter, GraspAdversarial, TowerBuild, TowerBreak, TowerBreakDirectional, BuildAndBreak, PutInBin (primitive actions),
 Push, Lift, Stack (low-level ee_delta); played only when named: the mesh benchmarks (GraspMesh*) and the towers
@@ -45,7 +45,7 @@ from panda_grasp_env.agents.evaluation.episodes import close_kept_env
 from panda_grasp_env.agents.evaluation.protocol import Protocol, all_agents, import_modules, task_options_from_pairs
 from panda_grasp_env.agents.evaluation.report import results_table, videos, write_report, write_results
 from panda_grasp_env.agents.evaluation.runner import run_episodes
-from panda_grasp_env.agents.towers import build_tower, push_tower
+from panda_grasp_env.agents.policies.towers import build_tower, push_tower
 from panda_grasp_env.commands.results_page import save_pngs, write_page
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre
 from panda_grasp_env.sim.workcell import Workcell
@@ -272,7 +272,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.demo:
         return demo(args)
     protocol = args.protocol
-    try:  # one that cannot load (or would need trust: panda_grasp_env.agents.learned.Checkpoint) stops the run before any episode
+    # A checkpoint that cannot load (or would need trust: panda_grasp_env.agents.policies.learned.Checkpoint) stops
+    # the run before any episode.
+    try:
         for checkpoint in protocol.checkpoints():
             checkpoint.load_policy()
     except ValueError as error:

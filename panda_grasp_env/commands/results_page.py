@@ -399,12 +399,12 @@ def _curves(out: Path) -> str:
 def seeds_section(checkpoint: str) -> str:
     """The checkpoint's figures over training seeds (``seeds.json`` beside its card, from ``train.py --seeds``),
     or nothing if it has none."""
-    from panda_grasp_env.agents.learned import CHECKPOINTS
+    from panda_grasp_env.agents.policies.learned import CHECKPOINTS
 
     path = CHECKPOINTS / checkpoint / "seeds.json"
     if not path.is_file():
         return ""
-    from panda_grasp_env.agents.seed_figures import study_html
+    from panda_grasp_env.agents.learning.seed_figures import study_html
 
     return study_html(json.loads(path.read_text()))
 

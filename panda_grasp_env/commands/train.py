@@ -1,19 +1,19 @@
 """Train from a config:  python train.py --config configs/<name>.yaml [key=value ...]
 
 Policies (SB3: ``heightmap_dqn``, ``sac``, ``tqc``, ``ppo``, and from demonstrations ``bc``, ``tqc_demos``,
-``heightmap_dqn_demos``; ``agents/training.py``) or, with
+``heightmap_dqn_demos``; ``agents/learning/training.py``) or, with
 ``kind: fall_dynamics``, the falling-tower ConvLSTM (``panda_grasp_env/falls/training.py``).
 
 Overrides use dotted keys into mappings (``algo_kwargs.learning_rate=3e-4``,
 ``env_kwargs.rotations=8``); values are read as YAML.  Every run writes one
-folder under ``--runs`` (see ``agents/training.py``); Ctrl-C checkpoints it, and
+folder under ``--runs`` (see ``agents/learning/training.py``); Ctrl-C checkpoints it, and
 ``--resume <run folder>`` continues it.  ``--seeds 0,1,2`` trains the config on each seed (in ``--workers``
 local processes, or as Ray tasks with ``--ray ADDRESS``) and aggregates the runs' held-out figures with
 rliable (IQM, stratified-bootstrap CIs, performance profiles) in a study folder
-(``panda_grasp_env/agents/seed_runs.py``); ``--ship <study folder> --name N`` attaches it to checkpoint N's
+(``agents/learning/seed_runs.py``); ``--ship <study folder> --name N`` attaches it to checkpoint N's
 card.  ``--ship <run folder> --name N`` copies
 a finished run's model, card and curve to ``agents/checkpoints/N`` where
-``panda_grasp_env.agents.learned.LearnedAgent`` and ``evaluate.py`` find it (fall-dynamics runs:
+``panda_grasp_env.agents.policies.learned.LearnedAgent`` and ``evaluate.py`` find it (fall-dynamics runs:
 ``panda_grasp_env/falls/checkpoints/N``).  ``--retest <run or checkpoint folder>`` runs a policy's final
 held-out test again (final.json, card.md), e.g. after the evaluation protocol or the physics changed;
 on a fall-dynamics run or checkpoint it scores the model against the baselines on a recorded dataset's
@@ -32,8 +32,8 @@ from pathlib import Path
 
 import yaml
 
-from panda_grasp_env.agents.config import check_policy_resume, config_from_dict, load_run, read_config
-from panda_grasp_env.agents.training import retest, start_run, train
+from panda_grasp_env.agents.learning.config import check_policy_resume, config_from_dict, load_run, read_config
+from panda_grasp_env.agents.learning.training import retest, start_run, train
 from panda_grasp_env.falls.config import FALL_RESUME_CHANGEABLE, fall_config
 from panda_grasp_env.falls.training import start_fall_run, test_fall_model, train_fall_model
 from panda_grasp_env.tooling.runs import (
@@ -89,7 +89,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if (args.workers is not None or args.ray is not None) and args.seeds is None:
         parser.error("--workers and --ray go with --seeds")
     if args.seeds is not None:
-        from panda_grasp_env.agents.seed_runs import parse_seeds
+        from panda_grasp_env.agents.learning.seed_runs import parse_seeds
 
         if args.config is None:
             parser.error("--seeds goes with --config")
@@ -118,8 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.ship is not None:
             if (args.ship / "study.json").is_file():  # a study over seeds: onto the checkpoint's card
-                from panda_grasp_env.agents.learned import CHECKPOINTS
-                from panda_grasp_env.agents.records import attach_study
+                from panda_grasp_env.agents.learning.records import attach_study
+                from panda_grasp_env.agents.policies.learned import CHECKPOINTS
 
                 if not (CHECKPOINTS / args.name / "checkpoint.json").is_file():
                     raise ValueError(f"no shipped checkpoint {args.name!r} to attach {args.ship} to")
@@ -132,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
                     raise ValueError("--avoid-failures: a fall-dynamics model keeps no FailureMemory")
                 shipped = ship_fall_run(args.ship, args.name)
             else:
-                from panda_grasp_env.agents.records import ship
+                from panda_grasp_env.agents.learning.records import ship
 
                 shipped = ship(args.ship, args.name, args.avoid_failures)
             print(f"shipped to {shipped}")
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def train_over_seeds(config, kind: str, args: argparse.Namespace) -> int:
     """``--seeds``: the config trained on each seed, then the study folder's aggregate printed."""
-    from panda_grasp_env.agents.seed_runs import train_seeds
+    from panda_grasp_env.agents.learning.seed_runs import train_seeds
 
     if kind != "policy":
         raise ValueError("--seeds trains policies; a fall-dynamics config has one dataset split, not seeds")

@@ -291,7 +291,7 @@ class FailureMemory:
     In an unchanged scene a greedy policy chooses the same action again and often fails the same way:
     held-out tower trials ended at the action limit retrying one grasp next to the tower.  ``excluded``
     marks the actions near an earlier failure, at its heading, whose surroundings have not changed -- the
-    planned grasp agent's rule (``RETRY_DISTANCE``, ``RETRY_HEADING`` in ``agents/grasping.py``) on the
+    planned grasp agent's rule (``RETRY_DISTANCE``, ``RETRY_HEADING`` in ``agents/policies/grasping.py``) on the
     policy's grid.  A grasp or place turned by half a turn is the same action (the two fingers are alike),
     so that heading is marked too; a push turned round is not (``DIRECTED_PRIMITIVES``).  Other headings
     stay open: the tower policy's repeated failures were grasps at a wrong heading beside a block, and
@@ -347,6 +347,11 @@ class HeightmapQPolicy(DQNPolicy):
         refine: score at half instead of quarter resolution (``HeightmapQNetwork``), for precise places.
         command: the observations end with the two command planes (``encode_heightmap``'s ``heading``).
     """
+
+    #: The name policy files give this class (``policy_files.class_name``): fixed, so that moving this module
+    #: renames nothing in the files already written (shipped checkpoints, run folders).  It is the module the
+    #: first checkpoints were saved from, not where the class lives now.
+    policy_file_name = "panda_grasp_env.agents.heightmap_policy:HeightmapQPolicy"
 
     def __init__(
         self,
@@ -419,6 +424,10 @@ class HeightmapQPolicy(DQNPolicy):
             batch = th.as_tensor(observation[None], device=self.device)
             avoid = None if excluded is None else th.as_tensor(excluded, device=self.device)[None]
             return int(self._best_allowed(batch, avoid))
+
+    def failure_memory(self) -> FailureMemory:
+        """An empty ``FailureMemory`` for this policy's actions (``PolicyAgent(avoid_failures=True)`` keeps one)."""
+        return FailureMemory(self.shape, self.network_args["cell_size"], self.network_args["primitives"])
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return {

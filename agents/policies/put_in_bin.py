@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.agents.base import PrimitiveActionWriter, record_failure, require
-from panda_grasp_env.agents.registry import register_baseline
-from panda_grasp_env.agents.towers import CameraBlocks, OracleBlocks, block_baseline
+from panda_grasp_env.agents.policies.base import PrimitiveActionWriter, record_failure, require
+from panda_grasp_env.agents.policies.registry import register_baseline
+from panda_grasp_env.agents.policies.towers import CameraBlocks, OracleBlocks, block_baseline
 from panda_grasp_env.sim.stacking import clearest_grasp_heading
 
 

@@ -1,6 +1,6 @@
 """Training configs and the envs they describe: a checked ``TrainConfig`` (YAML + ``key=value`` overrides), the
 algorithm table, the policy's view of an observation, the training and evaluation envs, and what a resumed
-run may change.  ``train.py`` and ``panda_grasp_env.agents.training`` build runs from these."""
+run may change.  ``train.py`` and ``panda_grasp_env.agents.learning.training`` build runs from these."""
 
 from __future__ import annotations
 
@@ -23,22 +23,22 @@ from panda_grasp_env.tooling.runs import check_resume_changes, checked_config, c
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
 ALGORITHMS: dict[str, tuple[str, str]] = {
     "heightmap_dqn": (
-        "panda_grasp_env.agents.heightmap_policy:HeightmapDQN",
-        "panda_grasp_env.agents.heightmap_policy:HeightmapQPolicy",
+        "panda_grasp_env.agents.learning.heightmap_policy:HeightmapDQN",
+        "panda_grasp_env.agents.learning.heightmap_policy:HeightmapQPolicy",
     ),
     "sac": ("stable_baselines3:SAC", "MultiInputPolicy"),
     "tqc": ("sb3_contrib:TQC", "MultiInputPolicy"),
     "ppo": ("stable_baselines3:PPO", "MultiInputPolicy"),
-    # Learning from demonstrations (agents/imitation.py, heightmap_imitation.py); algo_kwargs.demonstrations
+    # Learning from demonstrations (agents/learning/imitation.py, heightmap_imitation.py); algo_kwargs.demonstrations
     # names the dataset.
-    "bc": ("panda_grasp_env.agents.imitation:BehaviourCloning", "MultiInputPolicy"),
-    "tqc_demos": ("panda_grasp_env.agents.imitation:TQCFromDemonstrations", "MultiInputPolicy"),
+    "bc": ("panda_grasp_env.agents.learning.imitation:BehaviourCloning", "MultiInputPolicy"),
+    "tqc_demos": ("panda_grasp_env.agents.learning.imitation:TQCFromDemonstrations", "MultiInputPolicy"),
     "heightmap_dqn_demos": (
-        "panda_grasp_env.agents.heightmap_imitation:HeightmapDQNFromDemonstrations",
-        "panda_grasp_env.agents.heightmap_policy:HeightmapQPolicy",
+        "panda_grasp_env.agents.learning.heightmap_imitation:HeightmapDQNFromDemonstrations",
+        "panda_grasp_env.agents.learning.heightmap_policy:HeightmapQPolicy",
     ),
 }
-#: The algorithms of the ``pixel`` mode's heightmap Q-policy (``panda_grasp_env.agents.heightmap_policy``).
+#: The algorithms of the ``pixel`` mode's heightmap Q-policy (``panda_grasp_env.agents.learning.heightmap_policy``).
 HEIGHTMAP_ALGORITHMS = ("heightmap_dqn", "heightmap_dqn_demos")
 #: The algorithms that learn without stepping an env: their steps are minibatches.
 OFFLINE_ALGORITHMS = ("bc",)
@@ -162,7 +162,7 @@ class TrainConfig:
             "'task' unless env_id is a TowerBuild id (the outcome reward reads the stack height)",
         )
         if self.algo in DEMONSTRATION_ALGORITHMS:
-            from panda_grasp_env.agents.imitation import Demonstrations
+            from panda_grasp_env.agents.learning.imitation import Demonstrations
 
             require("demonstrations" in self.algo_kwargs, "algo_kwargs", f"a demonstrations entry for {self.algo}")
             Demonstrations.of(self.algo_kwargs["demonstrations"])
@@ -267,7 +267,7 @@ def observation_transform(config: TrainConfig) -> Callable[[Any, dict[str, Any]]
     """What the policy sees of an env observation and the step's info (the same in training, evaluation and
     ``LearnedAgent``)."""
     if config.algo in HEIGHTMAP_ALGORITHMS:
-        from panda_grasp_env.agents.heightmap_policy import encode_observation
+        from panda_grasp_env.agents.learning.heightmap_policy import encode_observation
 
         holding = holding_plane(config)
         return lambda observation, info: encode_observation(observation, info, holding)
@@ -339,7 +339,7 @@ def training_env(config: TrainConfig) -> gym.Env:
     if config.reward == "outcome":
         env = OutcomeReward(env)
     if config.algo in HEIGHTMAP_ALGORITHMS:
-        from panda_grasp_env.agents.heightmap_policy import EncodedHeightmap
+        from panda_grasp_env.agents.learning.heightmap_policy import EncodedHeightmap
 
         env = EncodedHeightmap(env, holding_plane(config))
     if config.observation_keys is not None:

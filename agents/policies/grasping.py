@@ -22,8 +22,8 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.actions import encode_grasp_pose
-from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure
-from panda_grasp_env.agents.push_planner import (
+from panda_grasp_env.agents.policies.base import CameraViews, PrimitiveActionWriter, record_failure
+from panda_grasp_env.agents.policies.push_planner import (
     PLAY_REGION,
     PUSH_HEIGHT,
     PackedDecision,
@@ -32,7 +32,7 @@ from panda_grasp_env.agents.push_planner import (
     camera_scene,
     footprint,
 )
-from panda_grasp_env.agents.registry import register_baseline
+from panda_grasp_env.agents.policies.registry import register_baseline
 from panda_grasp_env.geometry import top_down_rotation
 from panda_grasp_env.perception.grasps import GraspCandidate, detect_grasps_rgbd
 from panda_grasp_env.perception.pose import View

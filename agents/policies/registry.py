@@ -5,7 +5,7 @@ A planned baseline is a factory ``(env, seed, oracle) -> agent`` decorated with 
 ``oracle`` (the same decisions on the simulator's true poses, where the agent has such a variant).  A scripted
 low-level expert is a factory ``() -> agent`` decorated with ``@register_expert(task, ...)`` (agent ``expert``).
 An agent acts through ``reset(observation, info)`` and ``act(observation, info) -> action``
-(``panda_grasp_env.agents.base``).
+(``panda_grasp_env.agents.policies.base``).
 
 The built-in agents register in their own modules; an agent outside the package registers when its module is
 imported (``evaluate.py --import MODULE``), so no shared table is edited.  A task that already has one raises

@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.agents.config import TrainConfig
 from panda_grasp_env.agents.evaluation.metrics import describe_rate
 from panda_grasp_env.agents.evaluation.protocol import is_low_level
+from panda_grasp_env.agents.learning.config import TrainConfig
 from panda_grasp_env.tooling.runs import commit, versions
 
 #: Bootstrap resamples of the aggregates' intervals and of the profile's band (rliable's default for profiles;

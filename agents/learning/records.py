@@ -13,14 +13,14 @@ from typing import Any
 
 import yaml
 
-from panda_grasp_env.agents import learned
-from panda_grasp_env.agents.config import HEIGHTMAP_ALGORITHMS, TrainConfig, load_run, steps_label
 from panda_grasp_env.agents.evaluation.metrics import describe_rate
 from panda_grasp_env.agents.evaluation.protocol import is_low_level, task_label
-from panda_grasp_env.agents.imitation import Demonstrations
-from panda_grasp_env.agents.learned import SHIPPED_FILES
-from panda_grasp_env.agents.policy_files import load_policy, policy_paths, save_policy
-from panda_grasp_env.agents.seed_figures import study_markdown
+from panda_grasp_env.agents.learning.config import HEIGHTMAP_ALGORITHMS, TrainConfig, load_run, steps_label
+from panda_grasp_env.agents.learning.imitation import Demonstrations
+from panda_grasp_env.agents.learning.policy_files import load_policy, policy_paths, save_policy
+from panda_grasp_env.agents.learning.seed_figures import study_markdown
+from panda_grasp_env.agents.policies import learned
+from panda_grasp_env.agents.policies.learned import SHIPPED_FILES
 from panda_grasp_env.tooling.runs import atomic_path, read_json, resume_summary, write_atomically, write_json
 
 
@@ -235,7 +235,7 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: 
             [
                 "",
                 "It acts as shipped, with its `FailureMemory` (`checkpoint.json` `avoid_failures`, chosen on selection "
-                "seeds; the rule: `panda_grasp_env.agents.heightmap_policy.FailureMemory`).",
+                "seeds; the rule: `panda_grasp_env.agents.learning.heightmap_policy.FailureMemory`).",
             ]
             if final.get("avoid_failures")
             else []

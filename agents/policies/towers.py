@@ -18,9 +18,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from panda_grasp_env.agents.base import CameraViews, PrimitiveActionWriter, record_failure, require
-from panda_grasp_env.agents.evaluation.benchmarks import tall_tower_names
-from panda_grasp_env.agents.registry import BaselineFactory, register_baseline
+from panda_grasp_env.agents.policies.base import CameraViews, PrimitiveActionWriter, record_failure, require
+from panda_grasp_env.agents.policies.registry import BaselineFactory, register_baseline
 from panda_grasp_env.perception.pose import (
     detect_towers,
     estimate_block_poses,
@@ -316,16 +315,10 @@ def block_baseline(
     return make
 
 
-def with_tall_towers(*tasks: str) -> tuple[str, ...]:
-    """The benchmark ``tasks`` and their tall-tower variants (``TowerBuild6``, ...: ``tall_tower_names``)."""
-    return (*tasks, *(name for task in tasks for name in tall_tower_names(task)))
-
-
-register_baseline(*with_tall_towers("TowerBuild"))(block_baseline(TowerBuilderAgent, DepthBlocks))
-register_baseline(*with_tall_towers("TowerBreak", "TowerBreakDirectional"))(
-    block_baseline(TowerBreakerAgent, DepthBlocks)
-)
-register_baseline(*with_tall_towers("BuildAndBreak"))(block_baseline(BuildAndBreakAgent, DepthBlocks))
+# Each plays the benchmark's variants too (TowerBuild6, ...: ``panda_grasp_env.agents.evaluation.protocol.baseline``).
+register_baseline("TowerBuild")(block_baseline(TowerBuilderAgent, DepthBlocks))
+register_baseline("TowerBreak", "TowerBreakDirectional")(block_baseline(TowerBreakerAgent, DepthBlocks))
+register_baseline("BuildAndBreak")(block_baseline(BuildAndBreakAgent, DepthBlocks))
 
 
 # --- scripts on a bare workcell (true poses) ---------------------------------------------------

@@ -24,7 +24,10 @@ from typing import Any
 
 import gymnasium as gym
 
-from panda_grasp_env.agents.config import (
+from panda_grasp_env.agents.evaluation.episodes import play_episode
+from panda_grasp_env.agents.evaluation.metrics import aggregate
+from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, task_label
+from panda_grasp_env.agents.learning.config import (
     ALGORITHMS,
     HEIGHTMAP_ALGORITHMS,
     SELECTION_SEED_OFFSET,
@@ -39,13 +42,8 @@ from panda_grasp_env.agents.config import (
     steps_label,
     training_env,
 )
-from panda_grasp_env.agents.evaluation.episodes import play_episode
-from panda_grasp_env.agents.evaluation.metrics import aggregate
-from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, task_label
-from panda_grasp_env.agents.learned import Checkpoint
-from panda_grasp_env.agents.policy_agent import PolicyAgent
-from panda_grasp_env.agents.policy_files import class_name
-from panda_grasp_env.agents.records import (
+from panda_grasp_env.agents.learning.policy_files import class_name
+from panda_grasp_env.agents.learning.records import (
     earlier_tests,
     load_best_policy,
     model_card,
@@ -54,6 +52,8 @@ from panda_grasp_env.agents.records import (
     save_best_policy,
     write_best_record,
 )
+from panda_grasp_env.agents.policies.learned import Checkpoint
+from panda_grasp_env.agents.policies.policy_agent import PolicyAgent
 from panda_grasp_env.tooling.runs import (
     atomic_path,
     check_run_files,
@@ -108,9 +108,9 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
 
 
 def initial_policy_source(config: TrainConfig) -> Any:
-    """The checkpoint (``panda_grasp_env.agents.learned.Checkpoint``) that ``config.init_policy`` names, checked against the run
-    before anything is written: ``ValueError`` if it is unknown, was trained with another algorithm, or acts on
-    other observation or action spaces than the run's training env."""
+    """The checkpoint (``panda_grasp_env.agents.policies.learned.Checkpoint``) that ``config.init_policy`` names,
+    checked against the run before anything is written: ``ValueError`` if it is unknown, was trained with another
+    algorithm, or acts on other observation or action spaces than the run's training env."""
     name = config.init_policy
     try:
         source = Checkpoint(str(name))
@@ -309,8 +309,9 @@ def train(
                 check_run_files(run_dir, ["latest.zip"] + (["replay.pkl"] if replay else []))
             algo_path, policy = ALGORITHMS[config.algo]
             # The config's algo_kwargs replace the saved ones (a resumed run may change them: RESUME_CHANGEABLE).
-            # The policy class comes from the config, not the pickle: a checkpoint written before the package's
-            # import names moved names a module (``agents.heightmap_policy``) that policy files may not name.
+            # The policy class comes from the config, not the pickle: a checkpoint written before a module moved
+            # names one (``agents.heightmap_policy``, ``panda_grasp_env.agents.heightmap_policy``) that no longer
+            # exists, or that policy files may not name.
             custom_objects = {"policy_class": load_class(policy)} if config.algo in HEIGHTMAP_ALGORITHMS else None
             try:
                 model = load_class(algo_path).load(

@@ -1,6 +1,6 @@
 """Record any ``evaluate.py`` agent's episodes as a Minari dataset: the Farama format for offline RL and imitation.
 
-    python -m panda_grasp_env.agents.demonstrations --agent expert --task Stack --episodes 1000
+    python -m panda_grasp_env.agents.learning.demonstrations --agent expert --task Stack --episodes 1000
         [--seed-start 0] [--task-options KEY=VALUE ...] [--infos is_success,...] [--workers 2]
         [--shard-size 100] [--out data/minari] [--name panda_grasp_env/stack-expert-v0] [--lossless]
 
@@ -35,10 +35,10 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.agents.datasets import open_dataset, recorded_env
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 from panda_grasp_env.agents.evaluation.episodes import make_agent, make_env
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, all_agents, skip_reason, task_options_from_pairs
+from panda_grasp_env.agents.learning.datasets import open_dataset, recorded_env
 from panda_grasp_env.tooling.runs import commit, is_signed, read_json, sha256, sign_run_files, write_json
 
 #: A shard's manifest, in its dataset folder.
@@ -199,8 +199,11 @@ def _equal(observation: Any, recorded: Any, t: int) -> bool:
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m panda_grasp_env.agents.demonstrations", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = argparse.ArgumentParser(
+        prog="python -m panda_grasp_env.agents.learning.demonstrations",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--agent", required=True, help=f"one of {list(all_agents())}")
     parser.add_argument("--task", required=True, help=f"one of {list(BENCHMARKS)}")
     parser.add_argument("--episodes", type=int, default=1000)

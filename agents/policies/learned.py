@@ -4,7 +4,7 @@ A checkpoint is a folder ``agents/checkpoints/<name>/`` written by
 ``python train.py --ship <run folder> --name <name>``::
 
     policy.safetensors  the policy's weights (no optimiser, no replay buffer): the run's best on validation
-    policy.json         its class and constructor arguments, as data (``panda_grasp_env.agents.policy_files``)
+    policy.json         its class and constructor arguments, as data (``panda_grasp_env.agents.learning.policy_files``)
     checkpoint.json     env id, evaluation task, policy class, the step it was saved at, and whether the
                         policy acts with a ``FailureMemory`` (``avoid_failures``, set by ``--ship --avoid-failures``)
     config.yaml         the training config
@@ -24,12 +24,12 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from panda_grasp_env.agents.config import TrainConfig, config_from_dict, make_env, observation_transform
-from panda_grasp_env.agents.policy_agent import PolicyAgent
-from panda_grasp_env.agents.policy_files import export_sb3, load_policy, load_sb3, policy_paths
+from panda_grasp_env.agents.learning.config import TrainConfig, config_from_dict, make_env, observation_transform
+from panda_grasp_env.agents.learning.policy_files import export_sb3, load_policy, load_sb3, policy_paths
+from panda_grasp_env.agents.policies.policy_agent import PolicyAgent
 from panda_grasp_env.tooling.runs import read_json, sha256
 
-CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
+CHECKPOINTS = Path(__file__).resolve().parents[1] / "checkpoints"
 SHIPPED_FILES = (
     "best_policy.json",
     "best_policy.safetensors",

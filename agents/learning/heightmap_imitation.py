@@ -12,8 +12,8 @@ import numpy as np
 import torch
 from stable_baselines3.common.utils import polyak_update
 
-from panda_grasp_env.agents.heightmap_policy import DIRECTED_PRIMITIVES, HeightmapDQN, encode_heightmap
-from panda_grasp_env.agents.imitation import BufferedDemonstrationMixin, Demonstrations, check_demonstrations
+from panda_grasp_env.agents.learning.heightmap_policy import DIRECTED_PRIMITIVES, HeightmapDQN, encode_heightmap
+from panda_grasp_env.agents.learning.imitation import BufferedDemonstrationMixin, Demonstrations, check_demonstrations
 from panda_grasp_env.geometry import is_number
 
 #: Cells this close to the demonstrated one (metres, Euclidean on the table), with the same primitive and
@@ -43,7 +43,7 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
     demonstrations alone come before the first env step (DQfD's pretraining).
 
     The demonstrations are episodes in ``obs_mode='heightmap'`` and ``action_mode='pixel'``, e.g. the
-    push-aware oracle's (``python -m panda_grasp_env.agents.demonstrations --agent oracle --task
+    push-aware oracle's (``python -m panda_grasp_env.agents.learning.demonstrations --agent oracle --task
     GraspAdversarial --task-options obs_mode=heightmap action_mode=pixel ...``), with the rewards they were
     recorded under; policies with the holding or command planes cannot learn from them (their episodes do
     not say what was held or commanded)."""

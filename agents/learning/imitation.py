@@ -1,5 +1,5 @@
-"""Learning from demonstrations: episodes recorded as Minari datasets (``agents/demonstrations.py``) into SB3
-policies, through ``train.py`` like any other algorithm.
+"""Learning from demonstrations: episodes recorded as Minari datasets (``agents/learning/demonstrations.py``)
+into SB3 policies, through ``train.py`` like any other algorithm.
 
 * ``bc`` -- ``BehaviourCloning``: supervised regression of a SAC policy's deterministic action onto the
   demonstrated actions.  It never steps an env to learn; its "steps" are minibatches.
@@ -28,7 +28,7 @@ from sb3_contrib import TQC
 from stable_baselines3 import SAC
 from torch.nn import functional
 
-from panda_grasp_env.agents.datasets import open_dataset
+from panda_grasp_env.agents.learning.datasets import open_dataset
 from panda_grasp_env.geometry import is_count, is_number
 
 
@@ -65,7 +65,7 @@ class Demonstrations:
         folder = Path(self.path) / self.dataset / "data"
         if not folder.is_dir():
             raise ValueError(f"demonstrations: no Minari dataset {self.dataset!r} under {self.path} (record it with "
-                             f"python -m panda_grasp_env.agents.demonstrations)")  # fmt: skip
+                             f"python -m panda_grasp_env.agents.learning.demonstrations)")  # fmt: skip
         chosen = []
         for episode in open_dataset(folder).iterate_episodes():
             success = bool(np.asarray(episode.infos.get("is_success", [False]))[-1]) if episode.infos else False

@@ -17,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.actions import PixelActions
-from panda_grasp_env.agents.learned import LearnedAgent
+from panda_grasp_env.agents.policies.learned import LearnedAgent
 
 
 @dataclass(frozen=True)

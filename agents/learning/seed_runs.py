@@ -1,6 +1,6 @@
 """One config trained on several seeds, and its figures over them: ``train.py --config C --seeds 0,1,2``.
 
-Each seed is an ordinary run folder (``runs/<name>-seed<s>``, ``agents/training.py``), trained in its own
+Each seed is an ordinary run folder (``runs/<name>-seed<s>``, ``agents/learning/training.py``), trained in its own
 local process (``--workers``) or as a Ray task (``--ray ADDRESS``, the engine ``evaluate.py --ray`` uses: a
 task needs the package installed where it runs, and writes its run folder there; the driver keeps what
 the aggregate needs).  A seed whose run folder already holds a finished run of the same config is not
@@ -25,8 +25,8 @@ from typing import Any
 
 import yaml
 
-from panda_grasp_env.agents.config import TrainConfig, config_from_dict
-from panda_grasp_env.agents.seed_figures import profile_figure, score, study_markdown, study_summary
+from panda_grasp_env.agents.learning.config import TrainConfig, config_from_dict
+from panda_grasp_env.agents.learning.seed_figures import profile_figure, score, study_markdown, study_summary
 from panda_grasp_env.tooling.runs import write_atomically, write_json
 
 
@@ -49,7 +49,7 @@ def train_seed(raw: dict[str, Any], runs_dir: str) -> dict[str, Any]:
     """Train the config ``raw`` (one seed's) to its end under ``runs_dir``: a finished run of the same config
     found there is kept, an unfinished one resumed, else a new run started.  Returns the seed, the run folder
     and its final.json (what the study needs, also from a Ray task on another machine)."""
-    from panda_grasp_env.agents.training import start_run, train
+    from panda_grasp_env.agents.learning.training import start_run, train
     from panda_grasp_env.tooling.runs import record_resume
 
     config = config_from_dict(raw, f"{raw['name']} seed {raw['seed']}")

@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.actions import EE_STEP, LOW_LEVEL_BOUNDS, EEDeltaActions
-from panda_grasp_env.agents.base import require
-from panda_grasp_env.agents.registry import register_expert
+from panda_grasp_env.agents.policies.base import require
+from panda_grasp_env.agents.policies.registry import register_expert
 
 #: Gripper commands of the ee_delta mode.
 OPEN, CLOSED = -1.0, 1.0

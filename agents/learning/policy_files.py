@@ -50,8 +50,9 @@ SPACE_DTYPES = ("uint8", "int8", "int16", "int32", "int64", "float16", "float32"
 
 
 def class_name(cls: type) -> str:
-    """``module:QualifiedName``: how policy files name a class."""
-    return f"{cls.__module__}:{cls.__qualname__}"
+    """How policy files name a class: by the name the class itself declares (``policy_file_name``: this
+    project's policies, whose modules may move), else ``module:QualifiedName``."""
+    return vars(cls).get("policy_file_name") or f"{cls.__module__}:{cls.__qualname__}"
 
 
 @cache
@@ -61,7 +62,7 @@ def policy_classes() -> dict[str, type]:
     from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC
 
-    from panda_grasp_env.agents.heightmap_policy import HeightmapQPolicy
+    from panda_grasp_env.agents.learning.heightmap_policy import HeightmapQPolicy
 
     classes = [HeightmapQPolicy]
     for algo in (SAC, TQC, PPO):
