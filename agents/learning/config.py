@@ -18,7 +18,7 @@ from pydantic.dataclasses import dataclass
 
 from panda_grasp_env.geometry import is_number
 from panda_grasp_env.registration import ENV_IDS
-from panda_grasp_env.tooling.runs import check_resume_changes, checked_config, config_value_error
+from panda_grasp_env.tooling.runs import Count, Seed, check_resume_changes, checked_config, config_value_error, distinct
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
 ALGORITHMS: dict[str, tuple[str, str]] = {
@@ -59,10 +59,6 @@ MOST_SELECTION_EPISODES = TEST_SEED_OFFSET - SELECTION_SEED_OFFSET
 REWARDS = ("task", "outcome")
 
 
-#: A count of steps, episodes, envs or threads.
-Count = Annotated[StrictInt, Field(ge=1, description="an int >= 1")]
-#: A seed (the first of a run of seeds).
-Seed = Annotated[StrictInt, Field(ge=0, description="an int >= 0")]
 #: Keyword arguments for a constructor.
 Keywords = Annotated[dict[str, Any], Field(description="a mapping")]
 
@@ -72,13 +68,6 @@ def registered_env_id(env_id: str) -> str:
     if env_id not in ENV_IDS:
         raise ValueError(f"one of {sorted(ENV_IDS)}")
     return env_id
-
-
-def distinct(names: list[str]) -> list[str]:
-    """``names`` if none repeats; else ``ValueError``."""
-    if len(set(names)) < len(names):
-        raise ValueError(f"names that do not repeat, not {names}")
-    return names
 
 
 @dataclass(frozen=True, config=ConfigDict(extra="forbid"))

@@ -17,7 +17,7 @@ from panda_grasp_env.actions import PRIMITIVE_Z_RANGE
 from panda_grasp_env.falls.dataset import LABEL_SOURCES, read_metadata
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.tasks.base import TOWER_BLOCKS
-from panda_grasp_env.tooling.runs import checked_config, config_value_error
+from panda_grasp_env.tooling.runs import Count, Seed, checked_config, config_value_error, distinct
 
 # --- recording -----------------------------------------------------------------------------------
 
@@ -54,13 +54,6 @@ def ordered_pair(pair: tuple[Any, Any]) -> tuple[Any, Any]:
     return pair
 
 
-def distinct_counts(counts: tuple[int, ...]) -> tuple[int, ...]:
-    """``counts`` if none repeats; else ``ValueError``."""
-    if len(set(counts)) < len(counts):
-        raise ValueError(f"{counts} repeats a count")
-    return counts
-
-
 @dataclass(frozen=True, config=ConfigDict(extra="forbid"))
 class RecorderSettings:
     """How sequences are recorded (``panda_grasp_env/falls/recorder.py``).  Times in seconds, impulses in N s,
@@ -83,7 +76,7 @@ class RecorderSettings:
         AfterValidator(ordered_pair),
     ] = (0.08, 0.2)
     shard_size: Annotated[StrictInt, Field(ge=1, description="an int >= 1")] = 50
-    seed: Annotated[StrictInt, Field(ge=0, description="an int >= 0")] = 0  # sequence i uses env seed seed + i
+    seed: Seed = 0  # sequence i uses env seed seed + i
     # Tower heights (blocks), one drawn per sequence (``tower_height``).
     tower_blocks: Annotated[
         tuple[TowerHeight, ...],
@@ -91,7 +84,7 @@ class RecorderSettings:
             min_length=1,
             description=f"a non-empty tuple of distinct ints in [{TOWER_BLOCKS[0]}, {TOWER_BLOCKS[1]}]",
         ),
-        AfterValidator(distinct_counts),
+        AfterValidator(distinct),
     ] = (4,)
     # Levels (0: the base) the struck block is drawn from, uniformly, up to the tower's top and
     # HIGHEST_STRIKE_LEVEL: a tall tower struck low mostly stands (an impulse in the lower half of a 6-block
@@ -121,8 +114,6 @@ class RecorderSettings:
 
 # --- training ------------------------------------------------------------------------------------
 
-#: A count of frames, channels, epochs, sequences or threads.
-Count = Annotated[StrictInt, Field(ge=1, description="an int >= 1")]
 #: The weight of a term of the training loss.
 LossWeight = Annotated[StrictInt | StrictFloat, Field(ge=0, description="a number >= 0")]
 
@@ -147,7 +138,7 @@ class FallConfig:
     # Also read the depth images (height maps; see panda_grasp_env/falls/model.py).
     use_depth: Annotated[StrictBool, Field(description="true or false")] = False
     height_loss_weight: LossWeight = 1.0
-    seed: Annotated[StrictInt, Field(ge=0, description="an int >= 0")] = 0
+    seed: Seed = 0
     # Stop (and checkpoint) after this many minutes of wall time in total.
     max_minutes: Annotated[StrictInt | StrictFloat | None, Field(gt=0, description="a positive number or null")] = None
     torch_threads: Count = 2
