@@ -33,13 +33,6 @@ from panda_grasp_env.sim.stepping import PhysicsError
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks import TaskStep, dense_reward
 
-#: The ``PandaEnv`` options that set how an agent sees and acts (observation, action mode and their
-#: resolutions); the others, and the task options, set the scene and the protocol.
-AGENT_OPTIONS = frozenset(
-    {"obs_mode", "action_mode", "cameras", "image_size", "heightmap_resolution", "heightmap_bounds", "rotations",
-     "primitive_z", "push_distance", "block_gripper", "planner"}
-)  # fmt: skip
-
 
 class PandaEnv(gym.Env):
     """A Franka Panda building, breaking and grasping in MuJoCo.
@@ -135,8 +128,9 @@ class PandaEnv(gym.Env):
         self.render_size, self.reward_type = options.render_size, reward_type
         #: Start state -> probability of an episode starting there (a training curriculum; empty: none).
         self.start_curriculum = options.start_curriculum
-        self.goal_conditioned = options.goal_conditioned
         mode = options.mode
+        #: Whether the agent sees and is rewarded by goals: a goal-conditioned task in a low-level mode.
+        self.goal_conditioned = mode.low_level and self.task.goal_conditioned
         self.task.fixed_hand_yaw = HOME_YAW if mode.fixed_hand_yaw else None
         # Low-level modes let the reference move EE_STEP per control step; primitives keep their own speeds.
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if mode.low_level else None

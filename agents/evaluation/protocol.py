@@ -29,7 +29,7 @@ import panda_grasp_env.agents.put_in_bin
 import panda_grasp_env.agents.towers  # noqa: F401
 from panda_grasp_env.actions import ACTION_MODES
 from panda_grasp_env.agents.registry import BASELINES, EXPERTS
-from panda_grasp_env.env import AGENT_OPTIONS
+from panda_grasp_env.env_options import AGENT_OPTIONS
 from panda_grasp_env.registration import BENCHMARK_SEEDS, BENCHMARKS, ENV_IDS, TASKS
 
 if TYPE_CHECKING:
