@@ -4,7 +4,7 @@ The step loop (``PandaEnv.step``) reads top to bottom: validate the action,
 execute it (one primitive, or one 25 Hz control step), let the task judge the
 result, count, observe.  Tasks live in ``panda_grasp_env/tasks`` (one file
 each), action modes in ``actions.py``, observations in ``observations.py``, option
-checks in ``env_options.py``, start states in ``sim/starts.py``, render modes in ``sim/rendering.py``.
+checks in ``env_options.py``, where the hand starts in ``sim/starts.py``, render modes in ``sim/rendering.py``.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from panda_grasp_env.primitives.result import COUNTERS
 from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
 from panda_grasp_env.sim.rendering import RENDER_MODES, EnvRenderer, advertised_render_modes
-from panda_grasp_env.sim.starts import draw_start, ready_position
+from panda_grasp_env.sim.starts import start_hand
 from panda_grasp_env.sim.stepping import PhysicsError
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks import TaskStep, dense_reward
@@ -181,12 +181,8 @@ class PandaEnv(gym.Env):
         task_info = self.task.reset(self.cell, rng)
         start = "ready"
         if self.actions.low_level:
-            ready = ready_position(self.cell)
-            self.cell.motion.teleport_hand(ready, HOME_YAW)
-            if self.start_curriculum:  # no draw without one
-                body = self.task.start_object(self.cell)
-                start = draw_start(self.cell, self.start_curriculum, body, ready, rng, LOW_LEVEL_BOUNDS,
-                                   self.task.desired_goal)  # fmt: skip
+            start = start_hand(self.cell, self.start_curriculum, self.task.start_object, rng, LOW_LEVEL_BOUNDS,
+                               self.task.desired_goal)  # fmt: skip
         self.actions.reset(self.cell, rng)
         if self.randomizer is not None:  # drawn last: the scene and the rest of the stream are as without it
             task_info["randomization"] = self.randomizer.apply(rng)
