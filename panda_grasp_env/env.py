@@ -4,7 +4,7 @@ The step loop (``PandaEnv.step``) reads top to bottom: validate the action,
 execute it (one primitive, or one 25 Hz control step), let the task judge the
 result, count, observe.  Tasks live in ``panda_grasp_env/tasks`` (one file
 each), action modes in ``actions.py``, observations in ``observations.py``, option
-checks in ``env_options.py``, start states in ``sim/starts.py``, render modes in ``sim/rendering.py``.
+checks in ``env_options.py``, where the hand starts in ``sim/starts.py``, render modes in ``sim/rendering.py``.
 """
 
 from __future__ import annotations
@@ -28,17 +28,10 @@ from panda_grasp_env.primitives.result import COUNTERS
 from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
 from panda_grasp_env.sim.rendering import RENDER_MODES, EnvRenderer, advertised_render_modes
-from panda_grasp_env.sim.starts import draw_start, ready_position
+from panda_grasp_env.sim.starts import start_hand
 from panda_grasp_env.sim.stepping import PhysicsError
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks import TaskStep, dense_reward
-
-#: The ``PandaEnv`` options that set how an agent sees and acts (observation, action mode and their
-#: resolutions); the others, and the task options, set the scene and the protocol.
-AGENT_OPTIONS = frozenset(
-    {"obs_mode", "action_mode", "cameras", "image_size", "heightmap_resolution", "heightmap_bounds", "rotations",
-     "primitive_z", "push_distance", "block_gripper", "planner"}
-)  # fmt: skip
 
 
 class PandaEnv(gym.Env):
@@ -135,8 +128,9 @@ class PandaEnv(gym.Env):
         self.render_size, self.reward_type = options.render_size, reward_type
         #: Start state -> probability of an episode starting there (a training curriculum; empty: none).
         self.start_curriculum = options.start_curriculum
-        self.goal_conditioned = options.goal_conditioned
         mode = options.mode
+        #: Whether the agent sees and is rewarded by goals: a goal-conditioned task in a low-level mode.
+        self.goal_conditioned = mode.low_level and self.task.goal_conditioned
         self.task.fixed_hand_yaw = HOME_YAW if mode.fixed_hand_yaw else None
         # Low-level modes let the reference move EE_STEP per control step; primitives keep their own speeds.
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if mode.low_level else None
@@ -187,12 +181,8 @@ class PandaEnv(gym.Env):
         task_info = self.task.reset(self.cell, rng)
         start = "ready"
         if self.actions.low_level:
-            ready = ready_position(self.cell)
-            self.cell.motion.teleport_hand(ready, HOME_YAW)
-            if self.start_curriculum:  # no draw without one
-                body = self.task.start_object(self.cell)
-                start = draw_start(self.cell, self.start_curriculum, body, ready, rng, LOW_LEVEL_BOUNDS,
-                                   self.task.desired_goal)  # fmt: skip
+            start = start_hand(self.cell, self.start_curriculum, self.task.start_object, rng, LOW_LEVEL_BOUNDS,
+                               self.task.desired_goal)  # fmt: skip
         self.actions.reset(self.cell, rng)
         if self.randomizer is not None:  # drawn last: the scene and the rest of the stream are as without it
             task_info["randomization"] = self.randomizer.apply(rng)

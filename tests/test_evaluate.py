@@ -236,7 +236,8 @@ def test_a_heightmap_policy_plays_the_other_scenes_of_its_task():
 
     from panda_grasp_env.agents.evaluation.protocol import learned_env, skip_reason
     from panda_grasp_env.agents.policies.learned import Checkpoint
-    from panda_grasp_env.env import AGENT_OPTIONS, PandaEnv
+    from panda_grasp_env.env import PandaEnv
+    from panda_grasp_env.env_options import AGENT_OPTIONS
 
     assert AGENT_OPTIONS <= set(inspect.signature(PandaEnv.__init__).parameters)
 

@@ -30,7 +30,7 @@ import panda_grasp_env.agents.policies.towers  # noqa: F401
 from panda_grasp_env.actions import ACTION_MODES
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 from panda_grasp_env.agents.policies.registry import BASELINES, EXPERTS, BaselineFactory
-from panda_grasp_env.env import AGENT_OPTIONS
+from panda_grasp_env.env_options import AGENT_OPTIONS
 from panda_grasp_env.registration import ENV_IDS, TASKS
 
 if TYPE_CHECKING:

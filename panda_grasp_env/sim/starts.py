@@ -103,12 +103,17 @@ def start_behind_object(cell: Workcell, body: int, ready: np.ndarray, rng: np.ra
 STARTS = {"in_hand": start_in_hand, "above_object": start_above_object, "behind_object": start_behind_object}
 
 
-def draw_start(cell: Workcell, curriculum: dict[str, float], body: int, ready: np.ndarray,
+def start_hand(cell: Workcell, curriculum: dict[str, float], start_object: Callable[[Workcell], int],
                rng: np.random.Generator, bounds: np.ndarray, goal: Callable[[], np.ndarray]) -> str:  # fmt: skip
-    """One draw from ``curriculum`` (start state -> probability; the rest: ``ready``) with the hand at ``ready``,
-    relative to the task's start object ``body``: the state the episode starts in, ``ready`` where the drawn
-    one could not be reached."""
-    draw = rng.random()
+    """Put the hand where a low-level episode starts: at ``ready_position``, pointing down at ``HOME_YAW``;
+    then, with a ``curriculum`` (start state -> probability; the rest: ``ready``), one draw of a start state
+    relative to the task's start object (``start_object(cell)``).  Returns the state the episode starts in,
+    ``ready`` where the drawn one could not be reached.  Without a curriculum nothing is drawn from ``rng``."""
+    ready = ready_position(cell)
+    cell.motion.teleport_hand(ready, HOME_YAW)
+    if not curriculum:
+        return "ready"
+    body, draw = start_object(cell), rng.random()
     for state, probability in curriculum.items():
         if draw < probability:
             return state if STARTS[state](cell, body, ready, rng, bounds, goal) else "ready"

@@ -27,7 +27,6 @@ from panda_grasp_env.model.scene import (
     build_spec,
 )
 from panda_grasp_env.sim.collateral import CollateralMonitor
-from panda_grasp_env.sim.extents import body_bottom_height  # noqa: F401 (tasks.grasp imports it from here)
 from panda_grasp_env.sim.fixtures import WORLD_GROUP, Fixtures
 from panda_grasp_env.sim.motion import Motion
 from panda_grasp_env.sim.stepping import Physics
@@ -169,10 +168,6 @@ class Workcell:
             still = still + 1 if self.robot.finger_speed < 2e-3 else 0
             if still >= 3:
                 break
-
-    def move_home(self) -> None:
-        """Back to the home configuration (``motion.move_home``; kept here for the tasks that call it)."""
-        self.motion.move_home()
 
     # --- objects -----------------------------------------------------------
     def set_body_pose(self, body_id: int, position: np.ndarray, quaternion: np.ndarray | None = None) -> None:

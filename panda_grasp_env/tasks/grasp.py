@@ -15,7 +15,8 @@ from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import EnvId, register_task
-from panda_grasp_env.sim.workcell import Workcell, body_bottom_height
+from panda_grasp_env.sim.extents import body_bottom_height
+from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, goals_reached, with_scene
 from panda_grasp_env.tasks.grasp_layouts import HEAP_OBJECTS, adversarial_layout_index, grasp_layout
 from panda_grasp_env.tasks.packed_layouts import MAX_OBJECTS
@@ -326,7 +327,7 @@ class Grasp(Task):
             for body in sorted(held):
                 cell.park(body)
             cell.actuate_gripper(close=False, timeout=0.4)
-            cell.move_home()
+            cell.motion.move_home()
             carried = len(held)
             self.grasped += carried
             self.consecutive_failures = 0
