@@ -55,7 +55,8 @@ def test_a_missing_key_fails_listing_the_valid_ones(tmp_path):
         ("algo_kwargs.learning_rate={start: 0.001, end: 0.0001}", None),
         ("algo_kwargs.learning_rate={start: 0.001, end: -1}", r"learning_rate as a positive number or \{start"),
         ("algo_kwargs.learning_rate={start: 0.001}", r"learning_rate as a positive number or \{start"),
-        ("seed", "key=value"),
+        ("seed", "is not KEY=VALUE"),
+        ("seed=[1,", r"the value is not YAML \(expected the node content"),
         ("train_env_kwargs=0.5", "train_env_kwargs=0.5: expected a mapping"),
         ("selection_episodes=99001", r"selection_episodes=99001: expected an int in \[0, 99000\]"),
         # Values of the wrong type: the key, the value and what it takes.

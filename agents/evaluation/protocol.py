@@ -32,6 +32,7 @@ from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 from panda_grasp_env.agents.policies.registry import BASELINES, EXPERTS, BaselineFactory
 from panda_grasp_env.env_options import AGENT_OPTIONS
 from panda_grasp_env.registration import ENV_IDS, TASKS
+from panda_grasp_env.tooling.runs import apply_key_values
 
 if TYPE_CHECKING:
     from panda_grasp_env.agents.policies.learned import Checkpoint
@@ -249,21 +250,14 @@ class EpisodeSpec:
 
 
 def task_options_from_pairs(pairs: list[str], tasks: list[str]) -> dict[str, Any]:
-    """``KEY=VALUE`` strings (``--task-options``) as a mapping of YAML values, checked by making each of the
-    ``tasks``' envs with them; ``ValueError`` naming the bad pair or option."""
-    import yaml
-
-    options: dict[str, Any] = {}
-    for pair in pairs:
-        key, sep, text = pair.partition("=")
-        if not sep or not key.strip():
-            raise ValueError(f"--task-options: {pair!r} is not KEY=VALUE")
+    """``KEY=VALUE`` strings (``--task-options``) as a mapping of YAML values (``apply_key_values``), checked
+    by making each of the ``tasks``' envs with them; ``ValueError`` naming the bad pair or option."""
+    options = apply_key_values({}, pairs, "--task-options")
+    for key, value in options.items():
         try:
-            value = yaml.safe_load(text)
             frozen(value)  # a value an episode's spec can hold
-        except (yaml.YAMLError, ValueError) as error:
+        except ValueError as error:
             raise ValueError(f"--task-options {key}: {error}") from None
-        options[key.strip()] = value
     for task in tasks if options else ():
         benchmark = BENCHMARKS[task]
         try:  # an option the protocol sets too (max_episode_steps on BuildAndBreak) is overridden

@@ -4,7 +4,6 @@ run may change.  ``train.py`` and ``panda_grasp_env.agents.learning.training`` b
 
 from __future__ import annotations
 
-import contextlib
 import inspect
 from collections.abc import Callable
 from pathlib import Path
@@ -18,7 +17,15 @@ from pydantic.dataclasses import dataclass
 
 from panda_grasp_env.geometry import is_number
 from panda_grasp_env.registration import ENV_IDS
-from panda_grasp_env.tooling.runs import Count, Seed, check_resume_changes, checked_config, config_value_error, distinct
+from panda_grasp_env.tooling.runs import (
+    Count,
+    Seed,
+    apply_key_values,
+    check_resume_changes,
+    checked_config,
+    config_value_error,
+    distinct,
+)
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
 ALGORITHMS: dict[str, tuple[str, str]] = {
@@ -208,30 +215,15 @@ def load_class(path: str) -> Any:
 
 
 def read_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> dict[str, Any]:
-    """A YAML config as a mapping, with ``key=value`` overrides applied: the value is read as YAML (and a number
-    in exponent form as a float, which YAML 1.1 reads as a string), and dotted keys reach into mappings."""
+    """A YAML config as a mapping, with ``key=value`` overrides applied (``apply_key_values``: values read as
+    YAML, dotted keys reaching into mappings)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"config file {path} not found")
     raw = yaml.safe_load(path.read_text()) or {}
     if not isinstance(raw, dict):
         raise ValueError(f"config {path} must be a mapping of keys to values")
-    for override in overrides:
-        key, equals, text = override.partition("=")
-        if not equals:
-            raise ValueError(f"override {override!r} must look like key=value (dotted keys reach into mappings)")
-        *parents, leaf = key.strip().split(".")
-        target = raw
-        for parent in parents:
-            target = target.setdefault(parent, {})
-            if not isinstance(target, dict):
-                raise ValueError(f"override {override!r}: {parent!r} is not a mapping")
-        value = yaml.safe_load(text)
-        if isinstance(value, str):  # YAML 1.1 reads 3e-4 as a string
-            with contextlib.suppress(ValueError):
-                value = float(value)
-        target[leaf] = value
-    return raw
+    return apply_key_values(raw, overrides, "override")
 
 
 def load_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> TrainConfig:

@@ -10,6 +10,7 @@ import hmac
 import json
 import os
 import platform
+import re
 import subprocess
 import time
 from collections.abc import Iterator, Sequence
@@ -255,6 +256,37 @@ def distinct(values: Items) -> Items:
     if len(set(values)) < len(values):
         raise ValueError(f"values that do not repeat, not {list(values)}")
     return values
+
+
+#: A number in exponent form (``3e-4``), which YAML 1.1 reads as a string.
+EXPONENT_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
+def apply_key_values(target: dict[str, Any], pairs: Sequence[str], what: str) -> dict[str, Any]:
+    """``target`` with command-line ``KEY=VALUE`` strings applied: each value read as YAML (a number in exponent
+    form as a float, which YAML 1.1 reads as a string), a dotted key reaching into mappings
+    (``algo_kwargs.learning_rate=3e-4``).  ``ValueError`` naming ``what`` (``override``, ``--task-options``) and
+    the pair that is not KEY=VALUE, whose value is not YAML, or whose dotted key meets a value that is not a
+    mapping."""
+    for pair in pairs:
+        key, equals, text = pair.partition("=")
+        if not equals or not key.strip():
+            raise ValueError(f"{what} {pair!r} is not KEY=VALUE (dotted keys reach into mappings)")
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError as error:
+            problem = getattr(error, "problem", None) or type(error).__name__
+            raise ValueError(f"{what} {pair!r}: the value is not YAML ({problem})") from None
+        if isinstance(value, str) and EXPONENT_NUMBER.fullmatch(value.strip()):
+            value = float(value)
+        *parents, leaf = key.strip().split(".")
+        mapping = target
+        for parent in parents:
+            mapping = mapping.setdefault(parent, {})
+            if not isinstance(mapping, dict):
+                raise ValueError(f"{what} {pair!r}: {parent!r} is not a mapping")
+        mapping[leaf] = value
+    return target
 
 
 def checked_config(cls: type[Config], raw: Any, source: str) -> Config:
