@@ -104,11 +104,15 @@ def main() -> None:
     agents = args.agents.split(",")
     unknown = sorted(set(agents) - set(AGENTS) - set(available_checkpoints()))
     if unknown or args.runs < 1 or args.heaps < 0 or any(not 0 <= i < len(names) for i in layouts):
-        raise ValueError(f"--agents from {list(AGENTS)} or shipped checkpoints, --runs >= 1, --heaps >= 0, "
-                         f"--layouts in [0, {len(names) - 1}] or none")  # fmt: skip
+        raise ValueError(
+            f"--agents from {list(AGENTS)} or shipped checkpoints, --runs >= 1, --heaps >= 0, "
+            f"--layouts in [0, {len(names) - 1}] or none"
+        )
     results = Results(args.out, args.resume)
-    print(f"{'layout':26s} {'agent':18s} {'grasped':>10s} {'cleared (95 % CI)':>22s} {'grasp ok':>8s} "
-          f"{'effic.':>6s} {'pushes':>6s} {'push->grasp':>11s} {'disturbed/act':>13s} {'physics errors':>14s}")  # fmt: skip
+    print(
+        f"{'layout':26s} {'agent':18s} {'grasped':>10s} {'cleared (95 % CI)':>22s} {'grasp ok':>8s} "
+        f"{'effic.':>6s} {'pushes':>6s} {'push->grasp':>11s} {'disturbed/act':>13s} {'physics errors':>14s}"
+    )
     totals = {agent: [] for agent in agents}
     for index in layouts:
         for agent in agents:
@@ -126,8 +130,10 @@ def main() -> None:
     seeds = range(args.heap_first_seed, args.heap_first_seed + args.heaps)
     if seeds:
         for agent in agents:
-            rows = [results.section(f"{agent}/heap/{seed}", lambda seed=seed, agent=agent: episode(agent, None, seed))
-                    for seed in seeds]  # fmt: skip
+            rows = [
+                results.section(f"{agent}/heap/{seed}", lambda seed=seed, agent=agent: episode(agent, None, seed))
+                for seed in seeds
+            ]
             report(f"random heaps ({len(rows)})", agent, rows)
 
 

@@ -32,20 +32,29 @@ def main() -> None:
     import torch
     from sb3_contrib import MaskablePPO
 
-    from panda_grasp_env.agents.learning.heightmap_policy import EncodedHeightmap
+    from panda_grasp_env.agents.learning.heightmap_observations import EncodedHeightmap
 
     torch.set_num_threads(1)
     start = time.perf_counter()
-    env = EncodedHeightmap(gym.make(f"panda_grasp_env:{args.env}", action_mode="pixel_factored", obs_mode="heightmap",
-                                    heightmap_resolution=args.resolution, rotations=args.rotations))  # fmt: skip
+    env = EncodedHeightmap(
+        gym.make(
+            f"panda_grasp_env:{args.env}",
+            action_mode="pixel_factored",
+            obs_mode="heightmap",
+            heightmap_resolution=args.resolution,
+            rotations=args.rotations,
+        )
+    )
     model = MaskablePPO("CnnPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu")
     parameters = sum(p.numel() for p in model.policy.parameters())
     model.learn(args.steps)
     wall = time.perf_counter() - start
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
     print(f"{args.env}: observation {env.observation_space}, actions {env.action_space}")
-    print(f"MaskablePPO CnnPolicy: {parameters:,} parameters; {model.num_timesteps} env steps in {wall:.0f} s "
-          f"({model.num_timesteps / wall:.2f} steps/s, one torch thread); peak resident memory {peak:.0f} MiB")  # fmt: skip
+    print(
+        f"MaskablePPO CnnPolicy: {parameters:,} parameters; {model.num_timesteps} env steps in {wall:.0f} s "
+        f"({model.num_timesteps / wall:.2f} steps/s, one torch thread); peak resident memory {peak:.0f} MiB"
+    )
     env.close()
 
 

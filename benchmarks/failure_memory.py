@@ -57,18 +57,22 @@ def main() -> None:
     for name in names:
         Checkpoint(name)  # unknown names fail before anything runs
     results = Results(args.out, args.resume)
-    print(f"{'checkpoint':<20} {'memory':<7} {'N':>4} {'success (95 % CI)':<24} {'completion':>10} "
-          f"{'grasp success':>16} {'efficiency':>10}  failures")  # fmt: skip
+    print(
+        f"{'checkpoint':<20} {'memory':<7} {'N':>4} {'success (95 % CI)':<24} {'completion':>10} "
+        f"{'grasp success':>16} {'efficiency':>10}  failures"
+    )
     for name in names:
         for avoid in (False, True):
             section = f"{name}/{args.seeds}/{'memory' if avoid else 'none'}"
             row = results.section(section, partial(measure, name, args.episodes, avoid, SEED_OFFSETS[args.seeds]))
             success, grasp = row["trial_success"], row["grasp_success"]
             low, high = success["ci95"]
-            print(f"{name:<20} {'on' if avoid else 'off':<7} {row['episodes']:>4} "
-                  f"{success['rate']:>6.1%} ({low:.1%}-{high:.1%}){'':<4} {row['completion']['rate']:>10.1%} "
-                  f"{grasp['rate']:>7.1%} ({grasp['successes']}/{grasp['n']}) {row['action_efficiency']:>10.1%}  "
-                  f"{row['failures']}")  # fmt: skip
+            print(
+                f"{name:<20} {'on' if avoid else 'off':<7} {row['episodes']:>4} "
+                f"{success['rate']:>6.1%} ({low:.1%}-{high:.1%}){'':<4} {row['completion']['rate']:>10.1%} "
+                f"{grasp['rate']:>7.1%} ({grasp['successes']}/{grasp['n']}) {row['action_efficiency']:>10.1%}  "
+                f"{row['failures']}"
+            )
 
 
 if __name__ == "__main__":

@@ -103,8 +103,10 @@ def main() -> None:
     results = Results(args.out, resume=False)
     for name in shipped_checkpoints(heightmap=True):
         figures = results.section(name, lambda name=name: time_decisions(name, args.repeats))
-        print(f"{name:32s} median {figures['median_ms']:6.1f} ms  (min {figures['min_ms']:.1f}, "
-              f"max {figures['max_ms']:.1f}; {args.repeats} decisions, one thread; goal <= 30 ms)")  # fmt: skip
+        print(
+            f"{name:32s} median {figures['median_ms']:6.1f} ms  (min {figures['min_ms']:.1f}, "
+            f"max {figures['max_ms']:.1f}; {args.repeats} decisions, one thread; goal <= 30 ms)"
+        )
 
 
 if __name__ == "__main__":

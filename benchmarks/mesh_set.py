@@ -26,8 +26,10 @@ from panda_grasp_env.model.meshes import EVALUATION_OBJECTS, EXCLUDED, MAX_PARTS
 def split_figures() -> None:
     """Per split: objects, geoms per object, merged objects, bounding-box sizes (cm) and volumes (cm^3)."""
     print(f"left out: {EXCLUDED}")
-    print(f"{'split':6s} {'objects':>7s} {'geoms (median, max)':>20s} {'merged':>6s} "
-          f"{'box cm (5 / 50 / 95 %)':>40s} {'volume cm3 (5 / 50 / 95 %)':>27s}")  # fmt: skip
+    print(
+        f"{'split':6s} {'objects':>7s} {'geoms (median, max)':>20s} {'merged':>6s} "
+        f"{'box cm (5 / 50 / 95 %)':>40s} {'volume cm3 (5 / 50 / 95 %)':>27s}"
+    )
     for name, ids in SPLITS.items():
         objects = [load_mesh_object(i) for i in ids]
         geoms = [len(o.parts) for o in objects]
@@ -36,8 +38,10 @@ def split_figures() -> None:
         quantiles = np.percentile(boxes, [5, 50, 95], axis=0)
         volumes = np.percentile([o.volume * 1e6 for o in objects], [5, 50, 95])
         box = " / ".join("x".join(f"{v:.1f}" for v in row) for row in quantiles)
-        print(f"{name:6s} {len(ids):7d} {np.median(geoms):12.0f}, {max(geoms):5d} {merged:6d} {box:>40s} "
-              f"{' / '.join(f'{v:.1f}' for v in volumes):>27s}")  # fmt: skip
+        print(
+            f"{name:6s} {len(ids):7d} {np.median(geoms):12.0f}, {max(geoms):5d} {merged:6d} {box:>40s} "
+            f"{' / '.join(f'{v:.1f}' for v in volumes):>27s}"
+        )
 
 
 def previews(folder: Path, size: int = 96) -> None:
@@ -63,8 +67,14 @@ def previews(folder: Path, size: int = 96) -> None:
         tiles = []
         for object_id in ids:
             mesh = load_mesh_object(object_id)
-            shape = ObjectShape("mesh", tuple(mesh.half_extents), (0.85, 0.45, 0.1), 0.05, mesh=object_id,
-                                orientation=(1.0, 0.0, 0.0, 0.0))  # fmt: skip
+            shape = ObjectShape(
+                "mesh",
+                tuple(mesh.half_extents),
+                (0.85, 0.45, 0.1),
+                0.05,
+                mesh=object_id,
+                orientation=(1.0, 0.0, 0.0, 0.0),
+            )
             apply_shape(cell.model, body, shape)
             cell.refresh_constants()
             cell.set_body_pose(body, [0.5, 0.0, shape.resting_half_height])

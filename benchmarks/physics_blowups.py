@@ -74,11 +74,17 @@ def measure(name: str, episodes: int | None, speed_limit: float) -> dict:
             observation, _, terminated, truncated, info = env.step(agent.act(observation, info))
         successes += bool(info["is_success"])
         if tracker.speed > speed_limit or tracker.finger > FINGER_OPEN + FINGER_SLACK:
-            blowups.append({"seed": seed, "speed": round(tracker.speed, 2), "finger": round(tracker.finger, 3),
-                            "shapes": shapes})  # fmt: skip
+            blowups.append(
+                {"seed": seed, "speed": round(tracker.speed, 2), "finger": round(tracker.finger, 3), "shapes": shapes}
+            )
     env.close()
-    return {"episodes": n, "blowups": rate(len(blowups), n), "success": rate(successes, n), "cases": blowups,
-            "speed_limit": speed_limit}  # fmt: skip
+    return {
+        "episodes": n,
+        "blowups": rate(len(blowups), n),
+        "success": rate(successes, n),
+        "cases": blowups,
+        "speed_limit": speed_limit,
+    }
 
 
 def main() -> None:
@@ -99,8 +105,10 @@ def main() -> None:
     for name in names:
         row = results.section(f"{name}/{episodes}/{args.speed}", partial(measure, name, args.episodes, args.speed))
         blown, success = row["blowups"], row["success"]
-        print(f"{name}: blow-ups {blown['successes']}/{row['episodes']} = {blown['rate']:.1%} "
-              f"({blown['ci95'][0]:.1%}-{blown['ci95'][1]:.1%}); success {success['rate']:.1%}")  # fmt: skip
+        print(
+            f"{name}: blow-ups {blown['successes']}/{row['episodes']} = {blown['rate']:.1%} "
+            f"({blown['ci95'][0]:.1%}-{blown['ci95'][1]:.1%}); success {success['rate']:.1%}"
+        )
         for case in row["cases"]:
             print(f"    seed {case['seed']}: {case['speed']} m/s, finger {case['finger']} m, shapes {case['shapes']}")
 

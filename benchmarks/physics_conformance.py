@@ -203,19 +203,44 @@ def main() -> None:
     push_depth, push_force = penetration_while_pushed(cell)
     rows = [
         # (quantity, unit, analytic, measured, bound on |measured - analytic| or None for 10 %)
-        (f"penetration into the table at {args.force:g} N", "mm", 0.0,
-         1e3 * penetration_into_table(cell, args.force), 1.0),
-        (f"penetration into the fingers or table in 4 pushes (<= {push_force:.0f} N)", "mm", 0.0,
-         1e3 * push_depth, 1.0),
-        (f"slide-versus-tip push height, w / (2 mu), mu = {mu:g}", "mm", 1e3 * size / (2 * mu),
-         1e3 * slide_tip_height(cell), None),
-        (f"slip angle, atan(mu), mu = {incline_friction:g}", "deg", float(np.degrees(np.arctan(incline_friction))),
-         float(np.degrees(slip_angle(cell, incline_friction))), None),
-        (f"free-fall time from {100 * drop:g} cm, sqrt(2 h / g)", "ms", 1e3 * np.sqrt(2 * drop / g),
-         1e3 * free_fall_time(cell, drop), None),
+        (
+            f"penetration into the table at {args.force:g} N",
+            "mm",
+            0.0,
+            1e3 * penetration_into_table(cell, args.force),
+            1.0,
+        ),
+        (
+            f"penetration into the fingers or table in 4 pushes (<= {push_force:.0f} N)",
+            "mm",
+            0.0,
+            1e3 * push_depth,
+            1.0,
+        ),
+        (
+            f"slide-versus-tip push height, w / (2 mu), mu = {mu:g}",
+            "mm",
+            1e3 * size / (2 * mu),
+            1e3 * slide_tip_height(cell),
+            None,
+        ),
+        (
+            f"slip angle, atan(mu), mu = {incline_friction:g}",
+            "deg",
+            float(np.degrees(np.arctan(incline_friction))),
+            float(np.degrees(slip_angle(cell, incline_friction))),
+            None,
+        ),
+        (
+            f"free-fall time from {100 * drop:g} cm, sqrt(2 h / g)",
+            "ms",
+            1e3 * np.sqrt(2 * drop / g),
+            1e3 * free_fall_time(cell, drop),
+            None,
+        ),
         ("settled 4-block tower: centre heights (k + 1/2) w, error", "mm", 0.0, 1e3 * height_error, 1.0),
         ("settled 4-block tower: drift over 10 s", "mm", 0.0, 1e3 * drift, 2.0),
-    ]  # fmt: skip
+    ]
     print(f"{'quantity':58s} {'analytic':>9s} {'measured':>9s} {'error':>9s}  within")
     records = []
     for name, unit, analytic, measured, bound in rows:
@@ -224,8 +249,16 @@ def main() -> None:
         limit = f"<= {bound:g} {unit}" if bound is not None else "10 %"
         relative = f"{100 * error / analytic:+.1f} %" if bound is None else f"{error:+.2f} {unit}"
         print(f"{name:58s} {analytic:7.2f}{unit:>2s} {measured:7.2f}{unit:>2s} {relative:>9s}  {within} ({limit})")
-        records.append({"quantity": name, "unit": unit, "analytic": analytic, "measured": measured,
-                        "limit": limit, "within": bool(within)})  # fmt: skip
+        records.append(
+            {
+                "quantity": name,
+                "unit": unit,
+                "analytic": analytic,
+                "measured": measured,
+                "limit": limit,
+                "within": bool(within),
+            }
+        )
     if args.json:
         write_atomically(args.json, json.dumps({"rows": records, "machine": machine()}, indent=2))
 

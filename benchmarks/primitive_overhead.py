@@ -119,14 +119,18 @@ def main() -> None:
     results = Results(args.out, args.resume)
     repeats = [results.section(f"repeat_{r}", lambda: {task: run(task) for task in tasks}) for r in range(args.repeats)]
     print(f"medians: {args.primitives} random primitives per task, {args.repeats} repeats ({results.data['machine']})")
-    print(f"{'task':21s} {'wall/prim s':>11s} {'steps':>6s} {'raw/s':>7s} {'sim s/wall s':>12s} "
-          f"{'wall/(steps/raw)':>16s} {'wall/in mj_step':>15s}")  # fmt: skip
+    print(
+        f"{'task':21s} {'wall/prim s':>11s} {'steps':>6s} {'raw/s':>7s} {'sim s/wall s':>12s} "
+        f"{'wall/(steps/raw)':>16s} {'wall/in mj_step':>15s}"
+    )
     summary = {}
     for task in tasks:
         figures = {key: statistics.median(r[task][key] for r in repeats) for key in repeats[0][task]}
         summary[task] = figures
-        print(f"{task:21s} {figures['wall_s']:11.3f} {figures['steps']:6.0f} {figures['raw_rate']:7.0f} "
-              f"{figures['sim_per_wall']:12.2f} {figures['wall_over_raw']:16.2f} {figures['wall_over_inside']:15.2f}")  # fmt: skip
+        print(
+            f"{task:21s} {figures['wall_s']:11.3f} {figures['steps']:6.0f} {figures['raw_rate']:7.0f} "
+            f"{figures['sim_per_wall']:12.2f} {figures['wall_over_raw']:16.2f} {figures['wall_over_inside']:15.2f}"
+        )
     print("goal (issue 29): wall/(steps/raw) <= 1.25")
     results.data.pop("summary", None)
     results.section("summary", lambda: summary)

@@ -139,13 +139,15 @@ def watched_push(cell: Workcell, block: int, start: np.ndarray, z: float, headin
         "lateral_mm": 1e3 * float(moved @ [-along[1], along[0], 0.0]),
         "end_error_mm": None if stroke["end_error"] is None else 1e3 * stroke["end_error"],
         "tilt_deg": float(np.degrees(stroke["tilt"])),
-        "springback_mm": None if stroke["block_at_end"] is None
+        "springback_mm": None
+        if stroke["block_at_end"] is None
         else 1e3 * float((stroke["block_at_end"] - cell.data.xpos[block]) @ along),
         "hand_turn_deg": float(np.degrees(np.ptp(np.unwrap(stroke["yaws"])))) if stroke["yaws"] else 0.0,
         # Where the heading's half-turn branch at the start and at the end differ (by a half turn).
-        "crosses_joint7_window": bool(abs(wrap_gripper_yaw(grip_heading, start) - wrap_gripper_yaw(grip_heading, end))
-                                      > np.pi / 2),
-    }  # fmt: skip
+        "crosses_joint7_window": bool(
+            abs(wrap_gripper_yaw(grip_heading, start) - wrap_gripper_yaw(grip_heading, end)) > np.pi / 2
+        ),
+    }
 
 
 def push_precision(trials: int, scene: SceneConfig, distance: float = 0.2, gap: float = 0.06) -> dict:
@@ -181,13 +183,15 @@ def push_precision(trials: int, scene: SceneConfig, distance: float = 0.2, gap: 
         "n": trials,
         "stalled": rate(sum(row["along_mm"] < 0.5 * expected for row in rows), trials),
         "lateral_within_10mm": rate(sum(abs(row["lateral_mm"]) <= 10 for row in rows), trials),
-        "end_within_2mm": rate(sum(row["end_error_mm"] is not None and row["end_error_mm"] <= 2 for row in rows), trials),
+        "end_within_2mm": rate(
+            sum(row["end_error_mm"] is not None and row["end_error_mm"] <= 2 for row in rows), trials
+        ),
         "crossing_trials": sum(row["crosses_joint7_window"] for row in rows),
         **{f"median_{key}": float(np.median(values(key))) for key in keys},
         **{f"worst_{key}": float(np.max(values(key))) for key in keys},
         "reasons": dict(Counter(row["reason"] for row in rows)),
         "rows": rows,
-    }  # fmt: skip
+    }
 
 
 def determinism() -> dict:
@@ -245,10 +249,12 @@ def main(argv: list[str] | None = None) -> None:
     )
     print(
         "                               median / worst: "
-        + ", ".join(f"{key} {q['median_' + key]:.1f} / {q['worst_' + key]:.1f}"
-                    for key in ("lateral_mm", "end_error_mm", "tilt_deg", "springback_mm", "hand_turn_deg"))
+        + ", ".join(
+            f"{key} {q['median_' + key]:.1f} / {q['worst_' + key]:.1f}"
+            for key in ("lateral_mm", "end_error_mm", "tilt_deg", "springback_mm", "hand_turn_deg")
+        )
         + f"; {q['crossing_trials']} strokes cross a joint-7 window edge; reasons {q['reasons']}"
-    )  # fmt: skip
+    )
     det = results.section("determinism", determinism)
     print(f"same seed -> bit-identical state: {det['bit_identical']}")
     print(f"saved {args.out}")

@@ -44,18 +44,26 @@ CAMERAS = ("overhead", "front")
 
 
 def perception(scenes: int, randomization: bool) -> dict:
-    env = gym.make("panda_grasp_env:PandaTowerBuild-v0", obs_mode="rgbd+segmentation", cameras=CAMERAS,
-                   image_size=(640, 480), randomization=randomization or None)  # fmt: skip
+    env = gym.make(
+        "panda_grasp_env:PandaTowerBuild-v0",
+        obs_mode="rgbd+segmentation",
+        cameras=CAMERAS,
+        image_size=(640, 480),
+        randomization=randomization or None,
+    )
     cell = env.unwrapped.cell
     errors_mm, ious, missed = [], [], 0
     for scene in range(scenes):
         observation, info = env.reset(seed=SCENE_SEED + scene)
         noise = np.random.default_rng(SCENE_SEED + scene)
         views = [
-            View(RGBNoise().apply(observation[f"{c}_rgb"], noise), DepthNoise().apply(observation[f"{c}_depth"][..., 0], noise),
-                 info["camera_models"][c])
+            View(
+                RGBNoise().apply(observation[f"{c}_rgb"], noise),
+                DepthNoise().apply(observation[f"{c}_depth"][..., 0], noise),
+                info["camera_models"][c],
+            )
             for c in CAMERAS
-        ]  # fmt: skip
+        ]
         poses = estimate_block_poses(views, info["block_colours"], info["block_size"])
         for index, name in enumerate(cell.block_names):
             if name in poses:
@@ -74,7 +82,7 @@ def perception(scenes: int, randomization: bool) -> dict:
             "n": len(errors_mm),
             "median": float(np.median(errors_mm)),
             "p95": float(np.percentile(errors_mm, 95)),
-        },  # fmt: skip
+        },
         "blocks_missed": missed,
         "segmentation_iou": {"n": len(ious), "mean": float(np.mean(ious)), "median": float(np.median(ious))},
         "scenes": scenes,
@@ -97,8 +105,9 @@ def grid(path: Path, scenes: int = 8) -> None:
     """The front camera on ``scenes`` randomised resets, 4 to a row."""
     import imageio.v3 as iio
 
-    env = gym.make("panda_grasp_env:PandaTowerBuild-v0", render_mode="rgb_array", render_size=(320, 240),
-                   randomization=True)  # fmt: skip
+    env = gym.make(
+        "panda_grasp_env:PandaTowerBuild-v0", render_mode="rgb_array", render_size=(320, 240), randomization=True
+    )
     frames = []
     for scene in range(scenes):
         env.reset(seed=SCENE_SEED + scene)
@@ -121,15 +130,19 @@ def main() -> None:
     for on in (False, True):
         label = "on " if on else "off"
         p = results.section(f"perception_{label.strip()}", lambda on=on: perception(args.scenes, on))
-        print(f"randomisation {label}: block position median {p['position_mm']['median']:.2f} mm, "
-              f"p95 {p['position_mm']['p95']:.2f} mm (n={p['position_mm']['n']}, missed {p['blocks_missed']}); "
-              f"segmentation IoU mean {p['segmentation_iou']['mean']:.3f} ({p['scenes']} scenes)")  # fmt: skip
+        print(
+            f"randomisation {label}: block position median {p['position_mm']['median']:.2f} mm, "
+            f"p95 {p['position_mm']['p95']:.2f} mm (n={p['position_mm']['n']}, missed {p['blocks_missed']}); "
+            f"segmentation IoU mean {p['segmentation_iou']['mean']:.3f} ({p['scenes']} scenes)"
+        )
     for on in (False, True):
         label = "on " if on else "off"
         g = results.section(f"grasps_{label.strip()}", lambda on=on: planned_grasps(args.grasp_scenes, on))
         low, high = g["ci95"]
-        print(f"randomisation {label}: planned first-grasp success on isolated cubes {100 * g['rate']:.1f} % "
-              f"({g['successes']}/{g['n']}, 95 % CI {100 * low:.1f}-{100 * high:.1f} %)")  # fmt: skip
+        print(
+            f"randomisation {label}: planned first-grasp success on isolated cubes {100 * g['rate']:.1f} % "
+            f"({g['successes']}/{g['n']}, 95 % CI {100 * low:.1f}-{100 * high:.1f} %)"
+        )
     print("(goal with it on: position median <= 2 mm, IoU >= 0.93, grasp success >= 97 %)")
     if args.grid is not None:
         grid(args.grid)

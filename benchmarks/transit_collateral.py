@@ -66,7 +66,7 @@ def random_primitives(env_id: str, actions: int) -> dict:
                     "transit_disturbed",
                     "disturbed",
                 )
-            }  # fmt: skip
+            }
         )
     env.close()
     n = len(steps)
@@ -116,12 +116,16 @@ def main(argv: list[str] | None = None) -> None:
         print(f"  transit_contacts == 0:  {_percent(r['transit_contacts_zero'])}")
         print(f"  transit_disturbed == 0: {_percent(r['transit_disturbed_zero'])}")
         print(f"  collateral (objects disturbed per action): {r['collateral_per_action']}")
-        print(f"  simulated s per executed primitive (median): {r['sim_seconds_median']}, "
-              f"all {r['sim_seconds_median_executed']}")  # fmt: skip
+        print(
+            f"  simulated s per executed primitive (median): {r['sim_seconds_median']}, "
+            f"all {r['sim_seconds_median_executed']}"
+        )
         print(f"  reasons: {r['reasons']}")
         print(f"  random agent's episodes: {_percent(r['random_episodes'])} successful")
-    print(f"all scenes, {totals['n']} actions: transit_contacts == 0 {_percent(rate(totals['contacts'], totals['n']))}; "
-          f"transit_disturbed == 0 {_percent(rate(totals['disturbed'], totals['n']))}   (goal >= 99.5 % each)")  # fmt: skip
+    print(
+        f"all scenes, {totals['n']} actions: transit_contacts == 0 {_percent(rate(totals['contacts'], totals['n']))}; "
+        f"transit_disturbed == 0 {_percent(rate(totals['disturbed'], totals['n']))}   (goal >= 99.5 % each)"
+    )
     print(f"saved {args.out}")
 
 

@@ -63,8 +63,10 @@ def main() -> None:
             successes += bool(info["is_success"])
         result = rate(successes, args.episodes)
         low, high = result["ci95"]
-        print(f"{path}: {100 * result['rate']:.1f} % success ({successes}/{args.episodes}, 95 % CI "
-              f"{100 * low:.1f}-{100 * high:.1f} %) on {args.env}, {kind} {seeds}")  # fmt: skip
+        print(
+            f"{path}: {100 * result['rate']:.1f} % success ({successes}/{args.episodes}, 95 % CI "
+            f"{100 * low:.1f}-{100 * high:.1f} %) on {args.env}, {kind} {seeds}"
+        )
     for curve in dict.fromkeys(path.parent / "evaluations.npz" for path in args.models):
         if not curve.is_file():
             continue

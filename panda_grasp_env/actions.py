@@ -177,8 +177,12 @@ class PrimitiveActions(ActionMode):
 
     def layout(self) -> dict[str, Any]:
         settings = self.settings
-        return {"mode": self.name, "primitives": list(settings.primitives), "primitive_z": settings.with_z,
-                "push_distance": settings.push_distance}  # fmt: skip
+        return {
+            "mode": self.name,
+            "primitives": list(settings.primitives),
+            "primitive_z": settings.with_z,
+            "push_distance": settings.push_distance,
+        }
 
     def decode(self, action: np.ndarray) -> tuple[str, float, float, float | None, float]:
         """(primitive, x, y, z or None, yaw) in world units from a validated action."""
@@ -296,8 +300,10 @@ class FactoredPixelActions(PixelActions):
     def validate(self, action: Any) -> tuple[int, int]:
         array = np.asarray(action)
         if array.shape != (4,) or array.dtype.kind not in "iu":
-            raise ValueError(f"pixel_factored action must be 4 integers (primitive, rotation, row, column), "
-                             f"got {action!r} (dtype {array.dtype})")  # fmt: skip
+            raise ValueError(
+                f"pixel_factored action must be 4 integers (primitive, rotation, row, column), "
+                f"got {action!r} (dtype {array.dtype})"
+            )
         if np.any(array < 0) or np.any(array >= self.space.nvec):
             raise ValueError(f"pixel_factored action {array.tolist()} outside [0, {self.space.nvec.tolist()})")
         return int(np.ravel_multi_index(tuple(int(v) for v in array), self.shape)), 0

@@ -15,15 +15,14 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from panda_grasp_env.actions import EE_STEP, LOW_LEVEL_BOUNDS, ActionContext, ActionMode
+from panda_grasp_env.actions import EE_STEP, LOW_LEVEL_BOUNDS, ActionMode
 from panda_grasp_env.control.controller import ControllerLimits
-from panda_grasp_env.env_options import EnvOptions
+from panda_grasp_env.env_options import ENV_OPTIONS, EnvOptions
 from panda_grasp_env.model.robot import HOME_YAW
 from panda_grasp_env.model.scene import CAMERA_NAMES, SceneConfig
 from panda_grasp_env.observations import ObservationBuilder, Sensors
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
-from panda_grasp_env.primitives.parameters import PrimitiveSettings
 from panda_grasp_env.primitives.result import COUNTERS
 from panda_grasp_env.randomization import DomainRandomizer, Randomization
 from panda_grasp_env.registration import make_task
@@ -115,14 +114,8 @@ class PandaEnv(gym.Env):
         except ValueError as error:
             names = [p for p in inspect.signature(PandaEnv.__init__).parameters if p not in ("self", "task_options")]
             raise ValueError(f"{error}; env options: {names}") from None
-        self.options = options = EnvOptions.checked(
-            self.task, obs_mode=obs_mode, action_mode=action_mode, render_mode=render_mode, cameras=cameras,
-            image_size=image_size, heightmap_resolution=heightmap_resolution, heightmap_bounds=heightmap_bounds,
-            rotations=rotations, primitive_z=primitive_z, push_distance=push_distance, block_gripper=block_gripper,
-            render_size=render_size, planner=planner, scene=scene, start_in_hand=start_in_hand,
-            start_above_object=start_above_object, start_behind_object=start_behind_object,
-            randomization=randomization, reward_type=reward_type,
-        )  # fmt: skip
+        given = locals()  # the env options as passed: every parameter but the task's
+        self.options = options = EnvOptions.checked(self.task, **{name: given[name] for name in ENV_OPTIONS})
         self.metadata = {**PandaEnv.metadata, "render_modes": advertised_render_modes()}
         self.obs_mode, self.action_mode, self.render_mode = obs_mode, options.action_mode, render_mode
         self.render_size, self.reward_type = options.render_size, reward_type
@@ -137,10 +130,7 @@ class PandaEnv(gym.Env):
         self.cell = Workcell(options.scene_config(self.task), limits=limits)
         self.cell.physics.add_observer(self.task.on_control_step)
         self.sensors = Sensors(self.cell, options.image_size, options.grid)
-        settings = PrimitiveSettings(self.task.primitives, options.primitive_z, options.push_distance,
-                                     getattr(self.task, "impulse_magnitude", 0.06))  # fmt: skip
-        context = ActionContext(self.cell, settings, options.grid, options.rotations,
-                                lambda: self.sensors.heightmap()[0], options.block_gripper, options.planner)  # fmt: skip
+        context = options.action_context(self.task, self.cell, lambda: self.sensors.heightmap()[0])
         self.actions: ActionMode = mode.build(context)
         if self.goal_conditioned:
             # Only goal envs have compute_reward (vectorised, for HER): checkers treat its presence as "GoalEnv".
@@ -149,15 +139,21 @@ class PandaEnv(gym.Env):
         self._goal_in_state = self.task.goal_conditioned and not mode.low_level
         goal_size = self.task.goal_size if self.goal_conditioned else None
         extra_size = self.task.properties_size + (self.task.goal_size if self._goal_in_state else 0)
-        self.observations = ObservationBuilder(self.cell, options.modalities, options.cameras, self.sensors, goal_size,
-                                               extra_size, self.task.command_size)  # fmt: skip
+        self.observations = ObservationBuilder(
+            self.cell, options.modalities, options.cameras, self.sensors, goal_size, extra_size, self.task.command_size
+        )
         self.action_space = self.actions.space
         self.observation_space = self.observations.space
         self.randomizer = None if options.randomization is None else DomainRandomizer(options.randomization, self.cell)
         if self.randomizer is not None:
             self.observations.depth_filter = self.randomizer.noisy_depth
-        self.renderer = EnvRenderer(self.cell, render_mode, options.render_size, self.metadata["render_fps"],
-                                    lambda: self.sensors.rgbd("front", *options.render_size)[1])  # fmt: skip
+        self.renderer = EnvRenderer(
+            self.cell,
+            render_mode,
+            options.render_size,
+            self.metadata["render_fps"],
+            lambda: self.sensors.rgbd("front", *options.render_size)[1],
+        )
         if render_mode == "rgb_array_list":  # frames inside primitives too
             self.cell.physics.add_observer(self.renderer.on_control_step)
         self._counters = dict.fromkeys(COUNTERS, 0)
@@ -181,8 +177,9 @@ class PandaEnv(gym.Env):
         task_info = self.task.reset(self.cell, rng)
         start = "ready"
         if self.actions.low_level:
-            start = start_hand(self.cell, self.start_curriculum, self.task.start_object, rng, LOW_LEVEL_BOUNDS,
-                               self.task.desired_goal)  # fmt: skip
+            start = start_hand(
+                self.cell, self.start_curriculum, self.task.start_object, rng, LOW_LEVEL_BOUNDS, self.task.desired_goal
+            )
         self.actions.reset(self.cell, rng)
         if self.randomizer is not None:  # drawn last: the scene and the rest of the stream are as without it
             task_info["randomization"] = self.randomizer.apply(rng)

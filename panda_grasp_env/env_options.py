@@ -8,6 +8,7 @@ A frozen pydantic dataclass: each option's type and ``description`` say what val
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Annotated, Any, Literal
 
@@ -26,12 +27,15 @@ from pydantic import (
 )
 from pydantic.dataclasses import dataclass
 
-from panda_grasp_env.actions import ACTION_MODES, ActionMode
+from panda_grasp_env.actions import ACTION_MODES, ActionContext, ActionMode
+from panda_grasp_env.config_fields import distinct
 from panda_grasp_env.model.scene import CAMERA_NAMES, PRIMITIVE_NOSLIP_ITERATIONS, SceneConfig
 from panda_grasp_env.observations import parse_obs_mode
 from panda_grasp_env.perception.heightmap import HeightmapGrid
+from panda_grasp_env.primitives.parameters import PrimitiveSettings
 from panda_grasp_env.randomization import Randomization
 from panda_grasp_env.sim.rendering import RENDER_MODES, advertised_render_modes, display_available
+from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks import REWARD_TYPES, Task
 
 #: Largest image or render side, pixels.
@@ -41,15 +45,29 @@ MAX_ROTATIONS = 64
 #: A heightmap grid has this many cells per side, at least and at most.
 GRID_SIDES = (16, 1024)
 #: Start state -> the option that sets the probability of an episode starting there.
-START_OPTIONS = {"in_hand": "start_in_hand", "above_object": "start_above_object",
-                 "behind_object": "start_behind_object"}  # fmt: skip
+START_OPTIONS = {
+    "in_hand": "start_in_hand",
+    "above_object": "start_above_object",
+    "behind_object": "start_behind_object",
+}
 
 #: The ``PandaEnv`` options that set how an agent sees and acts (observation, action mode and their
 #: resolutions); the others, and the task options, set the scene and the protocol.
 AGENT_OPTIONS = frozenset(
-    {"obs_mode", "action_mode", "cameras", "image_size", "heightmap_resolution", "heightmap_bounds", "rotations",
-     "primitive_z", "push_distance", "block_gripper", "planner"}
-)  # fmt: skip
+    {
+        "obs_mode",
+        "action_mode",
+        "cameras",
+        "image_size",
+        "heightmap_resolution",
+        "heightmap_bounds",
+        "rotations",
+        "primitive_z",
+        "push_distance",
+        "block_gripper",
+        "planner",
+    }
+)
 
 
 def python_scalar(value: Any) -> Any:
@@ -72,8 +90,10 @@ def one_of(valid: tuple[str, ...]) -> AfterValidator:
 def render_mode_here(render_mode: Any) -> str | None:
     """``render_mode`` if it is None or a render mode that works on this machine; else ``ValueError``."""
     if render_mode == "human" and not display_available():
-        raise ValueError("render_mode='human' needs a display (neither DISPLAY nor WAYLAND_DISPLAY is set); "
-                         "use 'rgb_array' and save the frames, e.g. with gymnasium's RecordVideo")  # fmt: skip
+        raise ValueError(
+            "render_mode='human' needs a display (neither DISPLAY nor WAYLAND_DISPLAY is set); "
+            "use 'rgb_array' and save the frames, e.g. with gymnasium's RecordVideo"
+        )
     if render_mode is not None and not (isinstance(render_mode, str) and render_mode in RENDER_MODES):
         raise ValueError(f"unknown render_mode {render_mode!r}; valid: {advertised_render_modes()} or None")
     return render_mode
@@ -83,13 +103,6 @@ def valid_obs_mode(obs_mode: Any) -> str:
     """``obs_mode`` if ``parse_obs_mode`` takes it (it raises the ``ValueError`` naming the bad part)."""
     parse_obs_mode(obs_mode)
     return obs_mode
-
-
-def distinct(names: tuple[str, ...]) -> tuple[str, ...]:
-    """``names`` if none repeats; else ``ValueError``."""
-    if len(set(names)) < len(names):
-        raise ValueError(f"{names} repeats a name")
-    return names
 
 
 def grid_bounds(bounds: Any) -> Any:
@@ -176,8 +189,10 @@ class EnvOptions:
         if sum(self.start_curriculum.values()) > 1.0:
             raise ValueError(f"the start_* probabilities must sum to <= 1, got {sum(self.start_curriculum.values())}")
         if self.reward_type == "dense" and not (self.mode.low_level and task.goal_conditioned):
-            raise ValueError(f"reward_type='dense' is the goal distance of a goal-conditioned task in a low-level "
-                             f"action mode; {task.name!r} in {self.action_mode!r} mode has no goal reward to make dense")  # fmt: skip
+            raise ValueError(
+                f"reward_type='dense' is the goal distance of a goal-conditioned task in a low-level "
+                f"action mode; {task.name!r} in {self.action_mode!r} mode has no goal reward to make dense"
+            )
         return self
 
     @classmethod
@@ -237,3 +252,15 @@ class EnvOptions:
             task.add_fixtures(spec)
 
         return replace(config, fixtures=both)
+
+    def action_context(self, task: Task, cell: Workcell, heightmap: Callable[[], np.ndarray]) -> ActionContext:
+        """What the action mode is built from: ``cell``, the primitives ``task`` offers with these options'
+        parameters, the heightmap grid and headings, and ``heightmap`` (the current one, metres above the
+        table)."""
+        impulse = getattr(task, "impulse_magnitude", PrimitiveSettings.impulse_magnitude)
+        settings = PrimitiveSettings(task.primitives, self.primitive_z, self.push_distance, impulse)
+        return ActionContext(cell, settings, self.grid, self.rotations, heightmap, self.block_gripper, self.planner)
+
+
+#: The names of ``PandaEnv``'s options (the parameters of ``PandaEnv.__init__`` but ``task`` and its options).
+ENV_OPTIONS = tuple(EnvOptions.__dataclass_fields__)

@@ -65,11 +65,15 @@ class Randomization:
             if value is None and name == "friction":
                 continue
             if not _is_range(value, LIMITS[name]):
-                raise ValueError(f"randomization.{name} must be a (low, high) range within {LIMITS[name]}, "
-                                 f"got {value!r}")  # fmt: skip
+                raise ValueError(
+                    f"randomization.{name} must be a (low, high) range within {LIMITS[name]}, got {value!r}"
+                )
         table = self.table_rgb
-        if table is not None and not (isinstance(table, (tuple, list)) and len(table) == 3
-                                      and all(_is_range(channel, (0.0, 1.0)) for channel in table)):  # fmt: skip
+        if table is not None and not (
+            isinstance(table, (tuple, list))
+            and len(table) == 3
+            and all(_is_range(channel, (0.0, 1.0)) for channel in table)
+        ):
             raise ValueError(f"randomization.table_rgb must be three (low, high) ranges in [0, 1], got {table!r}")
 
     @classmethod
@@ -82,8 +86,9 @@ class Randomization:
         if isinstance(value, Randomization):
             return value
         if not isinstance(value, Mapping):
-            raise ValueError(f"randomization must be a Randomization, a dict of its fields, True or None, "
-                             f"got {value!r}")  # fmt: skip
+            raise ValueError(
+                f"randomization must be a Randomization, a dict of its fields, True or None, got {value!r}"
+            )
         unknown = sorted(set(value) - {f.name for f in fields(cls)})
         if unknown:
             raise ValueError(f"unknown randomization key(s) {unknown}; valid: {[f.name for f in fields(cls)]}")
@@ -125,8 +130,19 @@ class DomainRandomizer:
     """Applies a ``Randomization`` to one workcell at each reset and undoes it at the next."""
 
     #: The model fields a setting writes (and the next reset restores).
-    FIELDS = ("light_dir", "light_diffuse", "cam_pos", "cam_quat", "geom_rgba", "body_mass", "body_inertia",
-              "geom_friction", "geom_solref", "geom_solimp", "geom_priority")  # fmt: skip
+    FIELDS = (
+        "light_dir",
+        "light_diffuse",
+        "cam_pos",
+        "cam_quat",
+        "geom_rgba",
+        "body_mass",
+        "body_inertia",
+        "geom_friction",
+        "geom_solref",
+        "geom_solimp",
+        "geom_priority",
+    )
 
     def __init__(self, settings: Randomization, cell: Workcell) -> None:
         self.settings, self.cell = settings, cell
@@ -176,9 +192,13 @@ class DomainRandomizer:
         cell.refresh_constants()  # masses changed; also poses the moved cameras
         scale = float(rng.uniform(*s.depth_noise))
         nominal = DepthNoise()
-        self.depth_noise = None if scale == 0 else DepthNoise(
-            nominal.base_sigma * scale, nominal.quadratic_sigma * scale, edge_dropout=0.0, random_dropout=0.0
-        )  # fmt: skip
+        self.depth_noise = (
+            None
+            if scale == 0
+            else DepthNoise(
+                nominal.base_sigma * scale, nominal.quadratic_sigma * scale, edge_dropout=0.0, random_dropout=0.0
+            )
+        )
         self.noise_rng = np.random.default_rng(int(rng.integers(2**63)))
         return drawn | {"masses": masses, "frictions": frictions, "depth_noise": scale}
 

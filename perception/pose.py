@@ -221,10 +221,13 @@ def points_in_region(views: list[View], region: BlockRegion) -> tuple[np.ndarray
         world = view.camera.depth_to_world_points(check_depth(view.depth)).reshape(-1, 3)
         with np.errstate(invalid="ignore"):  # NaN depth: compared False, dropped
             inside = (
-                (world[:, 0] >= region.x[0]) & (world[:, 0] <= region.x[1])
-                & (world[:, 1] >= region.y[0]) & (world[:, 1] <= region.y[1])
-                & (world[:, 2] > region.table + TABLE_CLEARANCE) & (world[:, 2] <= region.top)
-            )  # fmt: skip
+                (world[:, 0] >= region.x[0])
+                & (world[:, 0] <= region.x[1])
+                & (world[:, 1] >= region.y[0])
+                & (world[:, 1] <= region.y[1])
+                & (world[:, 2] > region.table + TABLE_CLEARANCE)
+                & (world[:, 2] <= region.top)
+            )
         points.append(world[inside])
         rays.append(unit_rays(world[inside], view.camera))
     return np.concatenate(points), np.concatenate(rays)

@@ -208,8 +208,9 @@ def test_a_policy_with_one_feature_extractor_for_actor_and_critics_round_trips(t
     space = gym.spaces.Dict(
         {"image": gym.spaces.Box(0, 255, (3, 36, 36), np.uint8), "goal": gym.spaces.Box(-1, 1, (3,), np.float32)}
     )
-    policy = MultiInputPolicy(space, gym.spaces.Box(-1, 1, (4,), np.float32), lambda _: 1e-3,
-                              net_arch=[16], share_features_extractor=True)  # fmt: skip
+    policy = MultiInputPolicy(
+        space, gym.spaces.Box(-1, 1, (4,), np.float32), lambda _: 1e-3, net_arch=[16], share_features_extractor=True
+    )
     save_policy(policy, tmp_path / "shared")
     again = load_policy(tmp_path / "shared")
     assert again.share_features_extractor and again.critic.features_extractor is again.actor.features_extractor
@@ -269,8 +270,9 @@ def test_the_signing_key_is_made_private_and_then_reused(key_home, tmp_path):
     assert key_home.run_key() == key
 
 
-@pytest.mark.parametrize("flaw", ["world-readable", "group-readable", "empty", "short", "long", "symlink",
-                                  "dangling symlink", "directory"])  # fmt: skip
+@pytest.mark.parametrize(
+    "flaw", ["world-readable", "group-readable", "empty", "short", "long", "symlink", "dangling symlink", "directory"]
+)
 def test_a_signing_key_others_could_know_is_refused_with_the_mend(key_home, tmp_path, flaw):
     import os
 
@@ -289,9 +291,16 @@ def test_a_signing_key_others_could_know_is_refused_with_the_mend(key_home, tmp_
         path.chmod({"world-readable": 0o644, "group-readable": 0o640}.get(flaw, 0o600))
     with pytest.raises(ValueError, match=rf"run-signing key {path} .*delete it \(rm {path}\)") as refused:
         key_home.run_key()
-    why = {"world-readable": "mode 0644", "group-readable": "mode 0640", "empty": "holds 0 bytes",
-           "short": "holds 16 bytes", "long": "more than 32 bytes", "symlink": "is a symlink",
-           "dangling symlink": "is a symlink", "directory": "is not a regular file"}  # fmt: skip
+    why = {
+        "world-readable": "mode 0644",
+        "group-readable": "mode 0640",
+        "empty": "holds 0 bytes",
+        "short": "holds 16 bytes",
+        "long": "more than 32 bytes",
+        "symlink": "is a symlink",
+        "dangling symlink": "is a symlink",
+        "directory": "is not a regular file",
+    }
     assert why[flaw] in str(refused.value)
     # Nothing is signed or checked with it.
     (tmp_path / "run").mkdir()
@@ -389,19 +398,27 @@ def test_weights_beyond_the_size_limit_are_refused_before_they_are_read(sac_fold
 
 @pytest.mark.parametrize(
     ("name", "text", "message"),
-    [("policy.json", "{not json", r"policy.json is not valid JSON"),
-     ("policy.json", b"\xff\xfe{}", r"policy.json is not UTF-8 text"),
-     ("checkpoint.json", "[1, 2]", r"checkpoint.json must be a JSON mapping of .* got a list"),
-     ("checkpoint.json", "{\"task\": ", r"checkpoint.json is not valid JSON"),
-     ("checkpoint.json", "{\"task\": \"Lift\"}", r"checkpoint.json: .*missing key\(s\) \['steps'\]"),
-     ("checkpoint.json", "{\"task\": \"Lift\", \"steps\": true}", r"checkpoint.json: steps must be a JSON int"),
-     ("checkpoint.json", "{\"task\": \"Lift\", \"steps\": 1, \"avoid_failures\": \"no\"}",
-      r"checkpoint.json: avoid_failures must be a JSON boolean, got 'no'"),
-     ("checkpoint.json", "{\"task\": \"Lift\", \"steps\": 1, \"avoid_failures\": 0}",
-      r"checkpoint.json: avoid_failures must be a JSON boolean"),
-     ("config.yaml", "- a list", r"config.yaml must be a mapping"),
-     ("config.yaml", "a: [", r"config.yaml is not valid YAML")],
-)  # fmt: skip
+    [
+        ("policy.json", "{not json", r"policy.json is not valid JSON"),
+        ("policy.json", b"\xff\xfe{}", r"policy.json is not UTF-8 text"),
+        ("checkpoint.json", "[1, 2]", r"checkpoint.json must be a JSON mapping of .* got a list"),
+        ("checkpoint.json", '{"task": ', r"checkpoint.json is not valid JSON"),
+        ("checkpoint.json", '{"task": "Lift"}', r"checkpoint.json: .*missing key\(s\) \['steps'\]"),
+        ("checkpoint.json", '{"task": "Lift", "steps": true}', r"checkpoint.json: steps must be a JSON int"),
+        (
+            "checkpoint.json",
+            '{"task": "Lift", "steps": 1, "avoid_failures": "no"}',
+            r"checkpoint.json: avoid_failures must be a JSON boolean, got 'no'",
+        ),
+        (
+            "checkpoint.json",
+            '{"task": "Lift", "steps": 1, "avoid_failures": 0}',
+            r"checkpoint.json: avoid_failures must be a JSON boolean",
+        ),
+        ("config.yaml", "- a list", r"config.yaml must be a mapping"),
+        ("config.yaml", "a: [", r"config.yaml is not valid YAML"),
+    ],
+)
 def test_malformed_checkpoint_files_raise_a_value_error_naming_the_file(sac_folder, name, text, message):
     path = sac_folder / name
     path.write_bytes(text if isinstance(text, bytes) else text.encode())

@@ -31,23 +31,39 @@ def write_run(folder, draw_seed, weaken=None, seeds=SEEDS, versions=None):
         for seed in seeds:
             success = bool(rng.random() < p)
             attempted = 4 if task != "Lift" else 0
-            episodes.append({
-                "spec": {"agent": agent, "task": task, "seed": seed, "options": []},
-                "success": success, "completion": success, "actions": 6 if success else 12, "ideal_actions": 6,
-                "grasps_attempted": attempted, "grasps_succeeded": attempted if success else int(rng.integers(0, 3)),
-                "cycles": 0, "sim_seconds": 10.0, "failures": {} if success else {"missed": 1},
-                "failure": None if success else "step_limit", "physics_error": False, "disturbed": 0,
-                "transit_contacts": 0,
-            })  # fmt: skip
+            episodes.append(
+                {
+                    "spec": {"agent": agent, "task": task, "seed": seed, "options": []},
+                    "success": success,
+                    "completion": success,
+                    "actions": 6 if success else 12,
+                    "ideal_actions": 6,
+                    "grasps_attempted": attempted,
+                    "grasps_succeeded": attempted if success else int(rng.integers(0, 3)),
+                    "cycles": 0,
+                    "sim_seconds": 10.0,
+                    "failures": {} if success else {"missed": 1},
+                    "failure": None if success else "step_limit",
+                    "physics_error": False,
+                    "disturbed": 0,
+                    "transit_contacts": 0,
+                }
+            )
     tasks = sorted({t for _, t in CELLS})
     results = {
-        "protocol": {"agents": sorted({a for a, _ in CELLS}), "tasks": tasks, "full": False,
-                     "env_ids": {t: BENCHMARKS[t].env_id for t in tasks}, "seeds": {t: list(seeds) for t in tasks},
-                     "task_options": {}, "skipped": {}},
+        "protocol": {
+            "agents": sorted({a for a, _ in CELLS}),
+            "tasks": tasks,
+            "full": False,
+            "env_ids": {t: BENCHMARKS[t].env_id for t in tasks},
+            "seeds": {t: list(seeds) for t in tasks},
+            "task_options": {},
+            "skipped": {},
+        },
         "provenance": {"commit": "abc1234", "versions": versions or {"mujoco": "4.0.0"}, "machine": "test"},
         "metrics": aggregate(episodes),
         "episodes": episodes,
-    }  # fmt: skip
+    }
     folder.mkdir()
     (folder / "results.json").write_text(json.dumps(results))
     return folder

@@ -17,8 +17,21 @@ def record(tmp_path, *argv):
 
 
 def test_an_expert_dataset_is_sharded_resumable_and_replays_exactly(tmp_path, monkeypatch, capsys):
-    dataset = record(tmp_path, "--agent", "expert", "--task", "Stack", "--episodes", "4", "--shard-size", "2",
-                     "--seed-start", "30", "--infos", "is_success")  # fmt: skip
+    dataset = record(
+        tmp_path,
+        "--agent",
+        "expert",
+        "--task",
+        "Stack",
+        "--episodes",
+        "4",
+        "--shard-size",
+        "2",
+        "--seed-start",
+        "30",
+        "--infos",
+        "is_success",
+    )
     assert dataset.total_episodes == 4 and dataset.total_steps == 400
     seeds = [m["seed"] for m in dataset.storage.get_episode_metadata(range(4))]
     assert seeds == [30, 31, 32, 33]
@@ -27,30 +40,69 @@ def test_an_expert_dataset_is_sharded_resumable_and_replays_exactly(tmp_path, mo
     assert all(demonstrations.replay(dataset, i) for i in range(4))
 
     monkeypatch.setattr(demonstrations, "record_shard", lambda job: pytest.fail("a finished shard was recorded again"))
-    assert record(tmp_path, "--agent", "expert", "--task", "Stack", "--episodes", "4", "--shard-size", "2",
-                  "--seed-start", "30").total_episodes == 4  # fmt: skip
+    assert (
+        record(
+            tmp_path,
+            "--agent",
+            "expert",
+            "--task",
+            "Stack",
+            "--episodes",
+            "4",
+            "--shard-size",
+            "2",
+            "--seed-start",
+            "30",
+        ).total_episodes
+        == 4
+    )
     assert "2 of 2 shards already recorded" in capsys.readouterr().out
 
     read = subprocess.run(
-        [sys.executable, "-c", "import minari; print(minari.load_dataset('panda_grasp_env/stack-expert-v0').total_episodes)"],
-        env={**os.environ, "MINARI_DATASETS_PATH": str(tmp_path)}, capture_output=True, text=True, check=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-c",
+            "import minari; print(minari.load_dataset('panda_grasp_env/stack-expert-v0').total_episodes)",
+        ],
+        env={**os.environ, "MINARI_DATASETS_PATH": str(tmp_path)},
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     assert read.stdout.strip() == "4"
 
 
 def test_image_observations_are_recorded_and_replay_when_lossless(tmp_path):
-    dataset = record(tmp_path, "--agent", "random", "--task", "TowerBreak", "--episodes", "1", "--lossless",
-                     "--task-options", "obs_mode=rgbd", "image_size=[32,24]", "--infos", "")  # fmt: skip
+    dataset = record(
+        tmp_path,
+        "--agent",
+        "random",
+        "--task",
+        "TowerBreak",
+        "--episodes",
+        "1",
+        "--lossless",
+        "--task-options",
+        "obs_mode=rgbd",
+        "image_size=[32,24]",
+        "--infos",
+        "",
+    )
     episode = next(dataset.iterate_episodes([0]))
     assert episode.observations["rgb"].shape[1:] == (24, 32, 3)
     assert demonstrations.replay(dataset)
 
 
 @pytest.mark.parametrize(
-    "argv", [["--agent", "nobody", "--task", "Stack"], ["--agent", "expert", "--task", "Nothing"],
-             ["--agent", "planned", "--task", "Stack"], ["--agent", "expert", "--task", "Stack", "--episodes", "0"],
-             ["--agent", "expert", "--task", "Stack", "--name", "no-version"]],
-)  # fmt: skip
+    "argv",
+    [
+        ["--agent", "nobody", "--task", "Stack"],
+        ["--agent", "expert", "--task", "Nothing"],
+        ["--agent", "planned", "--task", "Stack"],
+        ["--agent", "expert", "--task", "Stack", "--episodes", "0"],
+        ["--agent", "expert", "--task", "Stack", "--name", "no-version"],
+    ],
+)
 def test_bad_arguments_stop_with_a_message(argv, capsys):
     with pytest.raises(SystemExit) as stop:
         demonstrations.parse_args(argv)
@@ -66,8 +118,12 @@ import shutil  # noqa: E402
 def plant(metadata_path, marker, **spec_changes):
     """Rewrite a dataset's recorded env spec to run ``touch marker`` through ``os.system`` if anything builds it."""
     metadata = json.loads(metadata_path.read_text())
-    spec = {**json.loads(metadata["env_spec"]), "entry_point": "os:system", "kwargs": {"command": f"touch {marker}"},
-            **spec_changes}  # fmt: skip
+    spec = {
+        **json.loads(metadata["env_spec"]),
+        "entry_point": "os:system",
+        "kwargs": {"command": f"touch {marker}"},
+        **spec_changes,
+    }
     metadata["env_spec"] = json.dumps(spec)
     metadata_path.write_text(json.dumps(metadata))
 
@@ -85,8 +141,11 @@ def test_replay_never_builds_the_env_a_datasets_entry_point_names(push_dataset, 
     shutil.copytree(push_dataset, folder)
     plant(folder / "metadata.json", tmp_path / "payload-ran", **spec_changes)
     try:
-        with pytest.raises(ValueError, match=r"metadata.json: env_spec (gives PandaPush-v0 the entry point "
-                                             r"'os:system'|records env id 'Payload-v0', not one of this project's)"):  # fmt: skip
+        with pytest.raises(
+            ValueError,
+            match=r"metadata.json: env_spec (gives PandaPush-v0 the entry point "
+            r"'os:system'|records env id 'Payload-v0', not one of this project's)",
+        ):
             demonstrations.replay(minari.MinariDataset(folder))
     finally:
         assert not (tmp_path / "payload-ran").exists(), "the dataset's payload ran"

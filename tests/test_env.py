@@ -213,8 +213,9 @@ def test_pixel_mode_publishes_its_action_layout():
     x, y = env.unwrapped.actions.decode(index)[1:3]
     action = write("push", x + 0.3 * cell, y - 0.3 * cell, 2 * np.pi * 7 / 8 + 0.2)
     assert action.shape == () and int(action) == index and env.action_space.contains(action)
-    assert int(write("push", x, y, 2 * np.pi - 0.1)) == np.ravel_multi_index((primitive, 0, row, column),
-                                                                           layout["shape"])  # fmt: skip
+    assert int(write("push", x, y, 2 * np.pi - 0.1)) == np.ravel_multi_index(
+        (primitive, 0, row, column), layout["shape"]
+    )
     with pytest.raises(ValueError, match="outside the heightmap"):
         write("push", 2.0, 0.0, 0.0)
     env.close()
@@ -242,8 +243,11 @@ def test_factored_pixel_mode_is_the_pixel_mode_per_dimension():
         joint.any(axis=tuple(a for a in range(4) if a != d)).tolist() for d in range(4)
     ]
     assert masks[2].sum() < shape[2]  # rows far from the tower are masked
-    for bad, message in ((np.array([0, 3, 40]), "4 integers"), (np.array([0, 8, 0, 0]), "outside"),
-                         (np.array([0.0, 1, 2, 3]), "4 integers")):  # fmt: skip
+    for bad, message in (
+        (np.array([0, 3, 40]), "4 integers"),
+        (np.array([0, 8, 0, 0]), "outside"),
+        (np.array([0.0, 1, 2, 3]), "4 integers"),
+    ):
         with pytest.raises(ValueError, match=message):
             factored.step(bad)
     _, _, _, _, info = factored.step(action)
@@ -438,10 +442,18 @@ def test_fuzzed_env_options_raise_value_errors_naming_them():
 
     values = [None, "x", 5, -1, 0, 1e9, float("nan"), float("inf"), True, [], {}, (1,), (1, 2, 3), object()]
     five, zero, yes = values[2], values[4], values[8]
-    valid = [("rotations", five), ("primitive_z", yes), ("block_gripper", yes), ("randomization", yes),
-             ("randomization", values[10])] + [(f"start_{s}", zero) for s in ("in_hand", "above_object", "behind_object")]  # fmt: skip
-    context = {"rotations": {"action_mode": "pixel"}, "block_gripper": {"task": "Push", "action_mode": "ee_delta"},
-               "planner": {"task": "Grasp", "action_mode": "grasp_pose"}}  # fmt: skip
+    valid = [
+        ("rotations", five),
+        ("primitive_z", yes),
+        ("block_gripper", yes),
+        ("randomization", yes),
+        ("randomization", values[10]),
+    ] + [(f"start_{s}", zero) for s in ("in_hand", "above_object", "behind_object")]
+    context = {
+        "rotations": {"action_mode": "pixel"},
+        "block_gripper": {"task": "Push", "action_mode": "ee_delta"},
+        "planner": {"task": "Grasp", "action_mode": "grasp_pose"},
+    }
     defaults = {k: p.default for k, p in inspect.signature(PandaEnv.__init__).parameters.items()}
     options = [k for k in defaults if k not in ("self", "task_options")]
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux

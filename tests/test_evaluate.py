@@ -77,11 +77,19 @@ def test_bad_arguments_exit_with_a_message(bad, capsys):
 
 
 def test_figures_that_do_not_apply_are_left_blank():
-    none_attempted = {"grasp_success": {"rate": 0.0, "n": 0}, "action_efficiency": 0.02, "cycles_per_sim_hour": 0.0,
-                      "collateral_per_action": 0.0}  # fmt: skip
+    none_attempted = {
+        "grasp_success": {"rate": 0.0, "n": 0},
+        "action_efficiency": 0.02,
+        "cycles_per_sim_hour": 0.0,
+        "collateral_per_action": 0.0,
+    }
     assert set(applicable("Lift", none_attempted).values()) == {None}  # low-level: runs to the time limit
-    grasped = {"grasp_success": {"rate": 0.9, "n": 10}, "action_efficiency": 0.8, "cycles_per_sim_hour": 0.0,
-               "collateral_per_action": 0.1}  # fmt: skip
+    grasped = {
+        "grasp_success": {"rate": 0.9, "n": 10},
+        "action_efficiency": 0.8,
+        "cycles_per_sim_hour": 0.0,
+        "collateral_per_action": 0.1,
+    }
     assert applicable("GraspClutter", grasped) == {
         "grasp_success": 0.9,
         "action_efficiency": 0.8,
@@ -165,8 +173,19 @@ def test_random_agent_does_not_replay_the_scene_draws():
 def test_any_seeds_and_task_options(tmp_path):
     # A held-out protocol without a hand-written loop: explicit seeds and env/task options on every task.
     out = tmp_path / "listed"
-    argv = ["--agents", "oracle", "--tasks", "GraspClutter", "--seed-list", "5000,5002", "--task-options",
-            "n_objects=3", "--no-video", "--out", str(out)]  # fmt: skip
+    argv = [
+        "--agents",
+        "oracle",
+        "--tasks",
+        "GraspClutter",
+        "--seed-list",
+        "5000,5002",
+        "--task-options",
+        "n_objects=3",
+        "--no-video",
+        "--out",
+        str(out),
+    ]
     assert evaluate.main(argv) == 0
     results = json.loads((out / "results.json").read_text())
     assert results["protocol"]["seeds"] == {"GraspClutter": [5000, 5002]}
@@ -198,8 +217,17 @@ def test_bad_protocol_arguments_name_the_culprit(bad, message, capsys):
 
 
 def test_a_protocol_file_reproduces_the_command_line_run(tmp_path):
-    flags = ["--agents", "oracle", "--tasks", "GraspClutter", "--seed-list", "5000,5002", "--task-options",
-             "n_objects=3", "--no-video"]  # fmt: skip
+    flags = [
+        "--agents",
+        "oracle",
+        "--tasks",
+        "GraspClutter",
+        "--seed-list",
+        "5000,5002",
+        "--task-options",
+        "n_objects=3",
+        "--no-video",
+    ]
     assert evaluate.main([*flags, "--out", str(tmp_path / "flags")]) == 0
     protocol = tmp_path / "protocol.yaml"
     protocol.write_text(
@@ -324,8 +352,11 @@ def test_a_bad_out_is_one_error_line_before_any_episode(tmp_path, capsys, monkey
     }[where]  # fmt: skip (/sys refuses even root)
     code, err = refused([*ARGS, "--out", str(out)], capsys, monkeypatch)
     assert code == 2 and err.count("\n") == 1 and err.startswith(f"error: --out {out}")
-    assert {"a file": "is a file, not a folder", "below a file": "cannot write results there (Not a directory)",
-            "unwritable": "cannot write results there"}[where] in err  # fmt: skip
+    assert {
+        "a file": "is a file, not a folder",
+        "below a file": "cannot write results there (Not a directory)",
+        "unwritable": "cannot write results there",
+    }[where] in err
 
 
 @pytest.fixture(scope="module")

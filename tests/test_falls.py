@@ -193,8 +193,12 @@ def test_baselines_and_metrics_on_a_moving_square():
 
 #: A 32x32 camera 1 m above the world origin, with the overhead camera's axes: image right is world -y, image
 #: down world -x, the optical axis world -z (a block on the table 1 cm along -y is 1 pixel right of centre).
-TOP_DOWN = {"render_size": [32, 32], "K": [[100.0, 0, 15.5], [0, 100.0, 15.5], [0, 0, 1]],
-            "rotation": [[0, -1, 0], [-1, 0, 0], [0, 0, -1]], "position": [0.0, 0.0, 1.0]}  # fmt: skip
+TOP_DOWN = {
+    "render_size": [32, 32],
+    "K": [[100.0, 0, 15.5], [0, 100.0, 15.5], [0, 0, 1]],
+    "rotation": [[0, -1, 0], [-1, 0, 0], [0, 0, -1]],
+    "position": [0.0, 0.0, 1.0],
+}
 
 
 def directions(labels, poses, n_blocks, model=None):
@@ -227,8 +231,9 @@ def test_fall_direction_scores_a_blob_moving_the_way_the_blocks_went_and_the_opp
     flung[0, -1, 1, 1] = -1.0
     hidden = frames.copy()
     hidden[0, 0] = 0
-    both = directions(np.concatenate([frames, still, still, hidden]), np.concatenate([poses, 0 * poses, flung, poses]),
-                      [6, 8, 8, 6])  # fmt: skip
+    both = directions(
+        np.concatenate([frames, still, still, hidden]), np.concatenate([poses, 0 * poses, flung, poses]), [6, 8, 8, 6]
+    )
     assert (both["sequences"], both["did_not_fall"], both["fell"], both["hidden"], both["scored"]) == (4, 2, 2, 1, 1)
     assert (both["by_height"]["8"]["did_not_fall"], both["by_height"]["8"]["fell"]) == (2, 0)
     assert both["by_height"]["8"]["predictors"]["copy_last"]["within_45"] is None

@@ -7,15 +7,17 @@ import pytest
 import torch as th
 
 from panda_grasp_env.actions import PixelActions
-from panda_grasp_env.agents.learning.heightmap_policy import (
+from panda_grasp_env.agents.learning.heightmap_observations import (
     HEIGHT_RANGE,
     EncodedHeightmap,
+    encode_heightmap,
+    holding_after,
+)
+from panda_grasp_env.agents.learning.heightmap_policy import (
     FailureMemory,
     HeightmapDQN,
     HeightmapQPolicy,
-    encode_heightmap,
     heading_in_image,
-    holding_after,
     rotation_grid,
     sample,
 )
@@ -228,7 +230,7 @@ def test_maskable_ppo_cnn_policy_takes_the_encoded_heightmap_as_it_is():
     from sb3_contrib import MaskablePPO
     from stable_baselines3.common.preprocessing import is_image_space
 
-    from panda_grasp_env.agents.learning.heightmap_policy import EncodedHeightmap
+    from panda_grasp_env.agents.learning.heightmap_observations import EncodedHeightmap
 
     raw = gym.make(
         "panda_grasp_env:PandaGrasp-v0",

@@ -20,8 +20,9 @@ DATASET = "panda_grasp_env/stack-expert-v0"
 def dataset_path(tmp_path_factory):
     """Four Stack expert episodes (100 steps each) recorded by the recorder."""
     out = tmp_path_factory.mktemp("minari")
-    args = demonstrations.parse_args(["--out", str(out), "--agent", "expert", "--task", "Stack", "--episodes", "4",
-                                      "--seed-start", "40"])  # fmt: skip
+    args = demonstrations.parse_args(
+        ["--out", str(out), "--agent", "expert", "--task", "Stack", "--episodes", "4", "--seed-start", "40"]
+    )
     demonstrations.record(args)
     return str(out)
 
@@ -65,20 +66,33 @@ def test_transitions_match_the_env_spaces(dataset_path):
 
 
 def test_behaviour_cloning_fits_the_demonstrations_and_trains_through_train_py(dataset_path, tmp_path):
-    config = config_from_dict({
-        "name": "bc_test", "env_id": "PandaStack-v0", "algo": "bc", "total_steps": 400,
-        "policy_kwargs": {"net_arch": [64, 64]},
-        "algo_kwargs": {"demonstrations": spec(dataset_path), "learning_rate": 0.003, "batch_size": 64},
-        "eval_every": 400, "eval_episodes": 1, "final_eval_episodes": 1, "checkpoint_every": 400,
-    })  # fmt: skip
+    config = config_from_dict(
+        {
+            "name": "bc_test",
+            "env_id": "PandaStack-v0",
+            "algo": "bc",
+            "total_steps": 400,
+            "policy_kwargs": {"net_arch": [64, 64]},
+            "algo_kwargs": {"demonstrations": spec(dataset_path), "learning_rate": 0.003, "batch_size": 64},
+            "eval_every": 400,
+            "eval_episodes": 1,
+            "final_eval_episodes": 1,
+            "checkpoint_every": 400,
+        }
+    )
     run = start_run(config, tmp_path)
     final = train(config, run, progress_bar=False)
     assert final["steps"] == 400 and (run / "card.md").read_text().count("minibatches (no environment steps)") == 1
     assert "the first 4 successful episodes of Minari dataset" in (run / "card.md").read_text()
     # The trained actor is closer to the demonstrated actions than an untrained one.
     model = BehaviourCloning.load(run / "latest.zip", device="cpu", demonstrations=spec(dataset_path))
-    fresh = BehaviourCloning("MultiInputPolicy", gym.make("PandaStack-v0"), demonstrations=spec(dataset_path),
-                             policy_kwargs={"net_arch": [64, 64]}, seed=1)  # fmt: skip
+    fresh = BehaviourCloning(
+        "MultiInputPolicy",
+        gym.make("PandaStack-v0"),
+        demonstrations=spec(dataset_path),
+        policy_kwargs={"net_arch": [64, 64]},
+        seed=1,
+    )
     observations, actions = model.demo_batch(400)
 
     def error(m):
@@ -93,16 +107,31 @@ def test_tqc_with_demonstrations_starts_with_them_in_the_buffer_and_clones_them(
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     env = DummyVecEnv([lambda: gym.make("PandaStack-v0")] * 2)
-    model = TQCFromDemonstrations("MultiInputPolicy", env, demonstrations=spec(dataset_path), bc_weight=1.0,
-                                  replay_buffer_class=HerReplayBuffer, buffer_size=2000, learning_starts=10,
-                                  batch_size=32, policy_kwargs={"net_arch": [32, 32]}, seed=0)  # fmt: skip
+    model = TQCFromDemonstrations(
+        "MultiInputPolicy",
+        env,
+        demonstrations=spec(dataset_path),
+        bc_weight=1.0,
+        replay_buffer_class=HerReplayBuffer,
+        buffer_size=2000,
+        learning_starts=10,
+        batch_size=32,
+        policy_kwargs={"net_arch": [32, 32]},
+        seed=0,
+    )
     model.learn(20)
     assert model.replay_buffer.size() == (400 + 20) // 2  # rows of 2 envs: the 4 demonstrations, the 20 steps
     model.train(gradient_steps=1, batch_size=32)
     assert 0.0 <= model.logger.name_to_value["train/bc_q_filter"] <= 1.0
     # 3 demonstrations on 2 envs: the last row of episodes completes itself with the third one again.
-    three = TQCFromDemonstrations("MultiInputPolicy", env, demonstrations=spec(dataset_path, episodes=3),
-                                  replay_buffer_class=HerReplayBuffer, buffer_size=2000, learning_starts=10)  # fmt: skip
+    three = TQCFromDemonstrations(
+        "MultiInputPolicy",
+        env,
+        demonstrations=spec(dataset_path, episodes=3),
+        replay_buffer_class=HerReplayBuffer,
+        buffer_size=2000,
+        learning_starts=10,
+    )
     three.learn(2)
     assert three.replay_buffer.size() == 2 * 100 + 1
     stored = three.replay_buffer.observations["observation"]
@@ -117,17 +146,33 @@ def test_configs_without_demonstrations_are_refused():
     with pytest.raises(ValueError, match="bc needs algo_kwargs.demonstrations"):
         BehaviourCloning("MultiInputPolicy", gym.make("PandaStack-v0"))
     with pytest.raises(ValueError, match=r"unknown algo_kwargs \['gamma'\] for bc"):
-        config_from_dict({"name": "x", "env_id": "PandaStack-v0", "algo": "bc", "total_steps": 10,
-                          "algo_kwargs": {"demonstrations": {"dataset": DATASET, "episodes": 1}, "gamma": 0.9}})  # fmt: skip
+        config_from_dict(
+            {
+                "name": "x",
+                "env_id": "PandaStack-v0",
+                "algo": "bc",
+                "total_steps": 10,
+                "algo_kwargs": {"demonstrations": {"dataset": DATASET, "episodes": 1}, "gamma": 0.9},
+            }
+        )
 
 
 def test_a_camera_policy_sees_only_the_observation_keys_it_names():
     from panda_grasp_env.agents.learning.config import observation_transform, training_env
 
-    raw = {"name": "x", "env_id": "PandaGrasp-v0", "algo": "sac", "total_steps": 10,
-           "env_kwargs": {"action_mode": "ee_delta", "obs_mode": "proprio+rgb", "cameras": ["overhead", "wrist"],
-                          "image_size": [40, 40]},
-           "observation_keys": ["proprio", "overhead_rgb", "wrist_rgb", "desired_goal"]}  # fmt: skip
+    raw = {
+        "name": "x",
+        "env_id": "PandaGrasp-v0",
+        "algo": "sac",
+        "total_steps": 10,
+        "env_kwargs": {
+            "action_mode": "ee_delta",
+            "obs_mode": "proprio+rgb",
+            "cameras": ["overhead", "wrist"],
+            "image_size": [40, 40],
+        },
+        "observation_keys": ["proprio", "overhead_rgb", "wrist_rgb", "desired_goal"],
+    }
     config = config_from_dict(raw)
     env = training_env(config)
     observation, info = env.reset(seed=0)
@@ -156,8 +201,13 @@ def test_image_shift_moves_each_image_within_its_padding_and_leaves_vectors_alon
 
 
 #: The push-aware oracle in the pixel mode a heightmap policy acts in (a coarse grid, 4 headings: quick).
-PIXEL_OPTIONS = {"obs_mode": "heightmap", "action_mode": "pixel", "heightmap_resolution": 0.008, "rotations": 4,
-                 "layout": "cubes_2x2"}  # fmt: skip
+PIXEL_OPTIONS = {
+    "obs_mode": "heightmap",
+    "action_mode": "pixel",
+    "heightmap_resolution": 0.008,
+    "rotations": 4,
+    "layout": "cubes_2x2",
+}
 PIXEL_DATASET = "panda_grasp_env/packed-oracle-pixel-v0"
 
 
@@ -166,9 +216,24 @@ def pixel_dataset_path(tmp_path_factory):
     """One episode of the push-aware oracle clearing a packed 2 x 2 grid of cubes in pixel mode."""
     out = tmp_path_factory.mktemp("minari_pixel")
     options = [f"{key}={value}" for key, value in PIXEL_OPTIONS.items()]
-    args = demonstrations.parse_args(["--out", str(out), "--agent", "oracle", "--task", "GraspAdversarial",
-                                      "--episodes", "1", "--seed-start", "40", "--name", PIXEL_DATASET,
-                                      "--task-options", *options])  # fmt: skip
+    args = demonstrations.parse_args(
+        [
+            "--out",
+            str(out),
+            "--agent",
+            "oracle",
+            "--task",
+            "GraspAdversarial",
+            "--episodes",
+            "1",
+            "--seed-start",
+            "40",
+            "--name",
+            PIXEL_DATASET,
+            "--task-options",
+            *options,
+        ]
+    )
     demonstrations.record(args)
     return str(out)
 
@@ -177,7 +242,8 @@ def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_th
     pixel_dataset_path, monkeypatch
 ):
     from panda_grasp_env.agents.learning.heightmap_imitation import FULL_MARGIN_DISTANCE, HeightmapDQNFromDemonstrations
-    from panda_grasp_env.agents.learning.heightmap_policy import EncodedHeightmap, HeightmapQPolicy, encode_heightmap
+    from panda_grasp_env.agents.learning.heightmap_observations import EncodedHeightmap, encode_heightmap
+    from panda_grasp_env.agents.learning.heightmap_policy import HeightmapQPolicy
 
     demos = {"dataset": PIXEL_DATASET, "episodes": 1, "path": pixel_dataset_path}
     episode = Demonstrations.of(demos).episodes_data()[0]
@@ -186,9 +252,16 @@ def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_th
 
     def make(**extra):
         env = EncodedHeightmap(gym.make("PandaGraspAdversarial-v0", **PIXEL_OPTIONS))
-        arguments = {"buffer_size": 100, "learning_starts": 1, "train_freq": 1, "batch_size": 4, "gamma": 0.5,
-                     "learning_rate": 3e-3,
-                     "seed": 0, "policy_kwargs": {"rotations": 4, "cell_size": 0.008, "width": 8}} | extra  # fmt: skip
+        arguments = {
+            "buffer_size": 100,
+            "learning_starts": 1,
+            "train_freq": 1,
+            "batch_size": 4,
+            "gamma": 0.5,
+            "learning_rate": 3e-3,
+            "seed": 0,
+            "policy_kwargs": {"rotations": 4, "cell_size": 0.008, "width": 8},
+        } | extra
         return HeightmapDQNFromDemonstrations(HeightmapQPolicy, env, demonstrations=demos, **arguments)
 
     model = make()
@@ -251,10 +324,13 @@ def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_th
     pretrained.learn(1)
     assert pretrained.pretrained_steps == 3 and pretrained.replay_buffer.size() == steps + 1
     assert not all(torch.equal(a, b) for a, b in zip(before, pretrained.q_net.parameters(), strict=True))
-    assert all(torch.equal(a, b) for a, b in zip(pretrained.q_net.parameters(),
-                                                 pretrained.q_net_target.parameters(), strict=True))  # fmt: skip
+    assert all(
+        torch.equal(a, b)
+        for a, b in zip(pretrained.q_net.parameters(), pretrained.q_net_target.parameters(), strict=True)
+    )
     with pytest.raises(ValueError, match="pretrain_steps must be an int >= 0"):
         make(pretrain_steps=1.5)
     with pytest.raises(ValueError, match="expected a demonstrations entry for heightmap_dqn_demos"):
-        config_from_dict({"name": "x", "env_id": "PandaGraspAdversarial-v0", "algo": "heightmap_dqn_demos",
-                          "total_steps": 10})  # fmt: skip
+        config_from_dict(
+            {"name": "x", "env_id": "PandaGraspAdversarial-v0", "algo": "heightmap_dqn_demos", "total_steps": 10}
+        )

@@ -41,7 +41,7 @@ def test_no_module_imports_a_generic_top_level_name():
 #: Layers, bottom first: a module may import its own layer and those below, never one above.  Inside the env
 #: each layer is a folder; the Gym API is the package's own modules.  ``registration`` imports nothing of
 #: ours and sits at the bottom because every task file declares its ids through it.
-FOUNDATION = ("panda_grasp_env.geometry", "panda_grasp_env.registration")
+FOUNDATION = ("panda_grasp_env.geometry", "panda_grasp_env.registration", "panda_grasp_env.config_fields")
 ENV_LAYERS = ("model", "control", "sim", "primitives", "tasks")
 LAYERS = ("foundation", "perception", *ENV_LAYERS, "gym_api", "tooling", "agents", "commands")
 
@@ -49,8 +49,11 @@ LAYERS = ("foundation", "perception", *ENV_LAYERS, "gym_api", "tooling", "agents
 def module_files() -> dict[str, Path]:
     """Our modules by installed name."""
     modules = {}
-    for folder, package in (("panda_grasp_env", "panda_grasp_env"), ("agents", "panda_grasp_env.agents"),
-                            ("perception", "panda_grasp_env.perception")):  # fmt: skip
+    for folder, package in (
+        ("panda_grasp_env", "panda_grasp_env"),
+        ("agents", "panda_grasp_env.agents"),
+        ("perception", "panda_grasp_env.perception"),
+    ):
         for path in (ROOT / folder).rglob("*.py"):
             parts = [p for p in path.relative_to(ROOT / folder).with_suffix("").parts if p != "__init__"]
             modules[".".join([package, *parts])] = path
@@ -107,7 +110,7 @@ def test_every_env_module_is_in_a_layer_folder_or_the_gym_api():
     """Nothing new lands at the package's top level by accident: those modules are the Gym API."""
     top_level = {p.stem for p in (ROOT / "panda_grasp_env").glob("*.py")}
     gym_api = {"env", "env_options", "actions", "observations", "randomization"}
-    assert top_level == {"__init__", "geometry", "registration", *gym_api}
+    assert top_level == {"__init__", "geometry", "registration", "config_fields", *gym_api}
 
 
 def test_no_import_cycles():
@@ -130,8 +133,12 @@ def test_no_import_cycles():
 
 def test_no_module_imports_a_layer_above_its_own():
     rank = {name: i for i, name in enumerate(LAYERS)}
-    upward = [f"{m} ({layer(m)}) -> {t} ({layer(t)})" for m, targets in import_graph().items() for t in targets
-              if rank[layer(t)] > rank[layer(m)]]  # fmt: skip
+    upward = [
+        f"{m} ({layer(m)}) -> {t} ({layer(t)})"
+        for m, targets in import_graph().items()
+        for t in targets
+        if rank[layer(t)] > rank[layer(m)]
+    ]
     assert upward == []
 
 
@@ -219,8 +226,11 @@ def test_every_source_package_is_installed_under_panda_grasp_env():
     tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
     config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
     folders = {name: config["package-dir"].get(name, name.replace(".", "/")) for name in config["packages"]}
-    found = {str(p.parent.relative_to(ROOT)) for d in ("panda_grasp_env", "agents", "perception")
-             for p in (ROOT / d).rglob("__init__.py")}  # fmt: skip
+    found = {
+        str(p.parent.relative_to(ROOT))
+        for d in ("panda_grasp_env", "agents", "perception")
+        for p in (ROOT / d).rglob("__init__.py")
+    }
     assert set(folders.values()) == found and all(name.startswith("panda_grasp_env") for name in folders)
 
 

@@ -32,8 +32,9 @@ TEST_IDS = [900, 905, 990]  # 990: 85 pieces merged into MAX_PARTS geoms
 
 
 def make(ids, **options):
-    return gym.make("panda_grasp_env:PandaGraspMesh-v0", objects=[{"shape": "mesh", "split": "test", "ids": ids}],
-                    **options)  # fmt: skip
+    return gym.make(
+        "panda_grasp_env:PandaGraspMesh-v0", objects=[{"shape": "mesh", "split": "test", "ids": ids}], **options
+    )
 
 
 def test_the_split_is_fixed_disjoint_and_complete():

@@ -34,8 +34,14 @@ def test_mass_and_friction_are_in_the_model_and_in_effect_against_table_and_fing
     geom = int(cell.model.body_geomadr[body])
     assert cell.model.body_mass[body] == pytest.approx(0.4)
     assert cell.model.geom_friction[geom][0] == pytest.approx(0.5)
-    assert info["objects"][0] | {"rgb": None} == {"shape": "cube", "size": (0.025,), "mass": pytest.approx(0.4),
-                                                  "friction": 0.5, "rgb": None, "lying": False}  # fmt: skip
+    assert info["objects"][0] | {"rgb": None} == {
+        "shape": "cube",
+        "size": (0.025,),
+        "mass": pytest.approx(0.4),
+        "friction": 0.5,
+        "rgb": None,
+        "lying": False,
+    }
     table = {cell.model.geom("table").id}
     assert contact_frictions(cell, geom, table) and set(contact_frictions(cell, geom, table)) == {0.5}
 
@@ -70,8 +76,13 @@ def test_a_lying_cylinder_rests_with_its_axis_horizontal():
 
 
 def test_ranges_are_drawn_per_episode_from_the_seed_and_shown_in_info_and_state():
-    spec = {"shape": ("cube", "sphere"), "mass": (0.05, 0.5), "friction": (0.3, 0.9), "rgb": ((0, 1), 0.5, 0.5),
-            "pose": "random"}  # fmt: skip
+    spec = {
+        "shape": ("cube", "sphere"),
+        "mass": (0.05, 0.5),
+        "friction": (0.3, 0.9),
+        "rgb": ((0, 1), 0.5, 0.5),
+        "pose": "random",
+    }
     env = make([spec], n_objects=2, obs_mode="state")
     observations = env.unwrapped.observations
     assert env.observation_space.shape == (observations.state_size,)
@@ -114,13 +125,22 @@ def test_the_shorthands_are_one_spec():
 
 @pytest.mark.parametrize(
     "options, culprit",
-    [({"objects": [{"mass": -1}]}, r"objects\[0\].*mass"), ({"objects": [{"weight": 1}]}, "weight"),
-     ({"objects": [{"shape": "cone"}]}, "shape"), ({"objects": [{"shape": "cube", "size": (0.02, 0.03)}]}, "size"),
-     ({"objects": [{"friction": float("nan")}]}, "friction"), ({"objects": [{"pose": "upside"}]}, "pose"),
-     ({"objects": [{"rgb": (1, 0)}]}, "rgb"), ({"objects": [{"yaw": (1, 0)}]}, "yaw"),
-     ({"objects": [{}], "shapes": ("cube",)}, "shorthands"), ({"objects": [{}, {}], "n_objects": 3}, "n_objects"),
-     ({"objects": []}, "objects"), ({"objects": "cube"}, "objects"), ({"objects": [5]}, r"objects\[0\]")],
-)  # fmt: skip
+    [
+        ({"objects": [{"mass": -1}]}, r"objects\[0\].*mass"),
+        ({"objects": [{"weight": 1}]}, "weight"),
+        ({"objects": [{"shape": "cone"}]}, "shape"),
+        ({"objects": [{"shape": "cube", "size": (0.02, 0.03)}]}, "size"),
+        ({"objects": [{"friction": float("nan")}]}, "friction"),
+        ({"objects": [{"pose": "upside"}]}, "pose"),
+        ({"objects": [{"rgb": (1, 0)}]}, "rgb"),
+        ({"objects": [{"yaw": (1, 0)}]}, "yaw"),
+        ({"objects": [{}], "shapes": ("cube",)}, "shorthands"),
+        ({"objects": [{}, {}], "n_objects": 3}, "n_objects"),
+        ({"objects": []}, "objects"),
+        ({"objects": "cube"}, "objects"),
+        ({"objects": [5]}, r"objects\[0\]"),
+    ],
+)
 def test_bad_specs_name_the_culprit(options, culprit):
     with pytest.raises(ValueError, match=culprit):
         gym.make("panda_grasp_env:PandaGrasp-v0", **options)

@@ -73,8 +73,9 @@ def test_success_needs_the_target_alone_in_the_bin():
 @pytest.mark.parametrize("agent, seed", [("oracle", 0), ("planned", 1)])
 def test_the_baselines_put_the_target_in_the_bin_touching_nothing_else(agent, seed):
     spec = EpisodeSpec(agent, "PutInBin", seed)
-    env = gym.make("panda_grasp_env:PandaPutInBin-v0", obs_mode="rgbd", cameras=("overhead", "front"),
-                   image_size=(640, 480))  # fmt: skip
+    env = gym.make(
+        "panda_grasp_env:PandaPutInBin-v0", obs_mode="rgbd", cameras=("overhead", "front"), image_size=(640, 480)
+    )
     cell = env.unwrapped.cell
     geoms, robot = bin_geoms(cell.model), set(cell.robot.body_ids)
     robot_on_bin = []
@@ -109,10 +110,15 @@ def test_random_actions_do_not_solve_it():
 
 @pytest.mark.parametrize(
     "options, culprit",
-    [({"n_blocks": 5}, "n_blocks"), ({"target": "purple"}, "target"), ({"n_blocks": 2, "target": "blue"}, "target"),
-     ({"bin_position": (0.9, 0.0)}, "bin_position"), ({"bin_position": "left"}, "bin_position"),
-     ({"bin_position": (0.5, float("nan"))}, "bin_position")],
-)  # fmt: skip
+    [
+        ({"n_blocks": 5}, "n_blocks"),
+        ({"target": "purple"}, "target"),
+        ({"n_blocks": 2, "target": "blue"}, "target"),
+        ({"bin_position": (0.9, 0.0)}, "bin_position"),
+        ({"bin_position": "left"}, "bin_position"),
+        ({"bin_position": (0.5, float("nan"))}, "bin_position"),
+    ],
+)
 def test_bad_options_name_the_culprit(options, culprit):
     with pytest.raises(ValueError, match=culprit):
         make(**options)

@@ -78,9 +78,15 @@ def test_depth_observations_carry_noise_within_the_space():
 
 @pytest.mark.parametrize(
     "value, culprit",
-    [({"light_angle": -1}, "light_angle"), ({"mass_scale": (2, 1)}, "mass_scale"), ({"hue": 0.1}, "hue"),
-     ({"table_rgb": ((0, 1), (0, 1))}, "table_rgb"), ({"depth_noise": (0.0, float("nan"))}, "depth_noise"), ("yes", "randomization")],
-)  # fmt: skip
+    [
+        ({"light_angle": -1}, "light_angle"),
+        ({"mass_scale": (2, 1)}, "mass_scale"),
+        ({"hue": 0.1}, "hue"),
+        ({"table_rgb": ((0, 1), (0, 1))}, "table_rgb"),
+        ({"depth_noise": (0.0, float("nan"))}, "depth_noise"),
+        ("yes", "randomization"),
+    ],
+)
 def test_bad_settings_name_the_culprit(value, culprit):
     with pytest.raises(ValueError, match=culprit):
         make(randomization=value)

@@ -8,12 +8,20 @@ import shutil
 import pytest
 
 from panda_grasp_env.agents.evaluation.episodes import episode_failure
-from panda_grasp_env.commands import evaluate, results_page
+from panda_grasp_env.commands import evaluate, results_figures, results_page
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 #: The flags headless Chromium runs with in containers (no sandbox, no GPU, nothing fetched in the background).
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]  # fmt: skip
+CHROMIUM_FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 
 
 @pytest.fixture(scope="module")
@@ -25,8 +33,17 @@ def run(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("run")
     printed = io.StringIO()
-    argv = ["--agents", "random,oracle,expert", "--tasks", "TowerBreak,TowerBreakDirectional", "--seeds", "2",
-            "--no-video", "--out", str(out)]  # fmt: skip
+    argv = [
+        "--agents",
+        "random,oracle,expert",
+        "--tasks",
+        "TowerBreak,TowerBreakDirectional",
+        "--seeds",
+        "2",
+        "--no-video",
+        "--out",
+        str(out),
+    ]
     with contextlib.redirect_stdout(printed):
         assert evaluate.main(argv) == 0
     # one clip, as the videos step writes them (a run with videos renders 4 of them: minutes)
@@ -109,7 +126,7 @@ def test_the_terminal_opens_with_a_count_of_skipped_pairs(run):
 def test_pngs_label_every_bar_and_keep_the_legend_off_the_data(run):
     out, _ = run
     table = json.loads((out / "results.json").read_text())["metrics"]
-    figure = results_page.success_figure(table)
+    figure = results_figures.success_figure(table)
     assert [t.get_text() for t in figure.legends[0].get_texts()] == ["scripted", "random"]
     legend = figure.legends[0].get_window_extent()
     axes = [a for a in figure.axes if a.get_visible()]

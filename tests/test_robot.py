@@ -68,8 +68,11 @@ def test_the_table_under_both_fingertips_is_not_held(rng):
     table = cell.model.geom("table").id
     for finger in cell.robot.finger_bodies:
         first = cell.model.body_geomadr[finger]
-        gaps = [mujoco.mj_geomDistance(cell.model, cell.data, geom, table, 0.01, None)
-                for geom in range(first, first + cell.model.body_geomnum[finger]) if cell.model.geom_contype[geom]]  # fmt: skip
+        gaps = [
+            mujoco.mj_geomDistance(cell.model, cell.data, geom, table, 0.01, None)
+            for geom in range(first, first + cell.model.body_geomnum[finger])
+            if cell.model.geom_contype[geom]
+        ]
         assert min(gaps) < 0.002
     assert set(cell.robot.finger_bodies) & cell.bodies_touching(0) and cell.robot.body_between_fingers() is None
 
@@ -78,9 +81,11 @@ def pad_contacts(cell: Workcell, body: int) -> set[int]:
     """The finger pads touching ``body``."""
     pads = {cell.model.geom(f"{finger}_pad").id for finger in FINGER_BODIES}
     return {
-        geom for c in cell.data.contact[: cell.data.ncon] for geom, other in ((c.geom1, c.geom2), (c.geom2, c.geom1))
+        geom
+        for c in cell.data.contact[: cell.data.ncon]
+        for geom, other in ((c.geom1, c.geom2), (c.geom2, c.geom1))
         if geom in pads and cell.model.geom_bodyid[other] == body
-    }  # fmt: skip
+    }
 
 
 @pytest.mark.parametrize("target, yaw", [((0.5, 0.2, 0.15), 0.3), ((0.65, -0.25, 0.05), -1.2), ((0.3, 0.0, 0.3), 1.5)])

@@ -359,8 +359,9 @@ def test_a_low_push_outwards_from_near_the_base_moves_the_block():
     env.close()
 
 
-@pytest.mark.parametrize(("env_id", "options"), [("PandaPush-v0", {}), ("PandaGrasp-v0", {"action_mode": "ee_delta"}),
-                                                 ("PandaStack-v0", {})])  # fmt: skip
+@pytest.mark.parametrize(
+    ("env_id", "options"), [("PandaPush-v0", {}), ("PandaGrasp-v0", {"action_mode": "ee_delta"}), ("PandaStack-v0", {})]
+)
 def test_dense_reward_is_minus_the_goal_distance_at_every_step_and_in_compute_reward(env_id, options):
     from gymnasium.utils.env_checker import check_env
 
@@ -379,11 +380,18 @@ def test_dense_reward_is_minus_the_goal_distance_at_every_step_and_in_compute_re
     env.close()
 
 
-@pytest.mark.parametrize(("env_id", "options", "message"), [
-    ("PandaPush-v0", {"reward_type": "shaped"}, r"unknown reward_type 'shaped'; valid: \['sparse', 'dense'\]"),
-    ("PandaTowerBuild-v0", {"reward_type": "dense"}, r"reward_type='dense' is the goal distance .* 'primitive' mode"),
-    ("PandaPush-v0", {"reward_type": "dense", "action_mode": "primitive"}, r"reward_type='dense'"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("env_id", "options", "message"),
+    [
+        ("PandaPush-v0", {"reward_type": "shaped"}, r"unknown reward_type 'shaped'; valid: \['sparse', 'dense'\]"),
+        (
+            "PandaTowerBuild-v0",
+            {"reward_type": "dense"},
+            r"reward_type='dense' is the goal distance .* 'primitive' mode",
+        ),
+        ("PandaPush-v0", {"reward_type": "dense", "action_mode": "primitive"}, r"reward_type='dense'"),
+    ],
+)
 def test_a_dense_reward_without_a_low_level_goal_is_refused(env_id, options, message):
     with pytest.raises(ValueError, match=message):
         make(env_id, **options)

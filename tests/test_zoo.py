@@ -17,10 +17,23 @@ def zoo(module: str, tmp_path: Path, *args: str, wrapper: bool = False) -> subpr
     """``python -m rl_zoo3.<module>`` as the Zoo documents it, or with ``wrapper`` this project's
     ``python -m panda_grasp_env.commands.zoo <module>`` (ids registered, one torch thread on small machines)."""
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}  # a server
-    route = ["panda_grasp_env.commands.zoo", module] if wrapper else [f"rl_zoo3.{module}", "--gym-packages",
-                                                                       "panda_grasp_env"]  # fmt: skip
-    command = [sys.executable, "-m", *route, "--algo", "tqc", "--env", "PandaPush-v0", "-f", str(tmp_path / "logs"),
-               *args]  # fmt: skip
+    route = (
+        ["panda_grasp_env.commands.zoo", module]
+        if wrapper
+        else [f"rl_zoo3.{module}", "--gym-packages", "panda_grasp_env"]
+    )
+    command = [
+        sys.executable,
+        "-m",
+        *route,
+        "--algo",
+        "tqc",
+        "--env",
+        "PandaPush-v0",
+        "-f",
+        str(tmp_path / "logs"),
+        *args,
+    ]
     return subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
 
 
@@ -36,9 +49,25 @@ def test_zoo_hyperparameters_name_registered_ids_and_the_evaluation_start():
 
 
 def test_zoo_trains_our_push_with_the_shipped_config_and_enjoy_runs_headless(tmp_path):
-    trained = zoo("train", tmp_path, "-conf", str(ZOO_CONFIG), "-n", "800", "-params", "learning_starts:400",
-                  "--eval-freq", "400", "--eval-episodes", "2", "--eval-env-kwargs", "start_behind_object:0.0",
-                  "--seed", "0", wrapper=True)  # fmt: skip
+    trained = zoo(
+        "train",
+        tmp_path,
+        "-conf",
+        str(ZOO_CONFIG),
+        "-n",
+        "800",
+        "-params",
+        "learning_starts:400",
+        "--eval-freq",
+        "400",
+        "--eval-episodes",
+        "2",
+        "--eval-env-kwargs",
+        "start_behind_object:0.0",
+        "--seed",
+        "0",
+        wrapper=True,
+    )
     assert trained.returncode == 0, trained.stderr[-3000:]
     # No --num-threads given: the wrapper's default, one thread on a machine of <= 2 cores.
     assert ("torch threads: 1 (" in trained.stdout) == ((os.cpu_count() or 1) <= 2)

@@ -30,10 +30,20 @@ def _append(path: Path, record: dict) -> None:
 
 #: An episode record's ``result`` fields and their JSON types (``run_episode`` writes them; ``--resume`` checks).
 RESULT_FIELDS: dict[str, type | tuple[type, ...]] = {
-    "spec": dict, "success": bool, "completion": bool, "actions": int, "ideal_actions": int,
-    "grasps_attempted": int, "grasps_succeeded": int, "cycles": int, "sim_seconds": (int, float),
-    "failures": dict, "physics_error": bool, "disturbed": int, "transit_contacts": int,
-}  # fmt: skip
+    "spec": dict,
+    "success": bool,
+    "completion": bool,
+    "actions": int,
+    "ideal_actions": int,
+    "grasps_attempted": int,
+    "grasps_succeeded": int,
+    "cycles": int,
+    "sim_seconds": (int, float),
+    "failures": dict,
+    "physics_error": bool,
+    "disturbed": int,
+    "transit_contacts": int,
+}
 #: Fields only some results hold: grasping tasks' ``first_grasp``, mesh episodes' object ids (``meshes``).
 OPTIONAL_RESULT_FIELDS: dict[str, type] = {"first_grasp": bool, "meshes": list}
 #: Why an episode failed (``episode_failure``): a name, or None for a success.
@@ -63,8 +73,10 @@ def _record_problem(record: dict, keys: set[str]) -> str | None:
             return f"result.{name} must be a JSON {what}, got {value!r:.60}"
         if kind is not bool and not isinstance(value, dict) and not (np.isfinite(value) and value >= 0):
             return f"result.{name} must be a number >= 0, got {value!r}"
-    if not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v >= 0
-               for k, v in result["failures"].items()):  # fmt: skip
+    if not all(
+        isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v >= 0
+        for k, v in result["failures"].items()
+    ):
         return "result.failures must map reasons to counts"
     numbers = [timing.get(k) for k in ("wall_seconds", "decision_seconds_median")] if isinstance(timing, dict) else []
     if len(numbers) != 2 or len(timing) != 2 or not all(is_number(n) and n >= 0 for n in numbers):
@@ -105,8 +117,10 @@ def _load(path: Path, code: str, keys: set[str]) -> tuple[dict[str, dict], list[
         if record.get("commit") == code:
             problem = _record_problem(record, keys)
             if problem is not None:
-                raise ValueError(f"{where}: {problem}; --resume keeps only records this program wrote for this "
-                                 f"protocol (run without --resume to start afresh)")  # fmt: skip
+                raise ValueError(
+                    f"{where}: {problem}; --resume keeps only records this program wrote for this "
+                    f"protocol (run without --resume to start afresh)"
+                )
             done[record["key"]] = record
         else:
             stale.append(line)

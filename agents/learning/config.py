@@ -15,17 +15,10 @@ import yaml
 from pydantic import AfterValidator, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 from pydantic.dataclasses import dataclass
 
+from panda_grasp_env.config_fields import Count, Seed, distinct
 from panda_grasp_env.geometry import is_number
 from panda_grasp_env.registration import ENV_IDS
-from panda_grasp_env.tooling.runs import (
-    Count,
-    Seed,
-    apply_key_values,
-    check_resume_changes,
-    checked_config,
-    config_value_error,
-    distinct,
-)
+from panda_grasp_env.tooling.runs import apply_key_values, check_resume_changes, checked_config, config_value_error
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
 ALGORITHMS: dict[str, tuple[str, str]] = {
@@ -248,7 +241,7 @@ def observation_transform(config: TrainConfig) -> Callable[[Any, dict[str, Any]]
     """What the policy sees of an env observation and the step's info (the same in training, evaluation and
     ``LearnedAgent``)."""
     if config.algo in HEIGHTMAP_ALGORITHMS:
-        from panda_grasp_env.agents.learning.heightmap_policy import encode_observation
+        from panda_grasp_env.agents.learning.heightmap_observations import encode_observation
 
         holding = holding_plane(config)
         return lambda observation, info: encode_observation(observation, info, holding)
@@ -320,7 +313,7 @@ def training_env(config: TrainConfig) -> gym.Env:
     if config.reward == "outcome":
         env = OutcomeReward(env)
     if config.algo in HEIGHTMAP_ALGORITHMS:
-        from panda_grasp_env.agents.learning.heightmap_policy import EncodedHeightmap
+        from panda_grasp_env.agents.learning.heightmap_observations import EncodedHeightmap
 
         env = EncodedHeightmap(env, holding_plane(config))
     if config.observation_keys is not None:

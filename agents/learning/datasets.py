@@ -34,8 +34,10 @@ def dataset_metadata(folder: Path | str) -> dict[str, Any]:
         raise ValueError(f"{path} is not a Minari metadata mapping")
     for key in ("observation_space", "action_space"):
         if not isinstance(metadata.get(key), str):
-            raise ValueError(f"{path} lacks its {key}: Minari would build the recorded env to learn it, and this "
-                             f"project builds no env a dataset describes")  # fmt: skip
+            raise ValueError(
+                f"{path} lacks its {key}: Minari would build the recorded env to learn it, and this "
+                f"project builds no env a dataset describes"
+            )
     for key in ("env_spec", "eval_env_spec"):
         if metadata.get(key) is not None:
             env_spec(metadata, key, path)
@@ -53,14 +55,20 @@ def env_spec(metadata: dict[str, Any], key: str, source: Path | str) -> tuple[st
         raise ValueError(f"{source}: {key} is not a JSON env spec")
     env_id, entry_point = spec.get("id"), spec.get("entry_point")
     if not isinstance(env_id, str) or env_id not in ENV_IDS:
-        raise ValueError(f"{source}: {key} records env id {env_id!r}, not one of this project's "
-                         f"({sorted(ENV_IDS)}); this project builds no other env from a dataset")  # fmt: skip
+        raise ValueError(
+            f"{source}: {key} records env id {env_id!r}, not one of this project's "
+            f"({sorted(ENV_IDS)}); this project builds no other env from a dataset"
+        )
     if entry_point != ENTRY_POINT:
-        raise ValueError(f"{source}: {key} gives {env_id} the entry point {entry_point!r}, not this project's "
-                         f"{ENTRY_POINT!r}: the dataset has been altered")  # fmt: skip
+        raise ValueError(
+            f"{source}: {key} gives {env_id} the entry point {entry_point!r}, not this project's "
+            f"{ENTRY_POINT!r}: the dataset has been altered"
+        )
     if spec.get("additional_wrappers"):
-        raise ValueError(f"{source}: {key} adds wrappers to {env_id} ({spec['additional_wrappers']!r}); this "
-                         f"project applies none a dataset names")  # fmt: skip
+        raise ValueError(
+            f"{source}: {key} adds wrappers to {env_id} ({spec['additional_wrappers']!r}); this "
+            f"project applies none a dataset names"
+        )
     kwargs, steps = spec.get("kwargs") or {}, spec.get("max_episode_steps")
     if not isinstance(kwargs, dict) or not all(isinstance(k, str) for k in kwargs):
         raise ValueError(f"{source}: {key} keyword arguments must be a mapping, got {kwargs!r}")

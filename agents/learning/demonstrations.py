@@ -54,8 +54,10 @@ def kept_infos(keys: tuple[str, ...]) -> type:
             data = super().__call__(env, obs=obs, info=info, **step)
             missing = [k for k in keys if k not in info]
             if missing:
-                raise ValueError(f"--infos {missing} are not in this step's info (keep keys present at reset and "
-                                 f"at every step; this one has {sorted(info)})")  # fmt: skip
+                raise ValueError(
+                    f"--infos {missing} are not in this step's info (keep keys present at reset and "
+                    f"at every step; this one has {sorted(info)})"
+                )
             data["info"] = {k: np.asarray(info[k]) for k in keys}
             return data
 
@@ -75,8 +77,12 @@ def record_shard(job: dict[str, Any]) -> int:
     os.environ["MINARI_DATASETS_PATH"] = job["out"]
     first = EpisodeSpec(job["agent"], job["task"], job["seeds"][0], job["options"])
     env = make_env(first)
-    collector = minari.DataCollector(env, step_data_callback=kept_infos(job["infos"]), record_infos=bool(job["infos"]),
-                                     jpeg_encoding=not job["lossless"])  # fmt: skip
+    collector = minari.DataCollector(
+        env,
+        step_data_callback=kept_infos(job["infos"]),
+        record_infos=bool(job["infos"]),
+        jpeg_encoding=not job["lossless"],
+    )
     for seed in job["seeds"]:
         agent = make_agent(EpisodeSpec(job["agent"], job["task"], seed, job["options"]), env)
         observation, info = collector.reset(seed=seed)
@@ -141,11 +147,18 @@ def record(args: argparse.Namespace) -> Any:
     seeds = list(range(args.seed_start, args.seed_start + args.episodes))
     options = tuple(sorted(args.task_options.items()))
     jobs = [
-        {"agent": args.agent, "task": args.task, "options": options, "seeds": seeds[i : i + args.shard_size],
-         "infos": args.infos, "lossless": args.lossless, "out": str(args.out.resolve()),
-         "dataset_id": shard_id(args.name, i // args.shard_size)}
+        {
+            "agent": args.agent,
+            "task": args.task,
+            "options": options,
+            "seeds": seeds[i : i + args.shard_size],
+            "infos": args.infos,
+            "lossless": args.lossless,
+            "out": str(args.out.resolve()),
+            "dataset_id": shard_id(args.name, i // args.shard_size),
+        }
         for i in range(0, len(seeds), args.shard_size)
-    ]  # fmt: skip
+    ]
     # The folder and the namespace exist before the workers start: two creating them at once collide.
     args.out.resolve().mkdir(parents=True, exist_ok=True)
     namespace = args.name.split("/")[0] if "/" in args.name else None
@@ -162,8 +175,10 @@ def record(args: argparse.Namespace) -> Any:
         for job in todo:
             done += record_shard(job)
     if done:
-        print(f"recorded {done} episodes in {time.perf_counter() - start:.1f} s: "
-              f"{done / (time.perf_counter() - start):.1f} episodes/s")  # fmt: skip
+        print(
+            f"recorded {done} episodes in {time.perf_counter() - start:.1f} s: "
+            f"{done / (time.perf_counter() - start):.1f} episodes/s"
+        )
     if (args.out.resolve() / args.name).exists():
         minari.delete_dataset(args.name)
     shards = [open_dataset(args.out.resolve() / job["dataset_id"] / "data") for job in jobs]

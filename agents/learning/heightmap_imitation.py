@@ -12,7 +12,8 @@ import numpy as np
 import torch
 from stable_baselines3.common.utils import polyak_update
 
-from panda_grasp_env.agents.learning.heightmap_policy import DIRECTED_PRIMITIVES, HeightmapDQN, encode_heightmap
+from panda_grasp_env.agents.learning.heightmap_observations import encode_heightmap
+from panda_grasp_env.agents.learning.heightmap_policy import DIRECTED_PRIMITIVES, HeightmapDQN
 from panda_grasp_env.agents.learning.imitation import BufferedDemonstrationMixin, Demonstrations, check_demonstrations
 from panda_grasp_env.geometry import is_number
 
@@ -74,35 +75,46 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
     def _setup_model(self) -> None:
         super()._setup_model()
         if self.n_envs != 1:
-            raise ValueError(f"heightmap_dqn_demos: n_envs must be 1 (the demonstrations enter the buffer one "
-                             f"step at a time), got {self.n_envs}")  # fmt: skip
+            raise ValueError(
+                f"heightmap_dqn_demos: n_envs must be 1 (the demonstrations enter the buffer one "
+                f"step at a time), got {self.n_envs}"
+            )
         spec = Demonstrations.of(self.demonstrations)
         planes, rows, cols = self.observation_space.shape
         if planes != 4:
-            raise ValueError(f"heightmap_dqn_demos: the policy sees {planes} planes; demonstrations give the "
-                             f"heightmap's 4 (no holding or command planes)")  # fmt: skip
+            raise ValueError(
+                f"heightmap_dqn_demos: the policy sees {planes} planes; demonstrations give the "
+                f"heightmap's 4 (no holding or command planes)"
+            )
         episodes = []
         for episode in spec.episodes_data():
             heightmaps = np.asarray(episode.observations)
             if heightmaps.shape[1:] != (rows, cols, 4):
-                raise ValueError(f"demonstrations {spec.dataset}: observations of shape {heightmaps.shape[1:]}, "
-                                 f"the env's heightmap ({rows}, {cols}, 4) (obs_mode='heightmap')")  # fmt: skip
+                raise ValueError(
+                    f"demonstrations {spec.dataset}: observations of shape {heightmaps.shape[1:]}, "
+                    f"the env's heightmap ({rows}, {cols}, 4) (obs_mode='heightmap')"
+                )
             actions = np.asarray(episode.actions).reshape(-1)
             if actions.dtype.kind not in "iu" or actions.min() < 0 or actions.max() >= self.action_space.n:
-                raise ValueError(f"demonstrations {spec.dataset}: actions are not indices of this env's "
-                                 f"{self.action_space} (action_mode='pixel' with the same grid and rotations)")  # fmt: skip
+                raise ValueError(
+                    f"demonstrations {spec.dataset}: actions are not indices of this env's "
+                    f"{self.action_space} (action_mode='pixel' with the same grid and rotations)"
+                )
             encoded = np.stack([encode_heightmap(h) for h in heightmaps])
             episodes.append((encoded, actions.astype(np.int64), episode))
-        self._keep_demonstrations(np.concatenate([e[0][:-1] for e in episodes]),
-                                  np.concatenate([e[1] for e in episodes]))  # fmt: skip
+        self._keep_demonstrations(
+            np.concatenate([e[0][:-1] for e in episodes]), np.concatenate([e[1] for e in episodes])
+        )
         self._episodes_for_buffer = episodes
 
     def _setup_learn(self, total_timesteps: int, *args: Any, **kwargs: Any) -> Any:
         result = super()._setup_learn(total_timesteps, *args, **kwargs)
         steps = result[0]  # the run's whole length, a resumed run's steps so far included
         if self.buffer_size < self.demonstration_steps + steps:
-            raise ValueError(f"heightmap_dqn_demos: buffer_size {self.buffer_size} cannot keep the "
-                             f"{self.demonstration_steps} demonstrated steps and the run's {steps}")  # fmt: skip
+            raise ValueError(
+                f"heightmap_dqn_demos: buffer_size {self.buffer_size} cannot keep the "
+                f"{self.demonstration_steps} demonstrated steps and the run's {steps}"
+            )
         self._pretrain()
         return result
 
@@ -110,10 +122,14 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
         for encoded, actions, episode in episodes:
             for t, action in enumerate(actions):
                 terminated, truncated = bool(episode.terminations[t]), bool(episode.truncations[t])
-                self.replay_buffer.add(encoded[t][None], encoded[t + 1][None], np.array([[action]]),
-                                       np.array([episode.rewards[t]], dtype=np.float32),
-                                       np.array([terminated or truncated]),
-                                       [{"TimeLimit.truncated": truncated and not terminated}])  # fmt: skip
+                self.replay_buffer.add(
+                    encoded[t][None],
+                    encoded[t + 1][None],
+                    np.array([[action]]),
+                    np.array([episode.rewards[t]], dtype=np.float32),
+                    np.array([terminated or truncated]),
+                    [{"TimeLimit.truncated": truncated and not terminated}],
+                )
 
     def _pretrain(self) -> None:
         """DQfD's pretraining: before the first env step, ``pretrain_steps`` updates (a TD step and a
@@ -155,8 +171,10 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
         demonstrated = q_net.q_maps(observations, rotation)
         chosen = demonstrated[index, primitive, row, col]
         cell = self.policy.network_args["cell_size"]
-        distance = cell * torch.hypot((torch.arange(rows)[None, :, None] - row[:, None, None]).float(),
-                                      (torch.arange(cols)[None, None, :] - col[:, None, None]).float())  # fmt: skip
+        distance = cell * torch.hypot(
+            (torch.arange(rows)[None, :, None] - row[:, None, None]).float(),
+            (torch.arange(cols)[None, None, :] - col[:, None, None]).float(),
+        )
         apart = ((distance - SAME_ACTION_RADIUS) / (FULL_MARGIN_DISTANCE - SAME_ACTION_RADIUS)).clamp(0.0, 1.0)
 
         def margins(turned: torch.Tensor) -> torch.Tensor:
@@ -167,8 +185,9 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
 
         best = best_allowed(demonstrated + margins(torch.zeros(len(actions))))
         # One other heading, never one that is the same action: a grasp turned by half a turn is.
-        symmetric = torch.tensor([rotations % 2 == 0 and q_net.primitives[p] not in DIRECTED_PRIMITIVES
-                                  for p in primitive.tolist()])  # fmt: skip
+        symmetric = torch.tensor(
+            [rotations % 2 == 0 and q_net.primitives[p] not in DIRECTED_PRIMITIVES for p in primitive.tolist()]
+        )
         choices = rotations - 1 - symmetric.long()
         if bool((choices > 0).any()):
             turn = 1 + (torch.rand(len(actions), generator=self._demo_generator) * choices).long()

@@ -47,8 +47,10 @@ class Demonstrations:
         """``value`` (a mapping of the fields) checked; ``ValueError`` naming what is wrong."""
         names = [f.name for f in fields(cls)]
         if not isinstance(value, dict) or not {"dataset", "episodes"} <= set(value) or set(value) - set(names):
-            raise ValueError(f"demonstrations must be a mapping with keys dataset, episodes (and optionally path, "
-                             f"successful_only), got {value!r}")  # fmt: skip
+            raise ValueError(
+                f"demonstrations must be a mapping with keys dataset, episodes (and optionally path, "
+                f"successful_only), got {value!r}"
+            )
         spec = cls(**value)
         whole = isinstance(spec.episodes, int) and not isinstance(spec.episodes, bool)
         if not (whole and spec.episodes >= 1):
@@ -64,8 +66,10 @@ class Demonstrations:
         missing, holds too few, or is not data alone (``datasets.open_dataset``)."""
         folder = Path(self.path) / self.dataset / "data"
         if not folder.is_dir():
-            raise ValueError(f"demonstrations: no Minari dataset {self.dataset!r} under {self.path} (record it with "
-                             f"python -m panda_grasp_env.agents.learning.demonstrations)")  # fmt: skip
+            raise ValueError(
+                f"demonstrations: no Minari dataset {self.dataset!r} under {self.path} (record it with "
+                f"python -m panda_grasp_env.agents.learning.demonstrations)"
+            )
         chosen = []
         for episode in open_dataset(folder).iterate_episodes():
             success = bool(np.asarray(episode.infos.get("is_success", [False]))[-1]) if episode.infos else False
@@ -73,8 +77,10 @@ class Demonstrations:
                 chosen.append(episode)
             if len(chosen) == self.episodes:
                 return chosen
-        raise ValueError(f"demonstrations: {self.dataset} holds only {len(chosen)} "
-                         f"{'successful ' if self.successful_only else ''}episodes, {self.episodes} asked for")  # fmt: skip
+        raise ValueError(
+            f"demonstrations: {self.dataset} holds only {len(chosen)} "
+            f"{'successful ' if self.successful_only else ''}episodes, {self.episodes} asked for"
+        )
 
     def transitions(
         self, space: gym.Space, episodes: list[Any] | None = None
@@ -86,19 +92,24 @@ class Demonstrations:
             observations = {}
             for key, box in space.spaces.items():
                 if any(key not in e.observations for e in episodes):
-                    raise ValueError(f"demonstrations {self.dataset}: no observation {key!r} (the env's: "
-                                     f"{list(space.spaces)})")  # fmt: skip
+                    raise ValueError(
+                        f"demonstrations {self.dataset}: no observation {key!r} (the env's: {list(space.spaces)})"
+                    )
                 observations[key] = np.concatenate([e.observations[key][:-1] for e in episodes]).astype(box.dtype)
                 if observations[key].ndim == 4 and observations[key].shape[1:] == (*box.shape[1:], box.shape[0]):
                     observations[key] = observations[key].transpose(0, 3, 1, 2)  # SB3 sees images channel-first
                 if observations[key].shape[1:] != box.shape:
-                    raise ValueError(f"demonstrations {self.dataset}: observation {key!r} has shape "
-                                     f"{observations[key].shape[1:]}, the env's {box.shape}")  # fmt: skip
+                    raise ValueError(
+                        f"demonstrations {self.dataset}: observation {key!r} has shape "
+                        f"{observations[key].shape[1:]}, the env's {box.shape}"
+                    )
         else:
             observations = np.concatenate([e.observations[:-1] for e in episodes]).astype(np.float32)
             if observations.shape[1:] != space.shape:
-                raise ValueError(f"demonstrations {self.dataset}: observations of shape {observations.shape[1:]}, "
-                                 f"the env's {space.shape}")  # fmt: skip
+                raise ValueError(
+                    f"demonstrations {self.dataset}: observations of shape {observations.shape[1:]}, "
+                    f"the env's {space.shape}"
+                )
         actions = np.concatenate([e.actions for e in episodes]).astype(np.float32)
         return observations, actions
 
@@ -166,8 +177,10 @@ class DemonstrationMixin:
         episodes = spec.episodes_data()
         observations, actions = spec.transitions(self.observation_space, episodes)
         if actions.shape[1:] != self.action_space.shape:
-            raise ValueError(f"demonstrations {spec.dataset}: actions of shape {actions.shape[1:]}, the env's "
-                             f"{self.action_space.shape}")  # fmt: skip
+            raise ValueError(
+                f"demonstrations {spec.dataset}: actions of shape {actions.shape[1:]}, the env's "
+                f"{self.action_space.shape}"
+            )
         self._keep_demonstrations(observations, np.clip(actions, -1.0, 1.0))
         return episodes
 
@@ -257,9 +270,20 @@ class BehaviourCloning(DemonstrationMixin, SAC):
             raise ValueError(f"bc: image_shift must be an int >= 0 (pixels), got {image_shift!r}")
         self.demonstrations, self.observation_noise = demonstrations, float(observation_noise)
         self.image_shift = image_shift
-        super().__init__(policy, env, learning_rate=learning_rate, buffer_size=1, learning_starts=0,
-                         batch_size=batch_size, policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log,
-                         verbose=verbose, seed=seed, device=device, _init_setup_model=_init_setup_model)  # fmt: skip
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            buffer_size=1,
+            learning_starts=0,
+            batch_size=batch_size,
+            policy_kwargs=policy_kwargs,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=_init_setup_model,
+        )
 
     def _setup_model(self) -> None:
         super()._setup_model()
@@ -326,8 +350,9 @@ class TQCFromDemonstrations(BufferedDemonstrationMixin, TQC):
         lengths = {len(e.actions) for e in episodes}
         n = self.n_envs
         if len(lengths) != 1:
-            raise ValueError(f"tqc_demos: the demonstrations must be episodes of one length; got lengths "
-                             f"{sorted(lengths)}")  # fmt: skip
+            raise ValueError(
+                f"tqc_demos: the demonstrations must be episodes of one length; got lengths {sorted(lengths)}"
+            )
         length = lengths.pop()
         for first in range(0, len(episodes), n):
             # The buffer takes one episode per env at a time: a last, partial group (10 demonstrations on 4
@@ -336,11 +361,14 @@ class TQCFromDemonstrations(BufferedDemonstrationMixin, TQC):
             group = [group[k % len(group)] for k in range(n)]
             for t in range(length):
                 last = t == length - 1
-                self.replay_buffer.add(_stacked(group, t, self.observation_space),
-                                       _stacked(group, t + 1, self.observation_space),
-                                       np.stack([np.clip(e.actions[t], -1, 1) for e in group]),
-                                       np.array([e.rewards[t] for e in group], dtype=np.float32),
-                                       np.full(n, last), [{"TimeLimit.truncated": last} for _ in group])  # fmt: skip
+                self.replay_buffer.add(
+                    _stacked(group, t, self.observation_space),
+                    _stacked(group, t + 1, self.observation_space),
+                    np.stack([np.clip(e.actions[t], -1, 1) for e in group]),
+                    np.array([e.rewards[t] for e in group], dtype=np.float32),
+                    np.full(n, last),
+                    [{"TimeLimit.truncated": last} for _ in group],
+                )
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         super().train(gradient_steps, batch_size)

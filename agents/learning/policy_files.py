@@ -78,10 +78,22 @@ def argument_classes() -> dict[str, type]:
 
     nn, optim = th.nn, th.optim
     classes = (
-        nn.ReLU, nn.Tanh, nn.ELU, nn.LeakyReLU, nn.SiLU, nn.GELU, nn.Sigmoid, nn.Identity,
-        optim.Adam, optim.AdamW, optim.SGD, optim.RMSprop,
-        torch_layers.FlattenExtractor, torch_layers.CombinedExtractor, torch_layers.NatureCNN,
-    )  # fmt: skip
+        nn.ReLU,
+        nn.Tanh,
+        nn.ELU,
+        nn.LeakyReLU,
+        nn.SiLU,
+        nn.GELU,
+        nn.Sigmoid,
+        nn.Identity,
+        optim.Adam,
+        optim.AdamW,
+        optim.SGD,
+        optim.RMSprop,
+        torch_layers.FlattenExtractor,
+        torch_layers.CombinedExtractor,
+        torch_layers.NatureCNN,
+    )
     return {class_name(cls): cls for cls in classes}
 
 
@@ -105,8 +117,14 @@ def _bound(values: np.ndarray) -> Any:
 def space_to_json(space: gym.Space) -> dict[str, Any]:
     """A ``Box``, ``Discrete``, ``MultiDiscrete``, ``MultiBinary`` or ``Dict`` space as a JSON mapping."""
     if isinstance(space, gym.spaces.Box):
-        return {"Box": {"low": _bound(space.low), "high": _bound(space.high), "shape": list(space.shape),
-                        "dtype": np.dtype(space.dtype).name}}  # fmt: skip
+        return {
+            "Box": {
+                "low": _bound(space.low),
+                "high": _bound(space.high),
+                "shape": list(space.shape),
+                "dtype": np.dtype(space.dtype).name,
+            }
+        }
     if isinstance(space, gym.spaces.Discrete):
         return {"Discrete": {"n": int(space.n), "start": int(space.start)}}
     if isinstance(space, gym.spaces.MultiDiscrete):
@@ -135,7 +153,7 @@ def space_from_json(description: Any, field: str = "space") -> gym.Space:
     ``SPACE_DTYPES``, before anything is allocated."""
     if not isinstance(description, dict) or len(description) != 1:
         raise ValueError(f"{field}: not a space description: {_short(description)}")
-    (kind, fields), = description.items()  # fmt: skip
+    ((kind, fields),) = description.items()
     field = f"{field}.{kind}"
     if kind not in ("Box", "Discrete", "MultiDiscrete", "MultiBinary", "Dict"):
         raise ValueError(f"{field}: unknown space kind {kind!r}")
@@ -231,8 +249,10 @@ def _decode(value: Any, source: Path, field: str = "arguments") -> Any:
         if all(is_count(v) for v in decoded):  # layer widths: a quick floor
             least = sum(a * b for a, b in zip(decoded, decoded[1:]))
             if least > MAX_PARAMETERS:
-                raise ValueError(f"{source}: {field} {decoded} makes layers of at least {least} parameters, more "
-                                 f"than the {MAX_PARAMETERS} this project loads")  # fmt: skip
+                raise ValueError(
+                    f"{source}: {field} {decoded} makes layers of at least {least} parameters, more "
+                    f"than the {MAX_PARAMETERS} this project loads"
+                )
         return decoded
     if is_count(value) and abs(value) > MAX_WIDTH:
         raise ValueError(f"{source}: {field} is {_short(value)}; network sizes and counts stay within {MAX_WIDTH}")
@@ -288,8 +308,9 @@ def save_policy(policy: Any, stem: Path | str) -> None:
     encoded = _encode(arguments, "arguments")
     with atomic_path(weights) as tmp:
         save_model(policy, str(tmp))
-    write_json(description, {"format": FORMAT, "policy_class": name, "arguments": encoded,
-                             "weights_sha256": sha256(weights)})  # fmt: skip
+    write_json(
+        description, {"format": FORMAT, "policy_class": name, "arguments": encoded, "weights_sha256": sha256(weights)}
+    )
 
 
 def load_policy(stem: Path | str) -> Any:
@@ -314,8 +335,9 @@ def load_policy(stem: Path | str) -> Any:
     if not weights.is_file():
         raise ValueError(f"{weights} is missing or is not the weights {description} records (no such file)")
     if weights.stat().st_size > MAX_WEIGHTS_BYTES:
-        raise ValueError(f"{weights} holds {weights.stat().st_size} bytes, more than the {MAX_WEIGHTS_BYTES} a "
-                         f"policy's weights may")  # fmt: skip
+        raise ValueError(
+            f"{weights} holds {weights.stat().st_size} bytes, more than the {MAX_WEIGHTS_BYTES} a policy's weights may"
+        )
     if sha256(weights) != facts.get("weights_sha256"):
         raise ValueError(f"{weights} is missing or is not the weights {description} records (SHA-256 differs)")
     try:
@@ -323,8 +345,10 @@ def load_policy(stem: Path | str) -> Any:
     except Exception as error:  # arguments of another version or of no policy: say which file
         raise ValueError(f"cannot build the policy of {description}: {error}") from None
     if parameters > MAX_PARAMETERS:
-        raise ValueError(f"{description}: arguments build a policy of {parameters} parameters, more than the "
-                         f"{MAX_PARAMETERS} this project loads")  # fmt: skip
+        raise ValueError(
+            f"{description}: arguments build a policy of {parameters} parameters, more than the "
+            f"{MAX_PARAMETERS} this project loads"
+        )
     try:
         policy = policy_class(**arguments, lr_schedule=BasePolicy._dummy_schedule)
         load_model(policy, str(weights), strict=True, device="cpu")
@@ -351,8 +375,10 @@ def load_sb3(path: Path | str, policy_class: str, trust: bool = False) -> Any:
     path = Path(path)
     cls = _allowed(policy_class, policy_classes(), "policy class", path)
     if not trust:
-        raise ValueError(f"{path} is an SB3 pickle (loading it runs any code it holds); load it only if you "
-                         f"trust where it came from, with trust=True")  # fmt: skip
+        raise ValueError(
+            f"{path} is an SB3 pickle (loading it runs any code it holds); load it only if you "
+            f"trust where it came from, with trust=True"
+        )
     try:
         return cls.load(str(path), device="cpu")
     except Exception as error:  # a truncated zip, a class that changed shape: say which file

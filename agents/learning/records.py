@@ -107,8 +107,10 @@ def load_best_policy(run_dir: Path) -> tuple[Any, dict[str, Any]]:
     if not policy_paths(stem)[0].is_file() and policy_paths(run_dir / "policy")[0].is_file():
         stem = run_dir / "policy"
     if not policy_paths(stem)[0].is_file():
-        raise ValueError(f"cannot load the best policy of {run_dir}: no best_policy.json (a run saved before "
-                         f"policies were stored as data keeps a pickled best_policy.zip, which is not loaded)")  # fmt: skip
+        raise ValueError(
+            f"cannot load the best policy of {run_dir}: no best_policy.json (a run saved before "
+            f"policies were stored as data keeps a pickled best_policy.zip, which is not loaded)"
+        )
     try:
         best = read_json(run_dir / "best.json", 1 << 20)
     except ValueError as error:
@@ -169,7 +171,7 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: 
                 [f"- collateral: {m['collateral_per_action']:.2f} disturbed objects per action"]
                 if "collateral_per_action" in m
                 else []
-            ),  # fmt: skip
+            ),
             f"- failures: {json.dumps(m['failures'])}",
             *([f"- failed episodes, why: {json.dumps(m['episode_failures'])}"] if "episode_failures" in m else []),
         ]

@@ -69,13 +69,13 @@ def aggregate_runs(scores: np.ndarray) -> dict[str, Any]:
         "aggregates": {
             name: [round(float(points[i]), 4), round(float(intervals[0, i]), 4), round(float(intervals[1, i]), 4)]
             for i, name in enumerate(functions)
-        },  # fmt: skip
+        },
         "profile": {
             "tau": taus.round(2).tolist(),
             "fraction": np.round(profile, 4).tolist(),
             "low": np.round(bands[0], 4).tolist(),
             "high": np.round(bands[1], 4).tolist(),
-        },  # fmt: skip
+        },
     }
 
 
@@ -84,12 +84,17 @@ def study_summary(config: TrainConfig, outcomes: list[dict[str, Any]]) -> dict[s
     aggregates and performance profile over the runs."""
     shared = {k: v for k, v in dataclasses.asdict(config).items() if k != "seed"}
     runs = [
-        {"seed": o["seed"], "run_dir": o["run_dir"], "steps": o["final"]["steps"],
-         "wall_seconds": o["final"]["wall_seconds"], "test_seeds": o["final"]["test_seeds"],
-         "test_commit": o["final"].get("test_commit"),
-         **{m: o["final"]["metrics"][m] for m in study_metrics(config)}}
+        {
+            "seed": o["seed"],
+            "run_dir": o["run_dir"],
+            "steps": o["final"]["steps"],
+            "wall_seconds": o["final"]["wall_seconds"],
+            "test_seeds": o["final"]["test_seeds"],
+            "test_commit": o["final"].get("test_commit"),
+            **{m: o["final"]["metrics"][m] for m in study_metrics(config)},
+        }
         for o in outcomes
-    ]  # fmt: skip
+    ]
     by_metric = {m: aggregate_runs(np.array([[score(o["final"], m)] for o in outcomes])) for m in study_metrics(config)}
     return {
         "name": config.name,
@@ -104,7 +109,7 @@ def study_summary(config: TrainConfig, outcomes: list[dict[str, Any]]) -> dict[s
             "confidence": 0.95,
             "reps": BOOTSTRAP_REPS,
             "seed": BOOTSTRAP_SEED,
-        },  # fmt: skip
+        },
         "commit": commit(),
         "versions": versions(("rliable", "stable-baselines3", "torch", "mujoco")),
     }
@@ -118,8 +123,10 @@ def _interval(triple: list[float]) -> str:
 def study_rows(study: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
     """The aggregate table: one row per metric, one column per aggregate (95 % stratified-bootstrap CI)."""
     header = ["metric", *(f"{label} (95 % CI)" for label in AGGREGATES.values()), "runs"]
-    rows = [[metric.replace("_", " "), *(_interval(figures["aggregates"][a]) for a in AGGREGATES),
-             str(len(study["runs"]))] for metric, figures in study["metrics"].items()]  # fmt: skip
+    rows = [
+        [metric.replace("_", " "), *(_interval(figures["aggregates"][a]) for a in AGGREGATES), str(len(study["runs"]))]
+        for metric, figures in study["metrics"].items()
+    ]
     return header, rows
 
 
@@ -194,5 +201,9 @@ def study_html(study: dict[str, Any]) -> str:
         figure.savefig(buffer, format="svg")
     plt.close(figure)
     picture = buffer.getvalue()
-    return (f"<h4>Over {len(study['runs'])} training seeds ({html.escape(', '.join(map(str, study['seeds'])))})</h4>"
-            + table(*study_rows(study)) + table(*run_rows(study)) + picture[picture.index("<svg"):])  # fmt: skip
+    return (
+        f"<h4>Over {len(study['runs'])} training seeds ({html.escape(', '.join(map(str, study['seeds'])))})</h4>"
+        + table(*study_rows(study))
+        + table(*run_rows(study))
+        + picture[picture.index("<svg") :]
+    )

@@ -54,8 +54,11 @@ def train_seed(raw: dict[str, Any], runs_dir: str) -> dict[str, Any]:
 
     config = config_from_dict(raw, f"{raw['name']} seed {raw['seed']}")
     runs = Path(runs_dir)
-    same = [d for d in sorted(runs.glob(f"{config.name}-seed{config.seed}*"))
-            if (d / "config.yaml").is_file() and (d / "config.yaml").read_text() == _config_text(config)]  # fmt: skip
+    same = [
+        d
+        for d in sorted(runs.glob(f"{config.name}-seed{config.seed}*"))
+        if (d / "config.yaml").is_file() and (d / "config.yaml").read_text() == _config_text(config)
+    ]
     finished = [d for d in same if (d / "final.json").is_file()]
     resumable = [d for d in same if (d / "latest.zip").is_file() and not (d / "final.json").is_file()]
     if finished:

@@ -124,8 +124,9 @@ def initial_policy_source(config: TrainConfig) -> Any:
     try:
         for what in ("observation_space", "action_space"):
             if getattr(policy, what) != getattr(env, what):
-                raise ValueError(f"init_policy {name}: its {what} {getattr(policy, what)} is not this run's "
-                                 f"{getattr(env, what)}")  # fmt: skip
+                raise ValueError(
+                    f"init_policy {name}: its {what} {getattr(policy, what)} is not this run's {getattr(env, what)}"
+                )
     finally:
         env.close()
     return source
@@ -137,9 +138,11 @@ def load_initial_policy(model: Any, config: TrainConfig, source: Any) -> None:
     try:
         model.policy.load_state_dict(source.load_policy().state_dict())
     except RuntimeError as error:  # another net_arch: missing keys or tensors of other shapes
-        raise ValueError(f"init_policy {config.init_policy}: its network does not match this run's policy_kwargs "
-                         f"{config.policy_kwargs} (it was trained with {source.config.policy_kwargs}): "
-                         f"{error}") from None  # fmt: skip
+        raise ValueError(
+            f"init_policy {config.init_policy}: its network does not match this run's policy_kwargs "
+            f"{config.policy_kwargs} (it was trained with {source.config.policy_kwargs}): "
+            f"{error}"
+        ) from None
 
 
 # --- evaluation ---------------------------------------------------------------------------
@@ -234,8 +237,15 @@ def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_b
                 self.latest = f"{last['success']:.2f}"
             if not evaluations:  # the curve starts from the untrained policy
                 self.evaluate()
-            self.bar = tqdm(total=config.total_steps, initial=self.num_timesteps, unit="step", disable=not progress_bar,
-                            dynamic_ncols=True, desc=config.name, mininterval=5.0)  # fmt: skip
+            self.bar = tqdm(
+                total=config.total_steps,
+                initial=self.num_timesteps,
+                unit="step",
+                disable=not progress_bar,
+                dynamic_ncols=True,
+                desc=config.name,
+                mininterval=5.0,
+            )
 
         def wall(self) -> float:
             return wall_before + time.perf_counter() - self.started
@@ -254,8 +264,12 @@ def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_b
         def evaluate(self) -> None:
             began = time.perf_counter()
             metrics = evaluate_policy(self.model, config, config.eval_episodes, self.eval_env)
-            row = {"steps": int(self.num_timesteps), "wall_seconds": round(self.wall(), 1),
-                   "eval_seconds": round(time.perf_counter() - began, 1), "metrics": metrics}  # fmt: skip
+            row = {
+                "steps": int(self.num_timesteps),
+                "wall_seconds": round(self.wall(), 1),
+                "eval_seconds": round(time.perf_counter() - began, 1),
+                "metrics": metrics,
+            }
             with open(run_dir / "evaluations.jsonl", "a") as log:
                 log.write(json.dumps(row, sort_keys=True) + "\n")
                 log.flush()
@@ -265,8 +279,9 @@ def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_b
             self.logger.dump(self.num_timesteps)
             self.latest = f"{metrics['trial_success']['rate']:.2f}"
             plot_curve(run_dir, f"{config.name}: {config.algo} on {config.env_id}", steps_label(config))
-            if validation_score(metrics) > max((validation_score(r["metrics"]) for r in read_evaluations(run_dir)[:-1]),
-                                               default=(-1.0,)):  # fmt: skip
+            if validation_score(metrics) > max(
+                (validation_score(r["metrics"]) for r in read_evaluations(run_dir)[:-1]), default=(-1.0,)
+            ):
                 save_best_policy(self.model.policy, run_dir, int(self.num_timesteps))
 
         def _on_training_end(self) -> None:
@@ -384,8 +399,11 @@ def select_on_selection_seeds(final_policy: Any, config: TrainConfig, run_dir: P
     for role, policy, at in (("validated_best", best_policy, best["steps"]), ("final", final_policy, steps)):
         metrics = evaluate_on_selection_seeds(policy, config, config.selection_episodes)
         figures[role] = {"steps": at, **{key: metrics[key] for key in SCORE_KEYS}}
-    selection = {"episodes": config.selection_episodes, "seeds": [first, first + config.selection_episodes - 1],
-                 **figures}  # fmt: skip
+    selection = {
+        "episodes": config.selection_episodes,
+        "seeds": [first, first + config.selection_episodes - 1],
+        **figures,
+    }
     if validation_score(figures["final"]) > validation_score(figures["validated_best"]):
         save_best_policy(final_policy, run_dir, steps, chosen_by="selection", selection=selection)
     else:

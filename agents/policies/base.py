@@ -61,8 +61,10 @@ class PrimitiveActionWriter:
         require(info, ("action_layout",), agent, "make the env with action_mode='primitive'")
         layout = info["action_layout"]
         if layout["mode"] not in ("primitive", "pixel"):
-            raise ValueError(f"{agent} writes primitive actions: make the env with action_mode='primitive' (or "
-                             f"'pixel'), not {layout['mode']!r}")  # fmt: skip
+            raise ValueError(
+                f"{agent} writes primitive actions: make the env with action_mode='primitive' (or "
+                f"'pixel'), not {layout['mode']!r}"
+            )
         missing = [p for p in needs if p not in layout["primitives"]]
         if missing:
             raise ValueError(f"{agent} needs the primitives {missing}; this env offers {layout['primitives']}")
@@ -87,8 +89,9 @@ class PrimitiveActionWriter:
         _, rotations, rows, cols = self.pixel_shape
         row, col = (int(i) for i in self.grid.world_to_cell(np.array([x, y])))
         if not (0 <= row < rows and 0 <= col < cols):
-            raise ValueError(f"({x:.3f}, {y:.3f}) m lies outside the heightmap the pixel actions cover "
-                             f"({self.grid.bounds[:2]})")  # fmt: skip
+            raise ValueError(
+                f"({x:.3f}, {y:.3f}) m lies outside the heightmap the pixel actions cover ({self.grid.bounds[:2]})"
+            )
         rotation = int(np.round(yaw / (2 * np.pi / rotations))) % rotations
         return np.array(np.ravel_multi_index((self.primitives.index(name), rotation, row, col), self.pixel_shape))
 

@@ -41,8 +41,9 @@ class LowLevelExpert(ABC):
         if not isinstance(observation, dict) or not {"observation", "achieved_goal", "desired_goal"} <= set(
             observation
         ):
-            raise ValueError(f"{self.name} reads the goal-conditioned Dict observation of an ee_delta env with "
-                             f"obs_mode='state'")  # fmt: skip
+            raise ValueError(
+                f"{self.name} reads the goal-conditioned Dict observation of an ee_delta env with obs_mode='state'"
+            )
         require(info, ("block_size",), self.name, "use an env from panda_grasp_env")
         self.block_size = float(info["block_size"])
         self.phase, self.steps_in_phase = self.first_phase, 0
@@ -68,8 +69,9 @@ class LowLevelExpert(ABC):
         self.steps_in_phase += 1
         hand = observation["observation"][:3].astype(float)
         self.hand_speed = float(np.linalg.norm(observation["observation"][6:9]))
-        return self.waypoint_action(hand, observation["achieved_goal"].astype(float),
-                                    observation["desired_goal"].astype(float))  # fmt: skip
+        return self.waypoint_action(
+            hand, observation["achieved_goal"].astype(float), observation["desired_goal"].astype(float)
+        )
 
     @abstractmethod
     def waypoint_action(self, hand: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:

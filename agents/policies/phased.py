@@ -69,8 +69,10 @@ class PhasedAgent:
                 raise ValueError(f"{agent.name} acts on another heightmap or headings than {name}'s env")
             missing = [p for p in args["primitives"] if p not in self.primitives]
             if missing or own[1] != self.shape[1]:
-                raise ValueError(f"{agent.name} uses primitives {args['primitives']} at {own[1]} headings; "
-                                 f"{name}'s env has {self.primitives} at {self.shape[1]}")  # fmt: skip
+                raise ValueError(
+                    f"{agent.name} uses primitives {args['primitives']} at {own[1]} headings; "
+                    f"{name}'s env has {self.primitives} at {self.shape[1]}"
+                )
             self.slots[phase] = (tuple(self.primitives.index(p) for p in args["primitives"]), own)
         self.phase: str | None = None
 

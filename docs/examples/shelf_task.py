@@ -89,8 +89,12 @@ class Shelf(Task):
                 break
         cell.set_body_pose(cell.block_ids[0], position, yaw_quaternion(rng.uniform(-np.pi / 4, np.pi / 4)))
         cell.settle(0.1)
-        return {"shelf_position": np.array([*self.pose[:2], self.top]), "shelf_yaw": float(self.pose[2]),
-                "shelf_half_size": np.array(SHELF_HALF), "target": cell.block_names[0]}  # fmt: skip
+        return {
+            "shelf_position": np.array([*self.pose[:2], self.top]),
+            "shelf_yaw": float(self.pose[2]),
+            "shelf_half_size": np.array(SHELF_HALF),
+            "target": cell.block_names[0],
+        }
 
     def evaluate(self, cell: Workcell, result: PrimitiveResult | None) -> TaskStep:
         block = int(cell.block_ids[0])

@@ -32,7 +32,8 @@ import numpy as np
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 from panda_grasp_env.agents.evaluation.protocol import is_low_level
 from panda_grasp_env.agents.evaluation.report import describe_seeds
-from panda_grasp_env.commands.results_page import agent_order, page_html, split_key, table_html
+from panda_grasp_env.commands.results_figures import agent_order, split_key
+from panda_grasp_env.commands.results_page import page_html, table_html
 from panda_grasp_env.tooling.runs import write_atomically
 
 #: Shuffles of the permutation tests, and the seed they are drawn from.
@@ -148,16 +149,44 @@ def cell_tests(key: str, a: dict[str, Any], b: dict[str, Any], ea: list[dict], e
     in_a = np.array([True] * len(ea) + [False] * len(eb))
     episodes = ea + eb
     if a["grasp_success"]["n"] and b["grasp_success"]["n"]:
-        p = ratio_permutation(np.array([e["grasps_succeeded"] for e in episodes], float),
-                              np.array([e["grasps_attempted"] for e in episodes], float), in_a)  # fmt: skip
-        tests.append(Test(agent, task, "grasp_success", a["grasp_success"]["rate"], b["grasp_success"]["rate"],
-                          a["grasp_success"]["n"], b["grasp_success"]["n"], "episode permutation", p))  # fmt: skip
+        p = ratio_permutation(
+            np.array([e["grasps_succeeded"] for e in episodes], float),
+            np.array([e["grasps_attempted"] for e in episodes], float),
+            in_a,
+        )
+        tests.append(
+            Test(
+                agent,
+                task,
+                "grasp_success",
+                a["grasp_success"]["rate"],
+                b["grasp_success"]["rate"],
+                a["grasp_success"]["n"],
+                b["grasp_success"]["n"],
+                "episode permutation",
+                p,
+            )
+        )
     benchmark = BENCHMARKS[task]
     if not is_low_level(benchmark.env_id, benchmark.options):
-        p = ratio_permutation(np.array([e["ideal_actions"] * e["completion"] for e in episodes], float),
-                              np.array([e["actions"] for e in episodes], float), in_a)  # fmt: skip
-        tests.append(Test(agent, task, "action_efficiency", a["action_efficiency"], b["action_efficiency"],
-                          len(ea), len(eb), "episode permutation", p))  # fmt: skip
+        p = ratio_permutation(
+            np.array([e["ideal_actions"] * e["completion"] for e in episodes], float),
+            np.array([e["actions"] for e in episodes], float),
+            in_a,
+        )
+        tests.append(
+            Test(
+                agent,
+                task,
+                "action_efficiency",
+                a["action_efficiency"],
+                b["action_efficiency"],
+                len(ea),
+                len(eb),
+                "episode permutation",
+                p,
+            )
+        )
     return tests
 
 
@@ -213,14 +242,18 @@ def terminal_lines(tests: list[Test], alpha: float, method: str, only_a: list[st
     lines = []
     for t in tests:
         if t.verdict != "no detectable change":
-            lines.append(f"{t.verdict.upper():6s} {t.agent}/{t.task} {t.metric}: {_figure(t.metric, t.a)} -> "
-                         f"{_figure(t.metric, t.b)} ({100 * t.difference:+.0f} pp; {t.test}, corrected p "
-                         f"{t.p_adjusted:.3g}; N {t.n_a} / {t.n_b})")  # fmt: skip
+            lines.append(
+                f"{t.verdict.upper():6s} {t.agent}/{t.task} {t.metric}: {_figure(t.metric, t.a)} -> "
+                f"{_figure(t.metric, t.b)} ({100 * t.difference:+.0f} pp; {t.test}, corrected p "
+                f"{t.p_adjusted:.3g}; N {t.n_a} / {t.n_b})"
+            )
     cells = cell_verdicts(tests)
     counts = {v: sum(c == v for c in cells.values()) for v in ("better", "worse", "no detectable change")}
-    lines.append(f"{len(cells)} (agent, task) cells, {len(tests)} tests at level {alpha} ({CORRECTIONS[method]}-"
-                 f"corrected): {counts['better']} better, {counts['worse']} worse, "
-                 f"{counts['no detectable change']} no detectable change")  # fmt: skip
+    lines.append(
+        f"{len(cells)} (agent, task) cells, {len(tests)} tests at level {alpha} ({CORRECTIONS[method]}-"
+        f"corrected): {counts['better']} better, {counts['worse']} worse, "
+        f"{counts['no detectable change']} no detectable change"
+    )
     for name, keys in (("A", only_a), ("B", only_b)):
         if keys:
             lines.append(f"only in {name} (not compared): {len(keys)} cells")
@@ -230,17 +263,40 @@ def terminal_lines(tests: list[Test], alpha: float, method: str, only_a: list[st
 def compare_page(tests: list[Test], run_a: Path, run_b: Path, alpha: float, method: str, notes: list[str]) -> str:
     rows = []
     for t in tests:
-        rows.append([f"{t.agent} / {t.task}", t.metric.replace("_", " "), _figure(t.metric, t.a), _figure(t.metric, t.b),
-                     f"{100 * t.difference:+.1f} pp", f"{t.n_a} / {t.n_b}", t.test, f"{t.p:.3g}", f"{t.p_adjusted:.3g}",
-                     t.verdict])  # fmt: skip
-    header = ["agent / task", "metric", "A", "B", "B − A", "N (A / B)", "test", "p", f"p ({CORRECTIONS[method]})",
-              "verdict"]  # fmt: skip
+        rows.append(
+            [
+                f"{t.agent} / {t.task}",
+                t.metric.replace("_", " "),
+                _figure(t.metric, t.a),
+                _figure(t.metric, t.b),
+                f"{100 * t.difference:+.1f} pp",
+                f"{t.n_a} / {t.n_b}",
+                t.test,
+                f"{t.p:.3g}",
+                f"{t.p_adjusted:.3g}",
+                t.verdict,
+            ]
+        )
+    header = [
+        "agent / task",
+        "metric",
+        "A",
+        "B",
+        "B − A",
+        "N (A / B)",
+        "test",
+        "p",
+        f"p ({CORRECTIONS[method]})",
+        "verdict",
+    ]
     table = table_html(header, rows, "compare")
     for verdict in ("better", "worse"):  # colour the verdict cells
         table = table.replace(f"<td>{verdict}</td>", f"<td class='{verdict}'>{verdict}</td>")
-    intro = (f"<p>B: <code>{html.escape(str(run_b))}</code> against A: <code>{html.escape(str(run_a))}</code>. "
-             f"A verdict other than “no detectable change” needs a corrected p-value under {alpha} "
-             f"({CORRECTIONS[method]} over all {len(tests)} tests).</p>")  # fmt: skip
+    intro = (
+        f"<p>B: <code>{html.escape(str(run_b))}</code> against A: <code>{html.escape(str(run_a))}</code>. "
+        f"A verdict other than “no detectable change” needs a corrected p-value under {alpha} "
+        f"({CORRECTIONS[method]} over all {len(tests)} tests).</p>"
+    )
     intro += "".join(f"<p class='warn'>{html.escape(n)}</p>" for n in notes)
     sections = [("Verdict per (agent, task)", verdict_grid(tests)), ("Per (agent, task) and metric", table)]
     return page_html("Comparison of two runs", sections, intro)
@@ -265,9 +321,11 @@ def verdict_grid(tests: list[Test]) -> str:
                 continue
             t = success[(agent, task)]
             ink = "#000" if verdict == "no detectable change" else "#fff"
-            tds.append(f"<td class='cell' data-verdict='{verdict}' style='background:{VERDICT_COLOURS[verdict]};"
-                       f"color:{ink}'>{html.escape(verdict)}<small>{_figure(t.metric, t.a)} → "
-                       f"{_figure(t.metric, t.b)}</small></td>")  # fmt: skip
+            tds.append(
+                f"<td class='cell' data-verdict='{verdict}' style='background:{VERDICT_COLOURS[verdict]};"
+                f"color:{ink}'>{html.escape(verdict)}<small>{_figure(t.metric, t.a)} → "
+                f"{_figure(t.metric, t.b)}</small></td>"
+            )
         rows.append(f"<tr><th scope='row'>{html.escape(agent)}</th>{''.join(tds)}</tr>")
     head = "".join(f"<th>{html.escape(task)}</th>" for task in tasks)
     return (
@@ -278,8 +336,9 @@ def verdict_grid(tests: list[Test]) -> str:
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="evaluate.py compare", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = argparse.ArgumentParser(
+        prog="evaluate.py compare", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("run_a", type=Path, help="the reference results folder")
     parser.add_argument("run_b", type=Path, help="the results folder compared with it")
     parser.add_argument("--alpha", type=float, default=0.05, help="level of the corrected tests (default 0.05)")
@@ -312,8 +371,9 @@ def main(argv: list[str]) -> int:
     for line in terminal_lines(tests, args.alpha, args.correction, only_a, only_b):
         print(line)
     out = args.out or args.run_b / "compare.html"
-    notes = [f"Warning: {w}" for w in warn] + [f"Only in {n}, not compared: {', '.join(k)}" for n, k in
-                                              (("A", only_a), ("B", only_b)) if k]  # fmt: skip
+    notes = [f"Warning: {w}" for w in warn] + [
+        f"Only in {n}, not compared: {', '.join(k)}" for n, k in (("A", only_a), ("B", only_b)) if k
+    ]
     write_atomically(out, compare_page(tests, args.run_a, args.run_b, args.alpha, args.correction, notes))
     print(f"page: {out}")
     return 0

@@ -46,7 +46,8 @@ from panda_grasp_env.agents.evaluation.protocol import Protocol, all_agents, imp
 from panda_grasp_env.agents.evaluation.report import results_table, videos, write_report, write_results
 from panda_grasp_env.agents.evaluation.runner import run_episodes
 from panda_grasp_env.agents.policies.towers import build_tower, push_tower
-from panda_grasp_env.commands.results_page import save_pngs, write_page
+from panda_grasp_env.commands.results_figures import save_pngs
+from panda_grasp_env.commands.results_page import write_page
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tooling.runs import interrupt_on_signals
@@ -96,9 +97,16 @@ def demo(args: argparse.Namespace) -> int:
 
 #: ``--config`` file keys and the flags they stand for: a protocol (who plays what, on which seeds, with which
 #: options) in one YAML file.
-PROTOCOL_KEYS = {"agents": "--agents", "tasks": "--tasks", "full": "--full", "seeds": "--seeds",
-                 "seed_start": "--seed-start", "seed_list": "--seed-list", "task_options": "--task-options",
-                 "import": "--import"}  # fmt: skip
+PROTOCOL_KEYS = {
+    "agents": "--agents",
+    "tasks": "--tasks",
+    "full": "--full",
+    "seeds": "--seeds",
+    "seed_start": "--seed-start",
+    "seed_list": "--seed-list",
+    "task_options": "--task-options",
+    "import": "--import",
+}
 
 
 def protocol_argv(path: Path) -> list[str]:
@@ -160,24 +168,43 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         if argv[at + 1][:2].lstrip("-").isdigit() and argv[at + 1].startswith("-"):
             argv[at : at + 2] = [f"--seed-list={argv[at + 1]}"]  # the seeds then reach their own check
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", type=Path, default=None,
-                        help=f"a YAML protocol file with keys {list(PROTOCOL_KEYS)} (command-line flags win)")  # fmt: skip
-    parser.add_argument("--import", action="append", default=[], dest="imports", metavar="MODULE",
-                        help="import a module (a dotted name, or a .py file) that registers tasks and agents; "
-                             "repeatable; worker processes import it too")  # fmt: skip
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help=f"a YAML protocol file with keys {list(PROTOCOL_KEYS)} (command-line flags win)",
+    )
+    parser.add_argument(
+        "--import",
+        action="append",
+        default=[],
+        dest="imports",
+        metavar="MODULE",
+        help="import a module (a dotted name, or a .py file) that registers tasks and agents; "
+        "repeatable; worker processes import it too",
+    )
     parser.add_argument("--full", action="store_true", help="the publication protocol instead of the quick one")
     agents = all_agents()
     parser.add_argument("--agents", default=",".join(agents), help=f"comma-separated, from {list(agents)}")
-    parser.add_argument("--tasks", default=",".join(default_benchmarks()),
-                        help=f"comma-separated, from {list(BENCHMARKS)} (default: all but the mesh benchmarks, "
-                             "which need the objects extra, and the 6- and 8-block towers)")  # fmt: skip
-    parser.add_argument("--seeds", type=int, default=None,
-                        help="episodes per (agent, task): seeds --seed-start .. --seed-start + N - 1")  # fmt: skip
+    parser.add_argument(
+        "--tasks",
+        default=",".join(default_benchmarks()),
+        help=f"comma-separated, from {list(BENCHMARKS)} (default: all but the mesh benchmarks, "
+        "which need the objects extra, and the 6- and 8-block towers)",
+    )
+    parser.add_argument(
+        "--seeds", type=int, default=None, help="episodes per (agent, task): seeds --seed-start .. --seed-start + N - 1"
+    )
     parser.add_argument("--seed-start", type=int, default=0, help="the first seed (default 0)")
     parser.add_argument("--seed-list", default=None, help="comma-separated seeds, instead of --seeds / --seed-start")
-    parser.add_argument("--task-options", nargs="+", default=[], metavar="KEY=VALUE",
-                        help="gymnasium.make options for every chosen task, values in YAML (n_objects=1, "
-                             "scene options, obs/action modes for learned agents ...)")  # fmt: skip
+    parser.add_argument(
+        "--task-options",
+        nargs="+",
+        default=[],
+        metavar="KEY=VALUE",
+        help="gymnasium.make options for every chosen task, values in YAML (n_objects=1, "
+        "scene options, obs/action modes for learned agents ...)",
+    )
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes")
     parser.add_argument(
         "--ray", default=None, help="run episodes as Ray tasks: a cluster address, 'auto', or 'local' to start one here"

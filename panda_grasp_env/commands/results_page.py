@@ -1,21 +1,18 @@
-"""What ``evaluate.py`` shows people: report.html (one self-contained static page), success.png and failures.png.
+"""What ``evaluate.py`` shows people: report.html, one self-contained static page.
 
 The page is built from a results folder alone (results.json, timing.json, videos/, curve_*.png), so any run's
 folder can be rendered again (``write_page``).  Everything it shows is inlined — charts as SVG, thumbnails and
 learning curves as data URIs, styles in the page — and it runs no script: it opens from disk with no server
 and no network.  Videos stay beside it and are linked.
 
-Charts are matplotlib's: one small horizontal-bar chart per task (every bar labelled by its agent and readable
-however many agents ran), bars coloured by agent family (``FAMILY_COLOURS``, the Okabe–Ito palette, told apart
-in colour-blind vision too), the legend in a strip of its own above the charts.  The agents × tasks heatmap is
-an HTML table: one ``td.cell`` per (agent, task) that ran, its trial success and 95 % Wilson interval.
+The charts are ``results_figures``'s, inlined as SVG.  The agents × tasks heatmap is an HTML table: one
+``td.cell`` per (agent, task) that ran, its trial success and 95 % Wilson interval.
 """
 
 from __future__ import annotations
 
 import base64
 import html
-import io
 import json
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -23,31 +20,18 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.agents.evaluation.protocol import AGENTS
 from panda_grasp_env.agents.evaluation.report import describe_seeds
+from panda_grasp_env.commands.results_figures import (
+    FAMILY_COLOURS,
+    agent_order,
+    failures_figure,
+    family,
+    pair_order,
+    split_key,
+    success_figure,
+    svg,
+)
 from panda_grasp_env.tooling.runs import write_atomically
-
-#: Agent family -> bar colour (Okabe–Ito).  The built-in agents' families; every other agent is a learned checkpoint.
-FAMILY_COLOURS = {"scripted": "#0072B2", "expert": "#009E73", "learned": "#E69F00", "random": "#999999"}
-FAMILY_OF = {"planned": "scripted", "oracle": "scripted", "expert": "expert", "random": "random"}
-assert set(FAMILY_OF) == set(AGENTS)
-
-
-def family(agent: str) -> str:
-    """``scripted`` (planned baselines and their oracles), ``expert``, ``random``, or ``learned`` (a checkpoint)."""
-    return FAMILY_OF.get(agent, "learned")
-
-
-def agent_order(agents: Iterable[str]) -> list[str]:
-    """Agents grouped by family (scripted, expert, learned, random), by name within one."""
-    rank = {name: i for i, name in enumerate(FAMILY_COLOURS)}
-    return sorted(set(agents), key=lambda a: (rank[family(a)], a))
-
-
-def split_key(key: str) -> tuple[str, str]:
-    agent, task = key.split("/")
-    return agent, task
-
 
 # --- the heatmap ---------------------------------------------------------------------------------------------
 
@@ -78,8 +62,10 @@ def _grid_table(
     """An agents × ``tasks`` HTML table: ``cell(agent, task)`` gives each ``<td>``, ``row_head(agent)`` each row's
     heading; ``kind`` is the table's CSS class after ``heatmap``."""
     head = "".join(f"<th scope='col'>{html.escape(t)}</th>" for t in tasks)
-    rows = [f"<tr><th scope='row'>{row_head(agent)}</th>{''.join(cell(agent, task) for task in tasks)}</tr>"
-            for agent in agents]  # fmt: skip
+    rows = [
+        f"<tr><th scope='row'>{row_head(agent)}</th>{''.join(cell(agent, task) for task in tasks)}</tr>"
+        for agent in agents
+    ]
     return (
         f"<table class='heatmap{kind}'><caption>{html.escape(caption)}</caption>"
         f"<thead><tr><th></th>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
@@ -103,8 +89,10 @@ def heatmap_html(
             return f"<td class='absent' title='{html.escape(absent(agent, task))}'>·</td>"
         low, high = r["ci95"]
         background, ink = _shade(r["rate"])
-        tip = html.escape(f"{agent} on {task}: {r['successes']}/{r['n']} trials succeeded, "
-                          f"95 % interval {100 * low:.0f}–{100 * high:.0f} %")  # fmt: skip
+        tip = html.escape(
+            f"{agent} on {task}: {r['successes']}/{r['n']} trials succeeded, "
+            f"95 % interval {100 * low:.0f}–{100 * high:.0f} %"
+        )
         return (
             f"<td class='cell' data-agent='{html.escape(agent)}' data-task='{html.escape(task)}' "
             f"data-rate='{r['rate']}' title='{tip}' style='background:{background};color:{ink}'>"
@@ -141,124 +129,6 @@ def published_cells(markdown: str) -> dict[tuple[str, str], dict[str, Any]]:
     if not cells:
         raise ValueError("no results table (| agent | task | N | trial success (95 % CI) | ...) found")
     return cells
-
-
-# --- charts ----------------------------------------------------------------------------------------------------
-
-
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _family_legend(figure: Any, families: Iterable[str]) -> None:
-    """The families present, in a strip of their own at the top of ``figure`` (it covers no axes)."""
-    from matplotlib.patches import Patch
-
-    present = set(families)
-    shown = [f for f in FAMILY_COLOURS if f in present]
-    figure.legend(
-        [Patch(color=FAMILY_COLOURS[f]) for f in shown], shown, loc="upper center", ncol=len(shown), frameon=False
-    )
-
-
-def success_figure(table: dict[str, dict]) -> Any:
-    """Trial success with 95 % intervals: one panel per task, one labelled horizontal bar per agent."""
-    plt = _pyplot()
-    tasks = list(dict.fromkeys(split_key(k)[1] for k in table))
-    by_task = {t: agent_order(split_key(k)[0] for k in table if split_key(k)[1] == t) for t in tasks}
-    columns = min(3, len(tasks))
-    grid_rows = -(-len(tasks) // columns)
-    rows_per = [max(len(by_task[t]) for t in tasks[i * columns : (i + 1) * columns]) for i in range(grid_rows)]
-    height = sum(0.28 * r + 0.9 for r in rows_per) + 0.6
-    figure, axes = plt.subplots(grid_rows, columns, figsize=(4.4 * columns, height), squeeze=False,
-                                gridspec_kw={"height_ratios": [r + 2 for r in rows_per]})  # fmt: skip
-    for axis, task in zip(axes.flat, tasks):
-        agents = by_task[task]
-        rates = np.array([table[f"{a}/{task}"]["trial_success"]["rate"] for a in agents])
-        ci = np.array([table[f"{a}/{task}"]["trial_success"]["ci95"] for a in agents])
-        y = np.arange(len(agents))
-        axis.barh(y, rates, color=[FAMILY_COLOURS[family(a)] for a in agents], height=0.7,
-                  xerr=[rates - ci[:, 0], ci[:, 1] - rates], error_kw={"ecolor": "#333", "capsize": 2, "lw": 0.8})  # fmt: skip
-        for yi, a in zip(y, agents):
-            n = table[f"{a}/{task}"]["trial_success"]["n"]
-            axis.text(1.02, yi, f"{100 * table[f'{a}/{task}']['trial_success']['rate']:.0f} % (n {n})",
-                      va="center", fontsize=7, transform=axis.get_yaxis_transform())  # fmt: skip
-        axis.set_yticks(y, agents, fontsize=8)
-        axis.invert_yaxis()
-        axis.set_xlim(0, 1)
-        axis.set_title(task, fontsize=10, loc="left")
-        axis.grid(axis="x", alpha=0.3)
-        axis.tick_params(axis="x", labelsize=7)
-    for axis in axes.flat[len(tasks) :]:
-        axis.set_visible(False)
-    figure.supxlabel("trial success (bars: 95 % Wilson interval)", fontsize=9)
-    figure.tight_layout(rect=(0, 0, 1, 1 - 0.45 / height), w_pad=6)
-    _family_legend(figure, (family(split_key(k)[0]) for k in table))
-    return figure
-
-
-def failures_figure(table: dict[str, dict]) -> Any:
-    """Why episodes failed, and which actions failed, per (agent, task) that had any: stacked horizontal bars,
-    one labelled row each, the reasons' legend under each panel."""
-    from matplotlib.ticker import MaxNLocator
-
-    plt = _pyplot()
-    panels = [("episode_failures", "failed episodes, by why"), ("failures", "failed actions, by reason")]
-    shown = [[k for k in _pair_order(table) if table[k].get(field)] for field, _ in panels]
-    rows = max(1, *map(len, shown))
-    figure, axes = plt.subplots(1, 2, figsize=(13, 0.26 * rows + 2.6))
-    for axis, (field, title), keys in zip(axes, panels, shown):
-        axis.set_title(title, fontsize=10, loc="left")
-        if not keys:
-            axis.text(0.5, 0.5, "none", ha="center", va="center", transform=axis.transAxes)
-            axis.set_axis_off()
-            continue
-        reasons = sorted({r for k in keys for r in table[k][field]})
-        colours = plt.get_cmap("tab20")(np.linspace(0, 1, 20))[: len(reasons)] if len(reasons) <= 20 else None
-        left = np.zeros(len(keys))
-        for i, reason in enumerate(reasons):
-            counts = np.array([table[k][field].get(reason, 0) for k in keys], dtype=float)
-            axis.barh(range(len(keys)), counts, left=left, label=reason, height=0.7,
-                      color=None if colours is None else colours[i])  # fmt: skip
-            left += counts
-        axis.set_yticks(range(len(keys)), [k.replace("/", " / ") for k in keys], fontsize=7)
-        axis.set_ylim(len(keys) - 0.5, -0.5)
-        axis.xaxis.set_major_locator(MaxNLocator(integer=True))  # counts
-        axis.grid(axis="x", alpha=0.3)
-        axis.tick_params(axis="x", labelsize=7)
-        axis.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.06), ncol=3, frameon=False)
-    figure.tight_layout()
-    return figure
-
-
-def _pair_order(table: dict[str, dict]) -> list[str]:
-    rank = {a: i for i, a in enumerate(agent_order(split_key(k)[0] for k in table))}
-    return sorted(table, key=lambda k: (rank[split_key(k)[0]], split_key(k)[1]))
-
-
-def save_pngs(table: dict[str, dict], out: Path) -> None:
-    """success.png and failures.png in ``out``."""
-    plt = _pyplot()
-    for name, make in (("success.png", success_figure), ("failures.png", failures_figure)):
-        figure = make(table)
-        figure.savefig(out / name, dpi=110)
-        plt.close(figure)
-
-
-def svg(figure: Any) -> str:
-    """``figure`` as inline SVG (text kept as text), closed afterwards."""
-    plt = _pyplot()
-    buffer = io.StringIO()
-    with plt.rc_context({"svg.fonttype": "none", "svg.hashsalt": "panda_grasp_env"}):
-        figure.savefig(buffer, format="svg")
-    plt.close(figure)
-    text = buffer.getvalue()
-    return text[text.index("<svg") :]
 
 
 # --- pieces of the page ----------------------------------------------------------------------------------------
@@ -340,15 +210,30 @@ def legend_html() -> str:
 
 def _per_pair_table(table: dict[str, dict], timing: dict[str, dict]) -> str:
     rows = []
-    for key in _pair_order(table):
+    for key in pair_order(table):
         m, t = table[key], timing.get(key, {})
         agent, task = split_key(key)
         ms = t.get("ms_per_decision")
-        rows.append([agent, task, m["episodes"], counts_text(m.get("episode_failures", {})),
-                     counts_text(m["failures"]), "—" if ms is None else f"{ms:.1f}",
-                     "—" if "wall_seconds_per_episode" not in t else f"{t['wall_seconds_per_episode']:.1f}"])  # fmt: skip
-    header = ["agent", "task", "N", "failed episodes, why", "failed actions", "ms / decision (median)",
-              "wall s / episode"]  # fmt: skip
+        rows.append(
+            [
+                agent,
+                task,
+                m["episodes"],
+                counts_text(m.get("episode_failures", {})),
+                counts_text(m["failures"]),
+                "—" if ms is None else f"{ms:.1f}",
+                "—" if "wall_seconds_per_episode" not in t else f"{t['wall_seconds_per_episode']:.1f}",
+            ]
+        )
+    header = [
+        "agent",
+        "task",
+        "N",
+        "failed episodes, why",
+        "failed actions",
+        "ms / decision (median)",
+        "wall s / episode",
+    ]
     return table_html(header, rows)
 
 
@@ -363,22 +248,23 @@ def _decision_heatmap(table: dict[str, dict], timing: dict[str, dict], tasks: li
         background, ink = _shade(1 - np.clip(np.log10(max(ms, 1e-3)) / 4, 0, 1))
         return f"<td style='background:{background};color:{ink}'>{ms:.3g}</td>"
 
-    caption = ("Median milliseconds per decision (darker: slower; wall clock, so it depends on the machine and "
-               "its load)")  # fmt: skip
+    caption = "Median milliseconds per decision (darker: slower; wall clock, so it depends on the machine and its load)"
     return _grid_table(agent_order(a for a, _ in cells), tasks, cell, html.escape, " decisions", caption)
 
 
 def _clips(out: Path, table: dict[str, dict]) -> str:
     figures = []
-    for key in _pair_order(table):
+    for key in pair_order(table):
         agent, task = split_key(key)
         video = out / "videos" / f"{agent}_{task}.mp4"
         if not video.exists():
             continue
         image = thumbnail(video)
         picture = f"<img src='{image}' alt='{html.escape(key)}' loading='lazy'>" if image else "(unreadable video)"
-        figures.append(f"<figure><a href='videos/{html.escape(video.name)}'>{picture}</a>"
-                       f"<figcaption>{html.escape(agent)} / {html.escape(task)}</figcaption></figure>")  # fmt: skip
+        figures.append(
+            f"<figure><a href='videos/{html.escape(video.name)}'>{picture}</a>"
+            f"<figcaption>{html.escape(agent)} / {html.escape(task)}</figcaption></figure>"
+        )
     if not figures:
         return "<p>No videos in this run (<code>--no-video</code>).</p>"
     return (
@@ -390,8 +276,10 @@ def _curves(out: Path) -> str:
     parts = []
     for curve in sorted(out.glob("curve_*.png")):
         name = curve.stem.removeprefix("curve_")
-        parts.append(f"<h3>{html.escape(name)}</h3><img alt='learning curve of {html.escape(name)}' "
-                     f"style='max-width:100%' src='{data_uri(curve.read_bytes(), 'image/png')}'>")  # fmt: skip
+        parts.append(
+            f"<h3>{html.escape(name)}</h3><img alt='learning curve of {html.escape(name)}' "
+            f"style='max-width:100%' src='{data_uri(curve.read_bytes(), 'image/png')}'>"
+        )
         parts.append(seeds_section(name))
     return "".join(parts)
 
@@ -424,8 +312,11 @@ def _protocol(results: dict[str, Any]) -> str:
     skipped = protocol.get("skipped", {})
     text = table_html(["", ""], rows)
     if skipped:
-        text += (f"<details><summary>{len(skipped)} (agent, task) pairs skipped: they do not apply</summary>"
-                 + table_html(["pair", "why"], [[k, v] for k, v in skipped.items()]) + "</details>")  # fmt: skip
+        text += (
+            f"<details><summary>{len(skipped)} (agent, task) pairs skipped: they do not apply</summary>"
+            + table_html(["pair", "why"], [[k, v] for k, v in skipped.items()])
+            + "</details>"
+        )
     return text
 
 
@@ -436,12 +327,18 @@ def build_page(out: Path) -> str:
     table = results["metrics"]
     tasks = results["protocol"]["tasks"]
     skipped = results["protocol"].get("skipped", {})
-    heatmap = heatmap_html(success_cells(table), tasks, results["protocol"]["agents"],
-                           lambda a, t: f"skipped: {skipped.get(f'{a}/{t}', 'not run')}")  # fmt: skip
+    heatmap = heatmap_html(
+        success_cells(table),
+        tasks,
+        results["protocol"]["agents"],
+        lambda a, t: f"skipped: {skipped.get(f'{a}/{t}', 'not run')}",
+    )
     episodes = sum(m["episodes"] for m in table.values())
     kind = "Full" if results["protocol"].get("full") else "Quick"
-    intro = (f"<p>{episodes} episodes of {len(table)} (agent, task) pairs through the same <code>env.step</code> "
-             f"loop. Agent families: {legend_html()}.</p>")  # fmt: skip
+    intro = (
+        f"<p>{episodes} episodes of {len(table)} (agent, task) pairs through the same <code>env.step</code> "
+        f"loop. Agent families: {legend_html()}.</p>"
+    )
     sections = [
         ("Trial success", f"<div class='scroll'>{heatmap}</div>"),
         ("Trial success per task", svg(success_figure(table))),

@@ -61,21 +61,37 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--resume", type=Path, default=None, help="continue this run folder")
     parser.add_argument("--ship", type=Path, default=None, help="copy this finished run to agents/checkpoints/--name")
     parser.add_argument("--name", default=None, help="checkpoint name for --ship")
-    parser.add_argument("--avoid-failures", action="store_true",
-                        help="--ship: the checkpoint acts with a FailureMemory (decide on selection seeds: "
-                             "benchmarks/failure_memory.py --seeds selection)")  # fmt: skip
+    parser.add_argument(
+        "--avoid-failures",
+        action="store_true",
+        help="--ship: the checkpoint acts with a FailureMemory (decide on selection seeds: "
+        "benchmarks/failure_memory.py --seeds selection)",
+    )
     parser.add_argument("--retest", type=Path, default=None, help="test this run or checkpoint again")
-    parser.add_argument("--trust", action="store_true",
-                        help="with --resume: load latest.zip / replay.pkl / latest.pt even if this user's job did not "
-                             "sign them in this folder (a run copied or moved here)")  # fmt: skip
+    parser.add_argument(
+        "--trust",
+        action="store_true",
+        help="with --resume: load latest.zip / replay.pkl / latest.pt even if this user's job did not "
+        "sign them in this folder (a run copied or moved here)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--seeds", default=None,
-                        help="with --config: train it on each of these comma-separated seeds and aggregate the "
-                             "runs (rliable) in runs/<name>-seeds-...")  # fmt: skip
-    parser.add_argument("--workers", type=int, default=None,
-                        help="--seeds: local training processes (default: one per seed, at most the cores)")  # fmt: skip
-    parser.add_argument("--ray", default=None,
-                        help="--seeds: train each seed as a Ray task on this cluster address ('local' starts one)")  # fmt: skip
+    parser.add_argument(
+        "--seeds",
+        default=None,
+        help="with --config: train it on each of these comma-separated seeds and aggregate the "
+        "runs (rliable) in runs/<name>-seeds-...",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="--seeds: local training processes (default: one per seed, at most the cores)",
+    )
+    parser.add_argument(
+        "--ray",
+        default=None,
+        help="--seeds: train each seed as a Ray task on this cluster address ('local' starts one)",
+    )
     args = parser.parse_args(argv)
     chosen = sum(x is not None for x in (args.config, args.resume, args.ship, args.retest))
     if chosen != 1:
@@ -223,18 +239,24 @@ def report(outcome: dict, run_dir: Path) -> int:
 def print_fall_metrics(metrics: dict) -> None:
     for name, by_horizon in metrics.items():
         for horizon, m in by_horizon.items():
-            print(f"{name:18s} {horizon}: mean block IoU {m['mean_block_iou']:.4f}, foreground accuracy "
-                  f"{m['foreground_accuracy']:.4f}, pixel accuracy {m['pixel_accuracy']:.4f} ({m['frames']} frames)")  # fmt: skip
+            print(
+                f"{name:18s} {horizon}: mean block IoU {m['mean_block_iou']:.4f}, foreground accuracy "
+                f"{m['foreground_accuracy']:.4f}, pixel accuracy {m['pixel_accuracy']:.4f} ({m['frames']} frames)"
+            )
 
 
 def print_fall_directions(direction: dict) -> None:
     """One line per predictor of ``fall_directions``' figures over all test towers."""
-    print(f"fall direction: {direction['fell']} of {direction['sequences']} test towers fell, "
-          f"{direction['hidden']} of them hidden in the first frame")  # fmt: skip
+    print(
+        f"fall direction: {direction['fell']} of {direction['sequences']} test towers fell, "
+        f"{direction['hidden']} of them hidden in the first frame"
+    )
     for name, d in direction["predictors"].items():
         if d["within_45"] is not None:
-            print(f"{name:18s} within 45 degrees {d['within_45']:.3f}, median error {d['median_error_deg']:.1f} "
-                  f"degrees ({d['no_direction']} without a direction)")  # fmt: skip
+            print(
+                f"{name:18s} within 45 degrees {d['within_45']:.3f}, median error {d['median_error_deg']:.1f} "
+                f"degrees ({d['no_direction']} without a direction)"
+            )
 
 
 def report_fall(outcome: dict, run_dir: Path) -> int:

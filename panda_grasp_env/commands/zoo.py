@@ -53,8 +53,10 @@ def zoo_argv(script: str, argv: list[str], cores: int | None) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if not argv or argv[0] not in SCRIPTS:
-        print(f"usage: python -m panda_grasp_env.commands.zoo {{{','.join(SCRIPTS)}}} [rl_zoo3 arguments]\n\n"
-              f"{__doc__}", file=sys.stderr)  # fmt: skip
+        print(
+            f"usage: python -m panda_grasp_env.commands.zoo {{{','.join(SCRIPTS)}}} [rl_zoo3 arguments]\n\n{__doc__}",
+            file=sys.stderr,
+        )
         return 2
     script, rest = argv[0], argv[1:]
     import panda_grasp_env  # noqa: F401  (registers the ids in this process)

@@ -42,8 +42,17 @@ import numpy as np
 from panda_grasp_env.tooling.runs import sha256
 
 SHARD_ARRAYS = (
-    "rgb", "depth", "labels", "colour_labels", "poses", "n_blocks", "seeds", "breaker", "strike", "crop_origin"
-)  # fmt: skip
+    "rgb",
+    "depth",
+    "labels",
+    "colour_labels",
+    "poses",
+    "n_blocks",
+    "seeds",
+    "breaker",
+    "strike",
+    "crop_origin",
+)
 SPLITS = ("train", "val", "test")
 #: The class maps a model may learn from: the simulator's segmentation, or perception's colour segmentation.
 LABEL_SOURCES = ("labels", "colour_labels")
@@ -126,16 +135,25 @@ def load_split(
         try:
             with np.load(root / entry["file"]) as shard:
                 arrays = {name: shard[name] for name in [*names, "seeds", "poses", "crop_origin"]}
-                arrays["n_blocks"] = shard["n_blocks"] if "n_blocks" in shard.files else \
-                    np.full(entry["sequences"], LEGACY_TOWER_BLOCKS, dtype=np.uint8)  # fmt: skip
+                arrays["n_blocks"] = (
+                    shard["n_blocks"]
+                    if "n_blocks" in shard.files
+                    else np.full(entry["sequences"], LEGACY_TOWER_BLOCKS, dtype=np.uint8)
+                )
         except (OSError, ValueError, KeyError) as error:
             raise ValueError(f"shard {entry['file']} cannot be read: {error}") from error
         n, frames, crop = entry["sequences"], meta["frames"], meta["crop"]
         shapes = {name: (n, frames, crop, crop) for name in names} | {
-            "poses": (n, frames, len(meta["classes"]) - 1, 7), "crop_origin": (n, 2), "seeds": (n,), "n_blocks": (n,)
-        }  # fmt: skip
-        wrong = [f"{name} of shape {arrays[name].shape}, expected {shape}" for name, shape in shapes.items()
-                 if arrays[name].shape != shape]  # fmt: skip
+            "poses": (n, frames, len(meta["classes"]) - 1, 7),
+            "crop_origin": (n, 2),
+            "seeds": (n,),
+            "n_blocks": (n,),
+        }
+        wrong = [
+            f"{name} of shape {arrays[name].shape}, expected {shape}"
+            for name, shape in shapes.items()
+            if arrays[name].shape != shape
+        ]
         if wrong:
             raise ValueError(f"shard {entry['file']} has {'; '.join(wrong)}")
         keep = np.array([split_of(int(s)) == split for s in arrays["seeds"]], dtype=bool)

@@ -95,11 +95,17 @@ def fall_directions(
         model.eval()
         windows = labels[:, t - context + 1 : t + 1]
         contexts = depth[:, t - context + 1 : t + 1] if model.use_depth else None
-        ends["model"] = np.concatenate([
-            predict_batch(model, windows[b : b + batch_size], horizon,
-                          None if contexts is None else contexts[b : b + batch_size])[:, -1]
-            for b in range(0, n, batch_size)
-        ])  # fmt: skip
+        ends["model"] = np.concatenate(
+            [
+                predict_batch(
+                    model,
+                    windows[b : b + batch_size],
+                    horizon,
+                    None if contexts is None else contexts[b : b + batch_size],
+                )[:, -1]
+                for b in range(0, n, batch_size)
+            ]
+        )
     ends["true_labels"] = labels[:, -1]
     start = [centroid(frame > 0) for frame in labels[:, 0]]
     view = CameraModel(
@@ -134,9 +140,14 @@ def fall_directions(
                 "median_error_deg": round(float(np.median(worst)), 1) if scored.any() else None,
                 "no_direction": int(np.isnan(error[scored]).sum()),
             }
-        return {"sequences": int(chosen.sum()), "did_not_fall": int((chosen & ~fell).sum()),
-                "fell": int((chosen & fell).sum()), "hidden": int((chosen & fell & ~seen).sum()),
-                "scored": int(scored.sum()), "predictors": predictors}  # fmt: skip
+        return {
+            "sequences": int(chosen.sum()),
+            "did_not_fall": int((chosen & ~fell).sum()),
+            "fell": int((chosen & fell).sum()),
+            "hidden": int((chosen & fell & ~seen).sum()),
+            "scored": int(scored.sum()),
+            "predictors": predictors,
+        }
 
     result = summary(np.ones(n, dtype=bool))
     heights = np.unique(n_blocks)

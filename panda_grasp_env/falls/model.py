@@ -116,8 +116,11 @@ class FallPredictor(nn.Module):
         def measure(frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
             masks = frames[:, 1 : self.n_classes]
             centre, mass = mask_centroids(masks)
-            height = (masks * frames[:, self.n_classes :]).sum((2, 3)) / mass.clamp_min(1e-6) if self.use_depth \
-                else mass.new_zeros(0)  # fmt: skip
+            height = (
+                (masks * frames[:, self.n_classes :]).sum((2, 3)) / mass.clamp_min(1e-6)
+                if self.use_depth
+                else mass.new_zeros(0)
+            )
             return centre, mass, height
 
         (now, mass_now, height_now), (before, mass_before, height_before) = measure(frame), measure(previous)
@@ -146,8 +149,9 @@ class FallPredictor(nn.Module):
         out = self.d5(self.d4(torch.cat([F.interpolate(x, scale_factor=2.0), f1], 1)))
         batch, blocks, size, n = frame.shape[0], self.n_classes - 1, self.image_size, self.n_classes
         descriptors = self.block_descriptors(frame, previous)
-        history = descriptors.new_zeros(batch, blocks, MOTION_HISTORY, self.block_features) if state is None \
-            else state[2]  # fmt: skip
+        history = (
+            descriptors.new_zeros(batch, blocks, MOTION_HISTORY, self.block_features) if state is None else state[2]
+        )
         history = torch.cat([history[:, :, 1:], descriptors[:, :, None]], 2)
         coarse = F.avg_pool2d(frame[:, 1:n], size // h.shape[-1])  # block masks at the ConvLSTM's resolution
         pooled = torch.einsum("bkhw,bchw->bkc", coarse, h) / coarse.sum((2, 3)).clamp_min(1e-3)[..., None]

@@ -215,8 +215,14 @@ def record_shard(job: tuple[Path, int, int, RecorderSettings]) -> dict[str, Any]
     name = f"shard_{index:05d}.npz"
     with atomic_path(out / name) as tmp, open(tmp, "wb") as handle:
         np.savez_compressed(handle, **arrays)
-    entry = {"file": name, "sequences": count, "first_seed": first, "bytes": (out / name).stat().st_size,
-             "sha256": sha256(out / name), "seconds": round(time.perf_counter() - began, 2)}  # fmt: skip
+    entry = {
+        "file": name,
+        "sequences": count,
+        "first_seed": first,
+        "bytes": (out / name).stat().st_size,
+        "sha256": sha256(out / name),
+        "seconds": round(time.perf_counter() - began, 2),
+    }
     write_atomically(out / f"{name}.json", json.dumps(entry))
     return entry
 
@@ -250,8 +256,9 @@ def record_dataset(
     wanted = {"sequences": sequences, **asdict(settings)}
     # A folder recorded before LATER_SETTINGS existed was recorded as their defaults record.
     defaults = {key: value for key, value in asdict(RecorderSettings()).items() if key in LATER_SETTINGS}
-    recorded = json.loads(json.dumps(defaults)) | json.loads(settings_file.read_text()) \
-        if settings_file.exists() else None  # fmt: skip
+    recorded = (
+        json.loads(json.dumps(defaults)) | json.loads(settings_file.read_text()) if settings_file.exists() else None
+    )
     if recorded is not None and recorded != json.loads(json.dumps(wanted)):
         raise ValueError(f"{out} holds a recording with other settings ({settings_file}); use another --out")
     settings_file.write_text(json.dumps(wanted, indent=2))
@@ -283,8 +290,12 @@ def record_dataset(
     seconds = time.perf_counter() - began
     recorded = sum(job[2] for job in jobs)
     metadata = describe(out, settings, sequences, [entries[i] for i in range(n_shards)])
-    metadata["recording"] = {"sequences_recorded_now": recorded, "seconds": round(seconds, 1), "workers": workers,
-                             "sequences_per_second": round(recorded / seconds, 2) if recorded else None}  # fmt: skip
+    metadata["recording"] = {
+        "sequences_recorded_now": recorded,
+        "seconds": round(seconds, 1),
+        "workers": workers,
+        "sequences_per_second": round(recorded / seconds, 2) if recorded else None,
+    }
     write_atomically(out / "metadata.json", json.dumps(metadata, indent=2))
     return metadata
 
@@ -343,8 +354,13 @@ def main(argv: list[str] | None = None) -> int:
         if field == "impulse":
             parser.add_argument("--impulse", type=float, nargs=2, default=value, metavar=("LOW", "HIGH"))
         elif field == "tower_blocks":
-            parser.add_argument("--tower-blocks", type=int_tuple, default=value, metavar="N[,N...]",
-                                help="tower heights in blocks, one drawn per sequence (default 4)")  # fmt: skip
+            parser.add_argument(
+                "--tower-blocks",
+                type=int_tuple,
+                default=value,
+                metavar="N[,N...]",
+                help="tower heights in blocks, one drawn per sequence (default 4)",
+            )
         elif field == "strike_levels":
             parser.add_argument("--strike-levels", type=int, nargs=2, default=value, metavar=("LOWEST", "HIGHEST"))
         else:
@@ -362,8 +378,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\ninterrupted: finished shards are kept in {args.out}; rerun the same command to record the rest")
         return 130
     rec = metadata["recording"]
-    print(f"{metadata['sequences']} sequences in {args.out} ({metadata['splits']}); recorded {rec['sequences_recorded_now']} "
-          f"now in {rec['seconds']} s with {rec['workers']} workers: {rec['sequences_per_second']} sequences/s")  # fmt: skip
+    print(
+        f"{metadata['sequences']} sequences in {args.out} ({metadata['splits']}); recorded {rec['sequences_recorded_now']} "
+        f"now in {rec['seconds']} s with {rec['workers']} workers: {rec['sequences_per_second']} sequences/s"
+    )
     return 0
 
 

@@ -22,8 +22,9 @@ from panda_grasp_env.model.scene import DEFAULT_COLOURS
 from panda_grasp_env.tooling.runs import atomic_path, resume_summary
 
 #: Colours of the class maps in strips: background, then the blocks' own colours in the scene's order (up to 8).
-PALETTE = np.array([[235, 235, 230], *(np.round(255 * np.array(rgb)) for rgb in DEFAULT_COLOURS.values())],
-                   dtype=np.uint8)  # fmt: skip
+PALETTE = np.array(
+    [[235, 235, 230], *(np.round(255 * np.array(rgb)) for rgb in DEFAULT_COLOURS.values())], dtype=np.uint8
+)
 
 
 def label_image(labels: np.ndarray, scale: int = 2) -> np.ndarray:
@@ -60,8 +61,10 @@ def plot_fall_curve(run_dir: Path) -> None:
 
     rows = [json.loads(line) for line in (run_dir / "evaluations.jsonl").read_text().splitlines() if line.strip()]
     figure, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
-    for axis, x, label in ((axes[0], [r["epoch"] for r in rows], "epoch"),
-                           (axes[1], [r["wall_seconds"] / 60 for r in rows], "wall time, minutes")):  # fmt: skip
+    for axis, x, label in (
+        (axes[0], [r["epoch"] for r in rows], "epoch"),
+        (axes[1], [r["wall_seconds"] / 60 for r in rows], "wall time, minutes"),
+    ):
         for horizon in ("t+1", "t+5"):
             axis.plot(
                 x, [r["val"][horizon]["mean_block_iou"] for r in rows], marker="o", label=f"mean block IoU {horizon}"
@@ -97,8 +100,10 @@ def direction_rows(direction: dict[str, Any]) -> list[str]:
             r = group["predictors"][name]
             within = "n/a" if r["within_45"] is None else f"**{r['within_45']:.3f}**"
             median = "n/a" if r["median_error_deg"] is None else f"{r['median_error_deg']:.1f}°"
-            rows.append(f"| {name} | {label} | {group['did_not_fall']} | {group['fell']} | {group['hidden']} | "
-                        f"{group['scored']} | {within} | {median} | {r['no_direction']} |")  # fmt: skip
+            rows.append(
+                f"| {name} | {label} | {group['did_not_fall']} | {group['fell']} | {group['hidden']} | "
+                f"{group['scored']} | {within} | {median} | {r['no_direction']} |"
+            )
     return rows
 
 
@@ -111,8 +116,10 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
         for horizon in ("t+1", "t+5"):
             r = m[name][horizon]
             iou = ", ".join(f"{k} {v:.3f}" for k, v in r["iou"].items())
-            rows.append(f"| {name} | {horizon} | {r['pixel_accuracy']:.4f} | {r['foreground_accuracy']:.4f} | "
-                        f"**{r['mean_block_iou']:.4f}** | {iou} |")  # fmt: skip
+            rows.append(
+                f"| {name} | {horizon} | {r['pixel_accuracy']:.4f} | {r['foreground_accuracy']:.4f} | "
+                f"**{r['mean_block_iou']:.4f}** | {iou} |"
+            )
     return "\n".join(
         [
             f"# {config.name}",
@@ -177,9 +184,18 @@ def ship_fall_run(run_dir: Path, name: str, strips: int = 5) -> Path:
     staging = FALL_CHECKPOINTS / f".{name}.tmp"
     shutil.rmtree(staging, ignore_errors=True)
     (staging / "strips").mkdir(parents=True)
-    torch.save({"model": model.state_dict(), "model_args": model.describe(), "classes": saved["classes"],
-                "architecture": ARCHITECTURE, "epoch": saved["epoch"], "frame_interval": saved["frame_interval"],
-                "label_source": saved["label_source"]}, staging / "model.pt")  # fmt: skip
+    torch.save(
+        {
+            "model": model.state_dict(),
+            "model_args": model.describe(),
+            "classes": saved["classes"],
+            "architecture": ARCHITECTURE,
+            "epoch": saved["epoch"],
+            "frame_interval": saved["frame_interval"],
+            "label_source": saved["label_source"],
+        },
+        staging / "model.pt",
+    )
     for f in ("final.json", "card.md", "curve.png", "config.yaml", "meta.json", "evaluations.jsonl"):
         shutil.copy2(run_dir / f, staging / f)
     for strip in sorted((run_dir / "strips").glob("*.png"))[:strips]:

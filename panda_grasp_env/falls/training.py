@@ -121,8 +121,11 @@ def train_fall_model(
         epoch, wall_before, best = saved["epoch"], saved["wall_seconds"], saved["best"]
         unvalidated_loss = saved.get("unvalidated_loss")
     check_compatible(model, train.labels, train.classes, train.depth)
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.epochs, last_epoch=epoch - 1) if epoch else \
-        torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.epochs)  # fmt: skip
+    schedule = (
+        torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.epochs, last_epoch=epoch - 1)
+        if epoch
+        else torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.epochs)
+    )
     writer = SummaryWriter(str(run_dir / "tb"))
     batches = max(1, len(train.labels) // config.batch_size)
     window = config.context + config.rollout
@@ -133,16 +136,34 @@ def train_fall_model(
 
     def checkpoint(path: Path) -> None:
         with atomic_path(path) as tmp:
-            torch.save({"model": model.state_dict(), "model_args": model.describe(), "classes": train.classes,
-                        "architecture": ARCHITECTURE,
-                        "optimiser": optimiser.state_dict(), "torch_rng": torch.get_rng_state(),
-                        "numpy_rng": rng.bit_generator.state, "epoch": epoch, "wall_seconds": wall(), "best": best,
-                        "unvalidated_loss": unvalidated_loss,
-                        "frame_interval": train.frame_interval, "label_source": config.label_source}, tmp)  # fmt: skip
+            torch.save(
+                {
+                    "model": model.state_dict(),
+                    "model_args": model.describe(),
+                    "classes": train.classes,
+                    "architecture": ARCHITECTURE,
+                    "optimiser": optimiser.state_dict(),
+                    "torch_rng": torch.get_rng_state(),
+                    "numpy_rng": rng.bit_generator.state,
+                    "epoch": epoch,
+                    "wall_seconds": wall(),
+                    "best": best,
+                    "unvalidated_loss": unvalidated_loss,
+                    "frame_interval": train.frame_interval,
+                    "label_source": config.label_source,
+                },
+                tmp,
+            )
         sign_run_files(run_dir, [path.name])
 
-    bar = tqdm(total=config.epochs * batches, initial=epoch * batches, unit="batch", disable=not progress_bar,
-               desc=config.name, mininterval=5.0)  # fmt: skip
+    bar = tqdm(
+        total=config.epochs * batches,
+        initial=epoch * batches,
+        unit="batch",
+        disable=not progress_bar,
+        desc=config.name,
+        mininterval=5.0,
+    )
 
     def validate(loss: float) -> None:
         """Score the model on validation after ``epoch``: evaluations.jsonl, TensorBoard, best.pt, latest.pt."""

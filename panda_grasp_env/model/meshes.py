@@ -170,8 +170,12 @@ def _merged(parts: list[MeshPart], count: int) -> list[MeshPart]:
     for label in np.unique(labels):
         members = [part for part, own in zip(parts, labels) if own == label]
         offsets = np.cumsum([0] + [len(part.vertices) for part in members[:-1]])
-        merged.append(MeshPart(np.concatenate([part.vertices for part in members]),
-                               np.concatenate([part.faces + offset for part, offset in zip(members, offsets)])))  # fmt: skip
+        merged.append(
+            MeshPart(
+                np.concatenate([part.vertices for part in members]),
+                np.concatenate([part.faces + offset for part, offset in zip(members, offsets)]),
+            )
+        )
     return merged
 
 

@@ -301,8 +301,11 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
         face.name = f"{finger}_push_face"
         face.type = mujoco.mjtGeom.mjGEOM_BOX
         face.size = list(PUSH_FACE_HALF_SIZE)
-        face.pos = [0.0, PUSH_FACE_CENTRE[1] if finger.startswith("panda0_left") else -PUSH_FACE_CENTRE[1],
-                    PUSH_FACE_CENTRE[2]]  # fmt: skip
+        face.pos = [
+            0.0,
+            PUSH_FACE_CENTRE[1] if finger.startswith("panda0_left") else -PUSH_FACE_CENTRE[1],
+            PUSH_FACE_CENTRE[2],
+        ]
         face.contype, face.conaffinity = 1, 0
         face.friction = [1.0, config.block_friction[1], config.block_friction[2]]  # not the finger class's 0.5 m
         face.rgba = [0.2, 0.2, 0.2, 1.0]

@@ -137,8 +137,9 @@ def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
         reason = "dropped"
     if reason != "ok":
         cell.actuate_gripper(close=False, timeout=0.4)
-    return PrimitiveResult("grasp", reason == "ok", reason, object=cell.name_of(body),
-                           targets=_body_ids(aimed if body is None else body))  # fmt: skip
+    return PrimitiveResult(
+        "grasp", reason == "ok", reason, object=cell.name_of(body), targets=_body_ids(aimed if body is None else body)
+    )
 
 
 @_timed
@@ -229,10 +230,21 @@ def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: flo
                 # Quickly down to where the hand still clears everything around the start, then slowly.
                 clear = max(cell.motion.clear_height_near(x, y), z + PUSH_SLOW_DESCENT)
                 if clear < cell.robot.ee_position[2]:
-                    cell.motion.move_to(np.array([x, y, clear]), grip_yaw, settle_timeout=0.1, tolerance=0.02,
-                                 stop_when=lambda: bool(struck))  # fmt: skip
-                down = cell.motion.move_to(start, grip_yaw, speed=SLOW_SPEED, settle_timeout=0.3, tolerance=0.01,
-                                    stop_when=lambda: bool(struck))  # fmt: skip
+                    cell.motion.move_to(
+                        np.array([x, y, clear]),
+                        grip_yaw,
+                        settle_timeout=0.1,
+                        tolerance=0.02,
+                        stop_when=lambda: bool(struck),
+                    )
+                down = cell.motion.move_to(
+                    start,
+                    grip_yaw,
+                    speed=SLOW_SPEED,
+                    settle_timeout=0.3,
+                    tolerance=0.01,
+                    stop_when=lambda: bool(struck),
+                )
                 if struck or not down.reached:
                     reason = "collision"
                 else:
@@ -240,8 +252,13 @@ def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: flo
                     strays = lambda: bool(struck - on_line or record.fixture_collisions)  # noqa: E731
                     _stroke(cell, end, grip_yaw, strays)
                     reason = "collision" if strays() else "ok" if struck else "no_contact"
-                    cell.motion.move_to(cell.robot.ee_position - PUSH_BACK_OFF * along, grip_yaw, speed=SLOW_SPEED,
-                                 settle_timeout=0.1, tolerance=0.005)  # fmt: skip
+                    cell.motion.move_to(
+                        cell.robot.ee_position - PUSH_BACK_OFF * along,
+                        grip_yaw,
+                        speed=SLOW_SPEED,
+                        settle_timeout=0.1,
+                        tolerance=0.005,
+                    )
                 cell.motion.rise()
             targets = cell.collateral.pile(struck & on_line)
     cell.motion.move_home()
@@ -256,8 +273,14 @@ def _stroke(cell: Workcell, end: np.ndarray, grip_yaw: float, stop_when: Callabl
     times; the stroke stops at once when ``stop_when()`` is true."""
     goal = end.copy()
     for _ in range(1 + PUSH_END_CORRECTIONS):
-        cell.motion.move_to(goal, grip_yaw, speed=SLOW_SPEED, settle_timeout=PUSH_END_SETTLE, tolerance=PUSH_END_TOLERANCE,
-                     stop_when=stop_when)  # fmt: skip
+        cell.motion.move_to(
+            goal,
+            grip_yaw,
+            speed=SLOW_SPEED,
+            settle_timeout=PUSH_END_SETTLE,
+            tolerance=PUSH_END_TOLERANCE,
+            stop_when=stop_when,
+        )
         short = (end - cell.robot.ee_position)[:2]
         if stop_when() or np.linalg.norm(short) <= PUSH_END_TOLERANCE:
             return

@@ -124,9 +124,13 @@ def _primitive_bounds(geom_type: int, size: Sequence[float]) -> tuple[np.ndarray
     cylinder or ellipsoid of ``size`` (metres: as many as the type uses), or None for another type or a bad
     size."""
     values = np.asarray(size, dtype=float).ravel()
-    used = {int(mujoco.mjtGeom.mjGEOM_BOX): 3, int(mujoco.mjtGeom.mjGEOM_ELLIPSOID): 3,
-            int(mujoco.mjtGeom.mjGEOM_SPHERE): 1, int(mujoco.mjtGeom.mjGEOM_CAPSULE): 2,
-            int(mujoco.mjtGeom.mjGEOM_CYLINDER): 2}.get(geom_type)  # fmt: skip
+    used = {
+        int(mujoco.mjtGeom.mjGEOM_BOX): 3,
+        int(mujoco.mjtGeom.mjGEOM_ELLIPSOID): 3,
+        int(mujoco.mjtGeom.mjGEOM_SPHERE): 1,
+        int(mujoco.mjtGeom.mjGEOM_CAPSULE): 2,
+        int(mujoco.mjtGeom.mjGEOM_CYLINDER): 2,
+    }.get(geom_type)
     if used is None or values.size != used or not np.all(np.isfinite(values) & (values > 0)):
         return None
     full = np.zeros(3)

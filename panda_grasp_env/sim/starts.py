@@ -33,8 +33,14 @@ def ready_position(cell: Workcell) -> np.ndarray:
     return np.array([*READY_XY, max(READY_MIN_HEIGHT, tallest + READY_CLEARANCE)])
 
 
-def start_in_hand(cell: Workcell, body: int, ready: np.ndarray, rng: np.random.Generator, bounds: np.ndarray,
-                  goal: Callable[[], np.ndarray]) -> bool:  # fmt: skip
+def start_in_hand(
+    cell: Workcell,
+    body: int,
+    ready: np.ndarray,
+    rng: np.random.Generator,
+    bounds: np.ndarray,
+    goal: Callable[[], np.ndarray],
+) -> bool:
     """Close the fingers on ``body`` where it lies (grasp site at its centre, the low-level heading) and
     restart the clock.  If the open hand put there touches it (too wide for the fingers at this heading)
     or closing does not hold it, put the object and the hand back (the hand at ``ready``, open) and
@@ -55,8 +61,14 @@ def start_in_hand(cell: Workcell, body: int, ready: np.ndarray, rng: np.random.G
     return held
 
 
-def start_above_object(cell: Workcell, body: int, ready: np.ndarray, rng: np.random.Generator, bounds: np.ndarray,
-                       goal: Callable[[], np.ndarray]) -> bool:  # fmt: skip
+def start_above_object(
+    cell: Workcell,
+    body: int,
+    ready: np.ndarray,
+    rng: np.random.Generator,
+    bounds: np.ndarray,
+    goal: Callable[[], np.ndarray],
+) -> bool:
     """Put the open hand straight above ``body``, the grasp site anywhere (uniform) from the object's centre
     up to the height of ``ready``; if it touches the object there, back to ``ready`` and return False."""
     position = cell.data.xpos[body]
@@ -68,8 +80,14 @@ def start_above_object(cell: Workcell, body: int, ready: np.ndarray, rng: np.ran
     return True
 
 
-def start_behind_object(cell: Workcell, body: int, ready: np.ndarray, rng: np.random.Generator, bounds: np.ndarray,
-                        goal: Callable[[], np.ndarray]) -> bool:  # fmt: skip
+def start_behind_object(
+    cell: Workcell,
+    body: int,
+    ready: np.ndarray,
+    rng: np.random.Generator,
+    bounds: np.ndarray,
+    goal: Callable[[], np.ndarray],
+) -> bool:
     """Put the hand at ``body``'s height on the far side from ``goal()`` (the task's desired goal): first the
     nearest grasp-site distance (1 cm steps out from the object's bounding radius) at which it does not
     touch the object, then 0-10 cm (uniform) further back.  If no such place is found within 8 cm, or the
@@ -103,8 +121,14 @@ def start_behind_object(cell: Workcell, body: int, ready: np.ndarray, rng: np.ra
 STARTS = {"in_hand": start_in_hand, "above_object": start_above_object, "behind_object": start_behind_object}
 
 
-def start_hand(cell: Workcell, curriculum: dict[str, float], start_object: Callable[[Workcell], int],
-               rng: np.random.Generator, bounds: np.ndarray, goal: Callable[[], np.ndarray]) -> str:  # fmt: skip
+def start_hand(
+    cell: Workcell,
+    curriculum: dict[str, float],
+    start_object: Callable[[Workcell], int],
+    rng: np.random.Generator,
+    bounds: np.ndarray,
+    goal: Callable[[], np.ndarray],
+) -> str:
     """Put the hand where a low-level episode starts: at ``ready_position``, pointing down at ``HOME_YAW``;
     then, with a ``curriculum`` (start state -> probability; the rest: ``ready``), one draw of a start state
     relative to the task's start object (``start_object(cell)``).  Returns the state the episode starts in,

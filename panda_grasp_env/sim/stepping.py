@@ -94,8 +94,10 @@ class Physics(Generic[Cell]):
             raise PhysicsError("simulation diverged (MuJoCo reported bad qpos/qvel/qacc)")
         fastest = float(body_speeds(self.data, self.object_ids).max(initial=0.0))
         if fastest > self.max_object_speed:
-            raise PhysicsError(f"the contact solver threw an object at {fastest:.1f} m/s "
-                               f"(no object here moves faster than {self.max_object_speed:g} m/s)")  # fmt: skip
+            raise PhysicsError(
+                f"the contact solver threw an object at {fastest:.1f} m/s "
+                f"(no object here moves faster than {self.max_object_speed:g} m/s)"
+            )
         for observer in self._observers:
             observer(self.cell)
 

@@ -77,7 +77,7 @@ class Workcell:
                 model.geom_solref[g].copy(),
                 model.geom_solimp[g].copy(),
                 int(model.geom_priority[g]),
-            )  # fmt: skip
+            )
             for b in self.object_ids
             for g in range(model.body_geomadr[b], model.body_geomadr[b] + model.body_geomnum[b])
         }

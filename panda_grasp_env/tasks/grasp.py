@@ -160,8 +160,12 @@ class Grasp(Task):
         if objects is None:
             specs = [shorthand_spec(shapes, size_ranges)]
         else:
-            check_option("objects", objects, isinstance(objects, (list, tuple)) and len(objects) > 0,
-                         "a non-empty list of object specs")  # fmt: skip
+            check_option(
+                "objects",
+                objects,
+                isinstance(objects, (list, tuple)) and len(objects) > 0,
+                "a non-empty list of object specs",
+            )
             if shapes is not None or size_ranges is not None:
                 raise ValueError(
                     "task options shapes and size_ranges are shorthands for objects: give one or the other"
@@ -252,7 +256,7 @@ class Grasp(Task):
                 "rgb": tuple(o.rgb),
                 "lying": o.is_lying,
                 **({"mesh": o.mesh} if o.kind == "mesh" else {}),
-            }  # fmt: skip
+            }
             for o in shapes
         ]
         extra = {} if laid_out.name is None else {"layout": laid_out.name}
@@ -270,7 +274,7 @@ class Grasp(Task):
                 o.mass_and_inertia()[0],
                 TABLE_FRICTION if o.friction is None else o.friction,
                 float(o.is_lying),
-            ]  # fmt: skip
+            ]
             for o in self.drawn
         ]
         return np.asarray(rows, dtype=np.float32).ravel()

@@ -61,9 +61,7 @@ def _rows_of_long_boxes(count: int, yaw: float = 0.0) -> tuple[Placement, ...]:
     """``count`` long boxes side by side (long sides touching) across the direction ``yaw``."""
     pitch = 2 * LONG_BOX[1][1] + GAP
     across = np.array([-math.sin(yaw), math.cos(yaw)])
-    return tuple(
-        Placement(*LONG_BOX, *((k - (count - 1) / 2) * pitch * across), yaw) for k in range(count)
-    )  # fmt: skip
+    return tuple(Placement(*LONG_BOX, *((k - (count - 1) / 2) * pitch * across), yaw) for k in range(count))
 
 
 def _walled_column(count: int) -> tuple[Placement, ...]:
@@ -102,7 +100,7 @@ ADVERSARIAL_LAYOUTS: dict[str, tuple[Placement, ...]] = {
             Placement(*LONG_BOX, (k - 0.5) * (2 * LONG_BOX[1][0] + GAP), -(CUBE[1][0] + GAP + LONG_BOX[1][1]))
             for k in range(2)
         ),
-    ),  # fmt: skip
+    ),
 }
 #: Objects in the largest layout: the scene's object slots.
 MAX_OBJECTS = max(max(len(layout) for layout in ADVERSARIAL_LAYOUTS.values()), 10)

@@ -15,10 +15,10 @@ import subprocess
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import Any, TypeVar
 
 import yaml
-from pydantic import Field, StrictInt, TypeAdapter, ValidationError
+from pydantic import TypeAdapter, ValidationError
 
 Config = TypeVar("Config")
 
@@ -242,20 +242,6 @@ def check_run_files(run_dir: Path, names: list[str]) -> None:
 def config_value_error(key: str, value: Any, expected: str) -> ValueError:
     """The error of a config key's bad value: ``config <key>=<value>: expected <what it takes>``."""
     return ValueError(f"config {key}={value!r}: expected {expected}")
-
-
-#: Field types the checked configs share (``checked_config``): a count (of steps, episodes, frames, threads,
-#: ...), and a seed (the first of a run of seeds).
-Count = Annotated[StrictInt, Field(ge=1, description="an int >= 1")]
-Seed = Annotated[StrictInt, Field(ge=0, description="an int >= 0")]
-Items = TypeVar("Items", bound=Sequence[Any])
-
-
-def distinct(values: Items) -> Items:
-    """A config field's ``values`` if none repeats; else ``ValueError`` (a pydantic ``AfterValidator``)."""
-    if len(set(values)) < len(values):
-        raise ValueError(f"values that do not repeat, not {list(values)}")
-    return values
 
 
 #: A number in exponent form (``3e-4``), which YAML 1.1 reads as a string.
