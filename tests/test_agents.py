@@ -206,6 +206,7 @@ def written(agent: TowerBuilderAgent, action: np.ndarray, primitive: str, x: flo
     return bool(np.allclose(action[:4], expected[:4], atol=1e-6))
 
 
+@pytest.mark.unit
 def test_the_builder_takes_the_block_nearest_where_the_base_was_as_the_base_when_the_base_is_not_seen():
     """A broken tower's touching row of blocks can hand the base's name to another block (BuildAndBreak seed
     6300001 looped 931 actions on it): the block seen nearest the base's last place becomes the base."""
@@ -218,6 +219,7 @@ def test_the_builder_takes_the_block_nearest_where_the_base_was_as_the_base_when
     assert agent.failures["no_candidate"] == 0
 
 
+@pytest.mark.unit
 def test_the_builder_takes_the_top_block_off_a_tower_the_env_has_not_called_built_after_one_wait():
     agent, perceiver, info = scripted_builder()
     size = info["block_size"]

@@ -88,6 +88,7 @@ def test_a_pickled_policy_zip_is_refused_unless_trusted(shipped, marker):
         learned.Checkpoint(shipped).load_policy()
 
 
+@pytest.mark.unit
 def test_a_class_name_outside_the_allow_list_is_never_imported(shipped, tmp_path, marker, monkeypatch):
     module = tmp_path / "payload_module.py"
     module.write_text(f"open({str(marker)!r}, 'w')\nclass Evil: pass\n")
@@ -110,6 +111,7 @@ def test_a_class_name_outside_the_allow_list_is_never_imported(shipped, tmp_path
     assert "payload_module" not in sys.modules
 
 
+@pytest.mark.unit
 def test_evaluate_refuses_a_payload_checkpoint_with_one_error_line(shipped, tmp_path, marker, capsys):
     pickled_checkpoint(shipped, marker)
     argv = ["--agents", "tiny", "--tasks", "Grasp", "--seeds", "1", "--no-video", "--out", str(tmp_path / "out")]
@@ -118,6 +120,7 @@ def test_evaluate_refuses_a_payload_checkpoint_with_one_error_line(shipped, tmp_
     assert err.startswith("error:") and "policy.zip is an SB3 pickle" in err and "Traceback" not in err
 
 
+@pytest.mark.unit
 def test_init_policy_refuses_a_payload_checkpoint(shipped, tmp_path, marker, capsys):
     from tests.test_train_config import CONFIGS
     from tests.test_training import TINY_DQN
@@ -130,6 +133,7 @@ def test_init_policy_refuses_a_payload_checkpoint(shipped, tmp_path, marker, cap
     assert not runs.exists() or not any(runs.iterdir())
 
 
+@pytest.mark.unit
 def test_retest_refuses_a_run_whose_best_policy_is_a_pickle(tiny_run, tmp_path, marker, capsys):
     run = tmp_path / "run"
     shutil.copytree(tiny_run, run)
@@ -142,6 +146,7 @@ def test_retest_refuses_a_run_whose_best_policy_is_a_pickle(tiny_run, tmp_path, 
     assert err.startswith("error: cannot load the best policy of") and "best_policy.json" in err
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("name", ["replay.pkl", "latest.zip"])
 def test_resume_loads_only_the_pickles_this_users_job_signed_in_that_folder(tiny_run, tmp_path, marker, capsys, name):
     run = tmp_path / "run"
@@ -158,6 +163,7 @@ def test_resume_loads_only_the_pickles_this_users_job_signed_in_that_folder(tiny
     assert json.loads((run / "progress.json").read_text())["steps"] == 6  # nothing trained
 
 
+@pytest.mark.unit
 def test_the_fall_model_loader_refuses_a_payload(tmp_path, marker):
     from panda_grasp_env.falls.model import load_fall_model
 
@@ -166,6 +172,7 @@ def test_the_fall_model_loader_refuses_a_payload(tmp_path, marker):
         load_fall_model(tmp_path / "model.pt")
 
 
+@pytest.mark.unit
 def test_policy_files_round_trip_with_identical_actions(shipped, tmp_path):
     policy = learned.Checkpoint("tiny").load_policy()
     save_policy(policy, tmp_path / "again")
@@ -185,6 +192,7 @@ def test_policy_files_round_trip_with_identical_actions(shipped, tmp_path):
         load_policy(tmp_path / "again")
 
 
+@pytest.mark.unit
 def test_policy_files_name_the_heightmap_policy_by_a_name_its_module_can_move_under():
     """Shipped files name the policy class as it was first saved; moving its module renames nothing in them."""
     from panda_grasp_env.agents.learning.heightmap_policy import HeightmapQPolicy
@@ -200,6 +208,7 @@ def test_policy_files_name_the_heightmap_policy_by_a_name_its_module_can_move_un
     assert heightmap in named and not heightmap.startswith(HeightmapQPolicy.__module__)
 
 
+@pytest.mark.unit
 def test_a_policy_with_one_feature_extractor_for_actor_and_critics_round_trips(tmp_path):
     """SB3's SAC / TQC policies leave ``share_features_extractor`` out of their constructor arguments; a policy
     file keeps it, or the critics would be rebuilt with their own extractors and the weights would not fit."""
@@ -226,6 +235,7 @@ def test_a_policy_with_one_feature_extractor_for_actor_and_critics_round_trips(t
     )
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "space",
     [
@@ -241,6 +251,7 @@ def test_spaces_round_trip_through_json(space):
     assert space_from_json(json.loads(json.dumps(space_to_json(space)))) == space
 
 
+@pytest.mark.unit
 def test_unknown_space_descriptions_are_refused():
     with pytest.raises(ValueError, match="unknown space kind 'Graph'"):
         space_from_json({"Graph": {}})
@@ -263,6 +274,7 @@ def key_path(tmp_path):
     return tmp_path / "state" / "panda_grasp_env" / "run_key"
 
 
+@pytest.mark.unit
 def test_the_signing_key_is_made_private_and_then_reused(key_home, tmp_path):
     key = key_home.run_key()
     path = key_path(tmp_path)
@@ -270,6 +282,7 @@ def test_the_signing_key_is_made_private_and_then_reused(key_home, tmp_path):
     assert key_home.run_key() == key
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "flaw", ["world-readable", "group-readable", "empty", "short", "long", "symlink", "dangling symlink", "directory"]
 )
@@ -309,6 +322,7 @@ def test_a_signing_key_others_could_know_is_refused_with_the_mend(key_home, tmp_
         sign_run_files(tmp_path / "run", ["latest.zip"])
 
 
+@pytest.mark.unit
 def test_a_signing_key_of_another_user_is_refused(key_home, tmp_path, monkeypatch):
     import os
 
@@ -379,6 +393,7 @@ BOUNDS = {
 }
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("bound", list(BOUNDS))
 def test_policy_files_beyond_a_bound_are_refused_naming_the_file_and_the_field(sac_folder, bound):
     change, message = BOUNDS[bound]
@@ -388,6 +403,7 @@ def test_policy_files_beyond_a_bound_are_refused_naming_the_file_and_the_field(s
     assert str(sac_folder / "policy.json") in str(refused.value)
 
 
+@pytest.mark.unit
 def test_weights_beyond_the_size_limit_are_refused_before_they_are_read(sac_folder, monkeypatch):
     from panda_grasp_env.agents.learning import policy_files
 
@@ -396,6 +412,7 @@ def test_weights_beyond_the_size_limit_are_refused_before_they_are_read(sac_fold
         learned.LearnedAgent(sac_folder)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     ("name", "text", "message"),
     [

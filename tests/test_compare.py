@@ -96,6 +96,7 @@ def test_a_weakened_agent_is_worse_and_no_other(tmp_path, capsys):
     assert "1 better, 0 worse" in verdicts(capsys, b, a, "--out", tmp_path / "d.html")
 
 
+@pytest.mark.unit
 def test_mismatched_seeds_are_refused(tmp_path, capsys):
     a, b = write_run(tmp_path / "a", 1), write_run(tmp_path / "b", 1, seeds=range(100, 140))
     assert evaluate.main(["compare", str(a), str(b)]) == 2
@@ -113,12 +114,14 @@ def test_other_versions_are_warned_about_loudly(tmp_path, capsys):
     assert "mujoco 4.0.0 -&gt; 3.17.0" in (b / "compare.html").read_text()
 
 
+@pytest.mark.unit
 def test_a_folder_without_results_is_an_error(tmp_path, capsys):
     a = write_run(tmp_path / "a", 1)
     assert evaluate.main(["compare", str(a), str(tmp_path)]) == 2
     assert "not a finished evaluate.py results folder" in capsys.readouterr().err
 
 
+@pytest.mark.unit
 def test_corrections_and_tests():
     p = [0.01, 0.04, 0.03, 0.5]
     assert compare.adjust(p, "holm") == pytest.approx([0.04, 0.09, 0.09, 0.5])

@@ -93,6 +93,7 @@ def test_image_observations_are_recorded_and_replay_when_lossless(tmp_path):
     assert demonstrations.replay(dataset)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "argv",
     [
@@ -158,6 +159,7 @@ def test_replay_never_builds_the_env_a_datasets_entry_point_names(push_dataset, 
     assert demonstrations.replay(datasets.open_dataset(push_dataset))
 
 
+@pytest.mark.unit
 def test_a_dataset_without_its_spaces_is_refused_before_minari_would_build_its_env(push_dataset, tmp_path):
     from panda_grasp_env.agents.learning import datasets
 

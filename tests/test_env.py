@@ -152,6 +152,7 @@ def push_env():
     env.close()
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "action, message",
     [
@@ -167,11 +168,13 @@ def test_bad_actions_raise_naming_the_problem(push_env, action, message):
         push_env.step(action)
 
 
+@pytest.mark.unit
 def test_out_of_range_actions_are_clipped_and_counted(push_env):
     _, _, _, _, info = push_env.step(np.array([3.0, -2.0, 0.5, 0.0]))
     assert info["actions_clipped"] == 2 and info["actions_clipped_total"] >= 2
 
 
+@pytest.mark.unit
 def test_block_gripper_pushes_with_closed_fingers_and_a_three_value_action():
     env = make("PandaPush-v0", block_gripper=True)
     env.reset(seed=0)
@@ -184,6 +187,7 @@ def test_block_gripper_pushes_with_closed_fingers_and_a_three_value_action():
     env.close()
 
 
+@pytest.mark.unit
 def test_a_zero_height_action_holds_the_height_while_the_hand_moves_fast():
     env = make("PandaPush-v0", block_gripper=True)
     env.reset(seed=0)
@@ -194,6 +198,7 @@ def test_a_zero_height_action_holds_the_height_while_the_hand_moves_fast():
     env.close()
 
 
+@pytest.mark.unit
 def test_pixel_mode_publishes_its_action_layout():
     from panda_grasp_env.agents.policies.base import PrimitiveActionWriter
 
@@ -256,6 +261,7 @@ def test_factored_pixel_mode_is_the_pixel_mode_per_dimension():
     factored.close()
 
 
+@pytest.mark.unit
 def test_bad_pixel_actions_raise():
     env = make("PandaTowerBreak-v0", action_mode="pixel")
     env.reset(seed=0)
@@ -265,6 +271,7 @@ def test_bad_pixel_actions_raise():
     env.close()
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "kwargs, message",
     [
@@ -313,6 +320,7 @@ def test_bad_options_raise_at_make(kwargs, message):
         gym.make("panda_grasp_env:PandaTowerBuild-v0", **kwargs)
 
 
+@pytest.mark.unit
 def test_reset_options_must_be_a_mapping():
     env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
     with pytest.raises(ValueError, match="reset options must be a dict or None, got int"):
@@ -322,6 +330,7 @@ def test_reset_options_must_be_a_mapping():
     env.close()
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "env_id, kwargs",
     [
@@ -345,6 +354,7 @@ def test_task_options_of_the_wrong_type_raise_value_errors_naming_them(env_id, k
         gym.make(f"panda_grasp_env:{env_id}", **kwargs)
 
 
+@pytest.mark.unit
 def test_an_object_thrown_faster_than_anything_here_moves_is_a_physics_error():
     from panda_grasp_env.sim.stepping import MAX_OBJECT_SPEED
 
@@ -400,6 +410,7 @@ def test_an_open_hand_does_not_carry_objects_home(soften_finger_limits):
     assert lost == {"soft": 2, "as built": 0}
 
 
+@pytest.mark.unit
 def test_physics_divergence_truncates_and_reset_recovers():
     env = make("PandaPush-v0")
     env.reset(seed=0)
@@ -432,6 +443,7 @@ def test_render_check_passes_without_a_display(monkeypatch, env_id):
     env.close()
 
 
+@pytest.mark.unit
 def test_fuzzed_env_options_raise_value_errors_naming_them():
     # Every env option against values of the wrong type, size or range: a ValueError that names the option,
     # raised before anything is allocated (the process's peak memory stays under 1 GB more).
@@ -475,6 +487,7 @@ def test_fuzzed_env_options_raise_value_errors_naming_them():
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak < 1024**2
 
 
+@pytest.mark.unit
 def test_the_scene_does_not_repeat_the_draws_of_an_action_space_seeded_alike():
     # Gymnasium seeds ``reset(seed=s)`` and ``action_space.seed(s)`` from the same SeedSequence(s): a layout
     # drawn from the env generator's first draws put the tower where a random agent's first push aimed.
@@ -513,6 +526,7 @@ def test_a_random_agent_seeded_the_usual_way_rarely_breaks_the_tower():
     assert broken <= 10  # 25 %: the correlated streams' 42 % is far out
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("env_id", ["PandaTowerBuild-v0", "PandaPush-v0"])
 def test_human_rendering_through_gym_make_without_a_display_is_the_documented_value_error(monkeypatch, env_id):
     """gymnasium.make wraps an env whose class lacks "human" in Gymnasium's pygame HumanRendering, which failed
@@ -523,6 +537,7 @@ def test_human_rendering_through_gym_make_without_a_display_is_the_documented_va
         gym.make(f"panda_grasp_env:{env_id}", render_mode="human")
 
 
+@pytest.mark.unit
 def test_human_rendering_through_gym_make_with_a_display_is_the_mujoco_viewer(monkeypatch):
     from gymnasium.wrappers import HumanRendering
 

@@ -69,6 +69,7 @@ def test_a_local_ray_instance_gives_the_same_results(tmp_path):
     assert (local / "results.json").read_text() == (on_ray / "results.json").read_text()
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("bad", [["--agents", "genius"], ["--tasks", "Juggle"], ["--workers", "0"]])
 def test_bad_arguments_exit_with_a_message(bad, capsys):
     with pytest.raises(SystemExit):
@@ -76,6 +77,7 @@ def test_bad_arguments_exit_with_a_message(bad, capsys):
     assert "error" in capsys.readouterr().err
 
 
+@pytest.mark.unit
 def test_figures_that_do_not_apply_are_left_blank():
     none_attempted = {
         "grasp_success": {"rate": 0.0, "n": 0},
@@ -99,6 +101,7 @@ def test_figures_that_do_not_apply_are_left_blank():
     assert applicable("BuildAndBreak", grasped)["cycles_per_sim_hour"] == 0.0
 
 
+@pytest.mark.unit
 def test_a_diverged_step_keeps_the_cycles_the_episode_completed():
     import gymnasium as gym
     import numpy as np
@@ -131,6 +134,7 @@ def test_a_fresh_run_keeps_the_previous_runs_episodes(tmp_path):
     assert len((out / "episodes.jsonl").read_text().splitlines()) == len(first.splitlines())
 
 
+@pytest.mark.unit
 def test_grasp_success_interval_widens_when_an_episodes_grasps_fail_together():
     from panda_grasp_env.agents.evaluation.metrics import clustered_rate, wilson
 
@@ -143,6 +147,7 @@ def test_grasp_success_interval_widens_when_an_episodes_grasps_fail_together():
     assert clustered_rate([5, 0], [5, 0])["ci95"] == wilson(5, 5)  # one episode with grasps: nothing to cluster
 
 
+@pytest.mark.unit
 def test_random_agent_does_not_replay_the_scene_draws():
     # Seeded with the episode's seed, a bare action space drew the same uniforms as the env's scene generator
     # (its pushes started where the tower was placed) until the scene drew from a spawned child stream.  The
@@ -200,6 +205,7 @@ def test_any_seeds_and_task_options(tmp_path):
     assert protocol.seeds_of("TowerBreak") == [7, 8]
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "bad, message",
     [
@@ -257,6 +263,7 @@ def test_the_default_protocols_cover_every_registered_benchmark(protocol):
         assert {spec.seed for spec in specs if spec.task == task and spec.agent == "random"} == set(range(expected))
 
 
+@pytest.mark.unit
 def test_a_heightmap_policy_plays_the_other_scenes_of_its_task():
     """push_grasp_dqn (trained on packed layouts) plays VPG's random heaps, in the heap env with its own spaces;
     a policy that cannot see or act in another scene of its task is skipped with the reason."""
@@ -342,6 +349,7 @@ def refused(argv, capsys, monkeypatch):
     return code, err
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("where", ["a file", "below a file", "unwritable"])
 def test_a_bad_out_is_one_error_line_before_any_episode(tmp_path, capsys, monkeypatch, where):
     (tmp_path / "file").write_text("x")
@@ -409,6 +417,7 @@ TAMPERINGS = {
 }
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("tampering", list(TAMPERINGS))
 def test_resume_refuses_a_tampered_record_naming_its_line(tmp_path, capsys, monkeypatch, finished_log, tampering):
     change, message = TAMPERINGS[tampering]
@@ -422,6 +431,7 @@ def test_resume_refuses_a_tampered_record_naming_its_line(tmp_path, capsys, monk
     assert not (out / "results.json").exists()
 
 
+@pytest.mark.unit
 def test_negative_seeds_get_the_projects_message(capsys):
     for argv in (["--seed-list", "-1,2"], ["--seed-list", "-5"]):
         with pytest.raises(SystemExit):

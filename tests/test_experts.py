@@ -9,6 +9,8 @@ from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, skip_reason
 from panda_grasp_env.agents.policies.experts import LiftExpert
 from panda_grasp_env.agents.policies.registry import EXPERTS
 
+pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
+
 
 @pytest.mark.parametrize("task", sorted(EXPERTS))
 def test_each_expert_solves_its_task_through_the_benchmark_loop(task):

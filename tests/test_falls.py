@@ -75,6 +75,7 @@ def recorder_settings(**raw):
     return checked_config(RecorderSettings, raw, "test settings")
 
 
+@pytest.mark.unit
 def test_bad_recorder_settings_fail_with_the_name():
     with pytest.raises(ValueError, match=r"config frame_interval=0\.05: expected a multiple of the 0\.04 s"):
         recorder_settings(frame_interval=0.05)
@@ -134,6 +135,7 @@ def test_with_a_start_shift_the_frames_start_once_a_block_left_its_place():
     assert np.linalg.norm(first - envs[8].unwrapped.cell.block_positions(), axis=1).max() >= 0.005
 
 
+@pytest.mark.unit
 def test_a_dataset_recorded_before_tower_heights_loads_as_four_block_towers(dataset, tmp_path):
     from panda_grasp_env.tooling.runs import sha256
 
@@ -148,6 +150,7 @@ def test_a_dataset_recorded_before_tower_heights_loads_as_four_block_towers(data
     assert split.n_blocks.tolist() == [4] * len(split.labels) and split.poses.shape[2] == 4
 
 
+@pytest.mark.unit
 def test_loader_splits_by_sequence_and_names_a_corrupt_shard(dataset, tmp_path):
     train_split = load_split(dataset, "train")
     test_split = load_split(dataset, "test")
@@ -178,6 +181,7 @@ def moving_square(length=8, size=16, step=2):
     return frames
 
 
+@pytest.mark.unit
 def test_baselines_and_metrics_on_a_moving_square():
     frames = moving_square()
     assert np.array_equal(constant_velocity(frames, 3, 2), frames[5])
@@ -207,6 +211,7 @@ def directions(labels, poses, n_blocks, model=None):
     return fall_directions(model, labels, poses, np.array(n_blocks), origins, TOP_DOWN, ["bg", "red"], context=3)
 
 
+@pytest.mark.unit
 def test_fall_direction_scores_a_blob_moving_the_way_the_blocks_went_and_the_opposite_way():
     frames = np.zeros((1, 8, 32, 32), dtype=np.uint8)
     for t in range(8):
@@ -242,6 +247,7 @@ def test_fall_direction_scores_a_blob_moving_the_way_the_blocks_went_and_the_opp
     assert standing["predictors"]["copy_last"] == {"within_45": 0.0, "median_error_deg": 180.0, "no_direction": 1}
 
 
+@pytest.mark.unit
 def test_model_rollout_shapes_and_mismatch_errors():
     model = FallPredictor(n_classes=5, image_size=16, context=2, hidden=8)
     frames = torch.zeros(3, 2, 5, 16, 16)
@@ -300,6 +306,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     assert "latest.pt was not written by this user's job in this folder" in capsys.readouterr().err
 
 
+@pytest.mark.unit
 def test_untrained_model_moves_each_block_by_its_own_velocity_and_displacement_targets_agree():
     from panda_grasp_env.falls.model import FallPredictor, block_displacements, one_hot
 
@@ -318,6 +325,7 @@ def test_untrained_model_moves_each_block_by_its_own_velocity_and_displacement_t
     assert block_displacements(labels[:, 1], labels[:, 2])[1][0].tolist() == [36, 0]
 
 
+@pytest.mark.unit
 def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
     from panda_grasp_env.falls.model import model_inputs
 
@@ -353,6 +361,7 @@ def test_labels_only_model_trains_without_depth(dataset, tmp_path):
     assert train.main(["--config", config, "--runs", str(tmp_path), f"dataset={dataset}", "use_depth=1"]) == 2
 
 
+@pytest.mark.unit
 def test_bad_fall_configs_fail_with_the_name_and_the_shipped_config_loads(dataset, tmp_path):
     raw = {"kind": "fall_dynamics", "name": "tiny", "dataset": str(dataset)}
     assert fall_config(raw, "tiny.yaml").context == 4
@@ -381,6 +390,7 @@ def test_bad_fall_configs_fail_with_the_name_and_the_shipped_config_loads(datase
     assert {**dataclasses.asdict(config), "dataset": saved["dataset"]} == saved
 
 
+@pytest.mark.unit
 def test_the_shipped_fall_model_loads_and_matches_its_card():
     path = fall_records.FALL_CHECKPOINTS / "fall_convlstm"
     model, saved = load_fall_model(path / "model.pt")

@@ -29,6 +29,7 @@ def walled():
     return Workcell(SceneConfig(n_blocks=1, fixtures=box_fixture("wall", "wall_plate", [0.01, 0.1, 0.04])))
 
 
+@pytest.mark.unit
 def test_pushing_into_a_fixture_reports_collision_and_names_it(walled):
     walled.clear()
     walled.fixtures.set_pose("wall", [0.55, 0.0, 0.04])
@@ -39,6 +40,7 @@ def test_pushing_into_a_fixture_reports_collision_and_names_it(walled):
     assert walled.robot.ee_position[0] < 0.5
 
 
+@pytest.mark.unit
 def test_a_push_clear_of_a_moved_fixture_touches_nothing(walled):
     walled.clear()
     walled.fixtures.set_pose("wall", [0.45, 0.25, 0.04], yaw=np.pi / 2)  # along x, beside the stroke
@@ -46,6 +48,7 @@ def test_a_push_clear_of_a_moved_fixture_touches_nothing(walled):
     assert (result.reason, result.work_contacts, result.transit_contacts) == ("no_contact", [], [])
 
 
+@pytest.mark.unit
 def test_a_grasp_on_a_fixture_it_is_aimed_at_is_no_collision(walled):
     walled.clear()
     walled.fixtures.set_pose("wall", [0.5, 0.0, 0.04], yaw=np.pi / 2)  # lying across: 20 cm long, 2 cm deep
@@ -56,6 +59,7 @@ def test_a_grasp_on_a_fixture_it_is_aimed_at_is_no_collision(walled):
     assert result.reason == "ok" and "wall" not in result.transit_contacts
 
 
+@pytest.mark.unit
 def test_fixture_poses_and_sizes_move_rays_heights_and_the_planners_model():
     cell = Workcell(SceneConfig(n_blocks=1, fixtures=box_fixture("crate", "crate_box", [0.05, 0.05, 0.05])))
     planner = MotionPlanner(cell.config)
@@ -75,6 +79,7 @@ def test_fixture_poses_and_sizes_move_rays_heights_and_the_planners_model():
     assert cell.fixtures.below(0.5, -0.2) == "crate" and cell.fixtures.below(0.5, 0.2) is None
 
 
+@pytest.mark.unit
 def test_a_resized_fixture_holds_a_block_where_only_its_new_size_reaches():
     cell = Workcell(SceneConfig(n_blocks=1, fixtures=box_fixture("crate", "crate_box", [0.03, 0.03, 0.03])))
     cell.clear()
@@ -86,6 +91,7 @@ def test_a_resized_fixture_holds_a_block_where_only_its_new_size_reaches():
     assert cell.data.xpos[block][2] == pytest.approx(0.06 + 0.025, abs=0.003)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "call,culprit",
     [

@@ -27,6 +27,7 @@ def recorded() -> dict[str, tuple[np.ndarray, np.ndarray]]:
 DECISIONS = recorded()
 
 
+@pytest.mark.unit
 def test_the_record_covers_every_shipped_heightmap_policy():
     shipped = {name for name in available_checkpoints() if Checkpoint(name).config.algo in HEIGHTMAP_ALGORITHMS}
     assert shipped == set(DECISIONS) and len(shipped) >= 3

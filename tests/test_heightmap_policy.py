@@ -25,6 +25,7 @@ from panda_grasp_env.perception.heightmap import HeightmapGrid
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("yaw", [0.0, 0.7, 2.0, -2.5])
 def test_rotation_brings_a_world_heading_onto_the_image_x_axis(yaw):
     grid = HeightmapGrid(((0.3, 0.7), (-0.2, 0.2), (0.0, 0.3)), 0.01)
@@ -60,6 +61,7 @@ def tiny_policy(primitives=("grasp", "push"), used=("grasp",), rotations=4, rows
     )
 
 
+@pytest.mark.unit
 def test_encoded_heightmap_keeps_millimetres():
     observation, inside = blob_observation(height=0.123)
     assert observation.shape == (4, 40, 40) and observation.dtype == np.uint8
@@ -68,6 +70,7 @@ def test_encoded_heightmap_keeps_millimetres():
         encode_heightmap(np.zeros((40, 40, 3)))
 
 
+@pytest.mark.unit
 def test_directional_command_becomes_heading_planes_the_network_reads():
     env = EncodedHeightmap(
         gym.make(
@@ -119,6 +122,7 @@ def test_directional_command_becomes_heading_planes_the_network_reads():
         )
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("refine", [False, True])
 def test_policy_only_grasps_on_objects_and_scores_one_rotation_like_all(refine):
     th.manual_seed(0)
@@ -139,6 +143,7 @@ def test_policy_only_grasps_on_objects_and_scores_one_rotation_like_all(refine):
         tiny_policy(used=("place",))
 
 
+@pytest.mark.unit
 def test_failure_memory_marks_the_failed_heading_and_a_grasps_half_turn_only():
     observation, _ = blob_observation()
     memory = FailureMemory((2, 4, 40, 40), cell_size=0.01, primitives=("grasp", "push"))
@@ -152,6 +157,7 @@ def test_failure_memory_marks_the_failed_heading_and_a_grasps_half_turn_only():
         FailureMemory((2, 4, 40, 40), cell_size=0.01, primitives=("grasp",))
 
 
+@pytest.mark.unit
 def test_exploration_samples_only_allowed_actions():
     import gymnasium as gym
 
@@ -195,6 +201,7 @@ def test_exploration_samples_only_allowed_actions():
     assert warm.replay_buffer.size() == 20 and allowed[warm.replay_buffer.actions[:20, 0, 0]].all()
 
 
+@pytest.mark.unit
 def test_holding_plane_switches_the_masks_between_grasp_and_place():
     import gymnasium as gym
 

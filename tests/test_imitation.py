@@ -31,6 +31,7 @@ def spec(path, episodes=4, **extra):
     return {"dataset": DATASET, "episodes": episodes, "path": path, **extra}
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "value, message",
     [
@@ -53,6 +54,7 @@ def test_missing_or_short_datasets_are_refused(dataset_path, tmp_path):
         Demonstrations.of(spec(dataset_path, episodes=50)).episodes_data()
 
 
+@pytest.mark.unit
 def test_transitions_match_the_env_spaces(dataset_path):
     env = gym.make("PandaStack-v0")
     observations, actions = Demonstrations.of(spec(dataset_path)).transitions(env.observation_space)
@@ -102,6 +104,7 @@ def test_behaviour_cloning_fits_the_demonstrations_and_trains_through_train_py(d
     assert error(model) < 0.5 * error(fresh)
 
 
+@pytest.mark.unit
 def test_tqc_with_demonstrations_starts_with_them_in_the_buffer_and_clones_them(dataset_path):
     from stable_baselines3 import HerReplayBuffer
     from stable_baselines3.common.vec_env import DummyVecEnv
@@ -140,6 +143,7 @@ def test_tqc_with_demonstrations_starts_with_them_in_the_buffer_and_clones_them(
     env.close()
 
 
+@pytest.mark.unit
 def test_configs_without_demonstrations_are_refused():
     with pytest.raises(ValueError, match="expected a demonstrations entry for bc"):
         config_from_dict({"name": "x", "env_id": "PandaStack-v0", "algo": "bc", "total_steps": 10})
@@ -187,6 +191,7 @@ def test_a_camera_policy_sees_only_the_observation_keys_it_names():
         config_from_dict({**raw, "observation_keys": ["proprio", "proprio"]})
 
 
+@pytest.mark.unit
 def test_image_shift_moves_each_image_within_its_padding_and_leaves_vectors_alone():
     from panda_grasp_env.agents.learning.imitation import _shifted
 

@@ -106,6 +106,7 @@ def layer(module: str) -> str:
     return "gym_api"
 
 
+@pytest.mark.unit
 def test_every_env_module_is_in_a_layer_folder_or_the_gym_api():
     """Nothing new lands at the package's top level by accident: those modules are the Gym API."""
     top_level = {p.stem for p in (ROOT / "panda_grasp_env").glob("*.py")}
@@ -167,6 +168,7 @@ def step_observers_added() -> list[tuple[str, str]]:
     return calls
 
 
+@pytest.mark.unit
 def test_what_runs_after_every_control_step_is_added_from_above_the_simulation():
     """The stepping calls up only through the observers the layers above add to ``cell.physics`` (a task's
     ``on_control_step`` and the video capture from the env, recorders from tooling), never by a call the
@@ -186,6 +188,7 @@ def test_what_runs_after_every_control_step_is_added_from_above_the_simulation()
 EVALUATION = ("benchmarks", "metrics", "protocol", "episodes", "runner", "report")
 
 
+@pytest.mark.unit
 def test_the_evaluation_modules_import_only_those_below_them():
     package = "panda_grasp_env.agents.evaluation"
     rank = {f"{package}.{name}": i for i, name in enumerate(EVALUATION)}
@@ -222,6 +225,7 @@ def test_the_agents_sub_packages_import_only_those_below_them():
     assert upward == LEARNED_AGENT_READS
 
 
+@pytest.mark.unit
 def test_every_source_package_is_installed_under_panda_grasp_env():
     tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
     config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
@@ -275,6 +279,7 @@ def test_a_second_checkout_runs_its_own_code(tmp_path, installed):
     assert all(Path(f).is_relative_to(checkout) for f in files), files
 
 
+@pytest.mark.unit
 def test_a_runs_commit_label_sees_changes_anywhere_in_the_repository(monkeypatch):
     # The label a card carries ("+changes": code no commit holds) must look at agents/, perception/ and the
     # entry scripts too, not only at the panda_grasp_env/ folder that holds the function.

@@ -37,6 +37,7 @@ def make(ids, **options):
     )
 
 
+@pytest.mark.unit
 def test_the_split_is_fixed_disjoint_and_complete():
     assert SPLITS["test"] == tuple(range(900, 1000))
     assert not set(SPLITS["train"]) & set(SPLITS["test"])
@@ -47,6 +48,7 @@ def test_the_split_is_fixed_disjoint_and_complete():
         meshes.split_of(168)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("object_id", TEST_IDS)
 def test_an_object_is_scaled_to_the_hand_in_its_principal_frame(object_id):
     mesh = load_mesh_object(object_id)
@@ -61,12 +63,14 @@ def test_an_object_is_scaled_to_the_hand_in_its_principal_frame(object_id):
     assert all(np.array_equal(a.vertices, b.vertices) for a, b in zip(mesh.parts, again.parts))
 
 
+@pytest.mark.unit
 def test_a_missing_extra_is_named(monkeypatch):
     monkeypatch.setitem(sys.modules, "pybullet_data", None)
     with pytest.raises(ModuleNotFoundError, match=r"panda_grasp_env\[objects\]"):
         meshes.set_root()
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     ("spec", "culprit"),
     [
@@ -118,6 +122,7 @@ def test_a_resting_mesh_object_sleeps_and_the_hand_still_lifts_it():
     assert not awake.unwrapped.cell.model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_SLEEP
 
 
+@pytest.mark.unit
 def test_reset_options_choose_the_episodes_object_and_a_primitive_slot_hides_the_mesh():
     env = gym.make(
         "panda_grasp_env:PandaGrasp-v0", objects=[{"shape": ("cube", "mesh"), "split": "test", "ids": [905]}]
@@ -140,12 +145,14 @@ def test_reset_options_choose_the_episodes_object_and_a_primitive_slot_hides_the
         env.reset(options={"layout": 1})
 
 
+@pytest.mark.unit
 def test_the_benchmarks_sweep_each_object_once_per_hundred_seeds():
     for split in ("train", "test"):
         ids = [object_by_seed(split)(seed)["objects"][0]["ids"][0] for seed in range(7000, 7100)]
         assert sorted(ids) == sorted(EVALUATION_OBJECTS[split])
 
 
+@pytest.mark.unit
 def test_every_shipped_config_trains_on_the_train_split():
     """No training config may name the test objects (what ``objects`` specs take: split and ids)."""
     files = [*ROOT.glob("configs/**/*.yaml"), *ROOT.glob("agents/checkpoints/*/config.yaml")]

@@ -7,6 +7,8 @@ from panda_grasp_env.control.ik import PoseIK, ToleranceSampler
 from panda_grasp_env.geometry import rotation_about, top_down_rotation
 from panda_grasp_env.model.robot import HOME_QPOS
 
+pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
+
 
 @pytest.fixture(scope="module")
 def ik():

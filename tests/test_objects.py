@@ -26,6 +26,7 @@ def contact_frictions(cell, geom: int, others: set[int]) -> list[float]:
     ]
 
 
+@pytest.mark.unit
 def test_mass_and_friction_are_in_the_model_and_in_effect_against_table_and_fingers():
     env = make([{"shape": "cube", "size": (0.025,), "mass": 0.4, "friction": 0.5}])
     _, info = env.reset(seed=0)
@@ -60,6 +61,7 @@ def test_mass_and_friction_are_in_the_model_and_in_effect_against_table_and_fing
     assert tuple(cell.model.geom_solref[geom]) == CONTACT_SOLREF
 
 
+@pytest.mark.unit
 def test_a_lying_cylinder_rests_with_its_axis_horizontal():
     env = make([{"shape": "cylinder", "size": (0.02, 0.04), "pose": "lying", "yaw": 0.3}])
     _, info = env.reset(seed=1)
@@ -107,6 +109,7 @@ def test_ranges_are_drawn_per_episode_from_the_seed_and_shown_in_info_and_state(
         check_env(env.unwrapped, skip_render_check=True)
 
 
+@pytest.mark.unit
 def test_an_object_without_its_own_friction_keeps_the_scenes_contacts():
     env = make([{"shape": "cube", "friction": 0.5}, {"shape": "cube"}])
     env.reset(seed=0)
@@ -117,12 +120,14 @@ def test_an_object_without_its_own_friction_keeps_the_scenes_contacts():
     assert make(None).observation_space.shape == gym.make("panda_grasp_env:PandaGrasp-v0").observation_space.shape
 
 
+@pytest.mark.unit
 def test_the_shorthands_are_one_spec():
     assert ObjectSpec(shape="cube").shape == ("cube",)
     env = gym.make("panda_grasp_env:PandaGrasp-v0", n_objects=3, shapes=("box",))
     assert [s.shape for s in env.unwrapped.task.specs] == [("box",)] * 3
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "options, culprit",
     [

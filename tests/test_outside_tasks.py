@@ -54,6 +54,7 @@ def test_task_options_take_a_list_of_object_specs_and_the_records_name_them(tmp_
     assert results["protocol"]["task_options"] == options
 
 
+@pytest.mark.unit
 def test_mapping_options_are_frozen_in_the_spec_and_reach_make_as_given():
     randomization = {"hue_shift": 0.02, "table_rgb": [[0.5, 0.6], [0.5, 0.6], [0.5, 0.6]]}
     spec = EpisodeSpec("random", "PutInBin", 0, (("randomization", randomization),))
@@ -74,6 +75,7 @@ def test_an_option_the_protocol_sets_too_is_overridden_not_doubled():
     assert result["actions"] == 2
 
 
+@pytest.mark.unit
 def test_a_protocol_file_takes_mappings_and_imports(tmp_path):
     protocol = tmp_path / "protocol.yaml"
     protocol.write_text(
@@ -91,12 +93,14 @@ def test_a_protocol_file_takes_mappings_and_imports(tmp_path):
         unregister_shelf()
 
 
+@pytest.mark.unit
 def test_a_module_that_does_not_import_is_named(capsys):
     with pytest.raises(SystemExit):
         evaluate.parse_args(["--import", "no_such_lab.tasks"])
     assert "no_such_lab.tasks" in capsys.readouterr().err
 
 
+@pytest.mark.unit
 def test_agents_register_by_decorator_and_a_second_one_for_a_task_is_a_clash():
     assert registry.BASELINES["PutInBin"] is not None and "Lift" in registry.EXPERTS
     with pytest.raises(ValueError, match="PutInBin"):
@@ -105,6 +109,7 @@ def test_agents_register_by_decorator_and_a_second_one_for_a_task_is_a_clash():
         registry.register_baseline()
 
 
+@pytest.mark.unit
 def test_a_benchmark_needs_a_new_name_and_a_registered_id():
     with pytest.raises(ValueError, match="PutInBin"):
         register_benchmark("PutInBin", Benchmark("PandaPutInBin-v0", quick_seeds=1, full_seeds=1))
@@ -123,6 +128,7 @@ def test_the_shelf_example_runs_through_evaluate_with_spawned_workers(shelf_exam
     assert metrics["planned/Shelf"]["transit_contacts"] == 0
 
 
+@pytest.mark.unit
 def test_the_shelf_moves_per_seed_and_the_place_on_it_is_aimed_not_a_collision(shelf_example):
     env = gym.make("ShelfPlace-v0")
     try:

@@ -25,6 +25,7 @@ def test_every_hand_designed_layout_stands_still_with_all_its_objects_in_play():
     assert len(ADVERSARIAL_LAYOUTS) >= 11
 
 
+@pytest.mark.unit
 def test_same_seed_same_jitter_and_random_layouts_vary():
     env = gym.make("panda_grasp_env:PandaGraspAdversarial-v0", obs_mode="state", layout="cubes_3x3")
     first = env.reset(seed=3)[0].copy()
@@ -64,6 +65,7 @@ def test_heap_share_drops_heaps_instead_of_some_packed_layouts():
         assert np.allclose(cell.model.geom_size[cell.model.body_geomadr[body]], shape.geom_size)
 
 
+@pytest.mark.unit
 def test_random_packed_grids_stand_gap_apart_at_their_widest_objects():
     """Training grids are packed at the pitch of their widest objects (4 cm cube grids at theirs, not at the
     5 cm cubes'), and grids of 4 cm cubes alone are drawn.  Layout frame, before jitter."""
@@ -80,6 +82,7 @@ def test_random_packed_grids_stand_gap_apart_at_their_widest_objects():
     assert small_cube_grids >= 10
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     ("options", "message"),
     [
@@ -164,6 +167,7 @@ def test_the_planned_agent_pushes_packed_boxes_apart_from_what_the_camera_sees()
     env.close()
 
 
+@pytest.mark.unit
 def test_the_push_planner_grasps_and_does_not_push_when_an_object_stands_clear():
     env = gym.make("panda_grasp_env:PandaGrasp-v0", shapes=("cube",), primitive_z=True, **PERCEPTION)
     agent, _ = camera_view(env, seed=5_700_003)

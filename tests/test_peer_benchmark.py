@@ -13,6 +13,8 @@ pytest.importorskip("gymnasium_robotics")
 
 from benchmarks.env_throughput import FETCH_JOINT_HELPERS, patch_fetch_joint_checks  # noqa: E402
 
+pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
+
 
 def _lookups(function: types.FunctionType) -> list[tuple[str, object]]:
     """The function's global and attribute lookups (``mujoco``, ``mujoco.mjtJoint``, ...), in order."""

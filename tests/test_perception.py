@@ -20,6 +20,8 @@ from panda_grasp_env.perception.segmentation import colour_masks, fit_plane_rans
 from panda_grasp_env.sim.rendering import CameraRenderer
 from panda_grasp_env.sim.workcell import Workcell
 
+pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
+
 SIZE = (320, 240)
 
 

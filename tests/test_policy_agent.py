@@ -1,10 +1,13 @@
 """An SB3 policy as an agent (``agents/policies/policy_agent.py``)."""
 
 import numpy as np
+import pytest
 import torch as th
 from test_heightmap_policy import blob_observation, tiny_policy
 
 from panda_grasp_env.agents.policies.policy_agent import PolicyAgent
+
+pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
 
 
 def test_agent_does_not_retry_a_failed_primitive_where_nothing_changed():

@@ -20,6 +20,7 @@ def _isolated_cube(cell, seed):
     return cell.block_positions()[0], float(cell.block_yaws()[0])
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_grasp_lifts_and_holds_a_cube(cell, seed):
     position, yaw = _isolated_cube(cell, seed)
@@ -30,6 +31,7 @@ def test_grasp_lifts_and_holds_a_cube(cell, seed):
     assert result.physics_steps > 0 and result.sim_time == pytest.approx(result.physics_steps * 0.002)
 
 
+@pytest.mark.unit
 def test_grasp_on_empty_table_misses_and_retreats_home(cell):
     cell.reset(np.random.default_rng(0), "scattered")
     result = grasp(cell, 0.7, 0.3, 0.025, 0.0)
@@ -37,6 +39,7 @@ def test_grasp_on_empty_table_misses_and_retreats_home(cell):
     np.testing.assert_allclose(cell.robot.joint_positions, HOME_QPOS, atol=0.02)
 
 
+@pytest.mark.unit
 def test_place_stacks_a_block_aligned_to_the_one_below(cell):
     cell.reset(np.random.default_rng(3), "scattered")
     positions, yaws = cell.block_positions(), cell.block_yaws()
@@ -50,6 +53,7 @@ def test_place_stacks_a_block_aligned_to_the_one_below(cell):
     assert abs(np.degrees(wrap_quarter_turn(cell.block_yaws()[1] - yaws[0]))) < 2.0
 
 
+@pytest.mark.unit
 def test_place_without_holding_fails_cleanly(cell):
     cell.reset(np.random.default_rng(0), "scattered")
     result = place(cell, 0.5, 0.0, 0.0, 0.0)
@@ -63,6 +67,7 @@ def test_oracle_builds_a_tower(cell):
     assert outcome.max_yaw_error_deg < 3.0
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("direction", list(BREAK_DIRECTIONS))
 def test_push_knocks_the_tower_over(cell, direction):
     cell.reset(np.random.default_rng(9), "tower")
@@ -73,6 +78,7 @@ def test_push_knocks_the_tower_over(cell, direction):
     assert blocks_displaced(cell.block_positions(), centre, cell.config.block_size) >= 2
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "call, reason",
     [
@@ -88,6 +94,7 @@ def test_unreachable_targets_fail_with_a_reason(cell, call, reason):
     assert not result.success and result.reason == reason and reason in REASONS
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "call, culprit",
     [
@@ -114,6 +121,7 @@ def _three_block_tower_and_a_block(cell, tower_xy, block_xy):
     cell.settle(0.3)
 
 
+@pytest.mark.unit
 def test_grasp_next_to_a_tower_leaves_it_standing(cell):
     # The old transit came down from home in one straight line to 10 cm above the block, through the tower.
     _three_block_tower_and_a_block(cell, (0.4, -0.1), (0.5, -0.1))
@@ -123,6 +131,7 @@ def test_grasp_next_to_a_tower_leaves_it_standing(cell):
     assert np.linalg.norm(cell.block_positions()[:3] - tower, axis=1).max() < 0.005
 
 
+@pytest.mark.unit
 def test_a_push_whose_line_misses_the_tower_leaves_it_standing():
     # Seed 3's random push of the issue: from (0.293, -0.184) along 108 deg, 10 cm from the tower's axis.
     # The old transit knocked the tower over on the way to the start; now the push starts clear of it or stops
@@ -136,6 +145,7 @@ def test_a_push_whose_line_misses_the_tower_leaves_it_standing():
     assert info["transit_contacts"] == 0 and info["disturbed"] == 0
 
 
+@pytest.mark.unit
 def test_a_push_beside_a_tower_stops_when_the_hand_meets_it(cell):
     # The fingers' line passes 8 cm beside a 4-block tower: the ~20 cm-wide hand, above the fingers, would
     # sweep the upper blocks off.  The stroke stops at that touch: a collision, the tower stands.
@@ -153,6 +163,7 @@ def test_a_push_beside_a_tower_stops_when_the_hand_meets_it(cell):
     assert blocks_displaced(cell.block_positions(), tower[0, :2], cell.config.block_size) >= 3
 
 
+@pytest.mark.unit
 def test_push_past_everything_reports_no_contact(cell):
     cell.reset(np.random.default_rng(0), "tower")
     centre = cell.block_positions()[0, :2]
@@ -182,6 +193,7 @@ def _lone_block(cell, position, yaw=0.0):
     return block
 
 
+@pytest.mark.unit
 def test_a_push_across_the_edge_of_two_joint7_windows_keeps_the_hand_turned_one_way(cell):
     # Heading +y past x = 0.5 on the robot's axis: the closing-axis heading's half-turn branch that keeps joint 7
     # mid-range differs at the start (y < 0) and at the end (y > 0).  Re-chosen per goal, the hand turned half
@@ -212,6 +224,7 @@ def precise_cell():
     return Workcell(SceneConfig(push_faces=True, stiff_contacts=True))
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("heading", [0.3, 2.0, -2.5])
 def test_with_push_faces_a_push_slides_a_block_to_where_the_stroke_ends_without_tipping_it(precise_cell, heading):
     cell = precise_cell

@@ -21,12 +21,14 @@ def bin_geoms(model: mujoco.MjModel) -> set[int]:
     return {g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name == "bin"}
 
 
+@pytest.mark.unit
 def test_the_task_file_registers_the_task_and_its_id_and_evaluation_its_benchmark():
     assert TASKS["PutInBin"] is PutInBin
     assert ENV_IDS["PandaPutInBin-v0"] == ({"task": "PutInBin"}, 10)
     assert BENCHMARKS["PutInBin"] == Benchmark("PandaPutInBin-v0", quick_seeds=10, full_seeds=100)
 
 
+@pytest.mark.unit
 def test_the_bin_is_in_the_simulation_and_in_the_planners_model():
     env = make(bin_position=(0.55, -0.1))
     cell = env.unwrapped.cell
@@ -40,6 +42,7 @@ def test_the_bin_is_in_the_simulation_and_in_the_planners_model():
     env.close()
 
 
+@pytest.mark.unit
 def test_reset_names_a_target_observes_it_and_keeps_blocks_out_of_the_bin():
     env = make(n_blocks=4)
     targets = set()
@@ -55,6 +58,7 @@ def test_reset_names_a_target_observes_it_and_keeps_blocks_out_of_the_bin():
     assert make(target="green").reset(seed=0)[1]["target"] == "block_green"
 
 
+@pytest.mark.unit
 def test_success_needs_the_target_alone_in_the_bin():
     env = make(n_blocks=2, target="red")
     env.reset(seed=0)
@@ -108,6 +112,7 @@ def test_random_actions_do_not_solve_it():
     assert successes == 0
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "options, culprit",
     [

@@ -7,6 +7,8 @@ import pytest
 
 from panda_grasp_env.randomization import Randomization
 
+pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
+
 IMAGES = {"obs_mode": "rgbd", "cameras": ("overhead", "front"), "image_size": (64, 48)}
 
 

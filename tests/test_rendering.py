@@ -10,6 +10,7 @@ def tower_cell(cell):
     return cell
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("camera", ["overhead", "front", "wrist"])
 def test_every_camera_renders_all_modalities(tower_cell, camera):
     cache = RenderCache(tower_cell.model)
@@ -24,6 +25,7 @@ def test_every_camera_renders_all_modalities(tower_cell, camera):
     assert segmentation.shape == (84, 84) and segmentation.dtype == np.int32
 
 
+@pytest.mark.unit
 def test_overhead_sees_the_blocks_with_metric_depth(tower_cell):
     with CameraRenderer(tower_cell.model, 640, 480, "fast") as renderer:
         segmentation = renderer.render(tower_cell.data, "overhead", "segmentation")
@@ -38,6 +40,7 @@ def test_overhead_sees_the_blocks_with_metric_depth(tower_cell):
     assert np.median(depth[segmentation == table]) == pytest.approx(1.05, abs=0.01)
 
 
+@pytest.mark.unit
 def test_fast_profile_draws_collision_geoms_pretty_draws_visual_meshes(tower_cell):
     with (
         CameraRenderer(tower_cell.model, 64, 48, "fast") as fast,
@@ -50,6 +53,7 @@ def test_fast_profile_draws_collision_geoms_pretty_draws_visual_meshes(tower_cel
     assert set(groups[np.unique(seg_pretty[seg_pretty >= 0])]) <= {0, 1}
 
 
+@pytest.mark.unit
 def test_bad_render_arguments(tower_cell):
     with pytest.raises(ValueError, match="profile"):
         CameraRenderer(tower_cell.model, 64, 64, "cinematic")

@@ -1,6 +1,7 @@
 import itertools
 
 import numpy as np
+import pytest
 
 from panda_grasp_env.model.robot import HOME_QPOS
 from panda_grasp_env.primitives.top_down import grasp, place
@@ -8,6 +9,7 @@ from panda_grasp_env.sim.stacking import tower_is_built
 from panda_grasp_env.sim.workcell import SPAWN_REGION
 
 
+@pytest.mark.unit
 def test_scattered_blocks_do_not_overlap_and_rest_on_the_table(cell):
     for seed in range(5):
         cell.reset(np.random.default_rng(seed), "scattered")
@@ -18,6 +20,7 @@ def test_scattered_blocks_do_not_overlap_and_rest_on_the_table(cell):
             assert np.linalg.norm(a[:2] - b[:2]) > 0.05 * np.sqrt(2)
 
 
+@pytest.mark.unit
 def test_reset_tower_stands_ten_seconds(cell):
     cell.reset(np.random.default_rng(7), "tower")
     base = int(np.argmin(cell.block_positions()[:, 2]))
@@ -27,6 +30,7 @@ def test_reset_tower_stands_ten_seconds(cell):
     assert np.linalg.norm(cell.block_positions() - before, axis=1).max() < 2e-3
 
 
+@pytest.mark.unit
 def test_reset_clears_robot_and_solver_state(cell):
     cell.reset(np.random.default_rng(0), "scattered")
     position = cell.block_positions()[0]
@@ -54,6 +58,7 @@ def test_same_seed_gives_bit_identical_state(cell):
     assert np.array_equal(first, second)
 
 
+@pytest.mark.unit
 def test_settling_replays_its_ik_solves_bit_for_bit(monkeypatch):
     """Every reset holds the arm at home while the scene settles; those IK solves depend on nothing but the
     synced configuration, so a later reset replays them (no QP) and ends in exactly the state a fresh

@@ -74,6 +74,7 @@ def test_the_page_holds_every_part_and_needs_nothing_outside_it(run):
     assert not re.findall(r"""(?:src|href)=['"](?!data:|videos/|#)""", page)
 
 
+@pytest.mark.unit
 def test_every_failed_episode_names_why(run):
     out, _ = run
     results = json.loads((out / "results.json").read_text())
@@ -85,6 +86,7 @@ def test_every_failed_episode_names_why(run):
     assert "episodes: " in (out / "report.md").read_text()
 
 
+@pytest.mark.unit
 def test_a_tower_toppled_the_wrong_way_is_a_failure_with_its_reason():
     """The oracle breaker told the opposite of the commanded direction: the tower falls, the wrong way."""
     import gymnasium as gym
@@ -106,6 +108,7 @@ def test_a_tower_toppled_the_wrong_way_is_a_failure_with_its_reason():
     assert result["result"]["failures"] == {}  # every primitive did what it reported: no failed action
 
 
+@pytest.mark.unit
 def test_episode_failure_names_each_way_to_fail():
     fell_wrong = {"wrong_direction": True, "broken_by_failure": False, "physics_error": False}
     assert episode_failure(False, True, False, fell_wrong, out_of_steps=False) == "wrong_direction"
@@ -115,6 +118,7 @@ def test_episode_failure_names_each_way_to_fail():
     assert episode_failure(False, True, False, {"physics_error": True}, out_of_steps=False) == "physics_error"
 
 
+@pytest.mark.unit
 def test_the_terminal_opens_with_a_count_of_skipped_pairs(run):
     _, printed = run
     lines = printed.splitlines()
@@ -123,6 +127,7 @@ def test_the_terminal_opens_with_a_count_of_skipped_pairs(run):
     assert max(map(len, lines)) < 250
 
 
+@pytest.mark.unit
 def test_pngs_label_every_bar_and_keep_the_legend_off_the_data(run):
     out, _ = run
     table = json.loads((out / "results.json").read_text())["metrics"]
@@ -178,12 +183,14 @@ def test_the_page_renders_in_a_real_browser(run, tmp_path):
     assert len(np.unique(pixels.reshape(-1, 3)[::97], axis=0)) > 50
 
 
+@pytest.mark.unit
 def test_a_run_compared_with_itself_shows_no_change(run, capsys):
     out, _ = run
     assert evaluate.main(["compare", str(out), str(out), "--out", str(out / "self.html")]) == 0
     assert "0 better, 0 worse, 4 no detectable change" in capsys.readouterr().out
 
 
+@pytest.mark.unit
 def test_the_heatmap_of_published_tables(tmp_path):
     cells = {("planned", "Grasp"): {"rate": 1.0, "successes": 10, "n": 10, "ci95": [0.72, 1.0]}}
     html = results_page.heatmap_html(cells, ["Grasp", "Lift"])
@@ -191,6 +198,7 @@ def test_the_heatmap_of_published_tables(tmp_path):
     assert "100 %<small>72–100 · n 10</small>" in html
 
 
+@pytest.mark.unit
 def test_the_results_page_reads_the_published_quick_table():
     from pathlib import Path
 

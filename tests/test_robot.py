@@ -7,6 +7,7 @@ from panda_grasp_env.model.scene import FINGER_BODIES, MAX_FINGER_GAP, SceneConf
 from panda_grasp_env.sim.workcell import Workcell
 
 
+@pytest.mark.unit
 def test_home_pose_points_down_above_the_workspace(cell, rng):
     cell.reset(rng)
     np.testing.assert_allclose(cell.robot.ee_position, HOME_POSITION, atol=2e-3)
@@ -15,6 +16,7 @@ def test_home_pose_points_down_above_the_workspace(cell, rng):
     assert cell.robot.finger_gap == pytest.approx(MAX_FINGER_GAP, abs=1e-3)
 
 
+@pytest.mark.unit
 def test_gripper_closes_and_opens(cell, rng):
     cell.reset(rng)
     cell.actuate_gripper(close=True)
@@ -23,6 +25,7 @@ def test_gripper_closes_and_opens(cell, rng):
     assert cell.robot.finger_gap > MAX_FINGER_GAP - 2e-3
 
 
+@pytest.mark.unit
 def test_an_opening_finger_stops_at_its_stop(rng, soften_finger_limits):
     # The fingers are light, so a soft joint limit let them fly 9.6 mm past it (finger_gap clips this).
     widest = {}
@@ -41,6 +44,7 @@ def test_an_opening_finger_stops_at_its_stop(rng, soften_finger_limits):
     assert FINGER_OPEN - 1e-3 < widest["as built"] < FINGER_OPEN + 2.5e-3  # 1.5 mm, for a moment
 
 
+@pytest.mark.unit
 def test_a_block_held_above_the_pads_counts_as_held(rng):
     # A block that rode up past the pads is held by the fingers behind them; a pads-only test called such
     # grasps dropped, and the arm then let go of objects it had carried home, outside the workspace.
@@ -59,6 +63,7 @@ def test_a_block_held_above_the_pads_counts_as_held(rng):
     assert cell.robot.body_between_fingers() == block
 
 
+@pytest.mark.unit
 def test_the_table_under_both_fingertips_is_not_held(rng):
     cell = Workcell()
     cell.reset(rng)
@@ -88,6 +93,7 @@ def pad_contacts(cell: Workcell, body: int) -> set[int]:
     }
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("target, yaw", [((0.5, 0.2, 0.15), 0.3), ((0.65, -0.25, 0.05), -1.2), ((0.3, 0.0, 0.3), 1.5)])
 def test_cartesian_controller_reaches_targets_within_joint_limits(cell, rng, target, yaw):
     cell.reset(rng)
@@ -99,6 +105,7 @@ def test_cartesian_controller_reaches_targets_within_joint_limits(cell, rng, tar
     assert np.all(q >= cell.robot.arm_lower - 1e-3) and np.all(q <= cell.robot.arm_upper + 1e-3)
 
 
+@pytest.mark.unit
 def test_reference_speed_is_bounded(cell, rng):
     cell.reset(rng)
     positions = []
@@ -133,6 +140,7 @@ def test_ik_keeps_up_with_large_combined_moves(cell):
     assert max(errors) < 0.005
 
 
+@pytest.mark.unit
 def test_fast_index_is_a_slice_only_for_consecutive_indices():
     values = np.arange(20.0)
     assert fast_index(np.array([3, 4, 5])) == slice(3, 6)

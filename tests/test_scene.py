@@ -13,6 +13,8 @@ from panda_grasp_env.model.scene import (
 )
 from panda_grasp_env.sim.workcell import Workcell
 
+pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
+
 
 def test_panda_is_loaded_from_installed_gymnasium_robotics():
     folder = franka_asset_dir()

@@ -36,12 +36,14 @@ def test_aggregates_are_rliables_with_stratified_bootstrap_intervals():
     assert np.array_equal(np.random.get_state()[1], before)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("bad", ["0", "0,0", "a,b", "-1,2"])
 def test_bad_seed_lists_are_refused(bad):
     with pytest.raises(ValueError, match="--seeds"):
         parse_seeds(bad)
 
 
+@pytest.mark.unit
 def test_seeds_go_with_a_config(capsys):
     with pytest.raises(SystemExit):
         train.main(["--retest", "x", "--seeds", "0,1"])
@@ -77,6 +79,7 @@ def test_a_study_run_again_keeps_its_finished_runs(study, capsys):
     assert not list(study.glob("grasp_clutter_dqn-seed0-*"))  # no second run folder
 
 
+@pytest.mark.unit
 def test_a_study_goes_onto_its_checkpoints_card_and_into_the_report(study, tmp_path, monkeypatch, capsys):
     from panda_grasp_env.commands import results_page
 

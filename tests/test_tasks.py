@@ -47,6 +47,7 @@ def test_tower_build_succeeds_in_ideal_actions_and_terminates():
     env.close()
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("n_blocks", [6, 8])
 @pytest.mark.parametrize("env_id", ["PandaTowerBuild-v0", "PandaTowerBreak-v0", "PandaBuildAndBreak-v0"])
 def test_tall_tower_tasks_lay_out_six_or_eight_blocks_of_distinct_colours(env_id, n_blocks):
@@ -68,6 +69,7 @@ def test_tall_tower_tasks_lay_out_six_or_eight_blocks_of_distinct_colours(env_id
     env.close()
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("env_id", ["PandaTowerBuild-v0", "PandaTowerBreak-v0", "PandaBuildAndBreak-v0"])
 @pytest.mark.parametrize("n_blocks", [1, 9, 6.0, True])
 def test_tower_tasks_name_n_blocks_outside_two_to_eight(env_id, n_blocks):
@@ -75,6 +77,7 @@ def test_tower_tasks_name_n_blocks_outside_two_to_eight(env_id, n_blocks):
         make(env_id, n_blocks=n_blocks)
 
 
+@pytest.mark.unit
 def test_a_block_task_with_fewer_scene_colours_than_blocks_names_n_blocks():
     from panda_grasp_env.model.scene import SceneConfig
 
@@ -104,6 +107,7 @@ def test_uniform_block_colours_leave_no_colour_to_tell_blocks_apart(env_id):
     assert looks == {"distinct": 4, "uniform": 1}
 
 
+@pytest.mark.unit
 def test_tower_break_by_push_and_by_impulse():
     env = make("PandaTowerBreak-v0")
     env.reset(seed=0)
@@ -153,6 +157,7 @@ def test_grasp_removes_objects_until_the_table_is_clear():
     env.close()
 
 
+@pytest.mark.unit
 def test_grasp_ends_after_k_consecutive_failures():
     env = make("PandaGrasp-v0", max_failures=2)
     env.reset(seed=0)
@@ -163,6 +168,7 @@ def test_grasp_ends_after_k_consecutive_failures():
     env.close()
 
 
+@pytest.mark.unit
 def test_a_grasp_episode_with_nothing_in_play_is_no_success():
     env = make("PandaGrasp-v0", shapes=("cube",))
     env.reset(seed=0)
@@ -174,6 +180,7 @@ def test_a_grasp_episode_with_nothing_in_play_is_no_success():
     env.close()
 
 
+@pytest.mark.unit
 def test_an_object_pushed_out_of_the_heightmap_workspace_is_out_of_play():
     from panda_grasp_env.tasks.grasp import PLAY_REGION
 
@@ -188,6 +195,7 @@ def test_an_object_pushed_out_of_the_heightmap_workspace_is_out_of_play():
     env.close()
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("shape", ["cube", "box", "cylinder", "sphere", "capsule"])
 def test_every_shape_rests_on_the_table(shape):
     env = make("PandaGrasp-v0", n_objects=3, shapes=(shape,))
@@ -232,6 +240,7 @@ def test_objects_to_lift_fit_between_the_fingers_of_a_hand_that_cannot_turn():
     assert max(unturned) > 0.075  # spawned as before: some long side across the fingers
 
 
+@pytest.mark.unit
 def test_clutter_drops_ten_objects_into_a_heap():
     env = make("PandaGraspClutter-v0")
     _, info = env.reset(seed=0)
@@ -239,6 +248,7 @@ def test_clutter_drops_ten_objects_into_a_heap():
     env.close()
 
 
+@pytest.mark.unit
 def test_push_goal_dict_and_vectorised_compute_reward():
     env = make("PandaPush-v0")
     observation, info = env.reset(seed=0)
@@ -251,6 +261,7 @@ def test_push_goal_dict_and_vectorised_compute_reward():
     env.close()
 
 
+@pytest.mark.unit
 def test_ee_delta_moves_the_hand_and_closes_the_gripper():
     env = make("PandaPush-v0")
     observation, _ = env.reset(seed=0)
@@ -263,6 +274,7 @@ def test_ee_delta_moves_the_hand_and_closes_the_gripper():
     env.close()
 
 
+@pytest.mark.unit
 def test_start_in_hand_holds_the_object_to_lift_and_a_lift_reaches_the_goal():
     env = make("PandaGrasp-v0", action_mode="ee_delta", shapes=("cube",), start_in_hand=1.0)
     observation, info = env.reset(seed=3)
@@ -281,6 +293,7 @@ def test_start_in_hand_holds_the_object_to_lift_and_a_lift_reaches_the_goal():
     env.close()
 
 
+@pytest.mark.unit
 def test_start_in_hand_starts_normally_when_the_object_is_too_wide_for_the_fingers():
     wide = {"box": ((0.05, 0.05), (0.05, 0.05), (0.02, 0.02))}  # 10 cm square: wider than the open fingers
     env = make("PandaGrasp-v0", action_mode="ee_delta", shapes=("box",), size_ranges=wide, start_in_hand=1.0)
@@ -294,6 +307,7 @@ def test_start_in_hand_starts_normally_when_the_object_is_too_wide_for_the_finge
     plain.close()
 
 
+@pytest.mark.unit
 def test_start_curricula_draw_per_episode_and_zero_changes_nothing():
     env = make("PandaStack-v0", start_in_hand=0.4, start_above_object=0.4)
     starts = {}
@@ -324,6 +338,7 @@ def push_to_goal(env, observation: dict, steps: int) -> float:
     return float((block - observation["achieved_goal"])[:2] @ away)
 
 
+@pytest.mark.unit
 def test_start_behind_object_puts_the_hand_where_a_push_to_the_goal_begins():
     env = make("PandaPush-v0", start_behind_object=1.0)
     starts, pushed = [], 0
@@ -346,6 +361,7 @@ def test_start_behind_object_puts_the_hand_where_a_push_to_the_goal_begins():
     env.close()
 
 
+@pytest.mark.unit
 @pytest.mark.xfail(
     strict=True,
     reason="known limitation (issue 53): pushing low and outwards (+x) from within "
@@ -380,6 +396,7 @@ def test_dense_reward_is_minus_the_goal_distance_at_every_step_and_in_compute_re
     env.close()
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     ("env_id", "options", "message"),
     [
@@ -440,6 +457,7 @@ def test_pixel_masks_follow_objects_and_the_hand():
     env.close()
 
 
+@pytest.mark.unit
 def test_image_observations_see_the_blocks():
     env = make("PandaTowerBreak-v0", obs_mode="rgb+depth+segmentation+heightmap", image_size=(64, 48))
     observation, _ = env.reset(seed=0)
@@ -492,6 +510,7 @@ def test_rgb_array_list_renders_the_motion_inside_a_primitive(tmp_path):
         RecordMotionVideo(make("PandaPush-v0", render_mode="rgb_array"), str(tmp_path / "x")).reset(seed=0)
 
 
+@pytest.mark.unit
 def test_grasp_reset_leaves_the_arm_at_home_at_rest():
     from panda_grasp_env.model.robot import HOME_QPOS
 
@@ -515,6 +534,7 @@ def test_tower_build_pays_the_grasp_bonus_once_per_block():
     env.close()
 
 
+@pytest.mark.unit
 def test_a_push_that_moves_something_is_not_a_failed_attempt():
     env = make("PandaGrasp-v0", max_failures=1, shapes=("cube",))
     env.reset(seed=0)
@@ -524,6 +544,7 @@ def test_a_push_that_moves_something_is_not_a_failed_attempt():
     env.close()
 
 
+@pytest.mark.unit
 def test_a_push_that_carries_an_object_out_of_play_costs_that_object():
     from panda_grasp_env.tasks.grasp import PLAY_REGION
 
@@ -541,6 +562,7 @@ def test_a_push_that_carries_an_object_out_of_play_costs_that_object():
     env.close()
 
 
+@pytest.mark.unit
 def test_image_observations_are_contiguous_arrays():
     env = make("PandaPush-v0", obs_mode="rgbd")
     observation, _ = env.reset(seed=0)
@@ -598,6 +620,7 @@ def registered_outside_the_package():
     del TASKS["WalledTowerBreak"], ENV_IDS["TestWalledTowerBreak-v0"], gym.registry["TestWalledTowerBreak-v0"]
 
 
+@pytest.mark.unit
 def test_a_task_outside_the_package_registers_its_id_fixtures_and_options(registered_outside_the_package):
     from panda_grasp_env.registration import register_task
 
@@ -613,6 +636,7 @@ def test_a_task_outside_the_package_registers_its_id_fixtures_and_options(regist
         register_task(registered_outside_the_package)
 
 
+@pytest.mark.unit
 def test_an_id_another_package_registered_is_a_clash():
     from panda_grasp_env.registration import TASKS, EnvId, register_task
     from panda_grasp_env.tasks.tower_break import TowerBreak

@@ -11,6 +11,8 @@ import yaml
 from panda_grasp_env.agents.learning.config import OutcomeReward, load_config
 from panda_grasp_env.commands import train
 
+pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
+
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 

@@ -193,6 +193,7 @@ def test_smoke_training_learns_to_grasp(tmp_path):
     assert trained >= untrained + 0.15 and trained >= 0.55, (untrained, trained)
 
 
+@pytest.mark.unit
 def test_evaluation_plays_the_seeds_it_is_given():
     """Validation and the held-out test must be different episodes: evaluate_policy seeds from first_seed."""
     from panda_grasp_env.agents.learning.training import evaluate_policy

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,6 +38,7 @@ def zoo(module: str, tmp_path: Path, *args: str, wrapper: bool = False) -> subpr
     return subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
 
 
+@pytest.mark.unit
 def test_zoo_hyperparameters_name_registered_ids_and_the_evaluation_start():
     import gymnasium as gym
 
@@ -87,6 +89,7 @@ def test_zoo_trains_our_push_with_the_shipped_config_and_enjoy_runs_headless(tmp
     assert len(videos) == 1 and videos[0].stat().st_size > 1000
 
 
+@pytest.mark.unit
 def test_the_zoo_wrapper_defaults_to_one_torch_thread_on_small_machines_and_registers_the_ids():
     from panda_grasp_env.commands.zoo import zoo_argv
 
