@@ -10,7 +10,7 @@ over all rotations in one batch, the action mask, the arg-max) on the first obse
 
 ``--record`` (re)writes ``tests/data/heightmap_decisions.npz``: ``--observations`` encoded heightmaps met
 while the shipped policies act in their envs (seeds 0, 1, ..., split across the checkpoints), with the
-action each policy chose on each.  ``tests/test_heightmap_decisions.py`` checks that the current code
+action each policy chose on each.  ``tests/agents/policies/test_heightmap_decisions.py`` checks that the current code
 chooses the very same actions, so a faster Q-network cannot change a decision unnoticed.  Record with the
 implementation you want to hold the code to.
 """

@@ -50,8 +50,7 @@ def private_run_key(tmp_path_factory: pytest.TempPathFactory) -> None:
 def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A tiny pixel-mode DQN run, trained in two sessions (the second resumes the first); one per test process,
     for the tests of training, records, shipped checkpoints and evaluate.py."""
-    from test_train_config import CONFIGS
-    from test_training import TINY_DQN
+    from testkit import CONFIGS, TINY_DQN
 
     from panda_grasp_env.commands import train
 

@@ -226,6 +226,17 @@ def test_the_agents_sub_packages_import_only_those_below_them():
 
 
 @pytest.mark.unit
+def test_the_tests_mirror_the_layers():
+    """A layer's tests sit in a folder named after it (the agents' in one per sub-package; the falls package,
+    counted as tooling, in its own); only the project-wide checks sit at the top of ``tests/``."""
+    layer_folders = {*LAYERS, "falls", *(f"agents/{package}" for package in AGENT_PACKAGES)} - {"agents", "tooling"}
+    folders = {path.parent.relative_to(ROOT / "tests").as_posix() for path in (ROOT / "tests").rglob("test_*.py")}
+    assert folders - {"."} <= layer_folders
+    top = sorted(path.name for path in (ROOT / "tests").glob("test_*.py"))
+    assert top == ["test_docs_code.py", "test_layout.py", "test_peer_benchmark.py"]
+
+
+@pytest.mark.unit
 def test_every_source_package_is_installed_under_panda_grasp_env():
     tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
     config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]

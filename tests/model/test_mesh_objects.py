@@ -2,7 +2,6 @@
 convex pieces, per-episode objects through reset options, and the benchmarks' sweep of each split."""
 
 import sys
-from pathlib import Path
 
 import gymnasium as gym
 import mujoco
@@ -10,6 +9,7 @@ import numpy as np
 import pytest
 import yaml
 from gymnasium.utils.env_checker import check_env
+from testkit import ROOT
 
 pytest.importorskip("pybullet_data", reason="the mesh object set needs the objects extra (the test extra has it)")
 
@@ -27,7 +27,6 @@ from panda_grasp_env.model.objects import ObjectSpec  # noqa: E402
 from panda_grasp_env.model.scene import SceneConfig  # noqa: E402
 from panda_grasp_env.sim.extents import body_bottom_height  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
 TEST_IDS = [900, 905, 990]  # 990: 85 pieces merged into MAX_PARTS geoms
 
 

@@ -3,11 +3,11 @@
 import json
 import sys
 import warnings
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from testkit import ROOT
 
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS, Benchmark, register_benchmark
 from panda_grasp_env.agents.evaluation.episodes import make_env, run_episode
@@ -16,7 +16,7 @@ from panda_grasp_env.agents.policies import registry
 from panda_grasp_env.commands import evaluate
 from panda_grasp_env.registration import ENV_IDS, TASKS
 
-SHELF = Path(__file__).resolve().parents[1] / "docs" / "examples" / "shelf_task.py"
+SHELF = ROOT / "docs" / "examples" / "shelf_task.py"
 
 
 @pytest.fixture

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 import yaml
+from testkit import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 ZOO_CONFIG = ROOT / "configs" / "zoo" / "tqc.yml"
 
 

@@ -5,8 +5,7 @@ import json
 
 import numpy as np
 import pytest
-from test_train_config import CONFIGS
-from test_training import TINY_DQN
+from testkit import CONFIGS, TINY_DQN
 
 from panda_grasp_env.agents.learning.seed_figures import aggregate_runs, study_html, study_markdown
 from panda_grasp_env.agents.learning.seed_runs import parse_seeds

@@ -6,6 +6,7 @@ import re
 import shutil
 
 import pytest
+from testkit import ROOT
 
 from panda_grasp_env.agents.evaluation.episodes import episode_failure
 from panda_grasp_env.commands import evaluate, results_figures, results_page
@@ -200,9 +201,8 @@ def test_the_heatmap_of_published_tables(tmp_path):
 
 @pytest.mark.unit
 def test_the_results_page_reads_the_published_quick_table():
-    from pathlib import Path
 
-    text = (Path(__file__).resolve().parents[1] / "docs" / "benchmark.md").read_text()
+    text = (ROOT / "docs" / "benchmark.md").read_text()
     cells = results_page.published_cells(text)
     assert cells[("stack_bc", "Stack")] == {"rate": 0.15, "successes": 3, "n": 20, "ci95": [0.0524, 0.3604]}
     assert cells[("grasp_clutter_dqn", "GraspAdversarial")]["successes"] == 2  # "**name** (learned)" read as name

@@ -1,19 +1,16 @@
 """The training config (``agents/learning/config.py``): checked keys and values, overrides, the envs it
 describes and the outcome reward."""
 
-from pathlib import Path
-
 import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from testkit import CONFIGS
 
 from panda_grasp_env.agents.learning.config import OutcomeReward, load_config
 from panda_grasp_env.commands import train
 
 pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
-
-CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 
 def write_config(tmp_path, **entries):

@@ -5,6 +5,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from testkit import blob_observation, tiny_policy
 
 from panda_grasp_env.actions import PixelActions
 from panda_grasp_env.agents.learning.heightmap_observations import (
@@ -36,29 +37,6 @@ def test_rotation_brings_a_world_heading_onto_the_image_x_axis(yaw):
     rotated = sample(image, rotation_grid(heading_in_image(th.tensor([yaw], dtype=th.float32)), image.shape[-1]))
     peak_row, peak_col = np.unravel_index(int(rotated[0, 0].argmax()), grid.shape)
     assert abs(peak_row - 19.5) <= 1 and abs(peak_col - (19.5 + 12)) <= 1
-
-
-def blob_observation(rows=40, cols=40, centre=(12, 25), radius=3, height=0.04):
-    heightmap = np.zeros((rows, cols, 4), dtype=np.float32)
-    r, c = np.ogrid[:rows, :cols]
-    inside = (r - centre[0]) ** 2 + (c - centre[1]) ** 2 <= radius**2
-    heightmap[inside] = [0.8, 0.2, 0.2, height]
-    return encode_heightmap(heightmap), inside
-
-
-def tiny_policy(primitives=("grasp", "push"), used=("grasp",), rotations=4, rows=40, cols=40, refine=False):
-    space = gym.spaces.Box(0, 255, (4, rows, cols), dtype=np.uint8)
-    actions = gym.spaces.Discrete(len(primitives) * rotations * rows * cols)
-    return HeightmapQPolicy(
-        space,
-        actions,
-        lambda _: 1e-3,
-        primitives=primitives,
-        rotations=rotations,
-        cell_size=0.01,
-        primitives_used=used,
-        refine=refine,
-    )
 
 
 @pytest.mark.unit

@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 import torch as th
-from test_train_config import CONFIGS
+from testkit import CONFIGS, TINY_DQN
 
 from panda_grasp_env.agents.learning.config import TrainConfig, load_config
 from panda_grasp_env.agents.learning.heightmap_policy import (
@@ -20,21 +20,6 @@ from panda_grasp_env.agents.learning.records import load_best_policy, save_best_
 from panda_grasp_env.agents.learning.training import validation_score
 from panda_grasp_env.agents.policies import learned
 from panda_grasp_env.commands import train
-
-#: A pixel-mode DQN small enough to train for a few steps in seconds.
-TINY_DQN = [
-    "env_id=PandaGrasp-v0",
-    "env_kwargs={obs_mode: heightmap, action_mode: pixel, heightmap_resolution: 0.016, rotations: 4}",
-    "max_episode_steps=3",
-    "total_steps=12",
-    "algo_kwargs.learning_starts=4",
-    "algo_kwargs.buffer_size=100",
-    "algo_kwargs.batch_size=4",
-    "eval_every=6",
-    "eval_episodes=1",
-    "final_eval_episodes=2",
-    "checkpoint_every=6",
-]
 
 
 def test_a_run_folder_holds_everything_and_resumes(finished_run):

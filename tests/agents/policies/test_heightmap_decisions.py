@@ -7,15 +7,14 @@ env, and the action it chose on each (``benchmarks/heightmap_decisions.py --reco
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from testkit import DATA
 
 from panda_grasp_env.agents.learning.config import HEIGHTMAP_ALGORITHMS
 from panda_grasp_env.agents.policies.learned import Checkpoint, available_checkpoints
 
-RECORDED = Path(__file__).parent / "data" / "heightmap_decisions.npz"
+RECORDED = DATA / "heightmap_decisions.npz"
 
 
 def recorded() -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 import torch as th
-from test_heightmap_policy import blob_observation, tiny_policy
+from testkit import blob_observation, tiny_policy
 
 from panda_grasp_env.agents.policies.policy_agent import PolicyAgent
 
