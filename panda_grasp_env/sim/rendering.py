@@ -49,6 +49,35 @@ def advertised_render_modes() -> list[str]:
     return [mode for mode in RENDER_MODES if mode != "human" or display_available()]
 
 
+#: The MuJoCo renderers of the open ``CameraRenderer``s.  Holding them here keeps the garbage collector from
+#: ever finalising one: a collection can start at any allocation, also between another renderer's
+#: ``make_current`` and its draw, and freeing a GL context there leaves that draw in the wrong context or in
+#: none (garbled frames).  A ``CameraRenderer`` dropped without ``close()`` only queues its renderer in
+#: ``_DROPPED``; the next one to be made, to draw or to close frees the queue first.
+_OPEN: set[mujoco.Renderer] = set()
+_DROPPED: list[mujoco.Renderer] = []
+
+
+def _free(renderer: mujoco.Renderer) -> None:
+    """Free ``renderer``'s GL resources (idempotent).  MuJoCo 3.x's ``Renderer.close`` frees the render
+    context's framebuffers and textures in whichever GL context is current, which is another renderer's if
+    that one drew last: its next frames come back empty (NaN depth).  So the context is freed here with its
+    own GL context current first; 4.x does the same itself."""
+    if renderer._mjr_context is not None:
+        if renderer._gl_context:
+            renderer._gl_context.make_current()
+        renderer._mjr_context.free()
+        renderer._mjr_context = None
+    renderer.close()
+    _OPEN.discard(renderer)
+
+
+def _free_dropped() -> None:
+    """Free the renderers of ``CameraRenderer``s dropped without ``close()``, outside any draw."""
+    while _DROPPED:
+        _free(_DROPPED.pop())
+
+
 class CameraRenderer:
     """Renders one image size in one profile; reuse it every step (creating GL contexts is slow)."""
 
@@ -73,10 +102,12 @@ class CameraRenderer:
             quality.offsamples, quality.numslices, quality.numstacks = 0, 16, 8
         else:
             quality.offsamples = max(4, authored[0])
+        _free_dropped()
         try:
             self._renderer = mujoco.Renderer(model, height=height, width=width)
         finally:
             quality.offsamples, quality.numslices, quality.numstacks = authored
+        _OPEN.add(self._renderer)
         self.width, self.height = width, height
         # Scene flags persist across update_scene calls: set them once.
         fancy = profile == "pretty"
@@ -103,6 +134,7 @@ class CameraRenderer:
 
     def render(self, data: mujoco.MjData, camera: str | int, modality: str = "rgb") -> np.ndarray:
         """One frame: ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 metres, ``segmentation`` (H, W) int32 geom ids."""
+        _free_dropped()
         self._set_mode(modality)
         self._renderer.update_scene(data, camera=camera, scene_option=self.option)
         image = self._renderer.render()
@@ -121,6 +153,7 @@ class CameraRenderer:
         buffers after one ``mjr_render`` halves the cost of RGB-D observations.
         (Uses the renderer's GL context, which has these names in MuJoCo 3.x and 4.x.)
         """
+        _free_dropped()
         self._set_mode("rgb")
         renderer = self._renderer
         renderer.update_scene(data, camera=camera, scene_option=self.option)
@@ -139,23 +172,15 @@ class CameraRenderer:
         return np.ascontiguousarray(rgb[::-1]), np.ascontiguousarray(depth[::-1])
 
     def close(self) -> None:
-        """Free the GL resources (idempotent).  MuJoCo 3.x's ``Renderer.close`` frees the render context's
-        framebuffers and textures in whichever GL context is current, which is another renderer's if that
-        one drew last: its next frames come back empty (NaN depth).  So the context is freed here with its
-        own GL context current first; 4.x does the same itself."""
-        renderer = self._renderer
-        if renderer._mjr_context is not None:
-            if renderer._gl_context:
-                renderer._gl_context.make_current()
-            renderer._mjr_context.free()
-            renderer._mjr_context = None
-        renderer.close()
+        """Free the GL resources (idempotent)."""
+        _free_dropped()
+        _free(self._renderer)
 
     def __del__(self) -> None:
-        # An env dropped without close() must not leave its renderer to MuJoCo's own finaliser (see close).
-        # At interpreter exit EGL may be gone already, and nothing draws again.
-        if hasattr(self, "_renderer") and not sys.is_finalizing():
-            self.close()
+        # Dropped without close(): a finaliser may run inside another renderer's draw, so it touches no GL.
+        renderer = getattr(self, "_renderer", None)
+        if renderer in _OPEN and renderer not in _DROPPED:
+            _DROPPED.append(renderer)
 
     def __enter__(self) -> CameraRenderer:
         return self

@@ -81,3 +81,45 @@ def test_closing_or_dropping_one_renderer_leaves_the_others_drawing(tower_cell):
         after = kept.render_rgbd(tower_cell.data, "overhead")
         assert np.array_equal(before[0], after[0]) and np.array_equal(before[1], after[1])
         assert np.allclose(kept.render(tower_cell.data, "overhead", "depth"), before[1], atol=1e-3)  # metres
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("draw", ["render_rgbd", "segmentation"])
+def test_a_renderer_dropped_unclosed_never_frees_its_context_inside_anothers_draw(tower_cell, monkeypatch, draw):
+    """An env dropped without close() is cyclic garbage (its observers point back at it), and a collection can
+    start at any allocation: here one starts right after the kept renderer made its context current, the
+    worst moment.  Freeing the dropped renderer's context there garbled the draw (gymnasium's checker then
+    found reset(seed=123) giving two different observations); it must wait until after."""
+    import gc
+
+    def frame(renderer):
+        if draw == "render_rgbd":
+            return np.concatenate(
+                [a.ravel().astype(np.float64) for a in renderer.render_rgbd(tower_cell.data, "front")]
+            )
+        return renderer.render(tower_cell.data, "front", "segmentation")
+
+    with CameraRenderer(tower_cell.model, 48, 48) as kept:
+        before = frame(kept)
+        context_class = type(kept._renderer._gl_context)
+        make_current, armed = context_class.make_current, [False]
+
+        def make_current_then_collect(context):
+            make_current(context)
+            if armed[0]:
+                armed[0] = False
+                assert gc.collect() > 0  # the dropped renderer's cycle is collected here
+
+        monkeypatch.setattr(context_class, "make_current", make_current_then_collect)
+        dropped = CameraRenderer(tower_cell.model, 48, 48)
+        frame(dropped)
+        dropped.cycle = dropped  # unreachable only as a cycle: freed by a collection, not at ``del``
+        del dropped
+        gc.disable()  # the collection comes where the test puts it, nowhere else
+        try:
+            armed[0] = True
+            after = frame(kept)
+        finally:
+            gc.enable()
+        assert not armed[0]  # the collection ran, inside the draw
+        assert np.array_equal(before, after)
