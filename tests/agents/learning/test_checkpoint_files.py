@@ -17,6 +17,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from testkit import CONFIGS, TINY_DQN
 
 from panda_grasp_env.agents.learning.policy_files import (
     export_sb3,
@@ -57,8 +58,6 @@ def marker(tmp_path):
 
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
-    from tests.test_train_config import CONFIGS
-    from tests.test_training import TINY_DQN
 
     runs = tmp_path_factory.mktemp("runs")
     config = str(CONFIGS / "grasp_clutter_dqn.yaml")
@@ -122,8 +121,6 @@ def test_evaluate_refuses_a_payload_checkpoint_with_one_error_line(shipped, tmp_
 
 @pytest.mark.unit
 def test_init_policy_refuses_a_payload_checkpoint(shipped, tmp_path, marker, capsys):
-    from tests.test_train_config import CONFIGS
-    from tests.test_training import TINY_DQN
 
     pickled_checkpoint(shipped, marker)
     runs = tmp_path / "runs"
