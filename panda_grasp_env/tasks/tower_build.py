@@ -1,18 +1,21 @@
-"""TowerBuild: blocks scattered; stack all N on the base block (the first colour, red by default; its centre at
-reset is published, so the base is known where all blocks look alike)."""
+"""TowerBuild: blocks scattered (or lying as a broken tower left them); stack all N on the base block (the first
+colour, red by default; its centre at reset is published, so the base is known where all blocks look alike)."""
 
 from __future__ import annotations
 
 from typing import Any
 
+import mujoco
 import numpy as np
 
+from panda_grasp_env.geometry import is_number, yaw_quaternion
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
+from panda_grasp_env.primitives.top_down import push
 from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.sim.stacking import stack_column
 from panda_grasp_env.sim.stepping import body_speeds
-from panda_grasp_env.sim.workcell import Workcell
+from panda_grasp_env.sim.workcell import SPAWN_REGION, Workcell, tower_layout
 from panda_grasp_env.tasks.base import (
     Task,
     TaskStep,
@@ -27,6 +30,10 @@ from panda_grasp_env.tasks.base import (
 STABLE_TIME = 0.5
 #: Block speed below which it counts as still, m/s.
 STILL_SPEED = 0.01
+#: A broken-tower start: the push starts this far (m) from the struck block's centre and runs this far (m),
+#: heading within this angle (rad) of the spawn region's centre.  Pushed outwards, a tower near the region's
+#: edge threw blocks past the workspace, where no grasp reaches (the planned agent failed 6 of 20 such starts).
+BREAK_PUSH_START, BREAK_PUSH_DISTANCE, BREAK_SPREAD = 0.08, 0.1, np.pi / 3
 
 
 def blocks_still(cell: Workcell) -> bool:
@@ -49,9 +56,11 @@ class TowerBuild(Task):
     the base's axis (default a fifth of the block); ``block_colours``:
     ``"distinct"`` (default: each block its colour, as in ``order``) or
     ``"uniform"`` (every block the same light grey: only shape and place tell
-    blocks apart).  ``info`` at reset names the base (``base``) and gives its
-    centre (``base_position``, world metres): where blocks look alike, that is
-    how an agent knows which one it is.
+    blocks apart); ``broken_share``: the share of episodes (0-1, default 0) that
+    start from a tower pushed over (``broken_tower``) instead of scattered
+    blocks: how BuildAndBreak's later builds start.  ``info`` at reset names
+    the base (``base``) and gives its centre (``base_position``, world metres):
+    where blocks look alike, that is how an agent knows which one it is.
     Success (primitive modes): all blocks stacked, still and released for 0.5 s.
     Goal-conditioned (low-level modes): goal = where each non-base block stands
     in the finished tower, in the fixed order; success = all within 5 cm.
@@ -72,9 +81,15 @@ class TowerBuild(Task):
     start_states = ("in_hand", "above_object")
 
     def __init__(
-        self, n_blocks: int = 4, order: str = "any", tolerance: float | None = None, block_colours: str = "distinct"
+        self,
+        n_blocks: int = 4,
+        order: str = "any",
+        tolerance: float | None = None,
+        block_colours: str = "distinct",
+        broken_share: float = 0.0,
     ) -> None:
         check_tower_blocks(n_blocks)
+        check_option("broken_share", broken_share, is_number(broken_share) and 0 <= broken_share <= 1, "in [0, 1]")
         check_option("order", order, order in ("any", "fixed"), "'any' or 'fixed'")
         check_option(
             "tolerance", tolerance, tolerance is None or 0 < float(tolerance) <= 0.025, "None or in (0, 0.025] m"
@@ -84,6 +99,7 @@ class TowerBuild(Task):
         self.order = order
         self.tolerance = tolerance
         self.block_colours = block_colours
+        self.broken_share = float(broken_share)
         self._stable_since: float | None = None
         self._levels = 1
         self._column: list[int] = [0]
@@ -99,7 +115,11 @@ class TowerBuild(Task):
 
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
         cell.clear()
-        cell.place_blocks(rng, "scattered")
+        # Drawn only when broken starts are asked for: other episodes' scenes are as without the option.
+        if self.broken_share > 0 and rng.random() < self.broken_share:
+            broken_tower(cell, rng)
+        else:
+            cell.place_blocks(rng, "scattered")
         cell.settle(0.1)  # blocks start at rest on the table
         size = cell.config.block_size
         base = cell.block_positions()[0]
@@ -166,3 +186,25 @@ class TowerBuild(Task):
 
     def desired_goal(self) -> np.ndarray:
         return self._goal.copy()
+
+
+def broken_tower(cell: Workcell, rng: np.random.Generator) -> None:
+    """Lay the blocks out as a break leaves them: a tower of all blocks on the base (block 0; the others above it
+    in random order) is pushed at one of the blocks above the base, roughly towards the spawn region's centre
+    (``BREAK_SPREAD``), as the falls recorder and BuildAndBreak's breakers push; the arm is home again
+    afterwards.  A glancing push leaves part of the tower standing."""
+    n_blocks = len(cell.block_ids)
+    positions, yaws = tower_layout(rng, n_blocks, cell.config.block_size)
+    heights = np.sort(positions[:, 2])
+    order = [0, *(1 + rng.permutation(n_blocks - 1))]  # bottom up
+    for level, block in enumerate(order):
+        cell.set_body_pose(cell.block_ids[block], [*positions[0, :2], heights[level]], yaw_quaternion(yaws[0]))
+    mujoco.mj_forward(cell.model, cell.data)
+    cell.wait(0.1)
+    target = cell.block_positions()[order[int(rng.integers(1, n_blocks))]]
+    inward = np.arctan2(*(SPAWN_REGION.mean(axis=1) - target[:2])[::-1])
+    heading = float(inward + rng.uniform(-BREAK_SPREAD, BREAK_SPREAD))
+    along = np.array([np.cos(heading), np.sin(heading)])
+    start = target[:2] - BREAK_PUSH_START * along
+    push(cell, start[0], start[1], target[2], heading, BREAK_PUSH_DISTANCE)
+    cell.wait(0.5)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from panda_grasp_env.actions import LOW_LEVEL_BOUNDS
+from panda_grasp_env.model.robot import HOME_QPOS
 from panda_grasp_env.sim.stacking import wrap_quarter_turn
 
 SMALL = {"image_size": (32, 24), "heightmap_resolution": 0.008}
@@ -45,6 +46,38 @@ def test_tower_build_succeeds_in_ideal_actions_and_terminates():
     assert (info["grasps_attempted"], info["grasps_succeeded"], info["places"]) == (3, 3, 3)
     assert env.unwrapped.task.ideal_actions == 6
     env.close()
+
+
+def test_a_broken_start_lays_the_blocks_as_a_pushed_over_tower_and_the_planned_builder_restacks_them():
+    """broken_share=1: every episode starts from a tower on the base pushed over at a block above it; the blocks
+    lie flat and close together (a break's row), the base's centre is published, and the blocks can be stacked
+    again.  broken_share=0 draws nothing more: its scenes are those of the default."""
+    env = make("PandaTowerBuild-v0", broken_share=1.0)
+    default, unset = make("PandaTowerBuild-v0"), make("PandaTowerBuild-v0", broken_share=0.0)
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        cell = env.unwrapped.cell
+        positions = cell.block_positions()
+        assert np.allclose(positions[:, 2], 0.025, atol=0.003) and info["stack_height"] == 1  # all fell
+        assert np.allclose(info["base_position"], positions[0])
+        nearest = np.sort(np.linalg.norm(positions[:, None, :2] - positions[None, :, :2], axis=2), axis=1)[:, 1]
+        assert (nearest < 0.07).sum() >= 3  # all but one touch another or nearly (scattered: >= 10 cm apart)
+        assert cell.sim_time == 0.0 and np.abs(cell.robot.joint_positions - HOME_QPOS).max() < 0.02  # home
+        default.reset(seed=seed)
+        unset.reset(seed=seed)
+        assert np.array_equal(default.unwrapped.cell.block_positions(), unset.unwrapped.cell.block_positions())
+    env.reset(seed=0)
+    info = build_tower_through_env(env)
+    assert info["is_success"] and info["stack_height"] == 4
+    for other in (env, default, unset):
+        other.close()
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("share", [-0.1, 1.5, "half", None])
+def test_broken_share_outside_zero_to_one_is_named(share):
+    with pytest.raises(ValueError, match="broken_share"):
+        make("PandaTowerBuild-v0", broken_share=share)
 
 
 @pytest.mark.unit
