@@ -34,6 +34,9 @@ STILL_SPEED = 0.01
 #: heading within this angle (rad) of the spawn region's centre.  Pushed outwards, a tower near the region's
 #: edge threw blocks past the workspace, where no grasp reaches (the planned agent failed 6 of 20 such starts).
 BREAK_PUSH_START, BREAK_PUSH_DISTANCE, BREAK_SPREAD = 0.08, 0.1, np.pi / 3
+#: How many towers a broken start builds and pushes at most, and how far (m) above a face-down block's centre
+#: height the base's centre may be (higher, it leans on another block).
+BREAK_ATTEMPTS, BASE_FLAT_TOLERANCE = 5, 0.003
 
 
 def blocks_still(cell: Workcell) -> bool:
@@ -192,19 +195,24 @@ def broken_tower(cell: Workcell, rng: np.random.Generator) -> None:
     """Lay the blocks out as a break leaves them: a tower of all blocks on the base (block 0; the others above it
     in random order) is pushed at one of the blocks above the base, roughly towards the spawn region's centre
     (``BREAK_SPREAD``), as the falls recorder and BuildAndBreak's breakers push; the arm is home again
-    afterwards.  A glancing push leaves part of the tower standing."""
-    n_blocks = len(cell.block_ids)
-    positions, yaws = tower_layout(rng, n_blocks, cell.config.block_size)
-    heights = np.sort(positions[:, 2])
-    order = [0, *(1 + rng.permutation(n_blocks - 1))]  # bottom up
-    for level, block in enumerate(order):
-        cell.set_body_pose(cell.block_ids[block], [*positions[0, :2], heights[level]], yaw_quaternion(yaws[0]))
-    mujoco.mj_forward(cell.model, cell.data)
-    cell.wait(0.1)
-    target = cell.block_positions()[order[int(rng.integers(1, n_blocks))]]
-    inward = np.arctan2(*(SPAWN_REGION.mean(axis=1) - target[:2])[::-1])
-    heading = float(inward + rng.uniform(-BREAK_SPREAD, BREAK_SPREAD))
-    along = np.array([np.cos(heading), np.sin(heading)])
-    start = target[:2] - BREAK_PUSH_START * along
-    push(cell, start[0], start[1], target[2], heading, BREAK_PUSH_DISTANCE)
-    cell.wait(0.5)
+    afterwards.  A tower whose base ends up leaning on another block (no tower could stand on it) is built and
+    pushed again, up to ``BREAK_ATTEMPTS`` times."""
+    n_blocks, size = len(cell.block_ids), cell.config.block_size
+    for _ in range(BREAK_ATTEMPTS):
+        cell.clear()
+        positions, yaws = tower_layout(rng, n_blocks, size)
+        heights = np.sort(positions[:, 2])
+        order = [0, *(1 + rng.permutation(n_blocks - 1))]  # bottom up
+        for level, block in enumerate(order):
+            cell.set_body_pose(cell.block_ids[block], [*positions[0, :2], heights[level]], yaw_quaternion(yaws[0]))
+        mujoco.mj_forward(cell.model, cell.data)
+        cell.wait(0.1)
+        target = cell.block_positions()[order[int(rng.integers(1, n_blocks))]]
+        inward = np.arctan2(*(SPAWN_REGION.mean(axis=1) - target[:2])[::-1])
+        heading = float(inward + rng.uniform(-BREAK_SPREAD, BREAK_SPREAD))
+        along = np.array([np.cos(heading), np.sin(heading)])
+        start = target[:2] - BREAK_PUSH_START * along
+        push(cell, start[0], start[1], target[2], heading, BREAK_PUSH_DISTANCE)
+        cell.wait(0.5)
+        if cell.block_positions()[0, 2] < size / 2 + BASE_FLAT_TOLERANCE:  # the base lies on a face
+            return

@@ -58,7 +58,8 @@ def test_a_broken_start_lays_the_blocks_as_a_pushed_over_tower_and_the_planned_b
         _, info = env.reset(seed=seed)
         cell = env.unwrapped.cell
         positions = cell.block_positions()
-        assert np.allclose(positions[:, 2], 0.025, atol=0.003) and info["stack_height"] == 1  # all fell
+        # All fell: none stands on another (a block leaning on a neighbour, as on MuJoCo 3.x, is allowed).
+        assert positions[:, 2].max() < 0.045 and info["stack_height"] == 1
         assert np.allclose(info["base_position"], positions[0])
         nearest = np.sort(np.linalg.norm(positions[:, None, :2] - positions[None, :, :2], axis=2), axis=1)[:, 1]
         assert (nearest < 0.07).sum() >= 3  # all but one touch another or nearly (scattered: >= 10 cm apart)
