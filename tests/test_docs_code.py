@@ -1,13 +1,12 @@
 """The guide's code is the code: each block a page marks as a file's code equals that file."""
 
 import re
-from pathlib import Path
 
 import pytest
+from testkit import ROOT
 
 pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
 
-ROOT = Path(__file__).resolve().parents[1]
 MARKED = re.compile(
     r"<!-- the code of (\S+), kept equal to the file by tests/test_docs_code\.py -->\n\n```python\n(.*?)\n```\n", re.S
 )

@@ -14,8 +14,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from testkit import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 SOURCE_DIRS = ("panda_grasp_env", "agents", "perception", "tests", "benchmarks")
 GENERIC = ("agents", "perception")
 

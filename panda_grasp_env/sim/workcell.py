@@ -247,6 +247,10 @@ class Workcell:
             positions, yaws = tower_layout(rng, len(self.block_ids), self.config.block_size)
         else:
             raise ValueError(f"unknown layout {layout!r}; valid: ['scattered', 'tower']")
+        self.set_block_poses(positions, yaws)
+
+    def set_block_poses(self, positions: np.ndarray, yaws: np.ndarray) -> None:
+        """Put block i's centre at ``positions[i]`` (world, metres) turned ``yaws[i]`` radians about z, at rest."""
         for body_id, position, yaw in zip(self.block_ids, positions, yaws):
             self.set_body_pose(body_id, position, yaw_quaternion(yaw))
         mujoco.mj_forward(self.model, self.data)

@@ -5,10 +5,9 @@ from __future__ import annotations
 
 from typing import Any
 
-import mujoco
 import numpy as np
 
-from panda_grasp_env.geometry import is_number, yaw_quaternion
+from panda_grasp_env.geometry import is_number
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.primitives.top_down import push
@@ -195,17 +194,17 @@ def broken_tower(cell: Workcell, rng: np.random.Generator) -> None:
     """Lay the blocks out as a break leaves them: a tower of all blocks on the base (block 0; the others above it
     in random order) is pushed at one of the blocks above the base, roughly towards the spawn region's centre
     (``BREAK_SPREAD``), as the falls recorder and BuildAndBreak's breakers push; the arm is home again
-    afterwards.  A tower whose base ends up leaning on another block (no tower could stand on it) is built and
+    afterwards.  Expects a cleared cell (``TowerBuild.reset`` clears it).  A tower whose base ends up leaning on another block (no tower could stand on it) is built and
     pushed again, up to ``BREAK_ATTEMPTS`` times."""
     n_blocks, size = len(cell.block_ids), cell.config.block_size
-    for _ in range(BREAK_ATTEMPTS):
-        cell.clear()
+    for attempt in range(BREAK_ATTEMPTS):
+        if attempt:
+            cell.clear()
         positions, yaws = tower_layout(rng, n_blocks, size)
-        heights = np.sort(positions[:, 2])
-        order = [0, *(1 + rng.permutation(n_blocks - 1))]  # bottom up
-        for level, block in enumerate(order):
-            cell.set_body_pose(cell.block_ids[block], [*positions[0, :2], heights[level]], yaw_quaternion(yaws[0]))
-        mujoco.mj_forward(cell.model, cell.data)
+        order = [0, *(1 + rng.permutation(n_blocks - 1))]  # the block at each level, bottom up
+        placed = np.empty_like(positions)
+        placed[order] = positions[np.argsort(positions[:, 2])]  # the layout's places, bottom up
+        cell.set_block_poses(placed, yaws)
         cell.wait(0.1)
         target = cell.block_positions()[order[int(rng.integers(1, n_blocks))]]
         inward = np.arctan2(*(SPAWN_REGION.mean(axis=1) - target[:2])[::-1])
