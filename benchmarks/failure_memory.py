@@ -38,7 +38,7 @@ def measure(name: str, episodes: int | None, avoid_failures: bool, seed_offset: 
         config,
         episodes or config.final_eval_episodes,
         first_seed=config.eval_seed + seed_offset,
-        avoid_failures=avoid_failures,
+        acting=checkpoint.acting | {"avoid_failures": avoid_failures},
     )
     return policy_figures(metrics)
 

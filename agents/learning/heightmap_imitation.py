@@ -12,8 +12,9 @@ import numpy as np
 import torch
 from stable_baselines3.common.utils import polyak_update
 
+from panda_grasp_env.agents.learning.acting_rules import DIRECTED_PRIMITIVES
 from panda_grasp_env.agents.learning.heightmap_observations import encode_heightmap
-from panda_grasp_env.agents.learning.heightmap_policy import DIRECTED_PRIMITIVES, HeightmapDQN
+from panda_grasp_env.agents.learning.heightmap_policy import HeightmapDQN
 from panda_grasp_env.agents.learning.imitation import BufferedDemonstrationMixin, Demonstrations, check_demonstrations
 from panda_grasp_env.geometry import is_number
 

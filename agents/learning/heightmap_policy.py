@@ -39,14 +39,8 @@ from stable_baselines3.dqn.policies import DQNPolicy
 from torch import nn
 
 from panda_grasp_env.actions import PixelActions
+from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory
 from panda_grasp_env.agents.learning.heightmap_observations import HEIGHT_RANGE
-
-#: An acting policy does not try a primitive again within this many metres of a cell where it failed while
-#: the heights there stay within ``RETRY_HEIGHT_CHANGE`` metres of what they were (``FailureMemory``).
-RETRY_RADIUS = 0.012
-RETRY_HEIGHT_CHANGE = 0.005
-#: Primitives whose heading is a direction of travel: turned by half a turn, they are another action.
-DIRECTED_PRIMITIVES = frozenset({"push"})
 
 
 def rotation_matrices(angles: th.Tensor) -> th.Tensor:
@@ -217,55 +211,6 @@ class HeightmapQNetwork(nn.Module):
         return mask
 
 
-class FailureMemory:
-    """The primitives that failed in an episode, with where, at which heading, and the heights around them.
-
-    In an unchanged scene a greedy policy chooses the same action again and often fails the same way:
-    held-out tower trials ended at the action limit retrying one grasp next to the tower.  ``excluded``
-    marks the actions near an earlier failure, at its heading, whose surroundings have not changed -- the
-    planned grasp agent's rule (``RETRY_DISTANCE``, ``RETRY_HEADING`` in ``agents/policies/grasping.py``) on the
-    policy's grid.  A grasp or place turned by half a turn is the same action (the two fingers are alike),
-    so that heading is marked too; a push turned round is not (``DIRECTED_PRIMITIVES``).  Other headings
-    stay open: the tower policy's repeated failures were grasps at a wrong heading beside a block, and
-    marking every heading also forbade the right grasp there (``benchmarks/failure_memory.py``).  Heights are
-    all it compares: the arm may stand elsewhere after a failure, so a retry can differ.  Works on encoded
-    heightmaps (``encode_heightmap``).  Used by ``PolicyAgent(avoid_failures=True)``.
-    """
-
-    def __init__(self, shape: tuple[int, int, int, int], cell_size: float, primitives: tuple[str, ...]) -> None:
-        """``shape``: (primitives, rotations, rows, cols) of the ``pixel`` actions; ``cell_size``: metres;
-        ``primitives``: their names, in the action layout's order."""
-        if len(primitives) != shape[0]:
-            raise ValueError(f"{len(primitives)} primitive names for an action layout of shape {shape}")
-        self.shape = shape
-        self.radius = max(1, round(RETRY_RADIUS / cell_size))
-        self.tolerance = RETRY_HEIGHT_CHANGE / HEIGHT_RANGE * 255  # encoded height levels
-        rotations = shape[1]
-        self.half_turn = [rotations % 2 == 0 and name not in DIRECTED_PRIMITIVES for name in primitives]
-        self.failures: list[tuple[int, list[int], slice, slice, np.ndarray]] = []
-
-    def reset(self) -> None:
-        self.failures.clear()
-
-    def record_failure(self, action: int, observation: np.ndarray) -> None:
-        """``action`` failed; ``observation`` is the encoded heightmap it was chosen on."""
-        primitive, rotation, row, col = (int(i) for i in np.unravel_index(int(action), self.shape))
-        rotations = self.shape[1]
-        headings = [rotation, (rotation + rotations // 2) % rotations] if self.half_turn[primitive] else [rotation]
-        rows = slice(max(0, row - self.radius), row + self.radius + 1)
-        cols = slice(max(0, col - self.radius), col + self.radius + 1)
-        self.failures.append((primitive, headings, rows, cols, observation[3, rows, cols].astype(np.int16)))
-
-    def excluded(self, observation: np.ndarray) -> np.ndarray | None:
-        """(P * R * H * W,) bool: the actions near a failure, at its heading, whose heights are as they were;
-        None if none."""
-        mask = np.zeros(self.shape, dtype=bool)
-        for primitive, headings, rows, cols, heights in self.failures:
-            if np.abs(observation[3, rows, cols].astype(np.int16) - heights).max() <= self.tolerance:
-                mask[primitive, headings, rows, cols] = True
-        return mask.ravel() if mask.any() else None
-
-
 class HeightmapQPolicy(DQNPolicy):
     """SB3 DQN policy around ``HeightmapQNetwork``; actions outside ``allowed`` are never chosen.
 
@@ -377,6 +322,11 @@ class HeightmapQPolicy(DQNPolicy):
     def failure_memory(self) -> FailureMemory:
         """An empty ``FailureMemory`` for this policy's actions (``PolicyAgent(avoid_failures=True)`` keeps one)."""
         return FailureMemory(self.shape, self.network_args["cell_size"], self.network_args["primitives"])
+
+    def face_centring(self, block_size: float) -> FaceCentring:
+        """A ``FaceCentring`` for this policy's actions on blocks of edge ``block_size`` metres
+        (``PolicyAgent(centre_on_faces=True)`` keeps one)."""
+        return FaceCentring(self.shape, self.network_args["cell_size"], self.network_args["primitives"], block_size)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return {

@@ -21,6 +21,7 @@ from panda_grasp_env.agents.learning.policy_files import load_policy, policy_pat
 from panda_grasp_env.agents.learning.seed_figures import study_markdown
 from panda_grasp_env.agents.policies import learned
 from panda_grasp_env.agents.policies.learned import SHIPPED_FILES
+from panda_grasp_env.agents.policies.policy_agent import ACTING_RULES
 from panda_grasp_env.tooling.runs import atomic_path, read_json, resume_summary, write_atomically, write_json
 
 
@@ -133,8 +134,7 @@ def earlier_tests(run_dir: Path, best_steps: int, steps: int) -> list[dict[str, 
     if (previous.get("best_steps"), previous.get("steps")) != (best_steps, steps):
         return []
     test = {"test_commit": previous.get("test_commit"), "metrics": previous["metrics"]}
-    if previous.get("avoid_failures"):
-        test["avoid_failures"] = True
+    test |= {rule: True for rule in ACTING_RULES if previous.get(rule)}
     return [*previous.get("earlier", []), test]
 
 
@@ -178,8 +178,13 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: 
 
     earlier = []
     for test in reversed(final.get("earlier", [])):
-        memory = ", with its `FailureMemory`" if test.get("avoid_failures") else ""
-        earlier += ["", f"At commit {test['test_commit']}{memory}:", "", *results(test["metrics"])]
+        rules = acting_rules_text(test)
+        earlier += [
+            "",
+            f"At commit {test['test_commit']}{f', with {rules}' if rules else ''}:",
+            "",
+            *results(test["metrics"]),
+        ]
     if earlier:
         earlier = ["", "### Earlier tests of this policy, same seeds (newest first)", *earlier]
 
@@ -236,10 +241,11 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: 
         *(
             [
                 "",
-                "It acts as shipped, with its `FailureMemory` (`checkpoint.json` `avoid_failures`, chosen on selection "
-                "seeds; the rule: `panda_grasp_env.agents.learning.heightmap_policy.FailureMemory`).",
+                f"It acts as shipped, with {acting_rules_text(final)} (`checkpoint.json` "
+                f"{', '.join(f'`{rule}`' for rule in ACTING_RULES if final.get(rule))}, chosen on selection seeds; the "
+                "rules: `panda_grasp_env.agents.learning.acting_rules`).",
             ]
-            if final.get("avoid_failures")
+            if acting_rules_text(final)
             else []
         ),
         "",
@@ -259,6 +265,12 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: 
     return "\n".join(lines)
 
 
+def acting_rules_text(test: dict[str, Any]) -> str:
+    """The acting rules a test's record has on, as the card names them ("its `FailureMemory` and
+    `FaceCentring`"); '' if none."""
+    return " and ".join(text for rule, text in ACTING_RULES.items() if test.get(rule))
+
+
 def seeds_section(folder: Path) -> list[str]:
     """The card's section on the config's figures over training seeds (seeds.json, from ``train.py --seeds``
     attached with ``attach_study``), or nothing."""
@@ -268,10 +280,10 @@ def seeds_section(folder: Path) -> list[str]:
     return ["## Over training seeds", "", study_markdown(study), "", "![performance profile](seeds_profile.png)", ""]
 
 
-def ship(run_dir: Path, name: str, avoid_failures: bool = False) -> Path:
+def ship(run_dir: Path, name: str, avoid_failures: bool = False, centre_on_faces: bool = False) -> Path:
     """Copy a finished run (policy, card, curve, config) to ``agents/checkpoints/<name>`` (``learned.CHECKPOINTS``),
-    atomically.  ``avoid_failures``: the checkpoint acts with a ``FailureMemory`` (``Checkpoint.avoid_failures``;
-    heightmap Q-policies only)."""
+    atomically.  ``avoid_failures``, ``centre_on_faces``: the checkpoint acts with a ``FailureMemory``, with
+    ``FaceCentring`` (``Checkpoint.acting``; heightmap Q-policies only)."""
     run_dir = Path(run_dir)
     missing = [f for f in SHIPPED_FILES if not (run_dir / f).is_file()]
     if missing:
@@ -279,10 +291,10 @@ def ship(run_dir: Path, name: str, avoid_failures: bool = False) -> Path:
     if not name.replace("-", "").replace("_", "").isalnum():
         raise ValueError(f"checkpoint name {name!r}: letters, digits, - and _ only")
     config = load_run(run_dir)
-    if avoid_failures and config.algo not in HEIGHTMAP_ALGORITHMS:
-        raise ValueError(
-            f"avoid_failures: only heightmap_dqn policies keep a FailureMemory, {run_dir} is {config.algo}"
-        )
+    acting = {"avoid_failures": avoid_failures, "centre_on_faces": centre_on_faces}
+    if any(acting.values()) and config.algo not in HEIGHTMAP_ALGORITHMS:
+        on = [rule for rule, value in acting.items() if value]
+        raise ValueError(f"{', '.join(on)}: only heightmap_dqn policies act by these rules, {run_dir} is {config.algo}")
     best = json.loads((run_dir / "best.json").read_text())
     staging = learned.CHECKPOINTS / f".{name}.tmp"
     shutil.rmtree(staging, ignore_errors=True)
@@ -303,7 +315,7 @@ def ship(run_dir: Path, name: str, avoid_failures: bool = False) -> Path:
             "env_id": config.env_id,
             "task": task_label(config.env_id, config.env_kwargs),
             "algo": config.algo,
-            "avoid_failures": avoid_failures,
+            **acting,
         },
     )
     target = learned.CHECKPOINTS / name

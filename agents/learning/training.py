@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -154,18 +155,19 @@ def evaluate_policy(
     episodes: int,
     env: gym.Env | None = None,
     first_seed: int | None = None,
-    avoid_failures: bool = False,
+    acting: Mapping[str, bool] | None = None,
 ) -> dict[str, Any]:
     """Task metrics (``panda_grasp_env.agents.evaluation.metrics.aggregate``) of ``model`` (an SB3 model or policy) acting as a
     ``PolicyAgent`` over ``episodes`` episodes seeded ``first_seed``, ``first_seed + 1``, ... (default: the
-    validation seeds, ``eval_seed``...)."""
+    validation seeds, ``eval_seed``...), acting by the rules ``acting`` turns on (``PolicyAgent``'s
+    ``ACTING_RULES``; none by default)."""
     import torch
 
     torch.set_num_threads(config.torch_threads)  # as in training: other thread counts may round (and choose) apart
     first_seed = config.eval_seed if first_seed is None else first_seed
     own_env = env is None
     env = make_env(config) if env is None else env
-    agent = PolicyAgent(model, observation_transform(config), config.name, avoid_failures)
+    agent = PolicyAgent(model, observation_transform(config), config.name, **(acting or {}))
     task = task_label(config.env_id, config.env_kwargs)
     results = [
         play_episode(env, agent, EpisodeSpec(config.name, task, first_seed + i))["result"] for i in range(episodes)
@@ -419,17 +421,17 @@ def retest(run_dir: Path) -> dict[str, Any]:
     if not (run_dir / "best.json").is_file() or not totals.is_file():
         raise ValueError(f"{run_dir} has no best policy to test yet (best.json, {totals.name})")
     progress = json.loads(totals.read_text())
-    # A shipped checkpoint is tested as it acts when shipped (with its FailureMemory if it has one).
-    avoid_failures = (run_dir / "checkpoint.json").is_file() and Checkpoint(run_dir).avoid_failures
-    return final_test(config, run_dir, int(progress["steps"]), float(progress["wall_seconds"]), avoid_failures)
+    # A shipped checkpoint is tested as it acts when shipped (by its acting rules, if it has any).
+    acting = Checkpoint(run_dir).acting if (run_dir / "checkpoint.json").is_file() else None
+    return final_test(config, run_dir, int(progress["steps"]), float(progress["wall_seconds"]), acting)
 
 
 def final_test(
-    config: TrainConfig, run_dir: Path, steps: int, wall_seconds: float, avoid_failures: bool = False
+    config: TrainConfig, run_dir: Path, steps: int, wall_seconds: float, acting: Mapping[str, bool] | None = None
 ) -> dict[str, Any]:
     """Test the best validated policy on held-out seeds (``final_eval_episodes`` episodes from
-    ``eval_seed + TEST_SEED_OFFSET``): final.json and card.md.  ``avoid_failures``: it acts with a
-    ``FailureMemory`` (a shipped checkpoint's setting)."""
+    ``eval_seed + TEST_SEED_OFFSET``): final.json and card.md.  ``acting``: the rules it acts by (a
+    shipped checkpoint's ``Checkpoint.acting``); final.json names those on."""
     policy, best = load_best_policy(run_dir)
     began = time.perf_counter()
     metrics = evaluate_policy(
@@ -437,7 +439,7 @@ def final_test(
         config,
         config.final_eval_episodes,
         first_seed=config.eval_seed + TEST_SEED_OFFSET,
-        avoid_failures=avoid_failures,
+        acting=acting,
     )
     evaluations = read_evaluations(run_dir)
     first_90 = next((r for r in evaluations if r["metrics"]["trial_success"]["rate"] >= 0.9), None)
@@ -459,7 +461,7 @@ def final_test(
         "steps_to_90_percent": first_90["steps"] if first_90 else None,
         "minutes_to_90_percent": round(first_90["wall_seconds"] / 60, 1) if first_90 else None,
         "metrics": metrics,
-        **({"avoid_failures": True} if avoid_failures else {}),
+        **{rule: True for rule, on in (acting or {}).items() if on},
         "earlier": earlier_tests(run_dir, best["steps"], steps),
     }
     write_json(run_dir / "final.json", final)

@@ -5,8 +5,9 @@ A checkpoint is a folder ``agents/checkpoints/<name>/`` written by
 
     policy.safetensors  the policy's weights (no optimiser, no replay buffer): the run's best on validation
     policy.json         its class and constructor arguments, as data (``panda_grasp_env.agents.learning.policy_files``)
-    checkpoint.json     env id, evaluation task, policy class, the step it was saved at, and whether the
-                        policy acts with a ``FailureMemory`` (``avoid_failures``, set by ``--ship --avoid-failures``)
+    checkpoint.json     env id, evaluation task, policy class, the step it was saved at, and the rules the
+                        policy acts by (``PolicyAgent``: ``avoid_failures`` and ``centre_on_faces``, set by
+                        ``--ship --avoid-failures --centre-on-faces``)
     config.yaml         the training config
     card.md             the model card: config, seed, steps, wall time, machine, metrics with 95 % CIs
     curve.png           the learning curve; evaluations.jsonl, final.json, meta.json: its data
@@ -26,7 +27,7 @@ import numpy as np
 
 from panda_grasp_env.agents.learning.config import TrainConfig, config_from_dict, make_env, observation_transform
 from panda_grasp_env.agents.learning.policy_files import export_sb3, load_policy, load_sb3, policy_paths
-from panda_grasp_env.agents.policies.policy_agent import PolicyAgent
+from panda_grasp_env.agents.policies.policy_agent import ACTING_RULES, PolicyAgent
 from panda_grasp_env.tooling.runs import read_json, sha256
 
 CHECKPOINTS = Path(__file__).resolve().parents[1] / "checkpoints"
@@ -59,6 +60,7 @@ CHECKPOINT_FACTS: dict[str, type | tuple[type, ...]] = {
     "env_id": str,
     "algo": str,
     "avoid_failures": bool,
+    "centre_on_faces": bool,
 }
 #: Largest checkpoint.json and config.yaml read, in bytes.
 MAX_FACTS_BYTES = 64 << 10
@@ -126,10 +128,10 @@ class Checkpoint:
         return self.meta["task"]
 
     @property
-    def avoid_failures(self) -> bool:
-        """Whether the policy acts with a ``FailureMemory`` as shipped: a choice made on selection seeds
-        (``benchmarks/failure_memory.py --seeds selection``), not part of its training."""
-        return self.meta.get("avoid_failures", False)
+    def acting(self) -> dict[str, bool]:
+        """The rules the policy acts by as shipped (``ACTING_RULES``, each on or off): choices made on selection
+        seeds, not part of its training."""
+        return {rule: self.meta.get(rule, False) for rule in ACTING_RULES}
 
     def load_policy(self) -> Any:
         """The policy, from policy.json + policy.safetensors; from an SB3 policy.zip only if ``trust``."""
@@ -206,23 +208,25 @@ def check_compatible(policy: Any, config: TrainConfig, env: gym.Env, name: str) 
 
 
 class LearnedAgent(PolicyAgent):
-    """A shipped policy as an ``Agent``: deterministic actions from the observation (with ``avoid_failures``,
-    and a heightmap policy's ``FailureMemory`` of the episode: see ``PolicyAgent``)."""
+    """A shipped policy as an ``Agent``: deterministic actions from the observation, by the rules it was shipped
+    with (a heightmap policy's ``FailureMemory`` and ``FaceCentring``: see ``PolicyAgent``)."""
 
     def __init__(
         self,
         checkpoint: str | Path,
         env: gym.Env | None = None,
         avoid_failures: bool | None = None,
+        centre_on_faces: bool | None = None,
         trust: bool = False,
     ) -> None:
-        """``avoid_failures``: None acts as the checkpoint was shipped (``Checkpoint.avoid_failures``);
-        ``trust``: the checkpoint may be an SB3 ``policy.zip`` (a pickle: see ``Checkpoint``)."""
+        """``avoid_failures``, ``centre_on_faces``: None acts as the checkpoint was shipped
+        (``Checkpoint.acting``); ``trust``: the checkpoint may be an SB3 ``policy.zip`` (a pickle: see
+        ``Checkpoint``)."""
         self.checkpoint = Checkpoint(checkpoint, trust)
         policy = self.checkpoint.load_policy()
-        if avoid_failures is None:
-            avoid_failures = self.checkpoint.avoid_failures
-        super().__init__(policy, observation_transform(self.checkpoint.config), self.checkpoint.name, avoid_failures)
+        chosen = {"avoid_failures": avoid_failures, "centre_on_faces": centre_on_faces}
+        acting = self.checkpoint.acting | {rule: on for rule, on in chosen.items() if on is not None}
+        super().__init__(policy, observation_transform(self.checkpoint.config), self.checkpoint.name, **acting)
         if env is not None:
             check_compatible(policy, self.checkpoint.config, env, self.name)
 

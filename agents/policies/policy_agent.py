@@ -7,39 +7,65 @@ from typing import Any
 
 import numpy as np
 
+#: The rules a checkpoint can act by (``PolicyAgent``'s keyword arguments, ``checkpoint.json``'s keys), as its
+#: card names them.
+ACTING_RULES = {"avoid_failures": "its `FailureMemory`", "centre_on_faces": "`FaceCentring`"}
+
 
 class PolicyAgent:
     """An SB3 model or policy as an ``Agent``: deterministic actions from transformed observations.
 
-    With ``avoid_failures`` a policy that makes one (``failure_memory()``: the heightmap Q-policy) also keeps a
-    ``FailureMemory``: it does not choose again, within 12 mm and at the same heading, a primitive that failed
-    there while the heights around it are unchanged.  Off by default; a checkpoint shipped with it on
-    (``Checkpoint.avoid_failures``) had it chosen on selection seeds (``benchmarks/failure_memory.py --seeds
-    selection``, docs/learning.md).
+    A heightmap Q-policy can also act by rules chosen on selection seeds (``agents/learning/acting_rules.py``),
+    each off by default and shipped on where chosen (``Checkpoint.acting``):
+
+    * ``avoid_failures``: it keeps a ``FailureMemory``: it does not choose again, within 12 mm and at the same
+      heading, a primitive that failed there while the heights around it are unchanged
+      (``benchmarks/failure_memory.py --seeds selection``, docs/learning.md);
+    * ``centre_on_faces``: ``FaceCentring`` moves its grasps and places onto the centre of the block face
+      chosen, and places on a tower onto the tower's axis (docs/tall-towers.md).
     """
 
     def __init__(
-        self, model: Any, transform: Callable[[Any, dict[str, Any]], Any], name: str, avoid_failures: bool = False
+        self,
+        model: Any,
+        transform: Callable[[Any, dict[str, Any]], Any],
+        name: str,
+        avoid_failures: bool = False,
+        centre_on_faces: bool = False,
     ) -> None:
         self.model, self.transform, self.name = model, transform, name
         self.policy = getattr(model, "policy", model)  # an SB3 model's policy, or the policy itself
         self.memory = None
         if avoid_failures and hasattr(self.policy, "failure_memory"):
             self.memory = self.policy.failure_memory()
+        self.centre_on_faces = centre_on_faces and hasattr(self.policy, "face_centring")
+        self.centring = None  # made at reset, for the episode's block size
+        self.block_size: float | None = None
         self._chosen: tuple[int, np.ndarray] | None = None  # the last action and what it was chosen on
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
         if self.memory is not None:
             self.memory.reset()
+        if self.centre_on_faces:
+            # The env's reset info gives the blocks' size; a reset mid-episode (a phase's, on a step's info) keeps it.
+            self.block_size = info.get("block_size", self.block_size)
+            if self.block_size is None:
+                raise ValueError(f"{self.name} centres on block faces, but the env's reset info has no block_size")
+            self.centring = self.policy.face_centring(float(self.block_size))
         self._chosen = None
 
     def act(self, observation: Any, info: dict[str, Any]) -> Any:
         seen = self.transform(observation, info)
-        if self.memory is None:
+        if self.memory is None and self.centring is None:
             action, _ = self.model.predict(seen, deterministic=True)
             return action
-        if self._chosen is not None and not info.get("primitive_success", True):
-            self.memory.record_failure(*self._chosen)
-        action = self.policy.greedy_action(seen, self.memory.excluded(seen))
+        excluded = None
+        if self.memory is not None:
+            if self._chosen is not None and not info.get("primitive_success", True):
+                self.memory.record_failure(*self._chosen)
+            excluded = self.memory.excluded(seen)
+        action = self.policy.greedy_action(seen, excluded)
+        if self.centring is not None:
+            action = self.centring.centred(action, seen)
         self._chosen = (action, seen)
         return action

@@ -67,6 +67,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="--ship: the checkpoint acts with a FailureMemory (decide on selection seeds: "
         "benchmarks/failure_memory.py --seeds selection)",
     )
+    parser.add_argument(
+        "--centre-on-faces",
+        action="store_true",
+        help="--ship: the checkpoint's grasps and places go to the centre of the block face it chose "
+        "(FaceCentring; decide on selection seeds)",
+    )
     parser.add_argument("--retest", type=Path, default=None, help="test this run or checkpoint again")
     parser.add_argument(
         "--trust",
@@ -98,8 +104,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("give exactly one of --config, --resume, --ship or --retest")
     if args.ship is not None and not args.name:
         parser.error("--ship needs --name")
-    if args.avoid_failures and args.ship is None:
-        parser.error("--avoid-failures goes with --ship")
+    if (args.avoid_failures or args.centre_on_faces) and args.ship is None:
+        parser.error("--avoid-failures and --centre-on-faces go with --ship")
     if args.trust and args.resume is None:
         parser.error("--trust goes with --resume")
     if (args.workers is not None or args.ray is not None) and args.seeds is None:
@@ -144,13 +150,13 @@ def main(argv: list[str] | None = None) -> int:
             if (args.ship / "best.pt").exists():
                 from panda_grasp_env.falls.records import ship_fall_run
 
-                if args.avoid_failures:
-                    raise ValueError("--avoid-failures: a fall-dynamics model keeps no FailureMemory")
+                if args.avoid_failures or args.centre_on_faces:
+                    raise ValueError("--avoid-failures, --centre-on-faces: a fall-dynamics model acts by no rules")
                 shipped = ship_fall_run(args.ship, args.name)
             else:
                 from panda_grasp_env.agents.learning.records import ship
 
-                shipped = ship(args.ship, args.name, args.avoid_failures)
+                shipped = ship(args.ship, args.name, args.avoid_failures, args.centre_on_faces)
             print(f"shipped to {shipped}")
             return 0
         if args.retest is not None:

@@ -1,5 +1,5 @@
 """The heightmap Q-policy (``agents/learning/heightmap_policy.py``): encoded heightmaps, rotations, masks,
-exploration and the failure memory."""
+exploration."""
 
 import gymnasium as gym
 import numpy as np
@@ -15,7 +15,6 @@ from panda_grasp_env.agents.learning.heightmap_observations import (
     holding_after,
 )
 from panda_grasp_env.agents.learning.heightmap_policy import (
-    FailureMemory,
     HeightmapDQN,
     HeightmapQPolicy,
     heading_in_image,
@@ -119,20 +118,6 @@ def test_policy_only_grasps_on_objects_and_scores_one_rotation_like_all(refine):
     assert np.array_equal(allowed[0, 2].numpy(), inside)
     with pytest.raises(ValueError, match="primitives_used"):
         tiny_policy(used=("place",))
-
-
-@pytest.mark.unit
-def test_failure_memory_marks_the_failed_heading_and_a_grasps_half_turn_only():
-    observation, _ = blob_observation()
-    memory = FailureMemory((2, 4, 40, 40), cell_size=0.01, primitives=("grasp", "push"))
-    memory.record_failure(np.ravel_multi_index((0, 1, 12, 25), (2, 4, 40, 40)), observation)
-    memory.record_failure(np.ravel_multi_index((1, 1, 30, 5), (2, 4, 40, 40)), observation)
-    excluded = memory.excluded(observation).reshape(2, 4, 40, 40)
-    assert excluded[0, [1, 3], 12, 25].all() and not excluded[0, [0, 2], 12, 25].any()  # the fingers are alike
-    assert excluded[1, 1, 30, 5] and not excluded[1, [0, 2, 3], 30, 5].any()  # a push turned round is not
-    assert excluded[0, 1, 12 + memory.radius, 25] and not excluded[0, 1, 13 + memory.radius, 25]
-    with pytest.raises(ValueError, match="primitive names"):
-        FailureMemory((2, 4, 40, 40), cell_size=0.01, primitives=("grasp",))
 
 
 @pytest.mark.unit

@@ -29,7 +29,7 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
     coarse = gym.make("PandaGrasp-v0", obs_mode="heightmap", action_mode="pixel", heightmap_resolution=0.008)
     with pytest.raises(ValueError, match="expects observations"):
         learned.LearnedAgent("tiny", coarse)
-    assert agent.memory is None and not learned.Checkpoint("tiny").avoid_failures
+    assert agent.memory is None and not learned.Checkpoint("tiny").acting["avoid_failures"]
     ship(finished_run, "tiny", avoid_failures=True)  # shipped again, to act with its FailureMemory
     assert learned.LearnedAgent("tiny").memory is not None
     assert learned.LearnedAgent("tiny", avoid_failures=False).memory is None

@@ -39,3 +39,16 @@ def test_agent_does_not_retry_a_failed_primitive_where_nothing_changed():
     assert agent.memory.excluded(raised) is None
     agent.reset(observation, {})
     assert agent.act(observation, failed) == first  # a new episode forgets
+
+
+def test_agent_centring_on_faces_moves_its_grasps_to_the_blocks_centre():
+    th.manual_seed(0)
+    policy = tiny_policy()
+    observation, inside = blob_observation()  # a disc of 1 cm cells, about one 5 cm block face, centre (12, 25)
+    agent = PolicyAgent(policy, lambda o, i: o, "tiny", centre_on_faces=True)
+    with pytest.raises(ValueError, match="block_size"):
+        agent.reset(observation, {})
+    agent.reset(observation, {"block_size": 0.05})
+    chosen = np.unravel_index(PolicyAgent(policy, lambda o, i: o, "tiny").act(observation, {}), (2, 4, 40, 40))
+    primitive, rotation, row, col = np.unravel_index(agent.act(observation, {}), (2, 4, 40, 40))
+    assert (primitive, rotation) == tuple(chosen[:2]) and (row, col) == (12, 25)

@@ -1,0 +1,85 @@
+"""The rules a heightmap Q-policy can act by (``agents/learning/acting_rules.py``): ``FailureMemory`` and
+``FaceCentring``."""
+
+import numpy as np
+import pytest
+from testkit import blob_observation
+
+from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory
+from panda_grasp_env.agents.learning.heightmap_observations import encode_heightmap
+
+pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
+
+SHAPE = (3, 4, 60, 60)  # grasp, place, push; 4 headings; 60 x 60 cells of 4 mm
+CELL, BLOCK = 0.004, 0.05
+
+
+def blocks(*squares: tuple[int, int, int, float]) -> np.ndarray:
+    """An encoded heightmap of square top faces (first row, first column, side in cells, height in metres)."""
+    heightmap = np.zeros((SHAPE[2], SHAPE[3], 4), dtype=np.float32)
+    for row, col, side, height in squares:
+        heightmap[max(row, 0) : row + side, max(col, 0) : col + side] = [0.5, 0.5, 0.5, height]
+    return encode_heightmap(heightmap)
+
+
+def action(primitive: int, row: int, col: int, rotation: int = 1) -> int:
+    return int(np.ravel_multi_index((primitive, rotation, row, col), SHAPE))
+
+
+def cell(action_index: int) -> tuple[int, ...]:
+    return tuple(int(i) for i in np.unravel_index(action_index, SHAPE))
+
+
+def centring() -> FaceCentring:
+    return FaceCentring(SHAPE, CELL, ("grasp", "place", "push"), BLOCK)
+
+
+def test_failure_memory_marks_the_failed_heading_and_a_grasps_half_turn_only():
+    observation, _ = blob_observation()
+    memory = FailureMemory((2, 4, 40, 40), cell_size=0.01, primitives=("grasp", "push"))
+    memory.record_failure(np.ravel_multi_index((0, 1, 12, 25), (2, 4, 40, 40)), observation)
+    memory.record_failure(np.ravel_multi_index((1, 1, 30, 5), (2, 4, 40, 40)), observation)
+    excluded = memory.excluded(observation).reshape(2, 4, 40, 40)
+    assert excluded[0, [1, 3], 12, 25].all() and not excluded[0, [0, 2], 12, 25].any()  # the fingers are alike
+    assert excluded[1, 1, 30, 5] and not excluded[1, [0, 2, 3], 30, 5].any()  # a push turned round is not
+    assert excluded[0, 1, 12 + memory.radius, 25] and not excluded[0, 1, 13 + memory.radius, 25]
+    with pytest.raises(ValueError, match="primitive names"):
+        FailureMemory((2, 4, 40, 40), cell_size=0.01, primitives=("grasp",))
+
+
+def test_a_grasp_or_place_goes_to_the_centre_of_the_face_it_chose_at_its_heading():
+    scene = blocks((20, 30, 13, BLOCK))  # one block: rows and columns 20-32, centre (26, 36)
+    rules = centring()
+    assert cell(rules.centred(action(0, 22, 33, rotation=3), scene)) == (0, 3, 26, 36)
+    assert cell(rules.centred(action(1, 30, 39), scene)) == (1, 1, 26, 36)
+    assert rules.centred(action(2, 22, 33), scene) == action(2, 22, 33)  # a push is left as chosen
+    assert rules.centred(action(0, 5, 5), scene) == action(0, 5, 5)  # nothing stands there
+
+
+def test_a_place_on_the_tower_goes_onto_the_axis_of_its_base():
+    rules = centring()
+    base = blocks((20, 30, 13, BLOCK))
+    rules.centred(action(1, 24, 34), base)  # the first place chose the base: its centre is the axis
+    leaning = blocks((20, 30, 13, BLOCK), (22, 32, 13, 3 * BLOCK))  # a third level 2 cells off the base
+    assert cell(rules.centred(action(1, 27, 37), leaning)) == (1, 1, 26, 36)
+    elsewhere = blocks((20, 30, 13, BLOCK), (40, 5, 13, 2 * BLOCK))  # another tower, 3 cm and more away
+    assert cell(rules.centred(action(1, 44, 9), elsewhere)) == (1, 1, 46, 11)
+
+
+def test_a_face_cut_by_the_heightmaps_edge_is_centred_from_its_inner_edge():
+    scene = blocks((20, -5, 13, BLOCK))  # 5 of its 13 columns lie outside: centre (26, 1)
+    assert cell(centring().centred(action(0, 25, 4), scene)) == (0, 1, 26, 1)
+    corner = blocks((-5, -5, 13, BLOCK))  # cut on two sides: no centre to find
+    assert centring().centred(action(0, 3, 3), corner) == action(0, 3, 3)
+
+
+def test_touching_blocks_are_not_one_face():
+    scene = blocks((20, 20, 13, BLOCK), (20, 33, 13, BLOCK))  # two faces side by side, as one
+    assert centring().centred(action(0, 26, 31), scene) == action(0, 26, 31)
+
+
+def test_the_layout_and_sizes_are_checked():
+    with pytest.raises(ValueError, match="primitive names"):
+        FaceCentring(SHAPE, CELL, ("grasp", "place"), BLOCK)
+    with pytest.raises(ValueError, match="cell_size"):
+        FaceCentring(SHAPE, 0.06, ("grasp", "place", "push"), BLOCK)
