@@ -4,13 +4,17 @@
   that just failed there.
 * ``FaceCentring`` (``PolicyAgent(centre_on_faces=True)``): move a chosen grasp or place onto the centre of the
   block face it chose, and a place on a tower onto the tower's axis.
+* ``InwardPushes`` (``PolicyAgent(inward_pushes=True)``): push a tower over only towards the heightmap's
+  middle, so its blocks land in view.
 
 The policy still chooses the primitive, the heading and which block or tower; a rule only changes where on
-that block the action lands, or forbids repeating one.  Both work on encoded heightmaps (``encode_heightmap``:
+that block the action lands, or forbids some actions (the best of the others is taken).  They work on encoded heightmaps (``encode_heightmap``:
 channel 3 is height in millimetres, row i and column j at the ``pixel`` action grid's cell (i, j)).
 """
 
 from __future__ import annotations
+
+import math
 
 import cv2
 import numpy as np
@@ -175,3 +179,50 @@ class FaceCentring:
         half = (face_cols.max() - face_cols.min() + 1) / 2
         inner = face_rows.max() - half + 0.5 if face_rows.min() == 0 else face_rows.min() + half - 0.5
         return float(inner), (face_cols.min() + face_cols.max()) / 2
+
+
+#: How far (metres) ahead of its start a push meets the tower it topples: the planned breaker's stand-off
+#: (``agents/policies/towers.py`` ``PUSH_START``).
+PUSH_REACH = 0.065
+#: A push may head at most this far (radians) off the way from that tower to the heightmap's middle.
+INWARD_CONE = math.radians(25)
+
+
+class InwardPushes:
+    """The pushes that would topple a tower away from the heightmap's middle, to be forbidden.
+
+    Why: a four-block tower falls about 25 cm, and the heightmap reaches 22.4 cm from its middle, so a tower
+    pushed outwards throws blocks past its edge, where a heightmap policy cannot see them: in BuildAndBreak
+    the learned builder then stacked what it saw and re-placed its own top block until the action limit.
+    Allowed: a push whose heading lies within ``INWARD_CONE`` of the way from the tower it meets
+    (``PUSH_REACH`` ahead of its start) to the heightmap's middle, and any push meeting a tower within
+    ``AXIS_RADIUS`` of the middle.  Other primitives are never forbidden.  The planned breaker's rule is
+    alike (the most inward of four headings).  Chosen on BuildAndBreak's selection seeds 1400000-007
+    (docs/tall-towers.md).
+    """
+
+    def __init__(self, shape: tuple[int, int, int, int], cell_size: float, primitives: tuple[str, ...]) -> None:
+        """``shape``: (primitives, rotations, rows, cols) of the ``pixel`` actions; ``cell_size``: metres;
+        ``primitives``: their names, in the action layout's order."""
+        if len(primitives) != shape[0]:
+            raise ValueError(f"{len(primitives)} primitive names for an action layout of shape {shape}")
+        _, rotations, rows, cols = shape
+        # World x runs along -rows and y along -columns (``HeightmapGrid.cell_centres``): (dx, dy) in cells.
+        row, col = np.mgrid[:rows, :cols]
+        to_middle = np.stack([row + 0.5 - rows / 2, col + 0.5 - cols / 2], -1)
+        outward = np.zeros(shape, dtype=bool)
+        for rotation in range(rotations):
+            angle = 2 * math.pi * rotation / rotations
+            heading = np.array([math.cos(angle), math.sin(angle)])
+            from_tower = to_middle - PUSH_REACH / cell_size * heading
+            distance = np.linalg.norm(from_tower, axis=-1)
+            cosine = from_tower @ heading / np.maximum(distance, 1e-9)
+            away = (cosine < math.cos(INWARD_CONE)) & (distance > AXIS_RADIUS / cell_size)
+            for primitive, name in enumerate(primitives):
+                if name in DIRECTED_PRIMITIVES:
+                    outward[primitive, rotation] = away
+        self.outward = outward.ravel()
+
+    def excluded(self) -> np.ndarray:
+        """(P * R * H * W,) bool: the pushes that head away from the heightmap's middle."""
+        return self.outward

@@ -39,7 +39,7 @@ from stable_baselines3.dqn.policies import DQNPolicy
 from torch import nn
 
 from panda_grasp_env.actions import PixelActions
-from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory
+from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory, InwardPushes
 from panda_grasp_env.agents.learning.heightmap_observations import HEIGHT_RANGE
 
 
@@ -327,6 +327,10 @@ class HeightmapQPolicy(DQNPolicy):
         """A ``FaceCentring`` for this policy's actions on blocks of edge ``block_size`` metres
         (``PolicyAgent(centre_on_faces=True)`` keeps one)."""
         return FaceCentring(self.shape, self.network_args["cell_size"], self.network_args["primitives"], block_size)
+
+    def inward_pushes(self) -> InwardPushes:
+        """``InwardPushes`` for this policy's actions (``PolicyAgent(inward_pushes=True)`` keeps one)."""
+        return InwardPushes(self.shape, self.network_args["cell_size"], self.network_args["primitives"])
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return {

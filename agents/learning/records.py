@@ -280,10 +280,11 @@ def seeds_section(folder: Path) -> list[str]:
     return ["## Over training seeds", "", study_markdown(study), "", "![performance profile](seeds_profile.png)", ""]
 
 
-def ship(run_dir: Path, name: str, avoid_failures: bool = False, centre_on_faces: bool = False) -> Path:
+def ship(run_dir: Path, name: str, **acting: bool) -> Path:
     """Copy a finished run (policy, card, curve, config) to ``agents/checkpoints/<name>`` (``learned.CHECKPOINTS``),
-    atomically.  ``avoid_failures``, ``centre_on_faces``: the checkpoint acts with a ``FailureMemory``, with
-    ``FaceCentring`` (``Checkpoint.acting``; heightmap Q-policies only)."""
+    atomically.  ``acting``: the rules the checkpoint acts by, each on or off (``ACTING_RULES``:
+    ``avoid_failures=True`` ships it with a ``FailureMemory``; ``Checkpoint.acting``; heightmap Q-policies
+    only)."""
     run_dir = Path(run_dir)
     missing = [f for f in SHIPPED_FILES if not (run_dir / f).is_file()]
     if missing:
@@ -291,7 +292,10 @@ def ship(run_dir: Path, name: str, avoid_failures: bool = False, centre_on_faces
     if not name.replace("-", "").replace("_", "").isalnum():
         raise ValueError(f"checkpoint name {name!r}: letters, digits, - and _ only")
     config = load_run(run_dir)
-    acting = {"avoid_failures": avoid_failures, "centre_on_faces": centre_on_faces}
+    unknown = sorted(set(acting) - set(ACTING_RULES))
+    if unknown:
+        raise ValueError(f"unknown acting rules {unknown}; known: {list(ACTING_RULES)}")
+    acting = {rule: bool(acting.get(rule, False)) for rule in ACTING_RULES}
     if any(acting.values()) and config.algo not in HEIGHTMAP_ALGORITHMS:
         on = [rule for rule, value in acting.items() if value]
         raise ValueError(f"{', '.join(on)}: only heightmap_dqn policies act by these rules, {run_dir} is {config.algo}")

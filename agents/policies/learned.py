@@ -6,8 +6,8 @@ A checkpoint is a folder ``agents/checkpoints/<name>/`` written by
     policy.safetensors  the policy's weights (no optimiser, no replay buffer): the run's best on validation
     policy.json         its class and constructor arguments, as data (``panda_grasp_env.agents.learning.policy_files``)
     checkpoint.json     env id, evaluation task, policy class, the step it was saved at, and the rules the
-                        policy acts by (``PolicyAgent``: ``avoid_failures`` and ``centre_on_faces``, set by
-                        ``--ship --avoid-failures --centre-on-faces``)
+                        policy acts by (``PolicyAgent``'s ``ACTING_RULES``, set by ``--ship`` with
+                        ``--avoid-failures``, ``--centre-on-faces`` or ``--inward-pushes``)
     config.yaml         the training config
     card.md             the model card: config, seed, steps, wall time, machine, metrics with 95 % CIs
     curve.png           the learning curve; evaluations.jsonl, final.json, meta.json: its data
@@ -19,6 +19,7 @@ loading it runs any code it holds) loads only with ``trust=True``; ``Checkpoint.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +62,7 @@ CHECKPOINT_FACTS: dict[str, type | tuple[type, ...]] = {
     "algo": str,
     "avoid_failures": bool,
     "centre_on_faces": bool,
+    "inward_pushes": bool,
 }
 #: Largest checkpoint.json and config.yaml read, in bytes.
 MAX_FACTS_BYTES = 64 << 10
@@ -215,17 +217,18 @@ class LearnedAgent(PolicyAgent):
         self,
         checkpoint: str | Path,
         env: gym.Env | None = None,
-        avoid_failures: bool | None = None,
-        centre_on_faces: bool | None = None,
+        acting: Mapping[str, bool] | None = None,
         trust: bool = False,
     ) -> None:
-        """``avoid_failures``, ``centre_on_faces``: None acts as the checkpoint was shipped
-        (``Checkpoint.acting``); ``trust``: the checkpoint may be an SB3 ``policy.zip`` (a pickle: see
+        """``acting``: acting rules turned on or off (``ACTING_RULES``), over those the checkpoint was shipped
+        with (``Checkpoint.acting``); ``trust``: the checkpoint may be an SB3 ``policy.zip`` (a pickle: see
         ``Checkpoint``)."""
+        unknown = sorted(set(acting or {}) - set(ACTING_RULES))
+        if unknown:
+            raise ValueError(f"unknown acting rules {unknown}; known: {list(ACTING_RULES)}")
         self.checkpoint = Checkpoint(checkpoint, trust)
         policy = self.checkpoint.load_policy()
-        chosen = {"avoid_failures": avoid_failures, "centre_on_faces": centre_on_faces}
-        acting = self.checkpoint.acting | {rule: on for rule, on in chosen.items() if on is not None}
+        acting = self.checkpoint.acting | dict(acting or {})
         super().__init__(policy, observation_transform(self.checkpoint.config), self.checkpoint.name, **acting)
         if env is not None:
             check_compatible(policy, self.checkpoint.config, env, self.name)

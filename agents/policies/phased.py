@@ -10,7 +10,7 @@ extent) and headings must be the same for every part; ``ValueError`` otherwise.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
@@ -22,10 +22,12 @@ from panda_grasp_env.agents.policies.learned import LearnedAgent
 
 @dataclass(frozen=True)
 class PhasedPolicies:
-    """A phased agent: the benchmark tasks it plays, and the shipped checkpoint that acts in each phase."""
+    """A phased agent: the benchmark tasks it plays, the shipped checkpoint that acts in each phase, and the
+    acting rules a phase's checkpoint is turned on or off for it (``LearnedAgent``'s ``acting``)."""
 
     tasks: tuple[str, ...]
     phases: dict[str, str]  # info["phase"] -> checkpoint name
+    acting: dict[str, dict[str, bool]] = field(default_factory=dict)  # info["phase"] -> rule -> on
 
     @property
     def first(self) -> str:
@@ -36,8 +38,13 @@ class PhasedPolicies:
 
 #: The phased agents, by name (``evaluate.py --agents build_and_break_dqn``).  Only the four-block cycle:
 #: ``tower_build_dqn`` was trained on four-block towers (``BuildAndBreak6`` would want a 6-block builder).
+#: Its breaker pushes inwards (``InwardPushes``): a break must leave the blocks where the builder sees them.
 PHASED_AGENTS: dict[str, PhasedPolicies] = {
-    "build_and_break_dqn": PhasedPolicies(("BuildAndBreak",), {"build": "tower_build_dqn", "break": "tower_break_dqn"}),
+    "build_and_break_dqn": PhasedPolicies(
+        ("BuildAndBreak",),
+        {"build": "tower_build_dqn", "break": "tower_break_dqn"},
+        {"break": {"inward_pushes": True}},
+    ),
 }
 
 
@@ -60,7 +67,11 @@ class PhasedAgent:
             raise ValueError(f"unknown phased agent {name!r}; known: {sorted(PHASED_AGENTS)}")
         self.name = name
         self.primitives, self.shape = pixel_layout(env)
-        self.agents = {phase: LearnedAgent(checkpoint) for phase, checkpoint in PHASED_AGENTS[name].phases.items()}
+        policies = PHASED_AGENTS[name]
+        self.agents = {
+            phase: LearnedAgent(checkpoint, acting=policies.acting.get(phase))
+            for phase, checkpoint in policies.phases.items()
+        }
         self.slots: dict[str, tuple[tuple[int, ...], tuple[int, int, int, int]]] = {}
         for phase, agent in self.agents.items():
             args = agent.policy.network_args

@@ -9,7 +9,11 @@ import numpy as np
 
 #: The rules a checkpoint can act by (``PolicyAgent``'s keyword arguments, ``checkpoint.json``'s keys), as its
 #: card names them.
-ACTING_RULES = {"avoid_failures": "its `FailureMemory`", "centre_on_faces": "`FaceCentring`"}
+ACTING_RULES = {
+    "avoid_failures": "its `FailureMemory`",
+    "centre_on_faces": "`FaceCentring`",
+    "inward_pushes": "`InwardPushes`",
+}
 
 
 class PolicyAgent:
@@ -22,7 +26,9 @@ class PolicyAgent:
       heading, a primitive that failed there while the heights around it are unchanged
       (``benchmarks/failure_memory.py --seeds selection``, docs/learning.md);
     * ``centre_on_faces``: ``FaceCentring`` moves its grasps and places onto the centre of the block face
-      chosen, and places on a tower onto the tower's axis (docs/tall-towers.md).
+      chosen, and places on a tower onto the tower's axis (docs/tall-towers.md);
+    * ``inward_pushes``: ``InwardPushes`` forbids pushes that would topple a tower away from the heightmap's
+      middle (``build_and_break_dqn``'s breaker acts with it).
     """
 
     def __init__(
@@ -32,6 +38,7 @@ class PolicyAgent:
         name: str,
         avoid_failures: bool = False,
         centre_on_faces: bool = False,
+        inward_pushes: bool = False,
     ) -> None:
         self.model, self.transform, self.name = model, transform, name
         self.policy = getattr(model, "policy", model)  # an SB3 model's policy, or the policy itself
@@ -41,6 +48,7 @@ class PolicyAgent:
         self.centre_on_faces = centre_on_faces and hasattr(self.policy, "face_centring")
         self.centring = None  # made at reset, for the episode's block size
         self.block_size: float | None = None
+        self.inward = self.policy.inward_pushes() if inward_pushes and hasattr(self.policy, "inward_pushes") else None
         self._chosen: tuple[int, np.ndarray] | None = None  # the last action and what it was chosen on
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
@@ -56,14 +64,16 @@ class PolicyAgent:
 
     def act(self, observation: Any, info: dict[str, Any]) -> Any:
         seen = self.transform(observation, info)
-        if self.memory is None and self.centring is None:
+        if self.memory is None and self.centring is None and self.inward is None:
             action, _ = self.model.predict(seen, deterministic=True)
             return action
-        excluded = None
+        excluded = None if self.inward is None else self.inward.excluded()
         if self.memory is not None:
             if self._chosen is not None and not info.get("primitive_success", True):
                 self.memory.record_failure(*self._chosen)
-            excluded = self.memory.excluded(seen)
+            remembered = self.memory.excluded(seen)
+            if remembered is not None:
+                excluded = remembered if excluded is None else excluded | remembered
         action = self.policy.greedy_action(seen, excluded)
         if self.centring is not None:
             action = self.centring.centred(action, seen)

@@ -34,6 +34,7 @@ import yaml
 
 from panda_grasp_env.agents.learning.config import check_policy_resume, config_from_dict, load_run, read_config
 from panda_grasp_env.agents.learning.training import retest, start_run, train
+from panda_grasp_env.agents.policies.policy_agent import ACTING_RULES
 from panda_grasp_env.falls.config import FALL_RESUME_CHANGEABLE, fall_config
 from panda_grasp_env.falls.training import start_fall_run, test_fall_model, train_fall_model
 from panda_grasp_env.tooling.runs import (
@@ -61,18 +62,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--resume", type=Path, default=None, help="continue this run folder")
     parser.add_argument("--ship", type=Path, default=None, help="copy this finished run to agents/checkpoints/--name")
     parser.add_argument("--name", default=None, help="checkpoint name for --ship")
-    parser.add_argument(
-        "--avoid-failures",
-        action="store_true",
-        help="--ship: the checkpoint acts with a FailureMemory (decide on selection seeds: "
-        "benchmarks/failure_memory.py --seeds selection)",
-    )
-    parser.add_argument(
-        "--centre-on-faces",
-        action="store_true",
-        help="--ship: the checkpoint's grasps and places go to the centre of the block face it chose "
-        "(FaceCentring; decide on selection seeds)",
-    )
+    for rule, named in ACTING_RULES.items():
+        parser.add_argument(
+            f"--{rule.replace('_', '-')}",
+            action="store_true",
+            help=f"--ship: the checkpoint acts with {named.replace('`', '')} (agents/learning/acting_rules.py; "
+            "decide on selection seeds)",
+        )
     parser.add_argument("--retest", type=Path, default=None, help="test this run or checkpoint again")
     parser.add_argument(
         "--trust",
@@ -104,8 +100,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("give exactly one of --config, --resume, --ship or --retest")
     if args.ship is not None and not args.name:
         parser.error("--ship needs --name")
-    if (args.avoid_failures or args.centre_on_faces) and args.ship is None:
-        parser.error("--avoid-failures and --centre-on-faces go with --ship")
+    if any(acting_rules(args).values()) and args.ship is None:
+        parser.error("the acting rules' flags go with --ship")
     if args.trust and args.resume is None:
         parser.error("--trust goes with --resume")
     if (args.workers is not None or args.ray is not None) and args.seeds is None:
@@ -134,6 +130,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
+def acting_rules(args: argparse.Namespace) -> dict[str, bool]:
+    """The acting rules the command line turns on, by name (``ACTING_RULES``)."""
+    return {rule: getattr(args, rule) for rule in ACTING_RULES}
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     interrupt_on_signals()
@@ -150,13 +151,13 @@ def main(argv: list[str] | None = None) -> int:
             if (args.ship / "best.pt").exists():
                 from panda_grasp_env.falls.records import ship_fall_run
 
-                if args.avoid_failures or args.centre_on_faces:
-                    raise ValueError("--avoid-failures, --centre-on-faces: a fall-dynamics model acts by no rules")
+                if any(acting_rules(args).values()):
+                    raise ValueError("a fall-dynamics model acts by no rules (the acting rules' flags)")
                 shipped = ship_fall_run(args.ship, args.name)
             else:
                 from panda_grasp_env.agents.learning.records import ship
 
-                shipped = ship(args.ship, args.name, args.avoid_failures, args.centre_on_faces)
+                shipped = ship(args.ship, args.name, **acting_rules(args))
             print(f"shipped to {shipped}")
             return 0
         if args.retest is not None:

@@ -1,11 +1,11 @@
-"""The rules a heightmap Q-policy can act by (``agents/learning/acting_rules.py``): ``FailureMemory`` and
-``FaceCentring``."""
+"""The rules a heightmap Q-policy can act by (``agents/learning/acting_rules.py``): ``FailureMemory``,
+``FaceCentring`` and ``InwardPushes``."""
 
 import numpy as np
 import pytest
 from testkit import blob_observation
 
-from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory
+from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory, InwardPushes
 from panda_grasp_env.agents.learning.heightmap_observations import encode_heightmap
 
 pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
@@ -83,3 +83,18 @@ def test_the_layout_and_sizes_are_checked():
         FaceCentring(SHAPE, CELL, ("grasp", "place"), BLOCK)
     with pytest.raises(ValueError, match="cell_size"):
         FaceCentring(SHAPE, 0.06, ("grasp", "place", "push"), BLOCK)
+
+
+def test_inward_pushes_forbid_toppling_a_tower_away_from_the_middle():
+    shape = (2, 4, 40, 40)  # grasp, push; headings +x, +y, -x, -y; 1 cm cells, the middle at (20, 20)
+    outward = InwardPushes(shape, 0.01, ("grasp", "push")).excluded().reshape(shape)
+    # A push starting at row 5 (15 cm towards +x of the middle), column 20: only heading -x points inwards.
+    assert outward[1, [0, 1, 3], 5, 20].all() and not outward[1, 2, 5, 20]
+    # Starting at column 35 (15 cm towards -y): only heading +y points inwards.
+    assert outward[1, [0, 2, 3], 20, 35].all() and not outward[1, 1, 20, 35]
+    # A push meeting a tower in the middle (6.5 cm on) may head anywhere; grasps are never forbidden.
+    starts = {0: (26, 20), 1: (20, 26), 2: (13, 20), 3: (20, 13)}  # heading -> (row, col)
+    assert not any(outward[1, heading, row, col] for heading, (row, col) in starts.items())
+    assert not outward[0].any()
+    with pytest.raises(ValueError, match="primitive names"):
+        InwardPushes(shape, 0.01, ("push",))

@@ -150,7 +150,8 @@ def test_tower_builder_needs_both_cameras():
 
 def test_the_phased_agent_acts_with_each_phase_policy_in_that_policy_slot():
     """build_and_break_dqn: the builder's grasp while building; while breaking, the breaker's own push (same
-    heading and cell) moved into the push slot of BuildAndBreak's grasp-place-push layout."""
+    heading and cell; it pushes inwards there) moved into the push slot of BuildAndBreak's grasp-place-push
+    layout."""
     from panda_grasp_env.agents.evaluation.protocol import phased_env
     from panda_grasp_env.agents.policies.learned import LearnedAgent
     from panda_grasp_env.agents.policies.phased import PhasedAgent
@@ -163,7 +164,8 @@ def test_the_phased_agent_acts_with_each_phase_policy_in_that_policy_slot():
     assert info["phase"] == "build"
     assert primitives[np.unravel_index(agent.act(observation, info), shape)[0]] == "grasp"  # the hand is empty
     breaking = {**info, "phase": "break"}
-    breaker = LearnedAgent("tower_break_dqn")
+    breaker = LearnedAgent("tower_break_dqn", acting={"inward_pushes": True})
+    assert LearnedAgent("tower_break_dqn").inward is None and breaker.inward is not None
     breaker.reset(observation, breaking)
     own = np.unravel_index(breaker.act(observation, breaking), (1, *shape[1:]))
     assert np.unravel_index(agent.act(observation, breaking), shape) == (primitives.index("push"), *own[1:])

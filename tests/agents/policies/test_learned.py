@@ -32,7 +32,11 @@ def test_shipped_checkpoint_loads_by_name_and_refuses_other_envs(finished_run, t
     assert agent.memory is None and not learned.Checkpoint("tiny").acting["avoid_failures"]
     ship(finished_run, "tiny", avoid_failures=True)  # shipped again, to act with its FailureMemory
     assert learned.LearnedAgent("tiny").memory is not None
-    assert learned.LearnedAgent("tiny", avoid_failures=False).memory is None
+    assert learned.LearnedAgent("tiny", acting={"avoid_failures": False}).memory is None
+    with pytest.raises(ValueError, match="unknown acting rules"):
+        learned.LearnedAgent("tiny", acting={"avoid_falls": True})
+    with pytest.raises(ValueError, match="unknown acting rules"):
+        ship(finished_run, "tiny", avoid_falls=True)
     (path / "policy.safetensors").write_bytes(b"truncated")
     with pytest.raises(ValueError, match="policy.safetensors is missing or is not the weights"):
         learned.LearnedAgent("tiny")
