@@ -211,7 +211,7 @@ def check_compatible(policy: Any, config: TrainConfig, env: gym.Env, name: str) 
 
 class LearnedAgent(PolicyAgent):
     """A shipped policy as an ``Agent``: deterministic actions from the observation, by the rules it was shipped
-    with (a heightmap policy's ``FailureMemory`` and ``FaceCentring``: see ``PolicyAgent``)."""
+    with, or as ``acting`` turns them on or off (a heightmap policy's acting rules: see ``PolicyAgent``)."""
 
     def __init__(
         self,
