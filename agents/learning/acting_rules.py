@@ -15,6 +15,8 @@ channel 3 is height in millimetres, row i and column j at the ``pixel`` action g
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -101,15 +103,24 @@ class FaceCentring:
     touching neighbour's, or nothing near, leaves the action as it was).  A face cut by the heightmap's
     edge is centred from its inner edge and its extent along the edge (a square's axis-aligned extent is
     the same along both axes).  The tower's axis is the centre of the last face one block high that a place
-    chose (the base, on the table); a later place whose face centre lies within ``AXIS_RADIUS`` of it goes
-    onto the axis, so the levels' offsets do not add up.  The heading is the policy's.
+    chose (the base, on the table), or the base's centre the env gave (``base``) until such a place; a
+    later place whose face centre lies within ``AXIS_RADIUS`` of it goes onto the axis, so the levels'
+    offsets do not add up.  (Without ``base``, a build that began on a break's leftover stack, the base and a
+    block still on it, had no axis: its levels leaned 5 mm each, past the task's 1 cm.)  The heading is the
+    policy's.
     """
 
     def __init__(
-        self, shape: tuple[int, int, int, int], cell_size: float, primitives: tuple[str, ...], block_size: float
+        self,
+        shape: tuple[int, int, int, int],
+        cell_size: float,
+        primitives: tuple[str, ...],
+        block_size: float,
+        base: tuple[float, float] | None = None,
     ) -> None:
         """``shape``: (primitives, rotations, rows, cols) of the ``pixel`` actions; ``cell_size`` and
-        ``block_size`` (the blocks' edge): metres; ``primitives``: their names, in the action layout's order."""
+        ``block_size`` (the blocks' edge): metres; ``primitives``: their names, in the action layout's order;
+        ``base``: the tower base's centre as (row, col) in cells (``grid_position``), if known."""
         if len(primitives) != shape[0]:
             raise ValueError(f"{len(primitives)} primitive names for an action layout of shape {shape}")
         if not 0 < cell_size < block_size:
@@ -126,7 +137,7 @@ class FaceCentring:
         face = (block_size / cell_size) ** 2  # cells in one face
         self.whole_face = (0.64 * face, 1.66 * face)  # its measured area, edge cells included, with margins
         self.cut_face = 0.25 * face  # the least of a face cut by the heightmap's edge
-        self.axis: tuple[float, float] | None = None  # (row, col), cells; one per episode (a new FaceCentring)
+        self.axis = base  # (row, col), cells; one per build (a new FaceCentring)
 
     def centred(self, action: int, observation: np.ndarray) -> int:
         """``action`` moved to the centre of its face (a place on the tower: onto its axis); unchanged if it
@@ -179,6 +190,14 @@ class FaceCentring:
         half = (face_cols.max() - face_cols.min() + 1) / 2
         inner = face_rows.max() - half + 0.5 if face_rows.min() == 0 else face_rows.min() + half - 0.5
         return float(inner), (face_cols.min() + face_cols.max()) / 2
+
+
+def grid_position(layout: dict[str, Any], xy: Sequence[float]) -> tuple[float, float]:
+    """(row, col), fractional cells, of world (x, y) metres on a ``pixel`` action layout's heightmap grid
+    (``info["action_layout"]``; the inverse of ``HeightmapGrid.cell_centres``)."""
+    (_, x1), (_, y1) = layout["heightmap_bounds"][:2]
+    resolution = layout["heightmap_resolution"]
+    return (x1 - float(xy[0])) / resolution - 0.5, (y1 - float(xy[1])) / resolution - 0.5
 
 
 #: How far (metres) ahead of its start a push meets the tower it topples: the planned breaker's stand-off

@@ -28,6 +28,7 @@ sample instead of R), as VPG does.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -39,7 +40,7 @@ from stable_baselines3.dqn.policies import DQNPolicy
 from torch import nn
 
 from panda_grasp_env.actions import PixelActions
-from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory, InwardPushes
+from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory, InwardPushes, grid_position
 from panda_grasp_env.agents.learning.heightmap_observations import HEIGHT_RANGE
 
 
@@ -323,10 +324,17 @@ class HeightmapQPolicy(DQNPolicy):
         """An empty ``FailureMemory`` for this policy's actions (``PolicyAgent(avoid_failures=True)`` keeps one)."""
         return FailureMemory(self.shape, self.network_args["cell_size"], self.network_args["primitives"])
 
-    def face_centring(self, block_size: float) -> FaceCentring:
-        """A ``FaceCentring`` for this policy's actions on blocks of edge ``block_size`` metres
-        (``PolicyAgent(centre_on_faces=True)`` keeps one)."""
-        return FaceCentring(self.shape, self.network_args["cell_size"], self.network_args["primitives"], block_size)
+    def face_centring(
+        self, block_size: float, base: Sequence[float] | None = None, layout: dict[str, Any] | None = None
+    ) -> FaceCentring:
+        """A ``FaceCentring`` for this policy's actions on blocks of edge ``block_size`` metres, with the tower
+        base's centre ``base`` (world metres) if known, placed on the grid of the env's action ``layout``
+        (``info["action_layout"]``) (``PolicyAgent(centre_on_faces=True)`` keeps one)."""
+        if base is not None and layout is None:
+            raise ValueError("face_centring: a base position needs the env's action layout to find its cell")
+        cell = None if base is None else grid_position(layout, base)
+        args = self.network_args
+        return FaceCentring(self.shape, args["cell_size"], args["primitives"], block_size, cell)
 
     def inward_pushes(self) -> InwardPushes:
         """``InwardPushes`` for this policy's actions (``PolicyAgent(inward_pushes=True)`` keeps one)."""

@@ -47,7 +47,7 @@ class PolicyAgent:
             self.memory = self.policy.failure_memory()
         self.centre_on_faces = centre_on_faces and hasattr(self.policy, "face_centring")
         self.centring = None  # made at reset, for the episode's block size
-        self.block_size: float | None = None
+        self.facts: dict[str, Any] = {}  # the env's reset facts FaceCentring reads (block_size, action_layout)
         self.inward = self.policy.inward_pushes() if inward_pushes and hasattr(self.policy, "inward_pushes") else None
         self._chosen: tuple[int, np.ndarray] | None = None  # the last action and what it was chosen on
 
@@ -55,11 +55,15 @@ class PolicyAgent:
         if self.memory is not None:
             self.memory.reset()
         if self.centre_on_faces:
-            # The env's reset info gives the blocks' size; a reset mid-episode (a phase's, on a step's info) keeps it.
-            self.block_size = info.get("block_size", self.block_size)
-            if self.block_size is None:
+            # The env's reset info gives the blocks' size and the action grid; a reset mid-episode (a phase's,
+            # on a step's info) keeps them.  A tower task's info gives its base's centre at each build's start.
+            self.facts |= {key: info[key] for key in ("block_size", "action_layout") if key in info}
+            if "block_size" not in self.facts:
                 raise ValueError(f"{self.name} centres on block faces, but the env's reset info has no block_size")
-            self.centring = self.policy.face_centring(float(self.block_size))
+            base = info.get("base_position") if "action_layout" in self.facts else None
+            self.centring = self.policy.face_centring(
+                float(self.facts["block_size"]), base, self.facts.get("action_layout")
+            )
         self._chosen = None
 
     def act(self, observation: Any, info: dict[str, Any]) -> Any:
