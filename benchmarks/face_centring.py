@@ -1,0 +1,90 @@
+"""The shipped tower builder with and without ``FaceCentring``, and a random choice acting by the same rules.
+
+    python benchmarks/face_centring.py [--episodes 50] [--seed-start 1400000]
+                                       [--out results/benchmarks/face_centring.json] [--resume]
+
+Same seeds, three agents on ``tower_build_dqn``'s env (TowerBuild, 4 blocks):
+
+* ``memory``: the policy with its ``FailureMemory`` only (as shipped before ``FaceCentring``);
+* ``shipped``: as shipped (``FailureMemory`` and ``FaceCentring``);
+* ``random``: the policy's masks and both rules, but a uniformly random allowed action instead of its best --
+  what the rules build without the policy's choice of block, heading and tower.
+
+The default seeds are selection seeds (1400000...), on which the rule was chosen; the held-out figures are on
+the card (``train.py --retest``) and in docs/tall-towers.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np
+import torch as th
+
+from benchmarks._common import Results, policy_figures
+from panda_grasp_env.agents.learning.training import evaluate_policy
+from panda_grasp_env.agents.policies.learned import Checkpoint
+
+AGENTS = ("memory", "shipped", "random")
+
+
+class RandomChoice:
+    """A heightmap Q-policy's masks and acting rules with a seeded uniformly random allowed action in place of
+    its best (``greedy_action``); everything else is the wrapped policy's."""
+
+    def __init__(self, policy: Any, seed: int) -> None:
+        self.inner, self.rng = policy, np.random.default_rng(seed)
+
+    def greedy_action(self, observation: np.ndarray, excluded: np.ndarray | None = None) -> int:
+        with th.no_grad():
+            allowed = self.inner.q_net.allowed(th.as_tensor(observation[None])).numpy()[0]
+        if excluded is not None and (allowed & ~excluded).any():
+            allowed &= ~excluded
+        return int(self.rng.choice(np.flatnonzero(allowed)))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+def measure(agent: str, episodes: int, first_seed: int) -> dict:
+    checkpoint = Checkpoint("tower_build_dqn")
+    config = checkpoint.config
+    policy = checkpoint.load_policy()
+    acting = checkpoint.acting | ({"centre_on_faces": False} if agent == "memory" else {})
+    model = RandomChoice(policy, first_seed) if agent == "random" else policy
+    return policy_figures(evaluate_policy(model, config, episodes, first_seed=first_seed, acting=acting))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--seed-start", type=int, default=1_400_000, help="default: selection seeds")
+    parser.add_argument("--out", type=Path, default=Path("results/benchmarks/face_centring.json"))
+    parser.add_argument("--resume", action="store_true", help="keep the sections already in --out")
+    args = parser.parse_args()
+    if args.episodes < 1:
+        parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    results = Results(args.out, args.resume)
+    print(f"{'agent':<8} {'N':>4} {'success (95 % CI)':<24} {'grasp success':>16} {'efficiency':>10}  failures")
+    for agent in AGENTS:
+        section = f"{agent}/{args.seed_start}/{args.episodes}"
+        row = results.section(section, partial(measure, agent, args.episodes, args.seed_start))
+        success, grasp = row["trial_success"], row["grasp_success"]
+        low, high = success["ci95"]
+        print(
+            f"{agent:<8} {row['episodes']:>4} {success['rate']:>6.1%} ({low:.1%}-{high:.1%}){'':<4} "
+            f"{grasp['rate']:>7.1%} ({grasp['successes']}/{grasp['n']}) {row['action_efficiency']:>10.1%}  "
+            f"{row['failures']}"
+        )
+
+
+if __name__ == "__main__":
+    main()
