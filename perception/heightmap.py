@@ -37,6 +37,13 @@ class HeightmapGrid:
         if not np.isfinite(self.resolution) or self.resolution <= 0:
             raise ValueError(f"heightmap resolution must be a positive number of metres, got {self.resolution}")
 
+    @classmethod
+    def of_layout(cls, layout: dict) -> HeightmapGrid:
+        """The grid of a ``pixel`` action layout (``info["action_layout"]``: ``heightmap_bounds``,
+        ``heightmap_resolution``)."""
+        bounds = tuple(tuple(pair) for pair in layout["heightmap_bounds"])
+        return cls(bounds, layout["heightmap_resolution"])  # type: ignore[arg-type]
+
     @property
     def shape(self) -> tuple[int, int]:
         """(rows, columns)."""
@@ -49,6 +56,13 @@ class HeightmapGrid:
         return np.stack(
             [x1 - (np.asarray(rows) + 0.5) * self.resolution, y1 - (np.asarray(cols) + 0.5) * self.resolution], -1
         )
+
+    def cell_position(self, xy: np.ndarray) -> np.ndarray:
+        """Fractional (row, column) of world points (..., 2), the inverse of ``cell_centres``: a cell's centre
+        is at whole numbers; may lie outside the grid."""
+        (_, x1), (_, y1), _ = self.bounds
+        xy = np.asarray(xy, dtype=float)
+        return np.stack([(x1 - xy[..., 0]) / self.resolution - 0.5, (y1 - xy[..., 1]) / self.resolution - 0.5], -1)
 
     def world_to_cell(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(row, column) indices of world points (..., 2); may lie outside the grid."""

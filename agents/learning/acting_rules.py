@@ -15,8 +15,6 @@ channel 3 is height in millimetres, row i and column j at the ``pixel`` action g
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from typing import Any
 
 import cv2
 import numpy as np
@@ -120,7 +118,7 @@ class FaceCentring:
     ) -> None:
         """``shape``: (primitives, rotations, rows, cols) of the ``pixel`` actions; ``cell_size`` and
         ``block_size`` (the blocks' edge): metres; ``primitives``: their names, in the action layout's order;
-        ``base``: the tower base's centre as (row, col) in cells (``grid_position``), if known."""
+        ``base``: the tower base's centre as (row, col) in cells (``HeightmapGrid.cell_position``), if known."""
         if len(primitives) != shape[0]:
             raise ValueError(f"{len(primitives)} primitive names for an action layout of shape {shape}")
         if not 0 < cell_size < block_size:
@@ -190,14 +188,6 @@ class FaceCentring:
         half = (face_cols.max() - face_cols.min() + 1) / 2
         inner = face_rows.max() - half + 0.5 if face_rows.min() == 0 else face_rows.min() + half - 0.5
         return float(inner), (face_cols.min() + face_cols.max()) / 2
-
-
-def grid_position(layout: dict[str, Any], xy: Sequence[float]) -> tuple[float, float]:
-    """(row, col), fractional cells, of world (x, y) metres on a ``pixel`` action layout's heightmap grid
-    (``info["action_layout"]``; the inverse of ``HeightmapGrid.cell_centres``)."""
-    (_, x1), (_, y1) = layout["heightmap_bounds"][:2]
-    resolution = layout["heightmap_resolution"]
-    return (x1 - float(xy[0])) / resolution - 0.5, (y1 - float(xy[1])) / resolution - 0.5
 
 
 #: How far (metres) ahead of its start a push meets the tower it topples: the planned breaker's stand-off

@@ -40,8 +40,9 @@ from stable_baselines3.dqn.policies import DQNPolicy
 from torch import nn
 
 from panda_grasp_env.actions import PixelActions
-from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory, InwardPushes, grid_position
+from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory, InwardPushes
 from panda_grasp_env.agents.learning.heightmap_observations import HEIGHT_RANGE
+from panda_grasp_env.perception.heightmap import HeightmapGrid
 
 
 def rotation_matrices(angles: th.Tensor) -> th.Tensor:
@@ -332,7 +333,7 @@ class HeightmapQPolicy(DQNPolicy):
         (``info["action_layout"]``) (``PolicyAgent(centre_on_faces=True)`` keeps one)."""
         if base is not None and layout is None:
             raise ValueError("face_centring: a base position needs the env's action layout to find its cell")
-        cell = None if base is None else grid_position(layout, base)
+        cell = None if base is None else tuple(HeightmapGrid.of_layout(layout).cell_position(base[:2]).tolist())
         args = self.network_args
         return FaceCentring(self.shape, args["cell_size"], args["primitives"], block_size, cell)
 

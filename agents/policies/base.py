@@ -72,8 +72,7 @@ class PrimitiveActionWriter:
         self.pixel_shape: tuple[int, ...] | None = None
         if layout["mode"] == "pixel":
             self.pixel_shape = tuple(layout["shape"])  # (primitive, rotation, row, column)
-            bounds = tuple(tuple(pair) for pair in layout["heightmap_bounds"])
-            self.grid = HeightmapGrid(bounds, layout["heightmap_resolution"])  # type: ignore[arg-type]
+            self.grid = HeightmapGrid.of_layout(layout)
             self.with_z = False
             return
         if needs_z and not layout["primitive_z"]:

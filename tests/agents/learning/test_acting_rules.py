@@ -101,12 +101,13 @@ def test_inward_pushes_forbid_toppling_a_tower_away_from_the_middle():
 
 
 def test_a_base_the_env_gave_is_the_axis_until_a_place_chooses_a_one_block_face():
-    from panda_grasp_env.agents.learning.acting_rules import grid_position
     from panda_grasp_env.perception.heightmap import HeightmapGrid
 
     grid = HeightmapGrid(((0.3, 0.54), (-0.12, 0.12), (0.0, 0.3)), CELL)  # 60 x 60 cells of 4 mm
     layout = {"heightmap_bounds": [list(b) for b in grid.bounds], "heightmap_resolution": CELL}
-    assert np.allclose(grid_position(layout, grid.cell_centres(26, 36)), (26, 36))
+    assert HeightmapGrid.of_layout(layout) == grid and np.allclose(
+        grid.cell_position(grid.cell_centres(26, 36)), (26, 36)
+    )
     rules = FaceCentring(SHAPE, CELL, ("grasp", "place", "push"), BLOCK, base=(26.0, 36.0))
     leftover = blocks((20, 30, 13, BLOCK), (22, 32, 13, 2 * BLOCK))  # a break left a block on the base, 2 cells off
     assert cell(rules.centred(action(1, 29, 39), leftover)) == (1, 1, 26, 36)  # onto the base, not that block
