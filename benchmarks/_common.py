@@ -32,6 +32,23 @@ def median_rate(run: Callable[[], int], repeats: int = 5) -> float:
     return statistics.median(rates)
 
 
+#: The columns ``policy_row`` prints, after the caller's own.
+POLICY_COLUMNS = (
+    f"{'N':>4} {'success (95 % CI)':<24} {'completion':>10} {'grasp success':>16} {'efficiency':>10}  failures"
+)
+
+
+def policy_row(figures: dict[str, Any]) -> str:
+    """``policy_figures`` as one printed line under ``POLICY_COLUMNS``."""
+    success, grasp = figures["trial_success"], figures["grasp_success"]
+    low, high = success["ci95"]
+    return (
+        f"{figures['episodes']:>4} {success['rate']:>6.1%} ({low:.1%}-{high:.1%}){'':<4} "
+        f"{figures['completion']['rate']:>10.1%} {grasp['rate']:>7.1%} ({grasp['successes']}/{grasp['n']}) "
+        f"{figures['action_efficiency']:>10.1%}  {figures['failures']}"
+    )
+
+
 def policy_figures(metrics: dict[str, Any]) -> dict[str, Any]:
     """The task figures a policy benchmark saves from ``panda_grasp_env.agents.evaluation.metrics.aggregate``'s metrics."""
     keys = ("trial_success", "completion", "grasp_success", "action_efficiency", "failures", "episodes", "seeds")

@@ -29,7 +29,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np
 import torch as th
 
-from benchmarks._common import Results, policy_figures
+from benchmarks._common import POLICY_COLUMNS, Results, policy_figures, policy_row
 from panda_grasp_env.agents.learning.training import evaluate_policy
 from panda_grasp_env.agents.policies.learned import Checkpoint
 
@@ -73,17 +73,11 @@ def main() -> None:
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
     results = Results(args.out, args.resume)
-    print(f"{'agent':<8} {'N':>4} {'success (95 % CI)':<24} {'grasp success':>16} {'efficiency':>10}  failures")
+    print(f"{'agent':<8} {POLICY_COLUMNS}")
     for agent in AGENTS:
         section = f"{agent}/{args.seed_start}/{args.episodes}"
         row = results.section(section, partial(measure, agent, args.episodes, args.seed_start))
-        success, grasp = row["trial_success"], row["grasp_success"]
-        low, high = success["ci95"]
-        print(
-            f"{agent:<8} {row['episodes']:>4} {success['rate']:>6.1%} ({low:.1%}-{high:.1%}){'':<4} "
-            f"{grasp['rate']:>7.1%} ({grasp['successes']}/{grasp['n']}) {row['action_efficiency']:>10.1%}  "
-            f"{row['failures']}"
-        )
+        print(f"{agent:<8} {policy_row(row)}")
 
 
 if __name__ == "__main__":

@@ -22,7 +22,14 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from benchmarks._common import Results, check_selection_episodes, policy_figures, shipped_checkpoints
+from benchmarks._common import (
+    POLICY_COLUMNS,
+    Results,
+    check_selection_episodes,
+    policy_figures,
+    policy_row,
+    shipped_checkpoints,
+)
 from panda_grasp_env.agents.learning.config import SELECTION_SEED_OFFSET, TEST_SEED_OFFSET
 from panda_grasp_env.agents.learning.training import evaluate_policy
 from panda_grasp_env.agents.policies.learned import Checkpoint
@@ -57,22 +64,12 @@ def main() -> None:
     for name in names:
         Checkpoint(name)  # unknown names fail before anything runs
     results = Results(args.out, args.resume)
-    print(
-        f"{'checkpoint':<20} {'memory':<7} {'N':>4} {'success (95 % CI)':<24} {'completion':>10} "
-        f"{'grasp success':>16} {'efficiency':>10}  failures"
-    )
+    print(f"{'checkpoint':<20} {'memory':<7} {POLICY_COLUMNS}")
     for name in names:
         for avoid in (False, True):
             section = f"{name}/{args.seeds}/{'memory' if avoid else 'none'}"
             row = results.section(section, partial(measure, name, args.episodes, avoid, SEED_OFFSETS[args.seeds]))
-            success, grasp = row["trial_success"], row["grasp_success"]
-            low, high = success["ci95"]
-            print(
-                f"{name:<20} {'on' if avoid else 'off':<7} {row['episodes']:>4} "
-                f"{success['rate']:>6.1%} ({low:.1%}-{high:.1%}){'':<4} {row['completion']['rate']:>10.1%} "
-                f"{grasp['rate']:>7.1%} ({grasp['successes']}/{grasp['n']}) {row['action_efficiency']:>10.1%}  "
-                f"{row['failures']}"
-            )
+            print(f"{name:<20} {'on' if avoid else 'off':<7} {policy_row(row)}")
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from panda_grasp_env.agents.learning.policy_files import load_policy, policy_pat
 from panda_grasp_env.agents.learning.seed_figures import study_markdown
 from panda_grasp_env.agents.policies import learned
 from panda_grasp_env.agents.policies.learned import SHIPPED_FILES
-from panda_grasp_env.agents.policies.policy_agent import ACTING_RULES
+from panda_grasp_env.agents.policies.policy_agent import ACTING_RULES, check_acting_rules
 from panda_grasp_env.tooling.runs import atomic_path, read_json, resume_summary, write_atomically, write_json
 
 
@@ -292,9 +292,7 @@ def ship(run_dir: Path, name: str, **acting: bool) -> Path:
     if not name.replace("-", "").replace("_", "").isalnum():
         raise ValueError(f"checkpoint name {name!r}: letters, digits, - and _ only")
     config = load_run(run_dir)
-    unknown = sorted(set(acting) - set(ACTING_RULES))
-    if unknown:
-        raise ValueError(f"unknown acting rules {unknown}; known: {list(ACTING_RULES)}")
+    check_acting_rules(acting)
     acting = {rule: bool(acting.get(rule, False)) for rule in ACTING_RULES}
     if any(acting.values()) and config.algo not in HEIGHTMAP_ALGORITHMS:
         on = [rule for rule, value in acting.items() if value]

@@ -28,7 +28,7 @@ import numpy as np
 
 from panda_grasp_env.agents.learning.config import TrainConfig, config_from_dict, make_env, observation_transform
 from panda_grasp_env.agents.learning.policy_files import export_sb3, load_policy, load_sb3, policy_paths
-from panda_grasp_env.agents.policies.policy_agent import ACTING_RULES, PolicyAgent
+from panda_grasp_env.agents.policies.policy_agent import ACTING_RULES, PolicyAgent, check_acting_rules
 from panda_grasp_env.tooling.runs import read_json, sha256
 
 CHECKPOINTS = Path(__file__).resolve().parents[1] / "checkpoints"
@@ -223,9 +223,7 @@ class LearnedAgent(PolicyAgent):
         """``acting``: acting rules turned on or off (``ACTING_RULES``), over those the checkpoint was shipped
         with (``Checkpoint.acting``); ``trust``: the checkpoint may be an SB3 ``policy.zip`` (a pickle: see
         ``Checkpoint``)."""
-        unknown = sorted(set(acting or {}) - set(ACTING_RULES))
-        if unknown:
-            raise ValueError(f"unknown acting rules {unknown}; known: {list(ACTING_RULES)}")
+        check_acting_rules(acting or {})
         self.checkpoint = Checkpoint(checkpoint, trust)
         policy = self.checkpoint.load_policy()
         acting = self.checkpoint.acting | dict(acting or {})

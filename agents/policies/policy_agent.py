@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -14,6 +14,13 @@ ACTING_RULES = {
     "centre_on_faces": "`FaceCentring`",
     "inward_pushes": "`InwardPushes`",
 }
+
+
+def check_acting_rules(acting: Mapping[str, bool]) -> None:
+    """``ValueError`` naming any key of ``acting`` that is not one of ``ACTING_RULES``."""
+    unknown = sorted(set(acting) - set(ACTING_RULES))
+    if unknown:
+        raise ValueError(f"unknown acting rules {unknown}; known: {list(ACTING_RULES)}")
 
 
 class PolicyAgent:

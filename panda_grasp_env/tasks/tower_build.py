@@ -194,8 +194,8 @@ def broken_tower(cell: Workcell, rng: np.random.Generator) -> None:
     """Lay the blocks out as a break leaves them: a tower of all blocks on the base (block 0; the others above it
     in random order) is pushed at one of the blocks above the base, roughly towards the spawn region's centre
     (``BREAK_SPREAD``), as the falls recorder and BuildAndBreak's breakers push; the arm is home again
-    afterwards.  Expects a cleared cell (``TowerBuild.reset`` clears it).  A tower whose base ends up leaning on another block (no tower could stand on it) is built and
-    pushed again, up to ``BREAK_ATTEMPTS`` times."""
+    afterwards.  Expects a cleared cell (``TowerBuild.reset`` clears it).  A tower whose base ends up leaning on
+    another block (no tower could stand on it) is built and pushed again, up to ``BREAK_ATTEMPTS`` times."""
     n_blocks, size = len(cell.block_ids), cell.config.block_size
     for attempt in range(BREAK_ATTEMPTS):
         if attempt:
