@@ -180,11 +180,12 @@ def learned_env(checkpoint: Checkpoint, task: str, **options: Any) -> gym.Env:
 
 def phased_env(name: str, task: str, **options: Any) -> gym.Env:
     """The env phased agent ``name`` plays ``task`` in: the task's scene, seen and acted on as its first part
-    was trained (``learned_env``)."""
+    was trained (``learned_env``), with the phased agent's own ``env_options`` on top (a wider heightmap)."""
     from panda_grasp_env.agents.policies.learned import Checkpoint
     from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
 
-    return learned_env(Checkpoint(PHASED_AGENTS[name].first), task, **options)
+    policies = PHASED_AGENTS[name]
+    return learned_env(Checkpoint(policies.first), task, **(policies.env_options | options))
 
 
 class FrozenMapping(tuple):

@@ -341,6 +341,24 @@ class HeightmapQPolicy(DQNPolicy):
         """``InwardPushes`` for this policy's actions (``PolicyAgent(inward_pushes=True)`` keeps one)."""
         return InwardPushes(self.shape, self.network_args["cell_size"], self.network_args["primitives"])
 
+    def on_grid(self, rows: int, cols: int) -> HeightmapQPolicy:
+        """This policy's weights acting on a heightmap of ``rows`` x ``cols`` cells at the same resolution (a
+        wider or narrower view): the network is fully convolutional, so only the action grid changes.  Itself
+        if the grid is its own."""
+        if (rows, cols) == tuple(self.shape[2:]):
+            return self
+        if rows < 4 or cols < 4:
+            raise ValueError(f"a heightmap policy needs a grid of at least 4 x 4 cells, got {rows} x {cols}")
+        space = self.observation_space
+        observations = gym.spaces.Box(0, 255, (space.shape[0], rows, cols), np.uint8)
+        actions = gym.spaces.Discrete(self.shape[0] * self.shape[1] * rows * cols)
+        policy = type(self)(
+            **{**self._get_constructor_parameters(), "observation_space": observations, "action_space": actions}
+        )
+        policy.load_state_dict(self.state_dict())
+        policy.set_training_mode(False)
+        return policy
+
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return {
             "observation_space": self.observation_space,

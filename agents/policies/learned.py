@@ -219,13 +219,19 @@ class LearnedAgent(PolicyAgent):
         env: gym.Env | None = None,
         acting: Mapping[str, bool] | None = None,
         trust: bool = False,
+        grid: tuple[int, int] | None = None,
     ) -> None:
         """``acting``: acting rules turned on or off (``ACTING_RULES``), over those the checkpoint was shipped
         with (``Checkpoint.acting``); ``trust``: the checkpoint may be an SB3 ``policy.zip`` (a pickle: see
-        ``Checkpoint``)."""
+        ``Checkpoint``); ``grid``: (rows, columns) of the heightmap a heightmap policy acts on, if not the one
+        it was trained on (same resolution: ``HeightmapQPolicy.on_grid``)."""
         check_acting_rules(acting or {})
         self.checkpoint = Checkpoint(checkpoint, trust)
         policy = self.checkpoint.load_policy()
+        if grid is not None:
+            if not hasattr(policy, "on_grid"):
+                raise ValueError(f"checkpoint {self.checkpoint.name}'s policy acts on no heightmap grid to resize")
+            policy = policy.on_grid(*grid)
         acting = self.checkpoint.acting | dict(acting or {})
         super().__init__(policy, observation_transform(self.checkpoint.config), self.checkpoint.name, **acting)
         if env is not None:

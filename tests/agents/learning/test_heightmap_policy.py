@@ -216,3 +216,21 @@ def test_maskable_ppo_cnn_policy_takes_the_encoded_heightmap_as_it_is():
     model.learn(16)
     assert model.num_timesteps == 16
     env.close()
+
+
+@pytest.mark.unit
+def test_a_policy_on_a_wider_grid_keeps_its_weights_and_still_grasps_on_the_object():
+    """``on_grid``: the fully convolutional network scores a wider heightmap at the same resolution; a block
+    in the part the narrower grid never showed is still where it grasps."""
+    th.manual_seed(0)
+    policy = tiny_policy()
+    assert policy.on_grid(40, 40) is policy
+    wide = policy.on_grid(56, 64)
+    assert wide.shape == (2, 4, 56, 64) and wide.action_space.n == 2 * 4 * 56 * 64
+    assert wide.observation_space.shape == (4, 56, 64)
+    assert all(th.equal(a, b) for a, b in zip(policy.state_dict().values(), wide.state_dict().values()))
+    observation, inside = blob_observation(rows=56, cols=64, centre=(48, 57))
+    p, _, row, col = np.unravel_index(wide.greedy_action(observation), wide.shape)
+    assert p == 0 and inside[row, col]
+    with pytest.raises(ValueError, match="4 x 4"):
+        policy.on_grid(2, 40)

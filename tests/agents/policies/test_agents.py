@@ -164,13 +164,44 @@ def test_the_phased_agent_acts_with_each_phase_policy_in_that_policy_slot():
     assert info["phase"] == "build"
     assert primitives[np.unravel_index(agent.act(observation, info), shape)[0]] == "grasp"  # the hand is empty
     breaking = {**info, "phase": "break"}
-    breaker = LearnedAgent("tower_break_dqn", acting={"inward_pushes": True})
+    breaker = LearnedAgent("tower_break_dqn", acting={"inward_pushes": True}, grid=shape[2:])
     assert LearnedAgent("tower_break_dqn").inward is None and breaker.inward is not None
     breaker.reset(observation, breaking)
     own = np.unravel_index(breaker.act(observation, breaking), (1, *shape[1:]))
     assert np.unravel_index(agent.act(observation, breaking), shape) == (primitives.index("push"), *own[1:])
     with pytest.raises(ValueError, match="phase"):
         agent.act(observation, {**info, "phase": "rest"})
+    env.close()
+
+
+def test_a_build_whose_grasp_and_place_changed_no_height_hands_one_action_to_the_breaker():
+    """build_and_break_dqn plays on a heightmap wider than its parts were trained on, and a tower left unbuilt
+    by a level off the axis (the builder lifts its top block and puts it back) is knocked down by the breaker's
+    push; a place that moved a block onto the tower keeps the builder acting."""
+    from panda_grasp_env.agents.evaluation.protocol import phased_env
+    from panda_grasp_env.agents.policies.phased import WIDE_HEIGHTMAP, PhasedAgent, heights_of
+
+    env = phased_env("build_and_break_dqn", "BuildAndBreak")
+    observation, info = env.reset(seed=0)
+    assert info["action_layout"]["heightmap_bounds"] == [list(pair) for pair in WIDE_HEIGHTMAP]
+    agent = PhasedAgent("build_and_break_dqn", env)
+    agent.reset(observation, info)
+    primitives, shape = env.unwrapped.actions.settings.primitives, env.unwrapped.actions.shape
+    assert shape[2:] == (152, 152)
+
+    def primitive(action: int) -> str:
+        return primitives[np.unravel_index(action, shape)[0]]
+
+    assert primitive(agent.act(observation, info)) == "grasp"
+    assert np.array_equal(agent.before_grasp, heights_of(observation))
+    placed = {**info, "primitive": "place", "primitive_success": True}
+    assert agent.stuck(observation, placed) and not agent.stuck(observation, {**placed, "primitive_success": False})
+    moved = observation.copy()
+    moved[40:53, 40:53, 3] += info["block_size"]  # a block's face more on a tower
+    assert not agent.stuck(moved, placed)
+    assert primitive(agent.act(observation, placed)) == "push"  # the breaker's, while the phase is build
+    assert agent.before_grasp is None and agent.phase is None
+    assert primitive(agent.act(observation, info)) == "grasp"  # the builder again
     env.close()
 
 
