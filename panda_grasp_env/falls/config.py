@@ -139,6 +139,10 @@ class FallConfig:
     # Also read the depth images (height maps; see panda_grasp_env/falls/model.py).
     use_depth: Annotated[StrictBool, Field(description="true or false")] = False
     height_loss_weight: LossWeight = 1.0
+    # Rollouts shift the newest true frame's blocks by the summed displacements (FallPredictor's ``anchored``).
+    anchored_rollout: Annotated[StrictBool, Field(description="true or false")] = False
+    # The horizon (frames ahead) whose validation block IoU picks best.pt.
+    select_horizon: Annotated[Literal[1, 5], Field(description="1 or 5")] = 1
     seed: Seed = 0
     # Stop (and checkpoint) after this many minutes of wall time in total.
     max_minutes: Annotated[StrictInt | StrictFloat | None, Field(gt=0, description="a positive number or null")] = None

@@ -5,7 +5,8 @@ Each step samples sequences and a window: ``context`` true frames in, then a
 cross-entropy plus a soft block IoU -- trained the way it is evaluated, with the
 first step (t+1) counted ``1 + next_frame_loss_weight`` times -- plus,
 weighted by ``motion_loss_weight``, the distance of each block's predicted
-displacement from its true centroid displacement (``block_displacements``):
+displacement from its true centroid displacement (``block_displacements``;
+for an ``anchored`` model, the displacements summed from the newest true frame):
 through the warp alone, motion gets gradient only at block edges and barely
 learns.  With
 ``use_depth`` the model also reads height maps from the depth images and is
@@ -103,7 +104,7 @@ def train_fall_model(
         )
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
-    model = FallPredictor(n_classes, size, config.context, config.hidden, config.use_depth)
+    model = FallPredictor(n_classes, size, config.context, config.hidden, config.use_depth, config.anchored_rollout)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     epoch, wall_before, best = 0, 0.0, -1.0
     unvalidated_loss = None  # the last epoch's training loss while its validation has not run
@@ -169,7 +170,7 @@ def train_fall_model(
         """Score the model on validation after ``epoch``: evaluations.jsonl, TensorBoard, best.pt, latest.pt."""
         nonlocal best, unvalidated_loss
         metrics = evaluate(model, val.labels, val.classes, config.context, depth=val.depth, baselines=False)["model"]
-        score = metrics["t+1"]["mean_block_iou"]
+        score = metrics[f"t+{config.select_horizon}"]["mean_block_iou"]
         row = {"epoch": epoch, "wall_seconds": round(wall(), 1), "loss": round(loss, 4), "val": metrics}
         with open(run_dir / "evaluations.jsonl", "a") as log:
             log.write(json.dumps(row) + "\n")
@@ -177,7 +178,9 @@ def train_fall_model(
         for horizon in ("t+1", "t+5"):
             writer.add_scalar(f"val/mean_block_iou_{horizon}", metrics[horizon]["mean_block_iou"], epoch)
             writer.add_scalar(f"val/foreground_accuracy_{horizon}", metrics[horizon]["foreground_accuracy"], epoch)
-        bar.set_postfix_str(f"loss {row['loss']:.3f}, val block IoU t+1 {score:.3f}", refresh=False)
+        bar.set_postfix_str(
+            f"loss {row['loss']:.3f}, val block IoU t+{config.select_horizon} {score:.3f}", refresh=False
+        )
         unvalidated_loss = None
         if score > best:
             best = score
@@ -215,8 +218,12 @@ def train_fall_model(
                     true_heights = heights(depths[:, config.context :])
                     loss = loss + config.height_loss_weight * (predicted_heights - true_heights).abs().mean()
                 if config.motion_loss_weight:
-                    before = clips[:, config.context - 1 : -1].flatten(0, 1)
-                    loss = loss + config.motion_loss_weight * motion_loss(motions.flatten(0, 1), before, truth)
+                    if model.anchored:  # each frame's blocks are the anchor's moved by the displacements so far
+                        moved = motions.cumsum(1).flatten(0, 1)
+                        before = clips[:, config.context - 1 : config.context].expand(-1, config.rollout, -1, -1)
+                    else:
+                        moved, before = motions.flatten(0, 1), clips[:, config.context - 1 : -1]
+                    loss = loss + config.motion_loss_weight * motion_loss(moved, before.flatten(0, 1), truth)
                 optimiser.zero_grad()
                 loss.backward()
                 optimiser.step()

@@ -326,6 +326,31 @@ def test_untrained_model_moves_each_block_by_its_own_velocity_and_displacement_t
 
 
 @pytest.mark.unit
+def test_an_anchored_model_starts_as_copy_last_and_shifts_the_newest_true_frame_by_the_summed_displacements():
+    """Untrained, an anchored model copies the last frame; taught a motion of 2 px a frame, its fifth frame is
+    the newest true frame shifted 10 px, sharp (one warp, not five), and the training loss compares the summed
+    displacements with the blocks' displacement from that frame."""
+    from panda_grasp_env.falls.model import one_hot
+
+    labels = torch.zeros(1, 3, 32, 32, dtype=torch.long)
+    for t in range(3):
+        labels[0, t, 10:16, 4 + 2 * t : 10 + 2 * t] = 1  # block 1 moves 2 px a frame along x (columns)
+        labels[0, t, 20:26, 20:26] = 2  # block 2 stands still
+    model = FallPredictor(3, 32, context=3, hidden=8, anchored=True)
+    assert model.describe()["anchored"] and not FallPredictor(3, 32, context=3).anchored
+    frames = one_hot(labels, 3)
+    logits, motions, _ = model.rollout_with_motion(frames, 5)
+    assert all(torch.equal(logits[0, h].argmax(0), labels[0, 2]) for h in range(5)) and not motions.any()
+    with torch.no_grad():
+        model.motion[-1].bias.copy_(torch.tensor([0.5, 0.0]))  # half a pixel a frame: bilinear blur each step
+    logits, motions, _ = model.rollout_with_motion(frames, 4)
+    expected = torch.zeros(32, 32, dtype=torch.long)
+    expected[10:16, 8 + 2 : 14 + 2], expected[20:26, 20 + 2 : 26 + 2] = 1, 2
+    assert torch.equal(logits[0, 3].argmax(0), expected)  # 4 x 0.5 px from frame 2, no block lost to blur
+    assert torch.allclose(motions[0].sum(0), torch.tensor([[2.0, 0.0], [2.0, 0.0]]))
+
+
+@pytest.mark.unit
 def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
     from panda_grasp_env.falls.model import model_inputs
 
@@ -384,10 +409,12 @@ def test_bad_fall_configs_fail_with_the_name_and_the_shipped_config_loads(datase
             fall_config({**raw, key: value}, "tiny.yaml")
     with pytest.raises(ValueError, match="is not a fall dataset: metadata.json missing"):
         fall_config({**raw, "dataset": str(tmp_path)}, "tiny.yaml")
-    # The shipped model's config, as its run saved it, reads back unchanged (its dataset is not here).
+    # The shipped model's config, as its run saved it, reads back unchanged (its dataset is not here); keys added
+    # since default to what it was trained with.
     saved = yaml.safe_load((fall_records.FALL_CHECKPOINTS / "fall_convlstm" / "config.yaml").read_text())
     config = fall_config({**saved, "dataset": str(dataset)}, "config.yaml")
-    assert {**dataclasses.asdict(config), "dataset": saved["dataset"]} == saved
+    added = {"anchored_rollout": False, "select_horizon": 1}
+    assert {**dataclasses.asdict(config), "dataset": saved["dataset"]} == saved | added
 
 
 @pytest.mark.unit
