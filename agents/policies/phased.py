@@ -54,11 +54,11 @@ class PhasedPolicies:
 WIDE_HEIGHTMAP = ((0.196, 0.804), (-0.304, 0.304), (0.0, 0.3))
 PHASED_AGENTS: dict[str, PhasedPolicies] = {
     "build_and_break_dqn": PhasedPolicies(
-        ("BuildAndBreak",),
-        {"build": "tower_build_dqn", "break": "tower_break_dqn"},
-        {"break": {"inward_pushes": True}},
-        {"heightmap_bounds": WIDE_HEIGHTMAP},
-        {"build": "break"},
+        tasks=("BuildAndBreak",),
+        phases={"build": "tower_build_dqn", "break": "tower_break_dqn"},
+        acting={"break": {"inward_pushes": True}},
+        env_options={"heightmap_bounds": WIDE_HEIGHTMAP},
+        unstuck_by={"build": "break"},
     ),
 }
 
@@ -137,8 +137,7 @@ class PhasedAgent:
         if phase == self.phase and phase in self.policies.unstuck_by and self.stuck(observation, info):
             acting = self.policies.unstuck_by[phase]
             self.agents[acting].reset(observation, info)
-            self.agents[phase].reset(observation, info)  # the scene it remembers is about to go
-            self.phase = None  # the phase's agent starts afresh after this action
+            self.phase = None  # the phase's agent starts afresh after this action: its scene is about to go
         elif phase != self.phase:
             self.agents[phase].reset(observation, info)
             self.phase = phase

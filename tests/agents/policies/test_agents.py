@@ -205,6 +205,14 @@ def test_a_build_whose_grasp_and_place_changed_no_height_hands_one_action_to_the
     env.close()
 
 
+def test_only_a_heightmap_policy_acts_on_another_grid():
+    from panda_grasp_env.agents.policies.learned import LearnedAgent
+
+    assert LearnedAgent("tower_break_dqn", grid=(120, 128)).policy.shape[2:] == (120, 128)
+    with pytest.raises(ValueError, match="push_sac_her's policy acts on no heightmap grid"):
+        LearnedAgent("push_sac_her", grid=(120, 128))
+
+
 class ScriptedBlocks:
     """A perceiver that sees whatever blocks the test sets in ``scene`` (name -> (x, y, z), yaw 0)."""
 
