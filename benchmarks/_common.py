@@ -13,6 +13,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import torch as th
+
 from panda_grasp_env.agents.evaluation.metrics import clustered_rate, describe_rate, rate, wilson  # noqa: F401  (one implementation each)
 from panda_grasp_env.agents.learning.config import HEIGHTMAP_ALGORITHMS
 from panda_grasp_env.agents.policies.learned import Checkpoint, available_checkpoints
@@ -94,3 +97,21 @@ class Results:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             write_atomically(self.path, json.dumps(self.data, indent=2))
         return self.data[name]
+
+
+class RandomChoice:
+    """A heightmap Q-policy's masks and acting rules with a seeded uniformly random allowed action in place of
+    its best (``greedy_action``); everything else is the wrapped policy's."""
+
+    def __init__(self, policy: Any, seed: int) -> None:
+        self.inner, self.rng = policy, np.random.default_rng(seed)
+
+    def greedy_action(self, observation: np.ndarray, excluded: np.ndarray | None = None) -> int:
+        with th.no_grad():
+            allowed = self.inner.q_net.allowed(th.as_tensor(observation[None])).numpy()[0]
+        if excluded is not None and (allowed & ~excluded).any():
+            allowed &= ~excluded
+        return int(self.rng.choice(np.flatnonzero(allowed)))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)

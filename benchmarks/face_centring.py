@@ -21,37 +21,16 @@ import os
 import sys
 from functools import partial
 from pathlib import Path
-from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import numpy as np
-import torch as th
 
-from benchmarks._common import POLICY_COLUMNS, Results, policy_figures, policy_row
+from benchmarks._common import POLICY_COLUMNS, RandomChoice, Results, policy_figures, policy_row
 from panda_grasp_env.agents.learning.training import evaluate_policy
 from panda_grasp_env.agents.policies.learned import Checkpoint
 
 AGENTS = ("memory", "shipped", "random")
-
-
-class RandomChoice:
-    """A heightmap Q-policy's masks and acting rules with a seeded uniformly random allowed action in place of
-    its best (``greedy_action``); everything else is the wrapped policy's."""
-
-    def __init__(self, policy: Any, seed: int) -> None:
-        self.inner, self.rng = policy, np.random.default_rng(seed)
-
-    def greedy_action(self, observation: np.ndarray, excluded: np.ndarray | None = None) -> int:
-        with th.no_grad():
-            allowed = self.inner.q_net.allowed(th.as_tensor(observation[None])).numpy()[0]
-        if excluded is not None and (allowed & ~excluded).any():
-            allowed &= ~excluded
-        return int(self.rng.choice(np.flatnonzero(allowed)))
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
 
 
 def measure(agent: str, episodes: int, first_seed: int) -> dict:
