@@ -428,7 +428,9 @@ def test_a_shipped_fall_model_loads_and_beats_copying_the_last_frame_on_its_card
     assert saved["classes"][0] == "background" and model.n_classes == len(saved["classes"])
     assert model.anchored == config.get("anchored_rollout", False)
     horizon = f"t+{config.get('select_horizon', 1)}"
-    assert final["metrics"]["model"][horizon]["mean_block_iou"] > final["metrics"]["copy_last"][horizon]["mean_block_iou"]
+    assert (
+        final["metrics"]["model"][horizon]["mean_block_iou"] > final["metrics"]["copy_last"][horizon]["mean_block_iou"]
+    )
 
 
 def test_an_epoch_interrupted_during_its_validation_is_validated_on_resume(dataset, tmp_path, monkeypatch):
