@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -29,7 +30,7 @@ import torch
 from panda_grasp_env.falls.baselines import translate_blocks
 from panda_grasp_env.falls.dataset import FallSequences, load_split
 from panda_grasp_env.falls.metrics import Confusion
-from panda_grasp_env.falls.model import heights
+from panda_grasp_env.falls.model import heights, mask_centroids, one_hot
 from panda_grasp_env.tooling.runs import write_json
 
 CONTEXT = 4
@@ -37,23 +38,12 @@ CONTEXT = 4
 
 def block_tracks(split: FallSequences, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centroids (T, K, 2: row, column, NaN where unseen), visible areas (T, K, pixels) and mean heights (T, K,
-    blocks) of sequence ``index``'s blocks."""
-    labels = split.labels[index]
-    height = heights(torch.as_tensor(split.depth[index])).numpy()[:, 0]
-    frames, blocks = labels.shape[0], len(split.classes) - 1
-    centre, area, mean_height = (
-        np.full((frames, blocks, 2), np.nan),
-        np.zeros((frames, blocks)),
-        np.zeros((frames, blocks)),
-    )
-    for t in range(frames):
-        for k in range(blocks):
-            rows, cols = np.nonzero(labels[t] == k + 1)
-            if len(rows):
-                centre[t, k] = rows.mean(), cols.mean()
-                area[t, k] = len(rows)
-                mean_height[t, k] = height[t][rows, cols].mean()
-    return centre, area, mean_height
+    blocks) of sequence ``index``'s blocks (``model.mask_centroids`` of their masks)."""
+    masks = one_hot(torch.as_tensor(split.labels[index]), len(split.classes))[:, 1:].double()
+    centre, area = mask_centroids(masks)
+    height = (masks * heights(torch.as_tensor(split.depth[index])).double()).sum((2, 3)) / area.clamp_min(1)
+    seen = (area > 0).numpy()
+    return np.where(seen[..., None], centre.numpy()[..., ::-1], np.nan), area.numpy(), height.numpy()
 
 
 def samples(split: FallSequences, horizon: int) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
@@ -93,8 +83,9 @@ def samples(split: FallSequences, horizon: int) -> tuple[np.ndarray, np.ndarray,
     return np.asarray(features, np.float32), np.asarray(targets, np.float32), where
 
 
-def fit(features: np.ndarray, targets: np.ndarray, epochs: int = 60) -> torch.nn.Module:
-    """A two-layer network from standardised features to displacements (smooth L1, blocks seen at the end)."""
+def fit(features: np.ndarray, targets: np.ndarray, epochs: int = 60) -> Callable[[np.ndarray], np.ndarray]:
+    """A two-layer network from standardised features to displacements (smooth L1, blocks seen at the end), as
+    a function of raw features."""
     torch.manual_seed(0)
     mean, scale = features.mean(0), features.std(0) + 1e-6
     network = torch.nn.Sequential(
@@ -120,8 +111,12 @@ def fit(features: np.ndarray, targets: np.ndarray, epochs: int = 60) -> torch.nn
             loss.backward()
             optimiser.step()
     network.eval()
-    network.standardise = (mean, scale)  # type: ignore[assignment]
-    return network
+
+    def predict(raw: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return network(torch.as_tensor((raw - mean) / scale)).numpy()
+
+    return predict
 
 
 def block_iou(split: FallSequences, where: list, moves: np.ndarray, horizon: int) -> float:
@@ -156,10 +151,7 @@ def main() -> None:
     x_train, y_train, train_where = samples(train, args.horizon)
     sequence = np.array([i for i, _, _ in train_where])
     for n in sizes:
-        network = fit(x_train[sequence < n], y_train[sequence < n])
-        mean, scale = network.standardise
-        with torch.no_grad():
-            moves = network(torch.as_tensor((x_val - mean) / scale)).numpy()
+        moves = fit(x_train[sequence < n], y_train[sequence < n])(x_val)
         rows[f"probe, {n} training sequences"] = block_iou(val, where, moves, args.horizon)
     print(f"| predictor ({args.dataset}, validation: {len(val.labels)} sequences) | t+{args.horizon} mean block IoU |")
     print("|---|---|")
