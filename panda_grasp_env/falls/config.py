@@ -143,10 +143,28 @@ class FallConfig:
     anchored_rollout: Annotated[StrictBool, Field(description="true or false")] = False
     # The horizon (frames ahead) whose validation block IoU picks best.pt.
     select_horizon: Annotated[Literal[1, 5], Field(description="1 or 5")] = 1
+    # An anchored model's displacements to every frame of the rollout, planned at once from the blocks' tracks
+    # over the context frames (FallPredictor's ``track_horizon``, panda_grasp_env/falls/tracks.py).
+    track_head: Annotated[StrictBool, Field(description="true or false")] = False
+    # Epochs of fitting the track head alone on every training window's tracks before the ConvLSTM's epochs;
+    # after them it is frozen and the ConvLSTM learns what it adds.  0: trained with the ConvLSTM.
+    track_pretrain_epochs: Annotated[StrictInt, Field(ge=0, description="an int >= 0")] = 0
+    # Sequences drawn per epoch (default: as many as the training split holds).
+    epoch_sequences: Count | None = None
+    # Validate each epoch on the first this many validation sequences (default: all).
+    val_sequences: Count | None = None
     seed: Seed = 0
     # Stop (and checkpoint) after this many minutes of wall time in total.
     max_minutes: Annotated[StrictInt | StrictFloat | None, Field(gt=0, description="a positive number or null")] = None
     torch_threads: Count = 2
+
+    @model_validator(mode="after")
+    def _check_track_head(self) -> FallConfig:
+        if self.track_head and not self.anchored_rollout:
+            raise config_value_error("track_head", self.track_head, "false unless anchored_rollout is true")
+        if self.track_pretrain_epochs and not self.track_head:
+            raise config_value_error("track_pretrain_epochs", self.track_pretrain_epochs, "0 unless track_head is true")
+        return self
 
     @model_validator(mode="after")
     def _check_dataset(self) -> FallConfig:

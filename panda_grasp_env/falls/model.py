@@ -26,6 +26,19 @@ inputs), so untrained it copies the last frame: on tall towers a block's
 centroid step jumps as blocks cover one another, and constant velocity five
 frames on misses by 28 pixels on average against copying's 8.
 
+An anchored model with a ``track_horizon`` plans instead: after the context
+frames, a track head (``tracks``) reads every block's track over them -- its
+centroid steps, visible area and mean height, and where each other block lies
+and how it moves -- and gives each block's displacement to each of the next
+``track_horizon`` frames at once, plus what a linear map of the ConvLSTM's
+state pooled over the block adds; each predicted frame is the newest true
+frame's blocks shifted by its planned displacement, and the ConvLSTM, reading
+back the drawn frames, adds its correction logits.  Planning at once rather
+than step by step keeps a rollout's errors from compounding, and the head can
+be fitted alone on every training window's tracks before the ConvLSTM trains
+(``training.pretrain_track_head``): a small network on tracks learns from far
+more windows per minute than the ConvLSTM does.
+
 With ``use_depth`` each input frame also carries a height map (``heights``:
 block units above the frame's lowest surface, from the depth image): a top view
 of class masks cannot tell a block about to land from one still falling.  The
@@ -46,6 +59,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from panda_grasp_env.falls.tracks import TrackHead, block_tracks, mask_centroids, track_feature_count, track_features
 
 #: Changes whenever the same weights would mean another model; saved in checkpoints and checked on load.
 ARCHITECTURE = 3
@@ -92,12 +107,15 @@ class FallPredictor(nn.Module):
         hidden: int = 32,
         use_depth: bool = False,
         anchored: bool = False,
+        track_horizon: int = 0,
     ) -> None:
         super().__init__()
         if image_size % 4:
             raise ValueError(f"image_size must be a multiple of 4, got {image_size}")
+        if track_horizon < 0 or (track_horizon and not anchored):
+            raise ValueError(f"track_horizon must be 0, or >= 1 with anchored=True; got {track_horizon}")
         self.n_classes, self.image_size, self.context, self.hidden = n_classes, image_size, context, hidden
-        self.use_depth, self.anchored = use_depth, anchored
+        self.use_depth, self.anchored, self.track_horizon = use_depth, anchored, track_horizon
         channels = n_classes + int(use_depth)
         self.e1, self.e2, self.e3 = conv(2 * channels, 16), conv(16, 32, 2), conv(32, 32)  # frame and its predecessor
         self.e4, self.e5 = conv(32, 64, 2), conv(64, 64)
@@ -107,15 +125,21 @@ class FallPredictor(nn.Module):
         self.d3 = conv(32, 32)
         self.d4 = conv(32 + 16, 16)
         self.d5 = nn.Conv2d(16, channels, 3, padding=1)  # correction logits [, heights]
-        self.block_features = 4 + 2 * int(use_depth)  # see block_descriptors
-        self.motion = nn.Sequential(
-            nn.Linear(MOTION_HISTORY * self.block_features + hidden, 128),
-            nn.ReLU(),
-            nn.Linear(128, 128),
-            nn.ReLU(),
-            nn.Linear(128, 2),
-        )
-        for layer in (self.d5, self.motion[-1]):  # starts as constant-velocity extrapolation
+        if track_horizon:
+            self.tracks = TrackHead(track_feature_count(context, n_classes - 1), track_horizon)
+            self.pooled_motion = nn.Linear(hidden, 2 * track_horizon)  # what the ConvLSTM adds to the tracks' plan
+            last_layers: tuple[nn.Module, ...] = (self.d5, self.pooled_motion)
+        else:
+            self.block_features = 4 + 2 * int(use_depth)  # see block_descriptors
+            self.motion = nn.Sequential(
+                nn.Linear(MOTION_HISTORY * self.block_features + hidden, 128),
+                nn.ReLU(),
+                nn.Linear(128, 128),
+                nn.ReLU(),
+                nn.Linear(128, 2),
+            )
+            last_layers = (self.d5, self.motion[-1])
+        for layer in last_layers:  # starts as constant-velocity extrapolation (anchored: copying the last frame)
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
         self.copy_gain = nn.Parameter(torch.tensor(1.0))
@@ -128,18 +152,10 @@ class FallPredictor(nn.Module):
         velocity (x, y: centroid step in pixels, zero for a block with under a pixel of mass in either frame),
         visible area (hundreds of pixels) and its change, and with ``use_depth`` mean height (blocks) and its
         change."""
-
-        def measure(frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-            masks = frames[:, 1 : self.n_classes]
-            centre, mass = mask_centroids(masks)
-            height = (
-                (masks * frames[:, self.n_classes :]).sum((2, 3)) / mass.clamp_min(1e-6)
-                if self.use_depth
-                else mass.new_zeros(0)
-            )
-            return centre, mass, height
-
-        (now, mass_now, height_now), (before, mass_before, height_before) = measure(frame), measure(previous)
+        centre, mass, height = block_tracks(torch.stack([previous, frame], 1), self.n_classes)
+        before, now = centre.unbind(1)
+        mass_before, mass_now = mass.unbind(1)
+        height_before, height_now = height.unbind(1)
         seen = ((mass_now > 1.0) & (mass_before > 1.0)).float()
         features = [
             (now - before) * seen[..., None],
@@ -150,41 +166,33 @@ class FallPredictor(nn.Module):
             features += [height_now[..., None], ((height_now - height_before) * seen)[..., None]]
         return torch.cat(features, 2)
 
-    def step(
-        self,
-        frame: torch.Tensor,
-        previous: torch.Tensor,
-        state: Any,
-        anchor: torch.Tensor | None = None,
-        moved_so_far: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor, Any, torch.Tensor | None, torch.Tensor]:
+    def advance(
+        self, frame: torch.Tensor, previous: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor] | None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Consume one frame (B, C [+ 1], S, S) (with the one before it, so that the first convolutions see
-        motion directly); logits of the next frame, each block's displacement (B, K, 2) that moved it (pixels,
-        x = column then y = row), the new state, with ``use_depth`` the next height map (B, 1, S, S), and the
-        shifted blocks alone (B, C, S, S: class probabilities without the correction logits).
-
-        The next frame's blocks are ``anchor``'s (default: ``frame``) shifted by ``moved_so_far`` (B, K, 2;
-        default none) plus this step's displacement: a rollout anchors on its newest true frame."""
+        motion directly): the ConvLSTM's new hidden and cell states and the decoder's correction logits [and
+        heights] of the next frame (B, C [+ 1], S, S)."""
         f1 = self.e1(torch.cat([frame, previous], 1))
         f3 = self.e3(self.e2(f1))
         f5 = self.e5(self.e4(f3))
-        h, c = self.lstm(f5, None if state is None else state[:2])
+        h, c = self.lstm(f5, state)
         x = self.d1(torch.cat([h, f5], 1))
         x = self.d3(self.d2(torch.cat([F.interpolate(x, scale_factor=2.0), f3], 1)))
-        out = self.d5(self.d4(torch.cat([F.interpolate(x, scale_factor=2.0), f1], 1)))
-        batch, blocks, size, n = frame.shape[0], self.n_classes - 1, self.image_size, self.n_classes
-        descriptors = self.block_descriptors(frame, previous)
-        history = (
-            descriptors.new_zeros(batch, blocks, MOTION_HISTORY, self.block_features) if state is None else state[2]
-        )
-        history = torch.cat([history[:, :, 1:], descriptors[:, :, None]], 2)
-        coarse = F.avg_pool2d(frame[:, 1:n], size // h.shape[-1])  # block masks at the ConvLSTM's resolution
-        pooled = torch.einsum("bkhw,bchw->bkc", coarse, h) / coarse.sum((2, 3)).clamp_min(1e-3)[..., None]
-        correction = self.motion(torch.cat([history.flatten(2), pooled], 2))
-        displacement = correction if self.anchored else descriptors[..., :2] + correction
-        # Block k's channel of the next frame at p is drawn from the anchor's at p - (moved so far + displacement)[k].
-        anchor = frame if anchor is None else anchor
-        shift = displacement if moved_so_far is None else moved_so_far + displacement
+        return h, c, self.d5(self.d4(torch.cat([F.interpolate(x, scale_factor=2.0), f1], 1)))
+
+    def pooled(self, frame: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+        """(B, K, hidden): the ConvLSTM's state ``h`` averaged over each block's mask in ``frame`` (contacts,
+        landings)."""
+        coarse = F.avg_pool2d(frame[:, 1 : self.n_classes], self.image_size // h.shape[-1])
+        return torch.einsum("bkhw,bchw->bkc", coarse, h) / coarse.sum((2, 3)).clamp_min(1e-3)[..., None]
+
+    def draw(
+        self, anchor: torch.Tensor, shift: torch.Tensor, out: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        """The next frame: its logits, with ``use_depth`` its height map (B, 1, S, S), and the shifted blocks
+        alone (B, C, S, S: class probabilities without the correction logits).  Block k's channel at p is
+        ``anchor``'s at p - ``shift``[k] (B, K, 2; pixels, x then y), plus the correction logits ``out``."""
+        batch, blocks, size, n = anchor.shape[0], self.n_classes - 1, self.image_size, self.n_classes
         grids = self.grid[:, None] - shift[:, :, None, None, :] * (2.0 / size)  # pixels -> grid units
         masks = anchor[:, 1:n, None]  # (B, K, 1, S, S); with depth each block also carries its heights
         carried = torch.cat([masks, masks * anchor[:, n:, None]], 2) if self.use_depth else masks
@@ -198,7 +206,69 @@ class FallPredictor(nn.Module):
         warped = torch.cat([(1.0 - moved[:, :, 0].sum(1, keepdim=True)).clamp_min(0.0), moved[:, :, 0]], 1)
         logits = self.copy_gain * torch.log(warped + 0.1) + out[:, :n]
         heights = moved[:, :, 1].sum(1, keepdim=True) + out[:, n:] if self.use_depth else None
+        return logits, heights, warped
+
+    def step(
+        self,
+        frame: torch.Tensor,
+        previous: torch.Tensor,
+        state: Any,
+        anchor: torch.Tensor | None = None,
+        moved_so_far: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, Any, torch.Tensor | None, torch.Tensor]:
+        """A model without a track head: consume one frame (B, C [+ 1], S, S) (``advance``); logits of the
+        next frame, each block's displacement (B, K, 2) that moved it (pixels, x = column then y = row), the
+        new state, with ``use_depth`` the next height map (B, 1, S, S), and the shifted blocks alone (``draw``).
+
+        The next frame's blocks are ``anchor``'s (default: ``frame``) shifted by ``moved_so_far`` (B, K, 2;
+        default none) plus this step's displacement: a rollout anchors on its newest true frame."""
+        h, c, out = self.advance(frame, previous, None if state is None else state[:2])
+        batch, blocks = frame.shape[0], self.n_classes - 1
+        descriptors = self.block_descriptors(frame, previous)
+        history = (
+            descriptors.new_zeros(batch, blocks, MOTION_HISTORY, self.block_features) if state is None else state[2]
+        )
+        history = torch.cat([history[:, :, 1:], descriptors[:, :, None]], 2)
+        correction = self.motion(torch.cat([history.flatten(2), self.pooled(frame, h)], 2))
+        displacement = correction if self.anchored else descriptors[..., :2] + correction
+        anchor = frame if anchor is None else anchor
+        shift = displacement if moved_so_far is None else moved_so_far + displacement
+        logits, heights, warped = self.draw(anchor, shift, out)
         return logits, displacement, (h, c, history), heights, warped
+
+    def track_plan(self, frames: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+        """(B, track_horizon, K, 2): each block's displacement (pixels, x then y) from the newest of ``frames``
+        (B, T, C [+ 1], S, S) to each next frame, from the blocks' tracks (``tracks``) plus what the ConvLSTM's
+        state ``h`` after them adds over each block."""
+        centre, area, height = block_tracks(frames, self.n_classes)
+        planned = self.tracks(track_features(centre, area, height, self.image_size))
+        extra = self.pooled_motion(self.pooled(frames[:, -1], h)).view_as(planned)
+        return (planned + extra).transpose(1, 2)
+
+    def rollout_tracks(
+        self, frames: torch.Tensor, horizon: int
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """``rollout_with_motion`` of a model with a track head: the displacements to every predicted frame
+        are planned once, after the context frames; the ConvLSTM reads back each drawn frame for its
+        correction logits."""
+        if horizon > self.track_horizon:
+            raise ValueError(f"horizon {horizon} is past this model's track_horizon ({self.track_horizon} frames)")
+        state = None
+        for t in range(frames.shape[1]):
+            *state, out = self.advance(frames[:, t], frames[:, max(t - 1, 0)], state)
+        plan = self.track_plan(frames, state[0])[:, :horizon]
+        anchor = previous = frames[:, -1]
+        logits, heights, drawn = self.draw(anchor, plan[:, 0], out)
+        outputs, all_heights = [logits], [heights]
+        for k in range(1, horizon):
+            frame = drawn if heights is None else torch.cat([drawn, heights], 1)
+            *state, out = self.advance(frame, previous, state)
+            logits, heights, drawn = self.draw(anchor, plan[:, k], out)
+            outputs.append(logits)
+            all_heights.append(heights)
+            previous = frame
+        steps = torch.diff(plan, dim=1, prepend=torch.zeros_like(plan[:, :1]))
+        return torch.stack(outputs, 1), steps, torch.stack(all_heights, 1) if self.use_depth else None
 
     def rollout_with_motion(
         self, frames: torch.Tensor, horizon: int
@@ -211,6 +281,8 @@ class FallPredictor(nn.Module):
                 f"frames have {frames.shape[2]} channels; this model reads {self.n_classes} classes"
                 + (" and a height map" if self.use_depth else "")
             )
+        if self.track_horizon:
+            return self.rollout_tracks(frames, horizon)
         state, logits, motion, heights = None, None, None, None
         for t in range(frames.shape[1]):
             logits, motion, state, heights, drawn = self.step(frames[:, t], frames[:, max(t - 1, 0)], state)
@@ -245,17 +317,8 @@ class FallPredictor(nn.Module):
             "hidden": self.hidden,
             "use_depth": self.use_depth,
             "anchored": self.anchored,
+            "track_horizon": self.track_horizon,
         }
-
-
-def mask_centroids(masks: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Centroids (B, K, 2) in pixels (x = column, y = row) and masses (B, K) of masks (B, K, S, S), hard or
-    soft; a centroid is zero where its mask is empty."""
-    mass = masks.sum((2, 3))
-    pixels = torch.arange(masks.shape[-1], dtype=masks.dtype, device=masks.device)
-    x = (masks.sum(2) * pixels).sum(2) / mass.clamp_min(1e-6)
-    y = (masks.sum(3) * pixels).sum(2) / mass.clamp_min(1e-6)
-    return torch.stack([x, y], 2), mass
 
 
 def one_hot(labels: torch.Tensor, n_classes: int) -> torch.Tensor:

@@ -21,6 +21,7 @@ strips/ (one PNG per test sequence: input frames, truth, prediction).
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -31,7 +32,7 @@ import torch.nn.functional as F
 import yaml
 
 from panda_grasp_env.falls.config import FallConfig, fall_config
-from panda_grasp_env.falls.dataset import load_split, read_metadata
+from panda_grasp_env.falls.dataset import FallSequences, load_split, read_metadata
 from panda_grasp_env.falls.metrics import evaluate, test_scores
 from panda_grasp_env.falls.model import (
     ARCHITECTURE,
@@ -44,6 +45,7 @@ from panda_grasp_env.falls.model import (
     one_hot,
 )
 from panda_grasp_env.falls.records import fall_card, plot_fall_curve, write_strips
+from panda_grasp_env.falls.tracks import SEEN_AREA, TrackHead, block_tracks, track_features
 from panda_grasp_env.tooling.runs import (
     atomic_path,
     check_run_files,
@@ -77,6 +79,88 @@ def motion_loss(displacements: torch.Tensor, before: torch.Tensor, after: torch.
     return (distance * area).sum() / area.sum().clamp_min(1.0)
 
 
+def track_windows(
+    model: FallPredictor, split: FallSequences, horizon: int, chunk: int = 32
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The track head's inputs and targets over every window of a split (t with ``model.context`` frames up to
+    t and at least one after it), one row per block in view at t: features (N, F), displacements from t to
+    t + 1 ... t + ``horizon`` (N, horizon, 2; pixels, x then y) and whether the block is in view at each of
+    those frames (N, horizon; false past the sequence's end), and where each row is from (N, 3: sequence, t,
+    block class - 1)."""
+    context, length = model.context, split.labels.shape[1]
+    features, targets, seen_later, where = [], [], [], []
+    for first in range(0, len(split.labels), chunk):
+        depth = None if split.depth is None else split.depth[first : first + chunk]
+        frames = model_inputs(model, split.labels[first : first + chunk], depth if model.use_depth else None)
+        centre, area, height = block_tracks(frames, model.n_classes)
+        seen = F.pad(area > SEEN_AREA, (0, 0, 0, horizon))  # never in view past the end
+        centre = F.pad(centre, (0, 0, 0, 0, 0, horizon))
+        for t in range(max(context - 1, 1), length - 1):
+            window, ahead = slice(t - context + 1, t + 1), slice(t + 1, t + 1 + horizon)
+            rows = seen[:, t]
+            features.append(
+                track_features(centre[:, window], area[:, window], height[:, window], model.image_size)[rows]
+            )
+            targets.append((centre[:, ahead] - centre[:, t, None]).transpose(1, 2)[rows])
+            seen_later.append(seen[:, ahead].transpose(1, 2)[rows].float())
+            sequence, block = rows.nonzero(as_tuple=True)
+            where.append(torch.stack([sequence + first, torch.full_like(sequence, t), block], 1))
+    return torch.cat(features), torch.cat(targets), torch.cat(seen_later), torch.cat(where)
+
+
+def fit_track_head(
+    head: TrackHead,
+    train: tuple[torch.Tensor, ...],
+    val: tuple[torch.Tensor, ...],
+    epochs: int,
+    batch_size: int = 256,
+) -> list[float]:
+    """Fit a track head alone (``epochs`` epochs, Adam 1e-3 on a cosine schedule) to the block displacements
+    of ``track_windows`` rows ``train`` (smooth L1 in pixels over the frames where the block is in view), its
+    inputs standardised by those rows' mean and spread; returns each epoch's loss on the rows ``val``."""
+    x, y, weight = train[:3]
+    head.mean.copy_(x.mean(0))
+    head.scale.copy_(x.std(0) + 1e-6)
+    parameters = list(head.network.parameters())
+    for parameter in parameters:
+        parameter.requires_grad_(True)
+    optimiser = torch.optim.Adam(parameters, lr=1e-3)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, epochs)
+
+    def loss_of(rows: torch.Tensor, truth: torch.Tensor, seen: torch.Tensor) -> torch.Tensor:
+        error = F.smooth_l1_loss(head(rows[:, None])[:, 0], truth, reduction="none").sum(2)
+        return (error * seen).sum() / seen.sum().clamp_min(1.0)
+
+    validation = []
+    for _ in range(epochs):
+        for batch in torch.randperm(len(x)).split(batch_size):
+            loss = loss_of(x[batch], y[batch], weight[batch])
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+        schedule.step()
+        with torch.no_grad():
+            validation.append(round(float(loss_of(*val[:3])), 4))
+    for parameter in parameters:
+        parameter.requires_grad_(False)
+    return validation
+
+
+def pretrain_track_head(model: FallPredictor, train: FallSequences, val: FallSequences, epochs: int) -> dict[str, Any]:
+    """``fit_track_head`` of ``model.tracks`` on every window of the training and validation splits: the
+    rows counted, each epoch's validation loss and the seconds spent."""
+    began = time.perf_counter()
+    rows = track_windows(model, train, model.tracks.horizon)
+    val_rows = track_windows(model, val, model.tracks.horizon)
+    return {
+        "epochs": epochs,
+        "training_rows": len(rows[0]),
+        "validation_rows": len(val_rows[0]),
+        "validation_loss": fit_track_head(model.tracks, rows, val_rows, epochs),
+        "seconds": round(time.perf_counter() - began, 1),
+    }
+
+
 def start_fall_run(config: FallConfig, runs_dir: Path) -> Path:
     """A fresh run folder with config.yaml and meta.json (which also names the dataset)."""
     dataset = read_metadata(config.dataset)
@@ -104,8 +188,14 @@ def train_fall_model(
         )
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
-    model = FallPredictor(n_classes, size, config.context, config.hidden, config.use_depth, config.anchored_rollout)
-    optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+    # Planned as far as a rollout from the first frames reaches (the fall direction is read at the last frame).
+    track_horizon = train.labels.shape[1] - config.context if config.track_head else 0
+    model = FallPredictor(
+        n_classes, size, config.context, config.hidden, config.use_depth, config.anchored_rollout, track_horizon
+    )
+    if config.track_pretrain_epochs:  # fitted before the first epoch, then frozen
+        model.tracks.requires_grad_(False)
+    optimiser = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=config.learning_rate)
     epoch, wall_before, best = 0, 0.0, -1.0
     unvalidated_loss = None  # the last epoch's training loss while its validation has not run
     if resume:
@@ -122,13 +212,20 @@ def train_fall_model(
         epoch, wall_before, best = saved["epoch"], saved["wall_seconds"], saved["best"]
         unvalidated_loss = saved.get("unvalidated_loss")
     check_compatible(model, train.labels, train.classes, train.depth)
-    schedule = (
-        torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.epochs, last_epoch=epoch - 1)
-        if epoch
-        else torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.epochs)
+    # Cosine from the learning rate to 0 over config.epochs, in closed form from the epoch reached: a resume with
+    # more epochs goes on from where that longer schedule would be (a recursive cosine would stay at the 0 it
+    # ended on).
+    for group in optimiser.param_groups:
+        group["initial_lr"] = config.learning_rate
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimiser, lambda done: 0.5 * (1 + math.cos(math.pi * min(done, config.epochs) / config.epochs)), epoch - 1
     )
     writer = SummaryWriter(str(run_dir / "tb"))
-    batches = max(1, len(train.labels) // config.batch_size)
+    batches = max(1, (config.epoch_sequences or len(train.labels)) // config.batch_size)
+    val_labels, val_depth = (
+        val.labels[: config.val_sequences],
+        None if val.depth is None else val.depth[: config.val_sequences],
+    )
     window = config.context + config.rollout
     began = time.perf_counter()
 
@@ -166,21 +263,22 @@ def train_fall_model(
         mininterval=5.0,
     )
 
-    def validate(loss: float) -> None:
-        """Score the model on validation after ``epoch``: evaluations.jsonl, TensorBoard, best.pt, latest.pt."""
+    def validate(loss: float | None) -> None:
+        """Score the model on validation after ``epoch`` (its training loss; None for the fitted track head
+        before the first epoch): evaluations.jsonl, TensorBoard, best.pt, latest.pt."""
         nonlocal best, unvalidated_loss
-        metrics = evaluate(model, val.labels, val.classes, config.context, depth=val.depth, baselines=False)["model"]
+        metrics = evaluate(model, val_labels, val.classes, config.context, depth=val_depth, baselines=False)["model"]
         score = metrics[f"t+{config.select_horizon}"]["mean_block_iou"]
-        row = {"epoch": epoch, "wall_seconds": round(wall(), 1), "loss": round(loss, 4), "val": metrics}
+        row = {"epoch": epoch, "wall_seconds": round(wall(), 1), "loss": None, "val": metrics}
+        if loss is not None:
+            row["loss"] = round(loss, 4)
+            writer.add_scalar("train/loss", row["loss"], epoch)
         with open(run_dir / "evaluations.jsonl", "a") as log:
             log.write(json.dumps(row) + "\n")
-        writer.add_scalar("train/loss", row["loss"], epoch)
         for horizon in ("t+1", "t+5"):
             writer.add_scalar(f"val/mean_block_iou_{horizon}", metrics[horizon]["mean_block_iou"], epoch)
             writer.add_scalar(f"val/foreground_accuracy_{horizon}", metrics[horizon]["foreground_accuracy"], epoch)
-        bar.set_postfix_str(
-            f"loss {row['loss']:.3f}, val block IoU t+{config.select_horizon} {score:.3f}", refresh=False
-        )
+        bar.set_postfix_str(f"loss {row['loss']}, val block IoU t+{config.select_horizon} {score:.3f}", refresh=False)
         unvalidated_loss = None
         if score > best:
             best = score
@@ -189,6 +287,11 @@ def train_fall_model(
         plot_fall_curve(run_dir)
 
     try:
+        if config.track_pretrain_epochs and not resume:
+            write_json(
+                run_dir / "track_pretraining.json", pretrain_track_head(model, train, val, config.track_pretrain_epochs)
+            )
+            validate(None)  # the plan alone, the ConvLSTM untrained (no correction): best.pt unless an epoch beats it
         if unvalidated_loss is not None:  # interrupted during that epoch's validation
             validate(unvalidated_loss)
         while epoch < config.epochs:

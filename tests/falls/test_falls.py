@@ -350,6 +350,58 @@ def test_an_anchored_model_starts_as_copy_last_and_shifts_the_newest_true_frame_
     assert torch.allclose(motions[0].sum(0), torch.tensor([[2.0, 0.0], [2.0, 0.0]]))
 
 
+def moving_block_labels() -> torch.Tensor:
+    """(1, 3, 32, 32): block 1 moving 2 px a frame along x (columns), block 2 standing still."""
+    labels = torch.zeros(1, 3, 32, 32, dtype=torch.long)
+    for t in range(3):
+        labels[0, t, 10:16, 4 + 2 * t : 10 + 2 * t] = 1
+        labels[0, t, 20:26, 20:26] = 2
+    return labels
+
+
+@pytest.mark.unit
+def test_track_features_read_each_block_own_track_and_the_others_highest_first():
+    from panda_grasp_env.falls.model import one_hot
+    from panda_grasp_env.falls.tracks import block_tracks, track_feature_count, track_features
+
+    frames = one_hot(moving_block_labels(), 3)
+    centre, area, height = block_tracks(frames, 3)
+    assert torch.allclose(centre[0, :, 0], torch.tensor([[6.5, 12.5], [8.5, 12.5], [10.5, 12.5]]))
+    assert area[0].tolist() == [[36, 36]] * 3 and not height.any()
+    height[..., 1] = 1.0  # block 2 stands higher: it comes first among the neighbours
+    features = track_features(centre, area, height, 32)
+    assert features.shape == (1, 2, track_feature_count(3, 2))
+    assert features[0, 0, :6].tolist() == [2.0, 0.0, 1.0, 4.0, 0.0, 1.0]  # back 1 and 2 frames, in view
+    assert features[0, 1, :6].tolist() == [0.0, 0.0, 1.0, 0.0, 0.0, 1.0]  # block 2 never moved
+    neighbours = features[0, 0, -14:].view(2, 7)
+    assert neighbours[:, 5].tolist() == [1.0, 0.0] and neighbours[:, 2].tolist() == [0.0, 2.0]
+    assert torch.allclose(neighbours[1, :2], torch.zeros(2))  # itself, against itself
+    assert torch.allclose(neighbours[0, :2], torch.tensor([1.2, 1.0]))  # block 2, tens of pixels from block 1
+
+
+@pytest.mark.unit
+def test_a_track_head_model_starts_as_copy_last_and_draws_every_frame_from_its_plan():
+    from panda_grasp_env.falls.model import one_hot
+
+    labels = moving_block_labels()
+    with pytest.raises(ValueError, match="track_horizon must be 0, or >= 1 with anchored=True; got 3"):
+        FallPredictor(3, 32, context=3, hidden=8, track_horizon=3)
+    model = FallPredictor(3, 32, context=3, hidden=8, anchored=True, track_horizon=3)
+    assert model.describe()["track_horizon"] == 3 and not hasattr(model, "motion")
+    frames = one_hot(labels, 3)
+    logits, motions, _ = model.rollout_with_motion(frames, 3)
+    assert all(torch.equal(logits[0, h].argmax(0), labels[0, 2]) for h in range(3)) and not motions.any()
+    with torch.no_grad():  # every block planned 2, 4, 6 px along x in the next three frames
+        model.tracks.network[-1].bias.copy_(torch.tensor([2.0, 0.0, 4.0, 0.0, 6.0, 0.0]))
+    logits, motions, _ = model.rollout_with_motion(frames, 3)
+    expected = torch.zeros(32, 32, dtype=torch.long)
+    expected[10:16, 14:20], expected[20:26, 26:32] = 1, 2
+    assert torch.equal(logits[0, 2].argmax(0), expected)
+    assert torch.allclose(motions[0, :, 0], torch.tensor([[2.0, 0.0]] * 3))  # steps between the planned frames
+    with pytest.raises(ValueError, match="horizon 4 is past this model's track_horizon"):
+        model.rollout(frames, 4)
+
+
 @pytest.mark.unit
 def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
     from panda_grasp_env.falls.model import model_inputs
@@ -371,6 +423,34 @@ def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
         model_inputs(model, labels)
     with pytest.raises(ValueError, match="reads depth images shaped like its labels"):
         evaluate(model, np.zeros((1, 10, 32, 32), dtype=np.uint8), ["b", "1", "2"], context=2)
+
+
+def test_a_track_head_is_fitted_first_then_frozen_while_the_convlstm_trains_and_resumes(dataset, tmp_path):
+    config = "configs/fall_convlstm.yaml"
+    common = [f"dataset={dataset}", "hidden=8", "batch_size=2", "torch_threads=1", "context=3", "rollout=3"]
+    track = ["anchored_rollout=true", "track_head=true", "track_pretrain_epochs=3", "epoch_sequences=2"]
+    args = ["--config", config, "--runs", str(tmp_path), "--no-progress", *common, *track, "val_sequences=1"]
+    assert train.main([*args, "epochs=1"]) == 0
+    run = tmp_path / "fall_convlstm-seed0"
+    fitted = json.loads((run / "track_pretraining.json").read_text())
+    assert fitted["epochs"] == 3 and len(fitted["validation_loss"]) == 3 and fitted["training_rows"] > 0
+    first = torch.load(run / "latest.pt", weights_only=True)["model"]
+    assert first["tracks.network.4.bias"].any()  # fitted: no longer the copy-last start
+    assert train.main(["--resume", str(run), "epochs=2", "--no-progress"]) == 0
+    model, _ = load_fall_model(run / "latest.pt")
+    assert model.track_horizon == 7  # from the context to the last of 10 frames (the fall direction's rollout)
+    after = torch.load(run / "latest.pt", weights_only=True)["model"]
+    assert all(torch.equal(first[key], after[key]) for key in first if key.startswith("tracks."))
+    assert not all(torch.equal(first[key], after[key]) for key in first if key.startswith("pooled_motion."))
+    rows = [json.loads(line) for line in (run / "evaluations.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == [0, 1, 2] and rows[0]["loss"] is None  # 0: the fitted head, validated
+    assert rows[0]["val"]["t+1"]["frames"] == 3  # one validation sequence, 3 windows
+    assert "constant_velocity" in json.loads((run / "final.json").read_text())["metrics"]
+    raw = {"kind": "fall_dynamics", "name": "tiny", "dataset": str(dataset)}
+    with pytest.raises(ValueError, match=r"config track_head=True: expected false unless anchored_rollout is true"):
+        fall_config({**raw, "track_head": True}, "tiny.yaml")
+    with pytest.raises(ValueError, match=r"config track_pretrain_epochs=2: expected 0 unless track_head is true"):
+        fall_config({**raw, "track_pretrain_epochs": 2}, "tiny.yaml")
 
 
 def test_labels_only_model_trains_without_depth(dataset, tmp_path):
@@ -413,7 +493,14 @@ def test_bad_fall_configs_fail_with_the_name_and_the_shipped_config_loads(datase
     # since default to what it was trained with.
     saved = yaml.safe_load((fall_records.FALL_CHECKPOINTS / "fall_convlstm" / "config.yaml").read_text())
     config = fall_config({**saved, "dataset": str(dataset)}, "config.yaml")
-    added = {"anchored_rollout": False, "select_horizon": 1}
+    added = {
+        "anchored_rollout": False,
+        "select_horizon": 1,
+        "track_head": False,
+        "track_pretrain_epochs": 0,
+        "epoch_sequences": None,
+        "val_sequences": None,
+    }
     assert {**dataclasses.asdict(config), "dataset": saved["dataset"]} == saved | added
 
 
