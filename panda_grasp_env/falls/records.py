@@ -107,6 +107,20 @@ def direction_rows(direction: dict[str, Any]) -> list[str]:
     return rows
 
 
+def track_head_summary(run_dir: Path) -> str | None:
+    """How a run's track head was fitted before the ConvLSTM's epochs (``track_pretraining.json``), if it was."""
+    if not (run_dir / "track_pretraining.json").is_file():
+        return None
+    fitted = json.loads((run_dir / "track_pretraining.json").read_text())
+    losses = fitted["validation_loss"]
+    return (
+        f"track head fitted alone first: {fitted['epochs']} epochs on {fitted['training_rows']} training rows "
+        f"(a block in view in a window) in {fitted['seconds'] / 60:.1f} min, validation loss {losses[0]} after the "
+        f"first epoch, {losses[-1]} after the last ({fitted['validation_rows']} rows); then frozen; epoch 0 of "
+        "the curve is the plan alone"
+    )
+
+
 def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
     """card.md of a finished run: what was trained on what, the test figures against the baselines, the config."""
     meta = json.loads((run_dir / "meta.json").read_text())
@@ -136,6 +150,7 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
             f"wall time {final['wall_seconds'] / 60:.1f} min on {meta['machine']}",
             f"- commit {meta['commit']}; {', '.join(f'{k} {v}' for k, v in meta['versions'].items())}",
             *([f"- {resumed}"] if (resumed := resume_summary(meta)) else []),
+            *([f"- {fitted}"] if (fitted := track_head_summary(run_dir)) else []),
             f"- test: {final['test_sequences']} held-out sequences, every t with {config.context} context frames; "
             f"{m['copy_last']['t+1']['frames']} predictions per horizon",
             "",
@@ -198,6 +213,8 @@ def ship_fall_run(run_dir: Path, name: str, strips: int = 5) -> Path:
     )
     for f in ("final.json", "card.md", "curve.png", "config.yaml", "meta.json", "evaluations.jsonl"):
         shutil.copy2(run_dir / f, staging / f)
+    if (run_dir / "track_pretraining.json").is_file():
+        shutil.copy2(run_dir / "track_pretraining.json", staging / "track_pretraining.json")
     for strip in sorted((run_dir / "strips").glob("*.png"))[:strips]:
         shutil.copy2(strip, staging / "strips" / strip.name)
     target = FALL_CHECKPOINTS / name

@@ -446,6 +446,7 @@ def test_a_track_head_is_fitted_first_then_frozen_while_the_convlstm_trains_and_
     assert [r["epoch"] for r in rows] == [0, 1, 2] and rows[0]["loss"] is None  # 0: the fitted head, validated
     assert rows[0]["val"]["t+1"]["frames"] == 3  # one validation sequence, 3 windows
     assert "constant_velocity" in json.loads((run / "final.json").read_text())["metrics"]
+    assert "track head fitted alone first: 3 epochs" in (run / "card.md").read_text()
     raw = {"kind": "fall_dynamics", "name": "tiny", "dataset": str(dataset)}
     with pytest.raises(ValueError, match=r"config track_head=True: expected false unless anchored_rollout is true"):
         fall_config({**raw, "track_head": True}, "tiny.yaml")
