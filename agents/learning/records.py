@@ -241,11 +241,11 @@ def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: 
         *(
             [
                 "",
-                f"It acts as shipped, with {acting_rules_text(final)} (`checkpoint.json` "
+                f"It acts as shipped, with {rules_on} (`checkpoint.json` "
                 f"{', '.join(f'`{rule}`' for rule in ACTING_RULES if final.get(rule))}, chosen on selection seeds; the "
                 "rules: `panda_grasp_env.agents.learning.acting_rules`).",
             ]
-            if acting_rules_text(final)
+            if (rules_on := acting_rules_text(final))
             else []
         ),
         "",

@@ -11,8 +11,11 @@ through the warp alone, motion gets gradient only at block edges and barely
 learns.  With
 ``use_depth`` the model also reads height maps from the depth images and is
 scored, weighted by ``height_loss_weight``, on the heights it predicts (mean
-absolute error in blocks).  The run
-folder holds config.yaml, meta.json, tb/, evaluations.jsonl (validation
+absolute error in blocks).  With ``track_pretrain_epochs`` the model's track
+head is fitted alone first (``pretrain_track_head``: every window of every
+training sequence, in minutes), validated as epoch 0, and frozen while the
+ConvLSTM's epochs train the rest.  The run
+folder holds config.yaml, meta.json, tb/, track_pretraining.json, evaluations.jsonl (validation
 metrics per epoch), curve.png, latest.pt / best.pt (atomic), and at the end
 final.json (test metrics and fall directions against the baselines), card.md and
 strips/ (one PNG per test sequence: input frames, truth, prediction).
