@@ -95,17 +95,7 @@ def fall_directions(
         model.eval()
         windows = labels[:, t - context + 1 : t + 1]
         contexts = depth[:, t - context + 1 : t + 1] if model.use_depth else None
-        ends["model"] = np.concatenate(
-            [
-                predict_batch(
-                    model,
-                    windows[b : b + batch_size],
-                    horizon,
-                    None if contexts is None else contexts[b : b + batch_size],
-                )[:, -1]
-                for b in range(0, n, batch_size)
-            ]
-        )
+        ends["model"] = predict_batch(model, windows, horizon, contexts, batch_size)[:, -1]
     ends["true_labels"] = labels[:, -1]
     start = [centroid(frame > 0) for frame in labels[:, 0]]
     view = CameraModel(

@@ -369,12 +369,18 @@ def check_compatible(model: FallPredictor, labels: np.ndarray, classes: list[str
 
 
 def predict_batch(
-    model: FallPredictor, windows: np.ndarray, horizon: int, depth: np.ndarray | None = None
+    model: FallPredictor, windows: np.ndarray, horizon: int, depth: np.ndarray | None = None, batch_size: int = 64
 ) -> np.ndarray:
     """Predicted labels (B, horizon, S, S) after context windows (B, K, S, S) of labels (and of depth images,
-    for a ``use_depth`` model)."""
+    for a ``use_depth`` model), ``batch_size`` windows at a time (a rollout's activations grow with the batch)."""
+    predicted = np.zeros((len(windows), horizon, *windows.shape[-2:]), dtype=np.uint8)
     with torch.no_grad():
-        return model.rollout(model_inputs(model, windows, depth), horizon).argmax(2).numpy().astype(np.uint8)
+        for b in range(0, len(windows), batch_size):
+            inputs = model_inputs(
+                model, windows[b : b + batch_size], None if depth is None else depth[b : b + batch_size]
+            )
+            predicted[b : b + batch_size] = model.rollout(inputs, horizon).argmax(2).numpy()
+    return predicted
 
 
 def load_fall_model(path: Path | str) -> tuple[FallPredictor, dict[str, Any]]:

@@ -34,29 +34,14 @@ def label_image(labels: np.ndarray, scale: int = 2) -> np.ndarray:
 
 
 def write_strips(
-    model: FallPredictor,
-    labels: np.ndarray,
-    seeds: np.ndarray,
-    folder: Path,
-    rollout: int,
-    depth: Any = None,
-    batch_size: int = 64,
+    model: FallPredictor, labels: np.ndarray, seeds: np.ndarray, folder: Path, rollout: int, depth: Any = None
 ) -> None:
     """One PNG per sequence: the context frames, then truth (top) and prediction (bottom) for ``rollout`` steps."""
     import imageio.v3 as iio
 
     folder.mkdir(parents=True, exist_ok=True)
-    if not len(labels):
-        return
     k = model.context
-    predicted = np.concatenate(
-        [
-            predict_batch(
-                model, labels[b : b + batch_size, :k], rollout, None if depth is None else depth[b : b + batch_size, :k]
-            )
-            for b in range(0, len(labels), batch_size)
-        ]
-    )
+    predicted = predict_batch(model, labels[:, :k], rollout, None if depth is None else depth[:, :k])
     gap = np.full((labels.shape[-1] * 2, 4, 3), 255, dtype=np.uint8)
     for sequence, truth, guess, seed in zip(labels, labels[:, k : k + rollout], predicted, seeds):
         inputs = np.concatenate([label_image(f) for f in sequence[:k]], 1)
