@@ -56,6 +56,10 @@ if _in_a_checkout(_root) and not any(isinstance(f, _CheckoutFolders) for f in sy
 
 import panda_grasp_env.tasks  # noqa: E402, F401  (registers the tasks and their ids)
 from panda_grasp_env.registration import ENV_IDS, TASKS  # noqa: E402
+from panda_grasp_env.sim.motion import WORKSPACE  # noqa: E402
+from panda_grasp_env.sim.workcell import SPAWN_REGION  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["ENV_IDS", "TASKS"]
+#: ``WORKSPACE``: the x, y, z bounds (3, 2) a primitive's target may take, world metres (the table top is z = 0);
+#: ``SPAWN_REGION``: the x, y bounds (2, 2) inside it where resets lay objects out.
+__all__ = ["ENV_IDS", "SPAWN_REGION", "TASKS", "WORKSPACE"]

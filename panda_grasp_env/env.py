@@ -129,8 +129,10 @@ class PandaEnv(gym.Env):
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if mode.low_level else None
         self.cell = Workcell(options.scene_config(self.task), limits=limits)
         self.cell.physics.add_observer(self.task.on_control_step)
-        self.sensors = Sensors(self.cell, options.image_size, options.grid)
-        context = options.action_context(self.task, self.cell, lambda: self.sensors.heightmap()[0])
+        # The callbacks below capture the sensors, not the env: the env then forms no reference cycle and is
+        # freed as soon as it is dropped (``sim.parts``).
+        self.sensors = sensors = Sensors(self.cell, options.image_size, options.grid)
+        context = options.action_context(self.task, self.cell, lambda: sensors.heightmap()[0])
         self.actions: ActionMode = mode.build(context)
         if self.goal_conditioned:
             # Only goal envs have compute_reward (vectorised, for HER): checkers treat its presence as "GoalEnv".
@@ -152,7 +154,7 @@ class PandaEnv(gym.Env):
             render_mode,
             options.render_size,
             self.metadata["render_fps"],
-            lambda: self.sensors.rgbd("front", *options.render_size)[1],
+            lambda: sensors.rgbd("front", *options.render_size)[1],
         )
         if render_mode == "rgb_array_list":  # frames inside primitives too
             self.cell.physics.add_observer(self.renderer.on_control_step)

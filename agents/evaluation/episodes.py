@@ -25,7 +25,7 @@ from panda_grasp_env.agents.evaluation.protocol import (
     phased_env,
 )
 from panda_grasp_env.agents.policies.random_agent import RandomAgent
-from panda_grasp_env.agents.policies.registry import EXPERTS
+from panda_grasp_env.agents.policies.registry import EXPERTS, NAMED_AGENTS
 
 
 def make_env(spec: EpisodeSpec) -> gym.Env:
@@ -36,7 +36,7 @@ def make_env(spec: EpisodeSpec) -> gym.Env:
 
     if spec.agent in PHASED_AGENTS:
         return phased_env(spec.agent, spec.task, **spec.make_options)
-    if spec.agent not in AGENTS:  # a learned checkpoint: its env options on the task's scene
+    if spec.agent not in AGENTS and spec.agent not in NAMED_AGENTS:  # a learned checkpoint: its options on the task
         from panda_grasp_env.agents.policies.learned import Checkpoint
 
         return learned_env(Checkpoint(spec.agent), spec.task, **spec.make_options)
@@ -44,6 +44,8 @@ def make_env(spec: EpisodeSpec) -> gym.Env:
     options = dict(benchmark.options)
     if spec.agent in ("planned", "oracle"):  # they see the scene through cameras
         options |= PERCEPTION
+    if spec.agent in NAMED_AGENTS:
+        options |= NAMED_AGENTS[spec.agent].env_options
     return gym.make(f"panda_grasp_env:{benchmark.env_id}", **(options | spec.make_options))  # the spec's options win
 
 
@@ -53,6 +55,8 @@ def make_agent(spec: EpisodeSpec, env: gym.Env) -> Any:
         return RandomAgent(env.action_space, seed=spec.seed)
     if spec.agent == "expert":
         return EXPERTS[spec.task]()
+    if spec.agent in NAMED_AGENTS:
+        return NAMED_AGENTS[spec.agent].factory(env, spec.seed)
     from panda_grasp_env.agents.policies.phased import PHASED_AGENTS, PhasedAgent
 
     if spec.agent in PHASED_AGENTS:
@@ -92,6 +96,17 @@ def close_kept_env() -> None:
 
 
 atexit.register(close_kept_env)  # a caller that never closes it (its renderers included) does so at exit
+
+
+def clip_path(out: Path, spec: EpisodeSpec) -> Path:
+    """Where a run in folder ``out`` keeps the clip of ``spec``'s (agent, task): one MP4 per pair, of its first
+    seed."""
+    return out / "videos" / f"{spec.agent}_{spec.task}.mp4"
+
+
+def first_of_each_pair(specs: list[EpisodeSpec]) -> list[EpisodeSpec]:
+    """The first spec of each (agent, task) pair, in the order of ``specs``: the episodes a run films."""
+    return list({(s.agent, s.task): s for s in reversed(specs)}.values())[::-1]
 
 
 def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
@@ -141,7 +156,7 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
         if "primitive_reason" in info and not info["primitive_success"]:
             failures[info["primitive_reason"]] += 1
         if recorder is not None and "primitive" in info:
-            recorder.caption = f"{spec.agent} / {spec.task}: {info['primitive']} -> {info['primitive_reason']}"
+            recorder.status = f"{info['primitive']}: {info['primitive_reason']}"
         if terminated or truncated:
             break
     failures.update({k: v for k, v in getattr(agent, "failures", {}).items() if k == "no_candidate"})

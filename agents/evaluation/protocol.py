@@ -10,6 +10,7 @@ The benchmark tasks themselves, their env ids and their quick and full seed coun
 from __future__ import annotations
 
 import functools
+import hashlib
 import importlib
 import importlib.util
 import json
@@ -29,7 +30,13 @@ import panda_grasp_env.agents.policies.put_in_bin
 import panda_grasp_env.agents.policies.towers  # noqa: F401
 from panda_grasp_env.actions import ACTION_MODES
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
-from panda_grasp_env.agents.policies.registry import BASELINES, EXPERTS, BaselineFactory
+from panda_grasp_env.agents.policies.registry import (
+    BASELINES,
+    BUILT_IN_AGENTS,
+    EXPERTS,
+    NAMED_AGENTS,
+    BaselineFactory,
+)
 from panda_grasp_env.env_options import AGENT_OPTIONS
 from panda_grasp_env.registration import ENV_IDS, TASKS
 from panda_grasp_env.tooling.runs import apply_key_values
@@ -38,8 +45,8 @@ if TYPE_CHECKING:
     from panda_grasp_env.agents.policies.learned import Checkpoint
 
 #: The built-in agents; every shipped checkpoint (``panda_grasp_env.agents.policies.learned.available_checkpoints``)
-#: is an agent too.
-AGENTS = ("random", "planned", "oracle", "expert")
+#: is an agent too, and so is every agent registered by name (``registry.register_agent``).
+AGENTS = BUILT_IN_AGENTS
 #: What the perception agents (``planned``, ``oracle``) see: RGB-D from both cameras at 640 x 480.
 PERCEPTION = {"obs_mode": "rgbd", "cameras": ("overhead", "front"), "image_size": (640, 480)}
 
@@ -73,6 +80,33 @@ def import_modules(names: Iterable[str]) -> None:
             raise ValueError(f"--import {name}: {type(error).__name__}: {error}") from None
 
 
+def imported_files(names: Iterable[str]) -> list[dict[str, str]]:
+    """What each ``--import`` module ran from: its name, its file's path and the SHA-256 of that file (the
+    code that registered tasks and agents from outside the package, which no commit of this repository
+    holds).  The modules must be imported already (``import_modules``)."""
+    from panda_grasp_env.tooling.runs import sha256
+
+    files = []
+    for name in names:
+        path = Path(name).resolve() if name.endswith(".py") else Path(getattr(sys.modules[name], "__file__", "") or "")
+        digest = sha256(path) if path.is_file() else "not a file"
+        files.append({"module": name, "file": str(path), "sha256": digest})
+    return files
+
+
+def code_label(imports: Iterable[str] = ()) -> str:
+    """The code an episode record was made by: this repository's commit (``tooling.runs.commit``), and with
+    ``--import`` modules the first 12 hex digits of a SHA-256 over theirs (``imported_files``), so that a
+    ``--resume`` after one of those files changed redoes its episodes."""
+    from panda_grasp_env.tooling.runs import commit
+
+    files = imported_files(imports)
+    if not files:
+        return commit()
+    digest = hashlib.sha256(json.dumps(files, sort_keys=True).encode()).hexdigest()[:12]
+    return f"{commit()}+imports-{digest}"
+
+
 def action_mode_of(env_id: str, options: dict[str, Any]) -> str:
     """The action mode ``gymnasium.make(env_id, **options)`` gets (an explicit option, else the id's task default)."""
     registered = ENV_IDS[env_id][0]
@@ -95,11 +129,12 @@ def task_label(env_id: str, env_kwargs: dict[str, Any]) -> str:
 
 
 def all_agents() -> tuple[str, ...]:
-    """Built-in agents, then the shipped learned checkpoints by name, then the phased agents made of them."""
+    """Built-in agents, the shipped learned checkpoints by name, the phased agents made of them, then the agents
+    registered by name (``registry.register_agent``: from ``--import`` modules)."""
     from panda_grasp_env.agents.policies.learned import available_checkpoints
     from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
 
-    return (*AGENTS, *available_checkpoints(), *PHASED_AGENTS)
+    return (*AGENTS, *available_checkpoints(), *PHASED_AGENTS, *NAMED_AGENTS)
 
 
 def baseline(task: str) -> BaselineFactory | None:
@@ -114,6 +149,9 @@ def skip_reason(agent: str, task: str) -> str | None:
         return None
     if agent == "expert":
         return None if task in EXPERTS else f"no scripted low-level expert is written for {task}"
+    if agent in NAMED_AGENTS:
+        tasks = NAMED_AGENTS[agent].tasks
+        return None if task in tasks else f"agent {agent} was registered for {', '.join(tasks)}"
     if agent in AGENTS:
         if is_low_level(BENCHMARKS[task].env_id, BENCHMARKS[task].options):
             return f"the {agent} baselines act through motion primitives; {task} is a low-level ee_delta task"
@@ -133,8 +171,10 @@ def learned_skip_reason(agent: str, task: str) -> str | None:
 
     A checkpoint plays the task it was trained for, and any other benchmark task of the same registered task
     at the same level of action (motion primitives or 25 Hz control) whose env, seen and acted on as the
-    checkpoint was trained (``learned_env``), has the observation and action spaces it was trained on: a
-    heightmap grasping policy trained on packed layouts plays random heaps and single objects too."""
+    checkpoint was trained (``learned_env``), gives the observations and takes the actions its policy does
+    (``learned.check_compatible``): a heightmap grasping policy trained on packed layouts plays random heaps
+    and single objects too.  Only the benchmark's env is made, never the one the checkpoint was trained on:
+    a policy trained on meshes is judged on a block task without the mesh set installed."""
     from panda_grasp_env.agents.policies.learned import Checkpoint
 
     checkpoint = Checkpoint(agent)
@@ -148,21 +188,22 @@ def learned_skip_reason(agent: str, task: str) -> str | None:
     if is_low_level(benchmark.env_id, benchmark.options) != is_low_level(config.env_id, config.env_kwargs):
         return f"{trained_for}, at the other level of action"
     card = (checkpoint.path / "checkpoint.json").read_text()
-    differs = _space_differing(checkpoint.path.resolve(), card, checkpoint.provenance()["policy_sha256"], task)
-    return None if differs is None else f"{trained_for}; {task}'s {differs} differs with its env options"
+    mismatch = _policy_mismatch(checkpoint.path.resolve(), card, checkpoint.provenance()["policy_sha256"], task)
+    return None if mismatch is None else f"{trained_for}; on {task}: {mismatch}"
 
 
 @functools.cache
-def _space_differing(path: Path, card: str, weights: str, task: str) -> str | None:
-    """The space (observation or action) in which ``task``'s env for the checkpoint at ``path`` differs from the
-    one it was trained on, or None; once per checkpoint folder, card, weights and task: it makes two envs."""
-    from panda_grasp_env.agents.policies.learned import Checkpoint
+def _policy_mismatch(path: Path, card: str, weights: str, task: str) -> str | None:
+    """How ``task``'s env for the checkpoint at ``path`` does not fit its policy (observations or actions), or
+    None; once per checkpoint folder, card, weights and task: it makes an env."""
+    from panda_grasp_env.agents.policies.learned import Checkpoint, check_compatible
 
     checkpoint = Checkpoint(path)
-    with checkpoint.make_env() as trained, learned_env(checkpoint, task) as benchmark:
-        for name in ("observation_space", "action_space"):
-            if getattr(trained, name) != getattr(benchmark, name):
-                return name.replace("_", " ")
+    with learned_env(checkpoint, task) as env:
+        try:
+            check_compatible(checkpoint.load_policy(), checkpoint.config, env, checkpoint.name)
+        except ValueError as error:
+            return str(error)
     return None
 
 
@@ -315,7 +356,8 @@ class Protocol:
 
         names: list[str] = []
         for agent in self.agents:
-            if agent not in AGENTS and any(skip_reason(agent, task) is None for task in self.tasks):
+            is_checkpoint = agent not in AGENTS and agent not in NAMED_AGENTS
+            if is_checkpoint and any(skip_reason(agent, task) is None for task in self.tasks):
                 names += PHASED_AGENTS[agent].phases.values() if agent in PHASED_AGENTS else [agent]
         return [Checkpoint(name) for name in dict.fromkeys(names)]
 
@@ -328,6 +370,6 @@ class Protocol:
             "env_ids": {t: BENCHMARKS[t].env_id for t in self.tasks},
             "seeds": {t: self.seeds_of(t) for t in self.tasks},
             "task_options": dict(self.task_options),
-            "imports": list(self.imports),
+            "imports": imported_files(self.imports),
             "skipped": skipped,
         }

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
-from panda_grasp_env.agents.evaluation.episodes import run_episode
+from panda_grasp_env.agents.evaluation.episodes import clip_path, first_of_each_pair, run_episode
 from panda_grasp_env.agents.evaluation.metrics import aggregate
-from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, Protocol, is_low_level
-from panda_grasp_env.tooling.runs import commit, machine, versions, write_atomically
+from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, Protocol, code_label, imported_files, is_low_level
+from panda_grasp_env.tooling.runs import machine, versions, write_atomically
 
 
 def describe_seeds(seeds: list[int]) -> str:
@@ -50,7 +50,7 @@ def write_results(records: dict[str, dict], protocol: Protocol, skipped: dict[st
     protocol_record = protocol.record(skipped)
     payload = {
         "protocol": protocol_record,
-        "provenance": {"commit": commit(), "versions": versions(), "machine": machine()},
+        "provenance": {"commit": code_label(protocol.imports), "versions": versions(), "machine": machine()},
         "metrics": table,
         "episodes": sorted(results, key=lambda r: (r["spec"]["agent"], r["spec"]["task"], r["spec"]["seed"])),
     }
@@ -143,10 +143,12 @@ def results_table(summary: dict) -> str:
 
 
 def videos(specs: list[EpisodeSpec], out: Path) -> list[Path]:
-    """One MP4 per (agent, task): its first seed, replayed (episodes are deterministic) with the recorder on."""
+    """One MP4 per (agent, task), of its first seed: ``run_episodes`` films it while playing it, and this
+    replays (episodes are deterministic) only an episode whose clip is missing, as after a ``--resume`` of a run
+    made without videos."""
     written = []
-    for spec in {(s.agent, s.task): s for s in reversed(specs)}.values():
-        path = out / "videos" / f"{spec.agent}_{spec.task}.mp4"
+    for spec in first_of_each_pair(specs):
+        path = clip_path(out, spec)
         if not path.exists():
             path.parent.mkdir(parents=True, exist_ok=True)
             run_episode(spec, video=path)
@@ -206,7 +208,8 @@ def write_report(
         f"- options on top of each task's (--task-options): {json.dumps(dict(protocol.task_options)) if protocol.task_options else 'none'}",
         f"- env ids and options: {json.dumps({t: [BENCHMARKS[t].env_id, BENCHMARKS[t].options] for t in protocol.tasks})}; a learned checkpoint plays its own task in "
         "the env it was trained in, and another in that task's scene, seeing and acting as it was trained",
-        f"- commit {commit()}; versions: {', '.join(f'{k} {v}' for k, v in versions().items())}",
+        f"- commit {code_label(protocol.imports)}; versions: {', '.join(f'{k} {v}' for k, v in versions().items())}",
+        *(f"- imported {f['module']}: {f['file']}, SHA-256 {f['sha256']}" for f in imported_files(protocol.imports)),
         f"- workers: {workers}",
         *(f"- skipped {pair}: {reason}" for pair, reason in skipped.items()),
     ]

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from panda_grasp_env.agents.evaluation.episodes import run_episode
-from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, import_modules
+from panda_grasp_env.agents.evaluation.episodes import clip_path, first_of_each_pair, run_episode
+from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, code_label, import_modules
 from panda_grasp_env.geometry import is_count, is_number
-from panda_grasp_env.tooling.runs import commit, write_atomically
+from panda_grasp_env.tooling.runs import write_atomically
 
 
 def _append(path: Path, record: dict) -> None:
@@ -127,8 +127,9 @@ def _load(path: Path, code: str, keys: set[str]) -> tuple[dict[str, dict], list[
     return done, stale
 
 
-def _run_job(spec: EpisodeSpec) -> dict:
-    return {"key": spec.key, **run_episode(spec)}
+def _run_job(job: tuple[EpisodeSpec, Path | None]) -> dict:
+    spec, video = job
+    return {"key": spec.key, **run_episode(spec, video)}
 
 
 def _ray_records(specs: list[EpisodeSpec], address: str, imports: Iterable[str]) -> Iterator[dict]:
@@ -158,16 +159,18 @@ def run_episodes(
     workers: int = 1,
     ray_address: str | None = None,
     imports: Iterable[str] = (),
+    videos: Path | None = None,
 ) -> dict[str, dict]:
     """Run ``specs`` and return their records by key, in the order of ``specs``: in this process, in ``workers``
     spawned processes, or as Ray tasks on the cluster at ``ray_address`` (``"local"``: one started here);
     worker processes and Ray tasks import the ``imports`` modules first.  Each finished episode is appended to
     ``log`` (JSON lines).  With ``resume`` the episodes ``log`` holds from this code are kept and the rest run
     (``ValueError`` naming a record this code did not write for these specs); without it, an earlier log is
-    moved aside to ``<log>.prev``."""
+    moved aside to ``<log>.prev``.  With ``videos`` (a results folder), the first episode of each (agent,
+    task) is filmed as it is played, to ``episodes.clip_path`` (not on Ray: ``report.videos`` replays those)."""
     from tqdm import tqdm
 
-    code = commit()
+    code = code_label(imports)
     previous = log.with_name(log.name + ".prev")
     done, stale = _load(log, code, {s.key for s in specs}) if resume else ({}, [])
     if not resume and log.exists() and log.stat().st_size:  # a fresh run keeps the last one's episodes
@@ -182,6 +185,10 @@ def run_episodes(
     if log.exists():  # keep only whole records (an interruption can cut the last line short)
         write_atomically(log, "".join(json.dumps(r, sort_keys=True) + "\n" for r in done.values()))
     todo = [s for s in specs if s.key not in done]
+    filmed = {} if videos is None else {s.key: clip_path(videos, s) for s in first_of_each_pair(specs)}
+    for path in filmed.values():
+        path.parent.mkdir(parents=True, exist_ok=True)
+    jobs = [(spec, filmed.get(spec.key)) for spec in todo]
     wins: Counter[bool] = Counter()
     bar = tqdm(total=len(specs), initial=len(specs) - len(todo), desc="episodes", unit="ep")
     try:
@@ -189,10 +196,10 @@ def run_episodes(
         if ray_address is not None:
             records = _ray_records(todo, ray_address, imports)
         elif workers == 1:
-            records = (_run_job(spec) for spec in todo)
+            records = (_run_job(job) for job in jobs)
         else:
             pool = multiprocessing.get_context("spawn").Pool(workers, import_modules, (list(imports),))
-            records = pool.imap_unordered(_run_job, todo)
+            records = pool.imap_unordered(_run_job, jobs)
         for record in records:
             record["commit"] = code
             _append(log, record)

@@ -42,7 +42,13 @@ import numpy as np
 
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS, default_benchmarks
 from panda_grasp_env.agents.evaluation.episodes import close_kept_env
-from panda_grasp_env.agents.evaluation.protocol import Protocol, all_agents, import_modules, task_options_from_pairs
+from panda_grasp_env.agents.evaluation.protocol import (
+    Protocol,
+    all_agents,
+    baseline,
+    import_modules,
+    task_options_from_pairs,
+)
 from panda_grasp_env.agents.evaluation.report import results_table, videos, write_report, write_results
 from panda_grasp_env.agents.evaluation.runner import run_episodes
 from panda_grasp_env.agents.policies.towers import build_tower, push_tower
@@ -158,16 +164,27 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             raise SystemExit(2) from None
     imports = argparse.ArgumentParser(add_help=False)
     imports.add_argument("--import", action="append", default=[], dest="imports")
+    modules = imports.parse_known_args(argv)[0].imports
+    tasks_before, agents_before = set(BENCHMARKS), set(all_agents())
     try:  # before the choices of agents and tasks are listed: the modules add to them
-        import_modules(imports.parse_known_args(argv)[0].imports)
+        import_modules(modules)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
+    epilog = None
+    if modules:  # --help says what they registered
+        new_tasks = [t for t in BENCHMARKS if t not in tasks_before]
+        new_agents = [a for a in all_agents() if a not in agents_before]
+        planned_on = [t for t in new_tasks if baseline(t) is not None]
+        new_agents += [f"planned and oracle on {', '.join(planned_on)}"] if planned_on else []
+        epilog = f"Registered by --import {', '.join(modules)}: tasks {new_tasks}; agents {new_agents}."
     if "--seed-list" in argv[:-1]:  # argparse reads "--seed-list -1,2" as a flag without its value
         at = argv.index("--seed-list")
         if argv[at + 1][:2].lstrip("-").isdigit() and argv[at + 1].startswith("-"):
             argv[at : at + 2] = [f"--seed-list={argv[at + 1]}"]  # the seeds then reach their own check
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument(
         "--config",
         type=Path,
@@ -317,7 +334,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         log = args.out / "episodes.jsonl"
         records = run_episodes(
-            specs, log, resume=args.resume, workers=args.workers, ray_address=args.ray, imports=protocol.imports
+            specs,
+            log,
+            resume=args.resume,
+            workers=args.workers,
+            ray_address=args.ray,
+            imports=protocol.imports,
+            videos=None if args.no_video else args.out,
         )
     except KeyboardInterrupt:
         return 130
@@ -328,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
     table_md = results_table(summary)
     print(table_md)
     save_pngs(summary["table"], args.out)
-    try:  # the videos replay episodes in the env the last episode left open (a one-worker run's)
+    try:  # filmed while played; only a clip that is missing (a resumed run's) replays its episode
         video_paths = [] if args.no_video else videos(specs, args.out)
     finally:
         close_kept_env()

@@ -16,16 +16,25 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.agents.evaluation.protocol import AGENTS
+from panda_grasp_env.agents.policies.registry import NAMED_AGENTS
 
-#: Agent family -> bar colour (Okabe–Ito).  The built-in agents' families; every other agent is a learned checkpoint.
-FAMILY_COLOURS = {"scripted": "#0072B2", "expert": "#009E73", "learned": "#E69F00", "random": "#999999"}
+#: Agent family -> bar colour (Okabe–Ito).  The built-in agents' families; agents registered by name are
+#: ``registered``, every other agent is a learned checkpoint.
+FAMILY_COLOURS = {
+    "scripted": "#0072B2",
+    "expert": "#009E73",
+    "learned": "#E69F00",
+    "registered": "#CC79A7",
+    "random": "#999999",
+}
 FAMILY_OF = {"planned": "scripted", "oracle": "scripted", "expert": "expert", "random": "random"}
 assert set(FAMILY_OF) == set(AGENTS)
 
 
 def family(agent: str) -> str:
-    """``scripted`` (planned baselines and their oracles), ``expert``, ``random``, or ``learned`` (a checkpoint)."""
-    return FAMILY_OF.get(agent, "learned")
+    """``scripted`` (planned baselines and their oracles), ``expert``, ``random``, ``registered`` (an agent
+    registered by name: ``registry.register_agent``) or ``learned`` (a checkpoint)."""
+    return FAMILY_OF.get(agent) or ("registered" if agent in NAMED_AGENTS else "learned")
 
 
 def agent_order(agents: Iterable[str]) -> list[str]:

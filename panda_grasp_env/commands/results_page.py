@@ -306,6 +306,11 @@ def _protocol(results: dict[str, Any]) -> str:
         ["options on top of each task's", json.dumps(protocol.get("task_options") or {}) or "none"],
         ["env ids", json.dumps(protocol.get("env_ids", {}))],
         ["commit", provenance.get("commit", "not recorded")],
+        *(
+            [f"imported {f['module']}", f"{f['file']}, SHA-256 {f['sha256']}"]
+            for f in protocol.get("imports", [])
+            if isinstance(f, dict)  # records before files were named hold bare module names
+        ),
         ["versions", ", ".join(f"{k} {v}" for k, v in provenance.get("versions", {}).items()) or "not recorded"],
         ["machine", provenance.get("machine", "not recorded")],
     ]

@@ -63,6 +63,28 @@ class PlanResult:
     planner: str
 
 
+class CollisionChecker:
+    """Whether an arm configuration is collision-free in a planning model: no robot geom touches anything (the
+    world, an object, an obstacle or another link)."""
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, robot: PandaRobot) -> None:
+        self.model, self.data, self.arm_qpos_idx = model, data, robot.arm_qpos_idx
+        self._robot_geom = np.isin(model.geom_bodyid, sorted(robot.body_ids))
+        #: Calls so far.
+        self.checks = 0
+
+    def __call__(self, arm_qpos: np.ndarray) -> bool:
+        """True when nothing touches the robot at ``arm_qpos`` (radians, (7,))."""
+        self.checks += 1
+        self.data.qpos[self.arm_qpos_idx] = arm_qpos
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_collision(self.model, self.data)
+        if self.data.ncon == 0:
+            return True
+        geoms = self.data.contact.geom[: self.data.ncon]
+        return not self._robot_geom[geoms].any()
+
+
 class MotionPlanner:
     """Plans arm motions between joint configurations around the workcell's contents."""
 
@@ -86,14 +108,14 @@ class MotionPlanner:
         self.data = mujoco.MjData(self.model)
         self.robot = PandaRobot(self.model, self.data)
         self.data.qpos[self.robot.finger_qpos_idx] = FINGER_OPEN
-        self._robot_geom = np.isin(self.model.geom_bodyid, sorted(self.robot.body_ids))
+        #: The validity test OMPL calls; it holds the planning model, not the planner (no reference cycle
+        #: through OMPL, which Python's collector cannot see into).
+        self.checker = CollisionChecker(self.model, self.data, self.robot)
         self.planner_name = planner
         bodies, geoms = fixture_elements(self.model)
         names = [self.model.geom(g).name for g in geoms]
         self._fixture_bodies = bodies
         self._fixture_geoms = np.array([g for g, n in zip(geoms, names) if not n.startswith("obstacle_")], dtype=int)
-        # OMPL seeds every planner's generator from one global seed, once per process.
-        ou.RNG.setSeed(seed)
         lower = self.model.jnt_range[[self.model.joint(n).id for n in ARM_JOINTS], 0]
         upper = self.model.jnt_range[[self.model.joint(n).id for n in ARM_JOINTS], 1]
         self.space = ob.RealVectorStateSpace(len(ARM_JOINTS))
@@ -103,9 +125,25 @@ class MotionPlanner:
             bounds.setHigh(i, float(high))
         self.space.setBounds(bounds)
         self.setup = og.SimpleSetup(self.space)
-        self.setup.setStateValidityChecker(lambda state: self.is_valid([state[i] for i in range(len(ARM_JOINTS))]))
+        checker = self.checker
+        self.setup.setStateValidityChecker(lambda state: checker([state[i] for i in range(len(ARM_JOINTS))]))
         self.setup.getSpaceInformation().setStateValidityCheckingResolution(resolution)
-        self.checks = 0
+        # OMPL draws every generator's seed from one process-wide sequence, which ``plan`` restarts from
+        # ``rng`` before each query.  The objects OMPL's first setup creates draw from it too: made here, once,
+        # so that the first query of a process is planned as every later one with the same seed.
+        self.setup.setPlanner(PLANNERS[planner](self.setup.getSpaceInformation()))
+        self.setup.setup()
+        self.reseed(seed)
+
+    def reseed(self, seed: int) -> None:
+        """Restart the generator the queries' OMPL seeds come from: a query's path is a function of the query
+        and of the queries since the last ``reseed``, never of planning elsewhere in the process."""
+        self.rng = np.random.default_rng(seed)
+
+    @property
+    def checks(self) -> int:
+        """Collision checks (``is_valid`` calls, OMPL's included) since the planner was made."""
+        return self.checker.checks
 
     def sync_objects(self, model: mujoco.MjModel, data: mujoco.MjData, names: list[str]) -> None:
         """Copy the poses of free bodies ``names`` from a live simulation into the planning model."""
@@ -126,14 +164,7 @@ class MotionPlanner:
 
     def is_valid(self, arm_qpos: np.ndarray) -> bool:
         """No robot geom in contact with anything at ``arm_qpos`` (radians, (7,))."""
-        self.checks += 1
-        self.data.qpos[self.robot.arm_qpos_idx] = arm_qpos
-        mujoco.mj_kinematics(self.model, self.data)
-        mujoco.mj_collision(self.model, self.data)
-        if self.data.ncon == 0:
-            return True
-        geoms = self.data.contact.geom[: self.data.ncon]
-        return not self._robot_geom[geoms].any()
+        return self.checker(arm_qpos)
 
     def plan(
         self, start: np.ndarray, goal: np.ndarray, time_limit: float = 2.0, planner: str | None = None
@@ -146,6 +177,7 @@ class MotionPlanner:
             if not self.is_valid(np.asarray(q, dtype=float)):
                 return PlanResult(False, np.zeros((0, 7)), 0.0, 0.0, f"{name} ({label} in collision)")
         self.setup.clear()
+        ou.RNG.setSeed(int(self.rng.integers(1, 2**31)))  # OMPL refuses 0
         self.setup.setPlanner(PLANNERS[name](self.setup.getSpaceInformation()))
         start_state, goal_state = self.space.allocState(), self.space.allocState()
         for i in range(len(ARM_JOINTS)):

@@ -44,8 +44,10 @@ class MotionStack:
         self.max_velocity = np.asarray(cell.controller.limits.joint_speed)
 
     def reseed(self, seed: int) -> None:
-        """IK restarts draw from a generator reseeded at every env reset (episodes repeat)."""
+        """IK restarts and the planner's queries draw from generators reseeded at every env reset (episodes
+        repeat, in any order)."""
         self.rng = np.random.default_rng(seed)
+        self.planner.reseed(seed)
 
     def _follow(self, cell: Workcell, targets: np.ndarray) -> None:
         for target in targets:

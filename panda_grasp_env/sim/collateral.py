@@ -7,7 +7,11 @@ every control step:
 
 * ``transit_contacts``: objects that the robot, or the object it carries,
   touched during transit (the robot should touch nothing there), and
-  ``transit_fixtures``: the fixtures (a task's bin, wall, shelf) it touched then;
+  ``transit_fixtures``: the fixtures (a task's bin, wall, shelf) it touched then.
+  A contact already there when a transit segment begins, and unbroken since,
+  is the work's, not the transit's: a grasp in a heap that lifts a neighbour
+  lying on its object (``work_contacts``; the neighbour moved, so it is in
+  ``disturbed`` too).  Once broken, a new touch of that object is transit's;
 * ``work_contacts`` / ``work_fixtures``: the same during the work segment.  A
   primitive is aimed at the fixture straight below its work point (a place on a
   shelf, a grasp in a bin); touching any other fixture in the work segment is a
@@ -34,6 +38,7 @@ import numpy as np
 
 from panda_grasp_env.model.robot import PandaRobot
 from panda_grasp_env.sim.fixtures import Fixtures
+from panda_grasp_env.sim.parts import OwnerReference
 from panda_grasp_env.sim.stepping import body_speeds
 
 #: An object moved if its centre travelled further than this, metres.
@@ -78,6 +83,9 @@ class MonitoredCell(Protocol):
 class CollateralMonitor:
     """Watches one workcell's contacts and object poses, segment by segment, for one primitive at a time."""
 
+    #: The workcell that owns this part, held weakly (``sim.parts``).
+    cell: OwnerReference[MonitoredCell] = OwnerReference()
+
     def __init__(self, cell: MonitoredCell) -> None:
         self.cell = cell
         model = cell.model
@@ -98,6 +106,8 @@ class CollateralMonitor:
         self._primitive_start: tuple[np.ndarray, np.ndarray] | None = None
         self._transit_start: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._start_neighbours: dict[int, set[int]] = {}
+        #: Objects touching the robot or its load since this transit segment began, without a break.
+        self._carried_over: set[int] = set()
 
     def _poses(self) -> tuple[np.ndarray, np.ndarray]:
         data, ids = self.cell.data, self.cell.object_ids
@@ -128,6 +138,7 @@ class CollateralMonitor:
         if not work:
             speeds = body_speeds(self.cell.data, self.cell.object_ids)
             self._transit_start = (*self._poses(), speeds < REST_SPEED)
+        self._carried_over = set() if work else {int(b) for b in self._touched()}
 
     def _close_transit(self) -> None:
         if self._transit_start is not None:
@@ -156,24 +167,35 @@ class CollateralMonitor:
         """Body ids (ncon, 2) of the two sides of every current contact."""
         return self.cell.model.geom_bodyid[self._contact_geoms()]
 
+    def _touched(self) -> np.ndarray:
+        """Body ids of the objects (not the load) that the robot or its load touches now."""
+        if self.cell.data.ncon == 0:
+            return np.zeros(0, dtype=int)
+        bodies = self.cell.model.geom_bodyid[self._contact_geoms()]
+        robot_side = self._is_robot[bodies] | (bodies == self._load)
+        objects = self._is_object[bodies] & (bodies != self._load)
+        return np.concatenate(
+            [bodies[robot_side[:, 0] & objects[:, 1], 1], bodies[robot_side[:, 1] & objects[:, 0], 0]]
+        )
+
     def on_control_step(self, cell: MonitoredCell) -> None:
         """Record the robot-object and robot-fixture contacts of the current state (the workcell's first step
         observer: called after every control step)."""
         self.new_fixture_hit = False
-        if not self.active or self.cell.data.ncon == 0:
+        if not self.active:
+            return
+        touched = {int(b) for b in self._touched()}
+        if self.in_work:
+            self.record.work_contacts |= touched
+        else:
+            self._carried_over &= touched  # a broken contact is over: touching that object again is transit's
+            self.record.work_contacts |= self._carried_over
+            self.record.transit_contacts |= touched - self._carried_over
+        if not self._has_fixtures or self.cell.data.ncon == 0:  # no contact can touch a fixture: skip the work
             return
         geoms = self._contact_geoms()
         bodies = self.cell.model.geom_bodyid[geoms]
         robot_side = self._is_robot[bodies] | (bodies == self._load)
-        objects = self._is_object[bodies] & (bodies != self._load)
-        touched = np.concatenate(
-            [bodies[robot_side[:, 0] & objects[:, 1], 1], bodies[robot_side[:, 1] & objects[:, 0], 0]]
-        )
-        if touched.size:
-            target = self.record.work_contacts if self.in_work else self.record.transit_contacts
-            target.update(int(b) for b in touched)
-        if not self._has_fixtures:  # the scene's contacts cannot touch one: skip the per-step work
-            return
         fixtures = self._is_fixture_geom[geoms]
         hit = np.concatenate([geoms[robot_side[:, 0] & fixtures[:, 1], 1], geoms[robot_side[:, 1] & fixtures[:, 0], 0]])
         if hit.size:

@@ -18,6 +18,7 @@ from panda_grasp_env.model.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, Pand
 from panda_grasp_env.sim.collateral import CollateralMonitor
 from panda_grasp_env.sim.extents import body_vertical_extent
 from panda_grasp_env.sim.fixtures import Fixtures
+from panda_grasp_env.sim.parts import OwnerReference
 from panda_grasp_env.sim.stepping import Physics
 
 #: Reachable region for primitive targets: x, y, z bounds of the grasp site, metres.
@@ -58,6 +59,9 @@ class MovingCell(Protocol):
 class Motion:
     """Moves the grasp site of ``cell``: every step through its ``physics.control_step`` with its Cartesian
     controller (or joint targets, on the way home)."""
+
+    #: The workcell that owns this part, held weakly (``sim.parts``).
+    cell: OwnerReference[MovingCell] = OwnerReference()
 
     def __init__(self, cell: MovingCell) -> None:
         self.cell = cell

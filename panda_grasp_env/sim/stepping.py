@@ -21,6 +21,7 @@ import numpy as np
 from panda_grasp_env.control.controller import JointController
 from panda_grasp_env.geometry import is_count
 from panda_grasp_env.model.robot import PandaRobot
+from panda_grasp_env.sim.parts import OwnerReference
 
 #: MuJoCo's bad-state warnings, consecutive in mjtWarning: BADQPOS, BADQVEL, BADQACC.
 _WARNINGS = slice(int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQACC) + 1)
@@ -50,6 +51,9 @@ class Physics(Generic[Cell]):
     """The stepping of ``cell``'s simulation (``model``, ``data``): ``control_substeps`` physics steps make one
     control step (default 20 x 2 ms = 25 Hz, the rate of the env's low-level action modes); ``object_ids``
     are the free bodies whose speed is checked."""
+
+    #: The workcell that owns this part, held weakly (``sim.parts``).
+    cell: OwnerReference[Cell] = OwnerReference()
 
     def __init__(
         self,

@@ -31,6 +31,23 @@ from panda_grasp_env.sim.fixtures import WORLD_GROUP, Fixtures
 from panda_grasp_env.sim.motion import Motion
 from panda_grasp_env.sim.stepping import Physics
 
+#: The geom fields ``objects.apply_shape`` writes.  A slot's geoms get their compiled values back before each
+#: new shape, so that they are a function of that shape alone: a mesh of 4 parts after one of 12 left the 8
+#: hidden parts holding the old mesh, which changed the collision tree, the order of contacts and so the
+#: settling -- an episode's outcome then hung on the objects before it.
+SHAPE_GEOM_FIELDS = (
+    "geom_type",
+    "geom_dataid",
+    "geom_pos",
+    "geom_quat",
+    "geom_size",
+    "geom_rbound",
+    "geom_aabb",
+    "geom_rgba",
+    "geom_contype",
+    "geom_conaffinity",
+    "geom_group",
+)
 #: Region in which reset places blocks (inside ``motion.WORKSPACE`` with a margin).
 SPAWN_REGION = np.array([[0.35, 0.65], [-0.22, 0.22]])
 #: Candidate block centres ``scattered_layout`` draws for one layout before it starts over.
@@ -81,6 +98,7 @@ class Workcell:
             for b in self.object_ids
             for g in range(model.body_geomadr[b], model.body_geomadr[b] + model.body_geomnum[b])
         }
+        self._compiled_geoms = {name: getattr(model, name).copy() for name in SHAPE_GEOM_FIELDS}
         self._dof_adr = {b: self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.object_ids}
         #: Stepping: control steps, divergence checks, and the observers called after every step.
         self.physics: Physics[Workcell] = Physics(
@@ -188,6 +206,11 @@ class Workcell:
     def set_object_shapes(self, shapes: dict[int, ObjectShape]) -> None:
         """Give object slots (body id -> shape) new shapes; the model's derived constants are recomputed."""
         for body_id, shape in shapes.items():
+            geoms = slice(
+                self.model.body_geomadr[body_id], self.model.body_geomadr[body_id] + self.model.body_geomnum[body_id]
+            )
+            for name, compiled in self._compiled_geoms.items():
+                getattr(self.model, name)[geoms] = compiled[geoms]
             apply_shape(self.model, body_id, shape)
             self.set_object_friction(body_id, shape.friction)
         self.refresh_constants()

@@ -342,7 +342,7 @@ def test_the_env_kept_from_the_last_episode_plays_the_episode_a_new_env_plays(ag
 
 def refused(argv, capsys, monkeypatch):
     """``evaluate.main(argv)``'s exit code and error output; no episode may run."""
-    monkeypatch.setattr(runner, "_run_job", lambda spec: pytest.fail(f"episode {spec.key} ran"))
+    monkeypatch.setattr(runner, "_run_job", lambda job: pytest.fail(f"episode {job[0].key} ran"))
     code = evaluate.main(argv)
     err = capsys.readouterr().err
     assert "Traceback" not in err
