@@ -17,6 +17,7 @@ shows: front-camera frames, their video, or MuJoCo's viewer.
 
 from __future__ import annotations
 
+import atexit
 import os
 import sys
 from collections.abc import Callable
@@ -56,6 +57,8 @@ def advertised_render_modes() -> list[str]:
 #: ``_DROPPED``; the next one to be made, to draw or to close frees the queue first.
 _OPEN: set[mujoco.Renderer] = set()
 _DROPPED: list[mujoco.Renderer] = []
+#: The exit hook ``_track`` registered (empty until the first renderer is made).
+_EXIT_HOOK: list[Callable[[], None]] = []
 
 
 def _free(renderer: mujoco.Renderer) -> None:
@@ -70,6 +73,24 @@ def _free(renderer: mujoco.Renderer) -> None:
         renderer._mjr_context = None
     renderer.close()
     _OPEN.discard(renderer)
+
+
+def _free_open_renderers() -> None:
+    """Free every renderer still open (at exit, before the GL platform closes its display: see ``_track``)."""
+    _free_dropped()
+    for renderer in list(_OPEN):
+        _free(renderer)
+
+
+def _track(renderer: mujoco.Renderer) -> None:
+    """Count ``renderer`` open; after the process's first, free every open one at exit.  The exit hook is
+    registered after the GL platform's own (MuJoCo's EGL module closes its display at exit, registering that
+    when it makes its first context), so it runs first: an env still open at exit -- a kept benchmark env, a
+    script's -- no longer fails to make its contexts current on a closed display."""
+    if not _EXIT_HOOK:
+        atexit.register(_free_open_renderers)
+        _EXIT_HOOK.append(_free_open_renderers)
+    _OPEN.add(renderer)
 
 
 def _free_dropped() -> None:
@@ -107,7 +128,7 @@ class CameraRenderer:
             self._renderer = mujoco.Renderer(model, height=height, width=width)
         finally:
             quality.offsamples, quality.numslices, quality.numstacks = authored
-        _OPEN.add(self._renderer)
+        _track(self._renderer)
         self.width, self.height = width, height
         # Scene flags persist across update_scene calls: set them once.
         fancy = profile == "pretty"

@@ -70,17 +70,22 @@ class VideoRecorder:
 
 
 def write_lines(frame: np.ndarray, lines: list[str], margin: int = 10) -> None:
-    """Draw ``lines`` top left on ``frame`` (H, W, 3), one under another, white with a black outline; a line
-    wider than the frame is drawn smaller, never over its neighbours or past the edge."""
-    font, y = cv2.FONT_HERSHEY_SIMPLEX, margin
-    base_scale = frame.shape[1] / 900  # 0.53 at 480 pixels wide, 0.71 at 640
+    """Draw ``lines`` top left on ``frame`` (H, W, 3), one under another, white on a darkened band; a line
+    wider than the frame is drawn smaller, never over its neighbours or past the edge.  (No outline drawn
+    as a thicker pass of the same text: OpenCV 5 spaces thicker Hershey text wider, so the two passes drifted
+    apart and read as captions printed over each other.)"""
+    font, base_scale = cv2.FONT_HERSHEY_SIMPLEX, frame.shape[1] / 900  # 0.53 at 480 pixels wide, 0.71 at 640
+    placed, y = [], margin
     for line in lines:
         width, height = cv2.getTextSize(line, font, base_scale, 1)[0]
         scale = base_scale * min(1.0, (frame.shape[1] - 2 * margin) / width)
-        height = int(height * scale / base_scale)
-        y += height + 6
-        for colour, thickness in (((0, 0, 0), 3), ((255, 255, 255), 1)):
-            cv2.putText(frame, line, (margin, y), font, scale, colour, thickness, cv2.LINE_AA)
+        y += int(height * scale / base_scale) + 6
+        placed.append((line, scale, y, int(width * scale / base_scale)))
+    band_width = min(frame.shape[1], max(w for *_, w in placed) + 2 * margin)
+    band = frame[: y + margin, :band_width]
+    band[:] = band // 3
+    for line, scale, baseline, _ in placed:
+        cv2.putText(frame, line, (margin, baseline), font, scale, (255, 255, 255), 1, cv2.LINE_AA)
 
 
 class RecordMotionVideo(gym.wrappers.RecordVideo):

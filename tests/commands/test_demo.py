@@ -26,3 +26,19 @@ def test_video_recorder_writes_a_playable_mp4(tmp_path):
     assert len(frames) == 10 and frames[0].shape == (120, 160, 3)
     assert not list(tmp_path.glob("*.partial*"))
     assert cell.physics.observers == (cell.collateral.on_control_step,)  # the recorder left
+
+
+def test_caption_lines_stay_in_their_band_one_under_another():
+    from panda_grasp_env.tooling.video import write_lines
+
+    frame = np.full((360, 480, 3), 200, dtype=np.uint8)
+    lines = ["push_grasp_mesh_dqn on GraspMeshClutterTest, seed 5000000", "grasp: ok", "t =  31.3 s"]
+    write_lines(frame, lines)
+    changed = np.flatnonzero((frame != 200).any(axis=(1, 2)))
+    assert changed.min() == 0 and changed.max() < 90  # a band at the top, nothing drawn below it
+    band = frame[: changed.max() + 1]
+    ink_rows = np.flatnonzero((band > 200).any(axis=(1, 2)))  # white text on the darkened band
+    runs = np.split(ink_rows, np.flatnonzero(np.diff(ink_rows) > 1) + 1)
+    assert len(runs) == len(lines)  # each line on rows of its own
+    ink_columns = np.flatnonzero((band > 200).any(axis=(0, 2)))
+    assert ink_columns.max() < frame.shape[1] - 5  # the long line was drawn smaller to fit

@@ -123,3 +123,20 @@ def test_a_renderer_dropped_unclosed_never_frees_its_context_inside_anothers_dra
             gc.enable()
         assert not armed[0]  # the collection ran, inside the draw
         assert np.array_equal(before, after)
+
+
+def test_a_script_that_leaves_an_episode_env_open_exits_cleanly():
+    """MuJoCo's EGL module closes its display at exit; the open renderers are freed before that (the env an
+    episode keeps for the next one was closed at exit after it, and failed on the closed display)."""
+    import subprocess
+    import sys
+
+    script = (
+        "from panda_grasp_env.agents.evaluation.episodes import run_episode\n"
+        "from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec\n"
+        "run_episode(EpisodeSpec('grasp_clutter_dqn', 'Grasp', 0))\n"  # a heightmap policy: renderers
+        "print('ran')\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.strip() == "ran"
+    assert "Error" not in done.stderr and "Traceback" not in done.stderr, done.stderr[-2000:]
