@@ -118,11 +118,11 @@ def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
         agent = make_agent(spec, env)
         recorder = None
         if video is not None:
-            recorder = VideoRecorder(env.unwrapped.cell, "front", 480, 360, every=4, profile="fast")
+            recorder = VideoRecorder(env.unwrapped.cell, video, "front", 480, 360, every=4, profile="fast")
             recorder.caption = f"{spec.agent} on {spec.task}, seed {spec.seed}"
         outcome = play_episode(env, agent, spec, recorder)
         if recorder is not None:
-            recorder.save(video)
+            recorder.save()
     except BaseException:  # an env left mid-episode (a recorder still attached) is not reused
         close_kept_env()
         raise

@@ -65,7 +65,7 @@ def demo(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     cell = Workcell()
     cell.reset(np.random.default_rng(args.seed), "scattered")
-    recorder = None if args.no_video else VideoRecorder(cell, camera="front", width=640, height=480)
+    recorder = None if args.no_video else VideoRecorder(cell, args.out / "demo.mp4", width=640, height=480)
     start = time.perf_counter()
     try:
         if recorder:
@@ -83,7 +83,7 @@ def demo(args: argparse.Namespace) -> int:
         print(f"push {args.push}: {push_result.reason}, {displaced} blocks displaced")
     finally:
         if recorder:
-            video = recorder.save(args.out / "demo.mp4")
+            video = recorder.save()
             print(f"video: {video} ({recorder.frames_written} frames)")
     summary = {
         "seed": args.seed,

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from panda_grasp_env.geometry import is_count
+from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.model.cameras import (
     CAMERA_NAMES,
     CameraConfig,
@@ -129,6 +129,12 @@ class SceneConfig:
     #: between the pads left the solve at a point that threw it at 8-16 m/s, a physics error (GraspMeshTest
     #: seed 65294, object 994; from 25 on it settles); the block tasks' physics and figures stay as measured.
     line_search_iterations: int | None = None
+    #: Time constant of the finger pads' contacts, seconds (their damping ratio is 1).  None: 10 ms where the
+    #: scene has ``mesh_objects``, and ``CONTACT_SOLREF``'s 4 ms elsewhere.  The mesh objects weigh 10-60 g:
+    #: pads as stiff as MuJoCo allows at this step pinched a 23 g object 4 mm deep and the solve threw it at
+    #: 9.9 m/s (a physics error; GraspMeshClutterTrain seed 5000013), where 6 ms left it at 1.8 m/s and 10 ms
+    #: at 1.1; the blocks (100 g) keep the stiff pads and their figures.
+    pad_time_constant: float | None = None
     cameras: dict[str, CameraConfig] = field(
         default_factory=lambda: {
             "overhead": CameraConfig(640, 480, 45.0),  # Kinect-like vertical field of view
@@ -166,6 +172,12 @@ class SceneConfig:
             raise ValueError(f"noslip_iterations must be an int >= 0 or None, got {self.noslip_iterations!r}")
         if self.sleep is not None and not isinstance(self.sleep, bool):
             raise ValueError(f"sleep must be a bool or None, got {self.sleep!r}")
+        if self.pad_time_constant is not None and not (
+            is_number(self.pad_time_constant) and self.pad_time_constant >= 2 * self.timestep
+        ):
+            raise ValueError(
+                f"pad_time_constant must be a number of seconds >= 2 timesteps or None, got {self.pad_time_constant!r}"
+            )
         if self.line_search_iterations is not None and not (
             is_count(self.line_search_iterations) and self.line_search_iterations >= 1
         ):
@@ -273,6 +285,7 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
     site.size = [0.005, 0.005, 0.005]
     site.group = 4
 
+    pad_time_constant = config.pad_time_constant or (0.01 if config.mesh_objects else CONTACT_SOLREF[0])
     # Finger pads: thin high-friction boxes on the inner face of each fingertip,
     # standing 2.5 mm proud of the asset's slanted finger capsules: when the
     # capsules touched a block they wedged it sideways out of the grasp.
@@ -299,7 +312,7 @@ def build_spec(config: SceneConfig, with_environment: bool = True, self_collisio
         pad.mass = 0.0
         pad.priority = PAD_PRIORITY
         pad.margin = 0.0
-        pad.solref, pad.solimp = list(CONTACT_SOLREF), list(CONTACT_SOLIMP)  # a held block must not creep
+        pad.solref, pad.solimp = [pad_time_constant, CONTACT_SOLREF[1]], list(CONTACT_SOLIMP)  # no creep
 
     # Push faces: a flat box over the front and back of each finger's outer half.  The asset's finger is a
     # stack of capsules that widens by 4 mm towards the hand, so a pushing finger met a block with the capsule

@@ -8,10 +8,10 @@ every control step:
 * ``transit_contacts``: objects that the robot, or the object it carries,
   touched during transit (the robot should touch nothing there), and
   ``transit_fixtures``: the fixtures (a task's bin, wall, shelf) it touched then.
-  A contact already there when a transit segment begins, and unbroken since,
-  is the work's, not the transit's: a grasp in a heap that lifts a neighbour
-  lying on its object (``work_contacts``; the neighbour moved, so it is in
-  ``disturbed`` too).  Once broken, a new touch of that object is transit's;
+  An object the robot or its load touches when a transit segment begins is
+  the work's throughout that segment, not the transit's: a neighbour lying on
+  a grasped mesh, lifted with it, jostles against it all the way home
+  (``work_contacts``; it moved, so it is in ``disturbed`` too);
 * ``work_contacts`` / ``work_fixtures``: the same during the work segment.  A
   primitive is aimed at the fixture straight below its work point (a place on a
   shelf, a grasp in a bin); touching any other fixture in the work segment is a
@@ -106,7 +106,7 @@ class CollateralMonitor:
         self._primitive_start: tuple[np.ndarray, np.ndarray] | None = None
         self._transit_start: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._start_neighbours: dict[int, set[int]] = {}
-        #: Objects touching the robot or its load since this transit segment began, without a break.
+        #: Objects the robot or its load touched when this transit segment began: the work's contacts.
         self._carried_over: set[int] = set()
 
     def _poses(self) -> tuple[np.ndarray, np.ndarray]:
@@ -188,8 +188,7 @@ class CollateralMonitor:
         if self.in_work:
             self.record.work_contacts |= touched
         else:
-            self._carried_over &= touched  # a broken contact is over: touching that object again is transit's
-            self.record.work_contacts |= self._carried_over
+            self.record.work_contacts |= touched & self._carried_over
             self.record.transit_contacts |= touched - self._carried_over
         if not self._has_fixtures or self.cell.data.ncon == 0:  # no contact can touch a fixture: skip the work
             return

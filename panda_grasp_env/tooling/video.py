@@ -16,14 +16,18 @@ from panda_grasp_env.sim.workcell import Workcell
 
 
 class VideoRecorder:
-    """Grabs a frame (``pretty`` profile by default) every ``every`` control steps while attached to a workcell.
+    """Grabs a frame (``pretty`` profile by default) every ``every`` control steps while attached to a workcell,
+    and hands it to the MP4 encoder at once: a recording holds one frame in memory, however long it runs.
 
-    The video plays in real time: its frame rate is the control rate / ``every``.
+    The video plays in real time: its frame rate is the control rate / ``every``.  It is written to
+    ``<path stem>.partial.mp4`` as it goes and renamed to ``path`` by ``save`` (a recording cut short leaves
+    no file at ``path``).
     """
 
     def __init__(
         self,
         cell: Workcell,
+        path: Path | str,
         camera: str = "front",
         width: int = 640,
         height: int = 480,
@@ -31,11 +35,13 @@ class VideoRecorder:
         profile: str = "pretty",
     ) -> None:
         self.cell = cell
+        self.path = Path(path)
         self.camera = camera
         self.every = every
         self.fps = 1.0 / (cell.physics.control_dt * every)
         self.renderer = CameraRenderer(cell.model, width, height, profile=profile)
-        self.frames: list[np.ndarray] = []
+        self._partial = self.path.with_name(self.path.stem + ".partial" + self.path.suffix)
+        self._writer = imageio.get_writer(self._partial, fps=self.fps, codec="libx264", macro_block_size=8)
         #: The first line of every frame (what is filmed: an agent, a task, a seed), then ``status`` (what
         #: happens now: the last primitive's outcome), then the simulated time; empty lines are left out.
         self.caption = ""
@@ -53,20 +59,17 @@ class VideoRecorder:
         lines = [line for line in (self.caption, self.status) if line]
         if lines:
             write_lines(frame, [*lines, f"t = {cell.sim_time:5.1f} s"])
-        self.frames.append(frame)
+        self._writer.append_data(frame)
+        self.frames_written += 1
 
-    def save(self, path: Path) -> Path:
-        """Write the frames to ``path`` atomically (temp file + rename) and detach from the workcell."""
+    def save(self) -> Path:
+        """Finish the video, put it at ``path`` (rename of the partial file) and detach from the workcell."""
         if self.on_control_step in self.cell.physics.observers:
             self.cell.physics.remove_observer(self.on_control_step)
-        path = Path(path)
-        tmp = path.with_name(path.stem + ".partial" + path.suffix)
-        imageio.mimwrite(tmp, self.frames, fps=self.fps, codec="libx264", macro_block_size=8)
-        os.replace(tmp, path)
-        self.frames_written = len(self.frames)
-        self.frames.clear()
+        self._writer.close()
+        os.replace(self._partial, self.path)
         self.renderer.close()
-        return path
+        return self.path
 
 
 def write_lines(frame: np.ndarray, lines: list[str], margin: int = 10) -> None:

@@ -18,10 +18,11 @@ def test_demo_builds_and_breaks_a_tower(tmp_path):
 def test_video_recorder_writes_a_playable_mp4(tmp_path):
     cell = Workcell()
     cell.reset(np.random.default_rng(0))
-    recorder = VideoRecorder(cell, width=160, height=120, every=1)
+    recorder = VideoRecorder(cell, tmp_path / "clip.mp4", width=160, height=120, every=1)
     recorder.caption = "test"
     cell.wait(0.4)
-    path = recorder.save(tmp_path / "clip.mp4")
+    assert not (tmp_path / "clip.mp4").exists()  # written as it goes, to a partial file
+    path = recorder.save()
     frames = imageio.mimread(path)
     assert len(frames) == 10 and frames[0].shape == (120, 160, 3)
     assert not list(tmp_path.glob("*.partial*"))
