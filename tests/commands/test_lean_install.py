@@ -30,16 +30,21 @@ IMPORT_NAMES = {
 }
 
 BLOCKED_RUN = """
-import importlib.abc, sys
+import importlib.machinery, sys
 BLOCKED = set(sys.argv[1].split(","))
 
-class Blocked(importlib.abc.MetaPathFinder):
-    def find_spec(self, name, path=None, target=None):
+class PathFinderWithout(importlib.machinery.PathFinder):
+    # Python's own finder of installed modules, blind to the blocked ones: they are absent, as uninstalled
+    # (importlib.util.find_spec gives None, and importing one raises ModuleNotFoundError).
+    @classmethod
+    def find_spec(cls, name, path=None, target=None):
         if name.split(".")[0] in BLOCKED:
-            raise ModuleNotFoundError(f"{name} is blocked: not installed by the README's main command")
-        return None
+            return None
+        return super().find_spec(name, path, target)
 
-sys.meta_path.insert(0, Blocked())
+sys.meta_path[:] = [PathFinderWithout if f is importlib.machinery.PathFinder else f for f in sys.meta_path]
+import importlib.util
+assert all(importlib.util.find_spec(name) is None for name in BLOCKED), "a blocked package is still found"
 from panda_grasp_env.commands import evaluate
 sys.exit(evaluate.main(["--no-video", "--seeds", "1", "--out", sys.argv[2]]))
 """
