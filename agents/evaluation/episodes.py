@@ -118,7 +118,9 @@ def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
         agent = make_agent(spec, env)
         recorder = None
         if video is not None:
-            recorder = VideoRecorder(env.unwrapped.cell, video, "front", 480, 360, every=4, profile="fast")
+            recorder = VideoRecorder(
+                env.unwrapped.cell, video, "front", 400, 300, every=5, profile="fast", active=False
+            )
             recorder.caption = f"{spec.agent} on {spec.task}, seed {spec.seed}"
         outcome = play_episode(env, agent, spec, recorder)
         if recorder is not None:
@@ -135,6 +137,8 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
     reset_options = BENCHMARKS[spec.task].reset_options
     observation, info = env.reset(seed=spec.seed, options=None if reset_options is None else reset_options(spec.seed))
     agent.reset(observation, info)
+    if recorder is not None:  # the clip starts at the episode's first state
+        recorder.active = True
     meshes = [o["mesh"] for o in info.get("objects", []) if "mesh" in o]
     first_grasp = None  # whether the episode's first grasp attempt succeeded
     in_play = info.get("objects_remaining")

@@ -33,8 +33,12 @@ class VideoRecorder:
         height: int = 480,
         every: int = 2,
         profile: str = "pretty",
+        active: bool = True,
     ) -> None:
+        """``active``: grab frames from the first control step; False waits until ``active`` is set (a benchmark
+        clip starts at its episode's first state, not in the reset that lays the scene out)."""
         self.cell = cell
+        self.active = active
         self.path = Path(path)
         self.camera = camera
         self.every = every
@@ -52,6 +56,8 @@ class VideoRecorder:
 
     def on_control_step(self, cell: Workcell) -> None:
         """Count the step; every ``every``-th, grab a frame with the caption and the simulated time."""
+        if not self.active:
+            return
         self._count += 1
         if self._count % self.every:
             return
