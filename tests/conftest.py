@@ -1,6 +1,8 @@
+import ctypes
 import gc
 import json
 import os
+import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -44,11 +46,14 @@ def rng() -> np.random.Generator:
 @pytest.fixture(scope="module", autouse=True)
 def collect_after_each_module() -> Iterator[None]:
     """Each test module starts from the memory the one before left: what a module made and dropped in reference
-    cycles of libraries' objects (SB3's models and loggers, torch modules) is collected at its end, so that a
-    worker process does not carry every module's garbage (peak RSS of a worker: 6.1 GB without).  The package's
-    own objects are freed without it: ``tests/gym_api/test_release.py`` checks envs with the collector off."""
+    cycles of libraries' objects (SB3's models and loggers, torch modules) is collected at its end, and the heap
+    it freed goes back to the system, so that a worker process does not carry every module's garbage (peak RSS
+    of a worker: 6.1 GB without).  The package's own objects are freed without it:
+    ``tests/gym_api/test_release.py`` checks envs with the collector off."""
     yield
     gc.collect()
+    if sys.platform == "linux":  # and hand the freed heap back to the system (glibc keeps it for reuse otherwise)
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
 
 
 @pytest.fixture(scope="session", autouse=True)
