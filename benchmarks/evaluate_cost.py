@@ -26,21 +26,17 @@ sys.path.insert(0, str(ROOT))
 from benchmarks._common import Results  # noqa: E402
 
 
-def measured_run(videos: bool, out: Path) -> dict:
-    """One ``evaluate.py`` run into ``out``: wall seconds and peak resident memory (MiB) of its process."""
-    command = [sys.executable, str(ROOT / "evaluate.py"), "--out", str(out), *([] if videos else ["--no-video"])]
+def measured_run(extra: list[str], out: Path) -> dict:
+    """One ``python evaluate.py --out out *extra`` run in a fresh process: wall seconds and peak resident memory
+    (MiB) of that process."""
+    command = [sys.executable, str(ROOT / "evaluate.py"), "--out", str(out), *extra]
     start = time.perf_counter()
     process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     _, status, usage = os.wait4(process.pid, 0)
     seconds = time.perf_counter() - start
-    process.returncode = os.waitstatus_to_exitcode(status)
-    if process.returncode != 0:
-        raise RuntimeError(f"{' '.join(command)} exited with {process.returncode}")
-    return {
-        "wall_seconds": seconds,
-        "peak_mib": usage.ru_maxrss / 1024,
-        "results_csv": (out / "results.csv").read_text(),
-    }
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise RuntimeError(f"{' '.join(command)} exited with {os.waitstatus_to_exitcode(status)}")
+    return {"wall_seconds": seconds, "peak_mib": usage.ru_maxrss / 1024}
 
 
 def main() -> None:
@@ -55,9 +51,11 @@ def main() -> None:
 
         def measure() -> dict:
             with tempfile.TemporaryDirectory() as folder:
-                videos = measured_run(True, Path(folder) / "videos")
-                plain = measured_run(False, Path(folder) / "plain")
-            same = videos.pop("results_csv") == plain.pop("results_csv")
+                videos = measured_run([], Path(folder) / "videos")
+                plain = measured_run(["--no-video"], Path(folder) / "plain")
+                same = (Path(folder) / "videos" / "results.csv").read_text() == (
+                    Path(folder) / "plain" / "results.csv"
+                ).read_text()
             return {"videos": videos, "no_video": plain, "identical_results_csv": same}
 
         r = results.section(f"pair_{repeat}", measure)

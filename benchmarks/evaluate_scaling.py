@@ -11,23 +11,15 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import Results  # noqa: E402
-
-
-def timed_run(workers: int, out: Path) -> float:
-    command = [sys.executable, str(ROOT / "evaluate.py"), "--no-video", "--workers", str(workers), "--out", str(out)]
-    start = time.perf_counter()
-    subprocess.run(command, check=True, cwd=ROOT, capture_output=True)
-    return time.perf_counter() - start
+from benchmarks.evaluate_cost import measured_run  # noqa: E402
 
 
 def main() -> None:
@@ -42,7 +34,10 @@ def main() -> None:
         def measure() -> dict:
             with tempfile.TemporaryDirectory() as folder:
                 one, two = Path(folder) / "one", Path(folder) / "two"
-                seconds = {"workers_1": timed_run(1, one), "workers_2": timed_run(2, two)}
+                seconds = {
+                    f"workers_{n}": measured_run(["--no-video", "--workers", str(n)], out)["wall_seconds"]
+                    for n, out in ((1, one), (2, two))
+                }
                 same = (one / "results.json").read_text() == (two / "results.json").read_text()
             return seconds | {"identical_results": same}
 

@@ -138,7 +138,7 @@ class CollateralMonitor:
         if not work:
             speeds = body_speeds(self.cell.data, self.cell.object_ids)
             self._transit_start = (*self._poses(), speeds < REST_SPEED)
-        self._carried_over = set() if work else {int(b) for b in self._touched()}
+        self._carried_over = set() if work else {int(b) for b in self._touched(self._contact_bodies())}
 
     def _close_transit(self) -> None:
         if self._transit_start is not None:
@@ -167,11 +167,9 @@ class CollateralMonitor:
         """Body ids (ncon, 2) of the two sides of every current contact."""
         return self.cell.model.geom_bodyid[self._contact_geoms()]
 
-    def _touched(self) -> np.ndarray:
-        """Body ids of the objects (not the load) that the robot or its load touches now."""
-        if self.cell.data.ncon == 0:
-            return np.zeros(0, dtype=int)
-        bodies = self.cell.model.geom_bodyid[self._contact_geoms()]
+    def _touched(self, bodies: np.ndarray) -> np.ndarray:
+        """Body ids of the objects (not the load) that the robot or its load touches in the contacts between
+        ``bodies`` (ncon, 2)."""
         robot_side = self._is_robot[bodies] | (bodies == self._load)
         objects = self._is_object[bodies] & (bodies != self._load)
         return np.concatenate(
@@ -182,18 +180,18 @@ class CollateralMonitor:
         """Record the robot-object and robot-fixture contacts of the current state (the workcell's first step
         observer: called after every control step)."""
         self.new_fixture_hit = False
-        if not self.active:
+        if not self.active or self.cell.data.ncon == 0:
             return
-        touched = {int(b) for b in self._touched()}
+        geoms = self._contact_geoms()
+        bodies = self.cell.model.geom_bodyid[geoms]
+        touched = {int(b) for b in self._touched(bodies)}
         if self.in_work:
             self.record.work_contacts |= touched
         else:
             self.record.work_contacts |= touched & self._carried_over
             self.record.transit_contacts |= touched - self._carried_over
-        if not self._has_fixtures or self.cell.data.ncon == 0:  # no contact can touch a fixture: skip the work
+        if not self._has_fixtures:  # the scene's contacts cannot touch one: skip the per-step work
             return
-        geoms = self._contact_geoms()
-        bodies = self.cell.model.geom_bodyid[geoms]
         robot_side = self._is_robot[bodies] | (bodies == self._load)
         fixtures = self._is_fixture_geom[geoms]
         hit = np.concatenate([geoms[robot_side[:, 0] & fixtures[:, 1], 1], geoms[robot_side[:, 1] & fixtures[:, 0], 0]])
