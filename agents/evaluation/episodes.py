@@ -119,7 +119,7 @@ def run_episode(spec: EpisodeSpec, video: Path | None = None) -> dict[str, Any]:
         recorder = None
         if video is not None:
             recorder = VideoRecorder(
-                env.unwrapped.cell, video, "front", 400, 300, every=5, profile="fast", active=False
+                env.unwrapped.cell, video, "front", 384, 288, every=5, profile="fast", active=False
             )
             recorder.caption = f"{spec.agent} on {spec.task}, seed {spec.seed}"
         outcome = play_episode(env, agent, spec, recorder)
