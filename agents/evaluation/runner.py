@@ -9,7 +9,7 @@ import json
 import multiprocessing
 import os
 from collections import Counter
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +17,7 @@ import numpy as np
 from panda_grasp_env.agents.evaluation.episodes import clip_path, first_of_each_pair, run_episode
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, code_label, import_modules
 from panda_grasp_env.geometry import is_count, is_number
-from panda_grasp_env.tooling.runs import write_atomically
+from panda_grasp_env.tooling.runs import ray_tasks, write_atomically
 
 
 def _append(path: Path, record: dict) -> None:
@@ -132,23 +132,10 @@ def _run_job(job: tuple[EpisodeSpec, Path | None]) -> dict:
     return {"key": spec.key, **run_episode(spec, video)}
 
 
-def _ray_records(specs: list[EpisodeSpec], address: str, imports: Iterable[str]) -> Iterator[dict]:
-    """Episodes as Ray tasks, yielded as they finish (results are the same as local ones: episodes are
-    determined by their spec alone); each task imports the ``imports`` modules first."""
-    import ray
-
-    from panda_grasp_env.agents.evaluation.episodes import run_episode as run
-    from panda_grasp_env.agents.evaluation.protocol import import_modules as load
-
-    ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False)
-    remote = ray.remote(lambda spec: load(imports) or {"key": spec.key, **run(spec)})
-    pending = [remote.remote(spec) for spec in specs]
-    try:
-        while pending:
-            ready, pending = ray.wait(pending, num_returns=1)
-            yield ray.get(ready[0])
-    finally:
-        ray.shutdown()
+def _imported_job(spec: EpisodeSpec, imports: list[str]) -> dict:
+    """A Ray task's episode: it imports the ``imports`` modules first (a fresh worker has not)."""
+    import_modules(imports)
+    return _run_job((spec, None))
 
 
 def run_episodes(
@@ -194,7 +181,7 @@ def run_episodes(
     try:
         pool = None
         if ray_address is not None:
-            records = _ray_records(todo, ray_address, imports)
+            records = ray_tasks(_imported_job, [(s, list(imports)) for s in todo], ray_address)
         elif workers == 1:
             records = (_run_job(job) for job in jobs)
         else:

@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import multiprocessing
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +26,7 @@ import yaml
 
 from panda_grasp_env.agents.learning.config import TrainConfig, config_from_dict
 from panda_grasp_env.agents.learning.seed_figures import profile_figure, score, study_markdown, study_summary
-from panda_grasp_env.tooling.runs import write_atomically, write_json
+from panda_grasp_env.tooling.runs import ray_tasks, write_atomically, write_json
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -73,21 +72,6 @@ def train_seed(raw: dict[str, Any], runs_dir: str) -> dict[str, Any]:
     return {"seed": config.seed, "run_dir": str(run_dir), "final": json.loads((run_dir / "final.json").read_text())}
 
 
-def _ray_train(raws: list[dict[str, Any]], runs_dir: str, address: str) -> Iterator[dict[str, Any]]:
-    """The seeds' runs as Ray tasks, yielded as they finish."""
-    import ray
-
-    ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False)
-    try:
-        remote = ray.remote(num_cpus=1)(train_seed)
-        pending = [remote.remote(raw, runs_dir) for raw in raws]
-        while pending:
-            ready, pending = ray.wait(pending, num_returns=1)
-            yield ray.get(ready[0])
-    finally:
-        ray.shutdown()
-
-
 def _train_seed(arguments: tuple[dict[str, Any], str]) -> dict[str, Any]:
     return train_seed(*arguments)
 
@@ -109,7 +93,7 @@ def train_seeds(
     jobs = [(dataclasses.asdict(dataclasses.replace(config, seed=s)), str(runs_dir)) for s in seeds]
     pool = None
     if ray_address is not None:
-        finished = _ray_train([raw for raw, _ in jobs], str(runs_dir), ray_address)
+        finished = ray_tasks(train_seed, jobs, ray_address)
     elif workers == 1:
         finished = map(_train_seed, jobs)
     else:

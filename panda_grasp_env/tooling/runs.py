@@ -13,7 +13,7 @@ import platform
 import re
 import subprocess
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -21,6 +21,7 @@ import yaml
 from pydantic import TypeAdapter, ValidationError
 
 Config = TypeVar("Config")
+Result = TypeVar("Result")
 
 PACKAGES = ("numpy", "torch", "mujoco", "gymnasium", "stable-baselines3", "sb3-contrib", "panda-grasp-env")
 
@@ -131,6 +132,27 @@ def commit() -> str:
     if not head.stdout.strip():
         return "unknown"
     return head.stdout.strip() + ("+changes" if changes.stdout.strip() else "")
+
+
+def ray_tasks(
+    function: Callable[..., Result], argument_lists: Iterable[tuple[Any, ...]], address: str, num_cpus: float = 1
+) -> Iterator[Result]:
+    """``function`` called on each of ``argument_lists`` as Ray tasks, results yielded as they finish.
+
+    ``address``: a cluster address, ``"auto"`` (the running cluster) or ``"local"``: a new instance started here
+    even when another one runs on this machine (Ray's own default joins the last cluster started here, which
+    another process may be shutting down). Ray is shut down when the iteration ends or is abandoned."""
+    import ray
+
+    ray.init(address=address, include_dashboard=False, log_to_driver=False)
+    try:
+        remote = ray.remote(num_cpus=num_cpus)(function)
+        pending = [remote.remote(*arguments) for arguments in argument_lists]
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            yield ray.get(ready[0])
+    finally:
+        ray.shutdown()
 
 
 def interrupt_on_signals() -> None:
