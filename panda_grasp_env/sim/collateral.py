@@ -11,7 +11,10 @@ every control step:
   An object the robot or its load touches when a transit segment begins is
   the work's throughout that segment, not the transit's: a neighbour lying on
   a grasped mesh, lifted with it, jostles against it all the way home
-  (``work_contacts``; it moved, so it is in ``disturbed`` too);
+  (``work_contacts``; it moved, so it is in ``disturbed`` too).  So is what a
+  load strikes once it has slipped from the fingers in transit: it falls, no
+  longer carried, and what it hits is the failed grasp's doing (the grasp
+  reports ``dropped``), not the transit path's;
 * ``work_contacts`` / ``work_fixtures``: the same during the work segment.  A
   primitive is aimed at the fixture straight below its work point (a place on a
   shelf, a grasp in a bin); touching any other fixture in the work segment is a
@@ -108,6 +111,8 @@ class CollateralMonitor:
         self._start_neighbours: dict[int, set[int]] = {}
         #: Objects the robot or its load touched when this transit segment began: the work's contacts.
         self._carried_over: set[int] = set()
+        #: Whether this segment's load has left the fingers (its later contacts are the work's).
+        self._load_dropped = False
 
     def _poses(self) -> tuple[np.ndarray, np.ndarray]:
         data, ids = self.cell.data, self.cell.object_ids
@@ -135,10 +140,11 @@ class CollateralMonitor:
         self.in_work = work
         held = self.cell.robot.body_between_fingers()
         self._load = -1 if held is None else held
+        self._load_dropped = False
         if not work:
             speeds = body_speeds(self.cell.data, self.cell.object_ids)
             self._transit_start = (*self._poses(), speeds < REST_SPEED)
-        self._carried_over = set() if work else {int(b) for b in self._touched(self._contact_bodies())}
+        self._carried_over = set() if work else set().union(*self._touched(self._contact_bodies()))
 
     def _close_transit(self) -> None:
         if self._transit_start is not None:
@@ -167,14 +173,15 @@ class CollateralMonitor:
         """Body ids (ncon, 2) of the two sides of every current contact."""
         return self.cell.model.geom_bodyid[self._contact_geoms()]
 
-    def _touched(self, bodies: np.ndarray) -> np.ndarray:
-        """Body ids of the objects (not the load) that the robot or its load touches in the contacts between
-        ``bodies`` (ncon, 2)."""
-        robot_side = self._is_robot[bodies] | (bodies == self._load)
+    def _touched(self, bodies: np.ndarray) -> tuple[set[int], set[int]]:
+        """Body ids of the objects (not the load) that the robot touches, and those the load touches, in the
+        contacts between ``bodies`` (ncon, 2)."""
         objects = self._is_object[bodies] & (bodies != self._load)
-        return np.concatenate(
-            [bodies[robot_side[:, 0] & objects[:, 1], 1], bodies[robot_side[:, 1] & objects[:, 0], 0]]
-        )
+        found = []
+        for toucher in (self._is_robot[bodies], bodies == self._load):
+            hits = np.concatenate([bodies[toucher[:, 0] & objects[:, 1], 1], bodies[toucher[:, 1] & objects[:, 0], 0]])
+            found.append({int(b) for b in hits})
+        return found[0], found[1]
 
     def on_control_step(self, cell: MonitoredCell) -> None:
         """Record the robot-object and robot-fixture contacts of the current state (the workcell's first step
@@ -184,12 +191,15 @@ class CollateralMonitor:
             return
         geoms = self._contact_geoms()
         bodies = self.cell.model.geom_bodyid[geoms]
-        touched = {int(b) for b in self._touched(bodies)}
+        by_robot, by_load = self._touched(bodies)
         if self.in_work:
-            self.record.work_contacts |= touched
+            self.record.work_contacts |= by_robot | by_load
         else:
-            self.record.work_contacts |= touched & self._carried_over
-            self.record.transit_contacts |= touched - self._carried_over
+            if by_load and not self._load_dropped:
+                self._load_dropped = self._load not in self.cell.robot.bodies_between_fingers()
+            work = self._carried_over | (by_load if self._load_dropped else set())
+            self.record.work_contacts |= (by_robot | by_load) & work
+            self.record.transit_contacts |= (by_robot | by_load) - work
         if not self._has_fixtures:  # the scene's contacts cannot touch one: skip the per-step work
             return
         robot_side = self._is_robot[bodies] | (bodies == self._load)

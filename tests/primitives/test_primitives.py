@@ -252,3 +252,34 @@ def test_with_push_faces_a_push_slides_a_block_to_where_the_stroke_ends_without_
     reach = distance - gap + cell.config.block_size / 2 + PUSH_FACE_HALF_SIZE[0]
     ahead = (cell.data.xpos[block][:2] - centre) @ along
     assert reach - 0.002 <= ahead <= reach + 0.005
+
+
+@pytest.mark.unit
+def test_what_a_load_strikes_after_slipping_from_the_fingers_in_transit_is_the_grasps_not_the_transits(cell):
+    # Block 1 held at home above block 0.  Lowered onto it still held, the load's touch is a transit contact;
+    # let go above it, what it strikes as it falls is the failed grasp's doing (a work contact).
+    def hold_block_1() -> None:
+        cell.clear()
+        cell.set_body_pose(cell.block_ids[1], [0.5, 0.15, 0.025])
+        cell.settle(0.3)
+        assert grasp(cell, *cell.block_positions()[1], 0.0).success
+
+    hold_block_1()
+    site = cell.data.site_xpos[cell.robot.site_id].copy()
+    cell.set_body_pose(cell.block_ids[0], [site[0], site[1], 0.025])
+    cell.settle(0.3)
+
+    cell.collateral.begin()  # in transit, carrying block 1
+    cell.actuate_gripper(close=False)
+    cell.wait(1.0)
+    dropped = cell.collateral.finish(set())
+    struck = int(cell.block_ids[0])
+    assert dropped.transit_contacts == set() and struck in dropped.work_contacts
+
+    hold_block_1()
+    cell.set_body_pose(cell.block_ids[0], [site[0], site[1], 0.025])
+    cell.settle(0.3)
+    cell.collateral.begin()
+    cell.motion.move_to(np.array([site[0], site[1], 0.065]), cell.robot.ee_yaw, settle_timeout=0.3)
+    lowered = cell.collateral.finish(set())
+    assert struck in lowered.transit_contacts
