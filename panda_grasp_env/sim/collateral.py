@@ -9,9 +9,10 @@ every control step:
   touched during transit (the robot should touch nothing there), and
   ``transit_fixtures``: the fixtures (a task's bin, wall, shelf) it touched then.
   An object the robot or its load touches when a transit segment begins is
-  the work's throughout that segment, not the transit's: a neighbour lying on
-  a grasped mesh, lifted with it, jostles against it all the way home
-  (``work_contacts``; it moved, so it is in ``disturbed`` too).  So is what a
+  the work's throughout that segment, not the transit's, and so is an object
+  off the table resting on one of those: a neighbour lying on a grasped mesh,
+  lifted with it, jostles against it all the way home (``work_contacts``; it
+  moved, so it is in ``disturbed`` too).  So is what a
   load strikes once it has slipped from the fingers in transit: it falls, no
   longer carried, and what it hits is the failed grasp's doing (the grasp
   reports ``dropped``), not the transit path's;
@@ -144,7 +145,22 @@ class CollateralMonitor:
         if not work:
             speeds = body_speeds(self.cell.data, self.cell.object_ids)
             self._transit_start = (*self._poses(), speeds < REST_SPEED)
-        self._carried_over = set() if work else set().union(*self._touched(self._contact_bodies()))
+        self._carried_over = set() if work else self._lifted_with_hand()
+
+    def _lifted_with_hand(self) -> set[int]:
+        """Objects the robot or its load touches now, and the objects off the table that rest on those, on
+        and on (a neighbour lying on a grasped mesh, lifted with it, and one lying on that neighbour)."""
+        bodies = self._contact_bodies()
+        on_table = {int(b) for pair in bodies[(bodies == 0).any(axis=1)] for b in pair}
+        neighbours = self._object_neighbours()
+        lifted = set().union(*self._touched(bodies))
+        frontier = list(lifted)
+        while frontier:
+            for other in neighbours.get(frontier.pop(), ()):
+                if other not in lifted and other not in on_table and other != self._load:
+                    lifted.add(other)
+                    frontier.append(other)
+        return lifted
 
     def _close_transit(self) -> None:
         if self._transit_start is not None:

@@ -65,3 +65,18 @@ def test_thirty_mesh_heaps_without_a_physics_error_or_a_transit_contact(tmp_path
     assert len(episodes) == 60
     assert not any(e["physics_error"] for e in episodes)
     assert [e["spec"] for e in episodes if e["transit_contacts"]] == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("agent", "task", "seed"),
+    [
+        # The grasped object slips from the fingers on the way home and falls onto a neighbour.
+        ("planned", "GraspMeshClutterTest", 7000022),
+        # A neighbour lifted on one lifted with the grasped object swings into the load on the way home.
+        ("grasp_clutter_dqn", "GraspMeshClutterTrain", 5000003),
+    ],
+)
+def test_what_a_grasp_carries_or_drops_in_transit_is_not_a_transit_contact(agent, task, seed):
+    result = records(agent, task, [seed])[seed]
+    assert result["transit_contacts"] == 0 and not result["physics_error"]
