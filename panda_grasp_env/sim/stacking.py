@@ -65,19 +65,21 @@ def blocks_displaced(positions: np.ndarray, footprint_centre: np.ndarray, block_
     return int(np.sum(offsets >= block_size))
 
 
+def crowding(centre: np.ndarray, heading: float, obstacles: np.ndarray, power: int = 1) -> float:
+    """How much a closing axis at ``heading`` (radians) through ``centre`` (x, y, metres) points at ``obstacles``
+    (centres, (n, 2)): each weighs the cosine of its bearing off the axis over its distance to ``power``."""
+    offsets = np.asarray(obstacles, dtype=float).reshape(-1, 2) - centre[:2]
+    distances = np.maximum(np.linalg.norm(offsets, axis=1), 1e-6)
+    along = np.abs(offsets @ [np.cos(heading), np.sin(heading)]) / distances
+    return float(np.sum(along / distances**power))
+
+
 def clearest_grasp_heading(positions: np.ndarray, index: int, yaw: float) -> float:
-    """Of a cube's two grasp headings (``yaw``, ``yaw`` + 90 deg), the one pointing least at the other blocks.
+    """Of a cube's two grasp headings (``yaw``, ``yaw`` + 90 deg), the one pointing least at the other blocks
+    (``crowding``).
 
     The open hand is ~20 cm wide along its closing axis; aiming it at a nearby
     tower knocks the tower over.
     """
-    offsets = np.delete(positions[:, :2] - positions[index, :2], index, axis=0)
-    if len(offsets) == 0:
-        return yaw
-    distances = np.maximum(np.linalg.norm(offsets, axis=1), 1e-6)
-    directions = offsets / distances[:, None]
-
-    def crowding(heading: float) -> float:
-        return float(np.sum(np.abs(directions @ [np.cos(heading), np.sin(heading)]) / distances))
-
-    return min((yaw, yaw + np.pi / 2), key=crowding)
+    others = np.delete(positions[:, :2], index, axis=0)
+    return min((yaw, yaw + np.pi / 2), key=lambda heading: crowding(positions[index], heading, others))
