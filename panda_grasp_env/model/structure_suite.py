@@ -174,29 +174,16 @@ def _scaffolding() -> list[Structure]:
 
 
 def _removal() -> list[Structure]:
-    layouts = {s.name: s for s in _layouts()}
-    spans = {s.name: s for s in _spans()}
-    pyramid, wall, portal = layouts["pyramid_6"], layouts["wall_7"], spans["portal"]
-    tower = _tower(4)
+    built = {s.name: s for s in (*_layouts(), *_spans(), _tower(4))}
+    removals = (
+        ("pyramid_top", "pyramid_6", (5,), "take the top off a 3-2-1 pyramid"),
+        ("wall_middle", "wall_7", (5,), "take the middle cube out of a wall's upper course"),
+        ("portal_lintel", "portal", (4,), "lift the plank off a portal"),
+        ("tower_top_two", "tower_4", (2, 3), "take the top two cubes off a tower of four"),
+    )
     return [
-        Structure("pyramid_top", pyramid.pieces, 6, "take the top off a 3-2-1 pyramid", prebuilt=True, removed=(5,)),
-        Structure(
-            "wall_middle",
-            wall.pieces,
-            6,
-            "take the middle cube out of a wall's upper course",
-            prebuilt=True,
-            removed=(5,),
-        ),
-        Structure("portal_lintel", portal.pieces, 6, "lift the plank off a portal", prebuilt=True, removed=(4,)),
-        Structure(
-            "tower_top_two",
-            tower.pieces,
-            6,
-            "take the top two cubes off a tower of four",
-            prebuilt=True,
-            removed=(2, 3),
-        ),
+        Structure(name, built[start].pieces, 6, description, prebuilt=True, removed=removed)
+        for name, start, removed, description in removals
     ]
 
 
