@@ -197,10 +197,13 @@ class Structure:
         unknown = sorted(set(value) - set(cls.__dataclass_fields__))
         if unknown:
             raise ValueError(f"structure: unknown field(s) {unknown}; valid: {list(cls.__dataclass_fields__)}")
+        missing = sorted({"name", "pieces"} - set(value))
+        if missing:
+            raise ValueError(f"structure: missing field(s) {missing}")
         raw = dict(value)
-        for name in ("removed", "order"):
-            raw[name] = tuple(raw.get(name, ()))
-        raw["unstable"] = tuple(tuple(s) for s in raw.get("unstable", ()))
+        for name in ("removed", "order", "unstable"):  # JSON gives lists; anything else the checks name
+            if isinstance(raw.get(name), list):
+                raw[name] = tuple(tuple(v) if isinstance(v, list) else v for v in raw[name])
         return cls(**raw)
 
 
