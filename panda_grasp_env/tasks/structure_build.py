@@ -21,7 +21,7 @@ from panda_grasp_env.model.structures import STRUCTURE_PHYSICS, Piece, Structure
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.sim.stepping import body_speeds
-from panda_grasp_env.sim.structure_layout import lay_out_start
+from panda_grasp_env.sim.structure_layout import StructureLayout, lay_out_start
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.base import Task, TaskStep, check_option, with_scene
 
@@ -93,6 +93,8 @@ class StructureBuild(Task):
         self._slots = np.zeros(0, dtype=int)
         self._placed = 0
         self._still_since: float | None = None
+        #: Where this episode's structure stands and its loose pieces lay at the start (set at reset).
+        self.layout: StructureLayout | None = None
 
     def scene_config(self, base: SceneConfig) -> SceneConfig:
         return with_scene(base, n_blocks=0, n_objects=self.n_slots, **STRUCTURE_PHYSICS)
@@ -110,7 +112,6 @@ class StructureBuild(Task):
         if len(unused):
             cell.set_object_shapes({int(body): Piece("cube", (0.0, 0.0, 0.025)).shape() for body in unused})
         layout, _ = lay_out_start(cell, self.structure, rng)
-        #: Where this episode's structure stands and its loose pieces lay at the start.
         self.layout = layout
         targets, yaws = self.structure.world_poses(layout.origin, layout.heading)
         goal = [i for i in range(len(self.structure.pieces)) if i not in self.structure.removed]
