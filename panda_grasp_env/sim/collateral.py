@@ -153,14 +153,7 @@ class CollateralMonitor:
         bodies = self._contact_bodies()
         on_table = {int(b) for pair in bodies[(bodies == 0).any(axis=1)] for b in pair}
         neighbours = self._object_neighbours()
-        lifted = set().union(*self._touched(bodies))
-        frontier = list(lifted)
-        while frontier:
-            for other in neighbours.get(frontier.pop(), ()):
-                if other not in lifted and other not in on_table and other != self._load:
-                    lifted.add(other)
-                    frontier.append(other)
-        return lifted
+        return connected(set().union(*self._touched(bodies)), neighbours, blocked=on_table | {self._load})
 
     def _close_transit(self) -> None:
         if self._transit_start is not None:
@@ -252,13 +245,7 @@ class CollateralMonitor:
     def pile(self, bodies: set[int]) -> set[int]:
         """``bodies`` and every object connected to them through object-object contacts at the primitive's
         start (a tower, a heap): what a push or a strike at one of them acts on."""
-        group, frontier = set(bodies), list(bodies)
-        while frontier:
-            for other in self._start_neighbours.get(frontier.pop(), ()):
-                if other not in group:
-                    group.add(other)
-                    frontier.append(other)
-        return group
+        return connected(bodies, self._start_neighbours)
 
     def _object_neighbours(self) -> dict[int, set[int]]:
         """Object-object contacts of the current state, as an adjacency map of body ids."""
@@ -268,3 +255,17 @@ class CollateralMonitor:
             neighbours.setdefault(int(a), set()).add(int(b))
             neighbours.setdefault(int(b), set()).add(int(a))
         return neighbours
+
+
+def connected(
+    bodies: set[int], neighbours: dict[int, set[int]], blocked: set[int] | frozenset[int] = frozenset()
+) -> set[int]:
+    """``bodies`` and every body reachable from them through ``neighbours`` (an adjacency map) without
+    passing through a ``blocked`` one."""
+    group, frontier = set(bodies), list(bodies)
+    while frontier:
+        for other in neighbours.get(frontier.pop(), ()):
+            if other not in group and other not in blocked:
+                group.add(other)
+                frontier.append(other)
+    return group
