@@ -15,17 +15,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from panda_grasp_env.model.structures import Piece, Structure
+from panda_grasp_env.model.structures import Piece, Structure, symmetry, wrapped
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.primitives.top_down import grasp, place
 from panda_grasp_env.sim.stacking import crowding
 from panda_grasp_env.sim.structure_layout import StructureLayout
 from panda_grasp_env.sim.workcell import Workcell
+from panda_grasp_env.tasks.structure_build import AWAY_DISTANCE, PLACE_TOLERANCE, TURN_TOLERANCE
 
-#: A piece is in place within this distance (metres) and turn (radians, modulo its symmetry) of its target.
-PLACE_TOLERANCE, TURN_TOLERANCE = 0.01, np.deg2rad(10.0)
-#: A piece taken away must end this far (metres) or more from every piece of the structure.
-AWAY_DISTANCE = 0.08
 #: Pieces farther than this (metres) from a grasp or place are out of the open hand's way (it reaches ~11 cm
 #: along its closing axis); nearer ones weigh by the inverse square of their distance (``sim.stacking.crowding``).
 HAND_REACH = 0.15
@@ -39,16 +36,6 @@ class BuildOutcome:
     steps: list[PrimitiveResult] = field(default_factory=list)
     misplaced: list[int] = field(default_factory=list)
     success: bool = False
-
-
-def symmetry(kind: str) -> float:
-    """The turn (radians) that maps a piece of ``kind`` onto itself: a quarter for a cube, a half for a plank."""
-    return np.pi / 2 if kind == "cube" else np.pi
-
-
-def wrapped(angle: float, period: float) -> float:
-    """``angle`` modulo ``period``, into [-period/2, period/2)."""
-    return float((angle + period / 2) % period - period / 2)
 
 
 def grip_headings(piece: Piece, yaw: float) -> list[float]:
@@ -94,7 +81,7 @@ class StructureBuilder:
         """Of ``headings`` (radians), the one whose closing axis points least at the pieces in the way, within
         [-pi/2, pi/2) (the hand is symmetric under a half turn)."""
         obstacles = self._in_the_way(centre, height, exclude)
-        return wrapped(min(headings, key=lambda heading: crowding(centre, heading, obstacles, power=2)), np.pi)
+        return float(wrapped(min(headings, key=lambda heading: crowding(centre, heading, obstacles, power=2)), np.pi))
 
     def _grasp(self, index: int) -> bool:
         body, piece = self.slots[index], self.structure.pieces[index]

@@ -207,6 +207,16 @@ class Structure:
         return cls(**raw)
 
 
+def symmetry(kind: str) -> float:
+    """The turn (radians) that maps a piece of ``kind`` onto itself: a quarter for a cube, a half for a plank."""
+    return np.pi / 2 if kind == "cube" else np.pi
+
+
+def wrapped(angle: float | np.ndarray, period: float) -> float | np.ndarray:
+    """``angle`` (radians) modulo ``period``, into [-period/2, period/2)."""
+    return (angle + period / 2) % period - period / 2
+
+
 def _is_finite(value: Any) -> bool:
     return (
         isinstance(value, (int, float, np.integer, np.floating))

@@ -17,7 +17,7 @@ from scipy.optimize import linear_sum_assignment
 from panda_grasp_env.geometry import is_count
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.model.structure_suite import PILLAR_OFFSET, as_structure, cube, level, plank
-from panda_grasp_env.model.structures import STRUCTURE_PHYSICS, Piece, Structure
+from panda_grasp_env.model.structures import STRUCTURE_PHYSICS, Piece, Structure, symmetry, wrapped
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.sim.stepping import body_speeds
@@ -139,9 +139,8 @@ class StructureBuild(Task):
             pieces = [s for s, k in enumerate(kinds) if k == kind]
             bodies = self._slots[pieces]
             yaws = np.arctan2(data.xmat[bodies][:, 3], data.xmat[bodies][:, 0])
-            period = np.pi / 2 if kind == "cube" else np.pi
             cost = np.linalg.norm(data.xpos[bodies][None, :, :] - self._targets[targets][:, None, :], axis=2)
-            turn = np.abs((yaws[None, :] - self._target_yaws[targets][:, None] + period / 2) % period - period / 2)
+            turn = np.abs(wrapped(yaws[None, :] - self._target_yaws[targets][:, None], symmetry(kind)))
             tilt = np.arccos(np.clip(data.xmat[bodies][:, 8], -1.0, 1.0))[None, :]
             fits = (cost <= PLACE_TOLERANCE) & (turn <= TURN_TOLERANCE) & (tilt <= TURN_TOLERANCE)
             rows, columns = linear_sum_assignment(np.where(fits, cost, 1.0 + cost))
