@@ -237,8 +237,7 @@ class PixelActions(ActionMode):
             "mode": self.name,
             "primitives": list(self.settings.primitives),
             "shape": list(self.shape),  # (primitive, rotation, row, column): the index's layout
-            "heightmap_bounds": [list(map(float, b)) for b in self.grid.bounds],
-            "heightmap_resolution": self.grid.resolution,
+            **self.grid.layout(),
             "push_distance": self.settings.push_distance,
         }
 

@@ -30,7 +30,7 @@ from panda_grasp_env.sim.rendering import RENDER_MODES, EnvRenderer, advertised_
 from panda_grasp_env.sim.starts import start_hand
 from panda_grasp_env.sim.stepping import PhysicsError
 from panda_grasp_env.sim.workcell import Workcell
-from panda_grasp_env.tasks import TaskStep, dense_reward
+from panda_grasp_env.tasks import TaskStep
 
 
 class PandaEnv(gym.Env):
@@ -122,8 +122,9 @@ class PandaEnv(gym.Env):
         #: Start state -> probability of an episode starting there (a training curriculum; empty: none).
         self.start_curriculum = options.start_curriculum
         mode = options.mode
-        #: Whether the agent sees and is rewarded by goals: a goal-conditioned task in a low-level mode.
-        self.goal_conditioned = mode.low_level and self.task.goal_conditioned
+        #: Whether the agent sees and is rewarded by goals: a goal-conditioned task in a low-level mode, or in
+        #: any mode where the task says so (``Task.goals_in_every_mode``).
+        self.goal_conditioned = self.task.goal_conditioned and (mode.low_level or self.task.goals_in_every_mode)
         self.task.fixed_hand_yaw = HOME_YAW if mode.fixed_hand_yaw else None
         # Low-level modes let the reference move EE_STEP per control step; primitives keep their own speeds.
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if mode.low_level else None
@@ -136,14 +137,13 @@ class PandaEnv(gym.Env):
         self.actions: ActionMode = mode.build(context)
         if self.goal_conditioned:
             # Only goal envs have compute_reward (vectorised, for HER): checkers treat its presence as "GoalEnv".
-            self.compute_reward = self.task.compute_reward if reward_type == "sparse" else dense_reward
-        # Primitive-mode agents of goal tasks see the goal at the end of the state vector.
-        self._goal_in_state = self.task.goal_conditioned and not mode.low_level
+            self.compute_reward = self.task.compute_reward if reward_type == "sparse" else self.task.dense_reward
+        self._goal_in_state = self.task.goal_conditioned and not self.goal_conditioned  # at the state vector's end
         goal_size = self.task.goal_size if self.goal_conditioned else None
         extra_size = self.task.properties_size + (self.task.goal_size if self._goal_in_state else 0)
-        self.observations = ObservationBuilder(
-            self.cell, options.modalities, options.cameras, self.sensors, goal_size, extra_size, self.task.command_size
-        )
+        drawing = None if goal_size is None else self.task.goal_heightmap  # the goal beside the heightmap
+        sizes = (goal_size, extra_size, self.task.command_size, drawing)
+        self.observations = ObservationBuilder(self.cell, options.modalities, options.cameras, self.sensors, *sizes)
         self.action_space = self.actions.space
         self.observation_space = self.observations.space
         self.randomizer = None if options.randomization is None else DomainRandomizer(options.randomization, self.cell)
@@ -251,6 +251,8 @@ class PandaEnv(gym.Env):
             "block_size": self.cell.config.block_size,
             "block_colours": dict(zip(self.cell.block_names, self.cell.config.colours.values())),
         }
+        if "heightmap" in self.observations.modalities:  # the grid the heightmap observations lie on
+            facts["heightmap_grid"] = self.sensors.grid.layout()
         layout = self.actions.layout()
         if layout is not None:
             facts["action_layout"] = layout

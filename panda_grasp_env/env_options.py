@@ -188,10 +188,12 @@ class EnvOptions:
                 )
         if sum(self.start_curriculum.values()) > 1.0:
             raise ValueError(f"the start_* probabilities must sum to <= 1, got {sum(self.start_curriculum.values())}")
-        if self.reward_type == "dense" and not (self.mode.low_level and task.goal_conditioned):
+        goals = task.goal_conditioned and (self.mode.low_level or task.goals_in_every_mode)
+        if self.reward_type == "dense" and not goals:
             raise ValueError(
-                f"reward_type='dense' is the goal distance of a goal-conditioned task in a low-level "
-                f"action mode; {task.name!r} in {self.action_mode!r} mode has no goal reward to make dense"
+                f"reward_type='dense' is the goal distance of a goal-conditioned task (in a low-level action "
+                f"mode, unless the task has goals in every mode); {task.name!r} in {self.action_mode!r} mode has "
+                f"no goal reward to make dense"
             )
         return self
 

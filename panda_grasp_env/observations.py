@@ -11,7 +11,8 @@
   optical axis; ``segmentation`` -- (H, W, 1) uint8 labels: 0 background
   (table, floor), 1 robot, 2 + i object slot i (blocks first);
 * ``heightmap`` -- (rows, cols, 4) float32: colour in 0-1 and height in metres
-  above the table, VPG-style, projected from the overhead camera's RGB-D.
+  above the table, VPG-style, projected from the overhead camera's RGB-D; a goal-conditioned env whose
+  task draws its goal (the structures) adds ``goal_heightmap`` (rows, cols, 1): the goal's heights, metres.
 
 One modality gives a bare ``Box``; several give a ``Dict``, and so does a task
 with a command (the directional TowerBreak's one-hot ``command``).  Goal-conditioned
@@ -166,7 +167,10 @@ class ObservationBuilder:
         goal_size: int | None,
         extra_state: int = 0,
         command_size: int = 0,
+        goal_heightmap: Callable[[HeightmapGrid], np.ndarray | None] | None = None,
     ) -> None:
+        """``goal_heightmap``: draws a goal-conditioned task's goal on a grid (``Task.goal_heightmap``); with a
+        heightmap modality, its drawing (if not None) is the ``goal_heightmap`` entry."""
         self.cell, self.modalities, self.cameras, self.sensors = cell, modalities, cameras, sensors
         self._needs_state = bool({"state", "proprio"} & set(modalities))
         self.goal_size = goal_size  # None: not goal-conditioned
@@ -202,6 +206,9 @@ class ObservationBuilder:
                 high = np.full((rows, cols, 4), 1.0, dtype=np.float32)
                 high[..., 3] = sensors.grid.bounds[2][1] - sensors.grid.bounds[2][0]
                 spaces["heightmap"] = gym.spaces.Box(np.zeros_like(high), high, dtype=np.float32)
+                if goal_heightmap is not None and goal_heightmap(sensors.grid) is not None:
+                    spaces["goal_heightmap"] = gym.spaces.Box(0.0, high[..., 3:], dtype=np.float32)
+                    self._goal_heightmap = goal_heightmap
             else:
                 for camera in cameras:
                     spaces[self.image_key(camera, modality)] = self._image_space(modality, height, width)
@@ -256,6 +263,8 @@ class ObservationBuilder:
         extra: np.ndarray | None = None,
         command: np.ndarray | None = None,
     ) -> Any:
+        """The observation: ``goals`` (achieved, desired) of a goal-conditioned env, ``extra`` state entries
+        (``extra_size``) and the task's ``command``."""
         out: dict[str, Any] = {}
         if "command" in self.keys:
             out["command"] = np.asarray(command, dtype=np.float32)
@@ -271,6 +280,8 @@ class ObservationBuilder:
                 out["heightmap"] = np.concatenate([colours / np.float32(255.0), heights[..., None]], axis=-1).astype(
                     np.float32
                 )
+                if "goal_heightmap" in self.keys:
+                    out["goal_heightmap"] = self._goal_heightmap(self.sensors.grid)[..., None].astype(np.float32)
             else:
                 for camera in self.cameras:
                     key = self.image_key(camera, modality)

@@ -9,6 +9,7 @@ covers world y = ``y_max - (j + 0.5) * resolution``.  Heights are metres above
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -43,6 +44,10 @@ class HeightmapGrid:
         ``heightmap_resolution``)."""
         bounds = tuple(tuple(pair) for pair in layout["heightmap_bounds"])
         return cls(bounds, layout["heightmap_resolution"])  # type: ignore[arg-type]
+
+    def layout(self) -> dict[str, Any]:
+        """The grid as ``of_layout`` reads it back: ``heightmap_bounds`` and ``heightmap_resolution``, JSON-able."""
+        return {"heightmap_bounds": [list(map(float, b)) for b in self.bounds], "heightmap_resolution": self.resolution}
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -146,3 +151,23 @@ def heightmap_from_rgbd(
     points = camera.depth_to_world_points(depth, window)
     colours = None if rgb is None else rgb[window].reshape(-1, 3)
     return heightmap_from_points(grid, points.reshape(-1, 3), colours)
+
+
+def heightmap_of_boxes(
+    grid: HeightmapGrid, centres: np.ndarray, half_extents: np.ndarray, yaws: np.ndarray
+) -> np.ndarray:
+    """The heightmap ((rows, cols) float32, metres above the grid's floor, clipped to its height) of upright boxes
+    turned ``yaws`` (n,) radians about z, with ``centres`` (n, 3) world metres and ``half_extents`` (n, 3): a
+    cell takes the highest top whose footprint holds the cell's centre, 0 where none does."""
+    rows, cols = grid.shape
+    cells = grid.cell_centres(*np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij"))
+    heights = np.zeros((rows, cols), dtype=np.float32)
+    floor, ceiling = grid.bounds[2]
+    for centre, half, yaw in zip(np.asarray(centres, float), np.asarray(half_extents, float), np.asarray(yaws, float)):
+        offset = cells - centre[:2]
+        along = offset[..., 0] * np.cos(yaw) + offset[..., 1] * np.sin(yaw)
+        across = -offset[..., 0] * np.sin(yaw) + offset[..., 1] * np.cos(yaw)
+        inside = (np.abs(along) <= half[0]) & (np.abs(across) <= half[1])
+        top = np.clip(centre[2] + half[2] - floor, 0.0, ceiling - floor)
+        heights[inside] = np.maximum(heights[inside], top)
+    return heights

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from panda_grasp_env.model.meshes import EVALUATION_OBJECTS, object_by_seed
+from panda_grasp_env.model.structure_suite import tier_structures
+from panda_grasp_env.model.structures import TIERS
 from panda_grasp_env.registration import ENV_IDS
 from panda_grasp_env.tasks.packed_layouts import ADVERSARIAL_LAYOUTS
 
@@ -38,6 +40,9 @@ class Benchmark:
     #: The benchmark this one varies (``TowerBuild`` for ``TowerBuild6``), or None: its planned baseline plays
     #: this one too (``panda_grasp_env.agents.evaluation.protocol.baseline``).
     variant_of: str | None = field(default=None, kw_only=True)
+    #: What the planned and oracle agents see on top of ``options``; None: RGB-D from both cameras
+    #: (``protocol.PERCEPTION``).
+    perception: Mapping[str, Any] | None = field(default=None, kw_only=True)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "options", dict(self.options))
@@ -85,6 +90,46 @@ def with_tall_towers(name: str, benchmark: Benchmark, steps_per_block: int | Non
         steps = {} if steps_per_block is None else {"max_episode_steps": steps_per_block * (n - 1)}
         options = {"n_blocks": n, **benchmark.options, **steps}
         benchmarks[tall] = replace(benchmark, options=options, by_default=False, variant_of=name)
+    return benchmarks
+
+
+#: What the structure benchmarks' envs give every agent: target heights and poses come with the goal; the
+#: heightmap covers the loose pieces' region (``sim.structure_layout.LOOSE_REGION``) at 4 mm, up to an
+#: eight-cube tower's top.
+STRUCTURE_OPTIONS = {
+    "primitive_z": True,
+    "obs_mode": "heightmap",
+    "heightmap_bounds": ((0.24, 0.76), (-0.36, 0.36), (0.0, 0.45)),
+    "heightmap_resolution": 0.004,
+}
+
+
+def structure_benchmarks() -> dict[str, Benchmark]:
+    """``Structure``: the env's ``structure`` option (random structures of tiers 1-3, or yours through
+    ``--task-options structure=...``); ``Structures1`` .. ``Structures6``: each tier of the named suite, one
+    structure per seed in turn (seed ``s`` builds the tier's structure ``s mod n``), 10 seeds per structure in
+    the full protocol."""
+    benchmarks = {
+        "Structure": Benchmark(
+            "PandaStructure-v0", STRUCTURE_OPTIONS, quick_seeds=5, full_seeds=50, by_default=False, perception={}
+        )
+    }
+    for tier in range(1, len(TIERS) + 1):
+        names = [s.name for s in tier_structures(tier)]
+        pieces = max(len(s.kinds) for s in tier_structures(tier))
+
+        def by_seed(seed: int, names: list[str] = names) -> dict[str, Any]:
+            return {"structure": names[seed % len(names)]}
+
+        benchmarks[f"Structures{tier}"] = Benchmark(
+            "PandaStructure-v0",
+            {**STRUCTURE_OPTIONS, "max_pieces": pieces},
+            quick_seeds=len(names),
+            full_seeds=10 * len(names),
+            reset_options=by_seed,
+            by_default=False,
+            perception={},  # the heightmap of the options
+        )
     return benchmarks
 
 
@@ -142,6 +187,7 @@ BUILT_IN_BENCHMARKS: dict[str, Benchmark] = {
     ),
     "Push": Benchmark("PandaPush-v0", quick_seeds=20, full_seeds=100),
     "PutInBin": Benchmark("PandaPutInBin-v0", quick_seeds=10, full_seeds=100),
+    **structure_benchmarks(),
 }
 
 for _name, _benchmark in BUILT_IN_BENCHMARKS.items():

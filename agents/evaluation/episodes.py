@@ -29,7 +29,8 @@ from panda_grasp_env.agents.policies.registry import EXPERTS, NAMED_AGENTS
 
 
 def make_env(spec: EpisodeSpec) -> gym.Env:
-    """A new env for ``spec``: the task's benchmark env (with ``PERCEPTION`` for the planned and oracle agents,
+    """A new env for ``spec``: the task's benchmark env (with ``PERCEPTION``, or the benchmark's own
+    ``perception``, for the planned and oracle agents,
     a learned checkpoint's own observations and actions for it: ``learned_env``; a phased agent's: ``phased_env``),
     the spec's options on top."""
     from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
@@ -43,7 +44,7 @@ def make_env(spec: EpisodeSpec) -> gym.Env:
     benchmark = BENCHMARKS[spec.task]
     options = dict(benchmark.options)
     if spec.agent in ("planned", "oracle"):  # they see the scene through cameras
-        options |= PERCEPTION
+        options |= PERCEPTION if benchmark.perception is None else benchmark.perception
     if spec.agent in NAMED_AGENTS:
         options |= NAMED_AGENTS[spec.agent].env_options
     return gym.make(f"panda_grasp_env:{benchmark.env_id}", **(options | spec.make_options))  # the spec's options win
@@ -196,7 +197,8 @@ def episode_failure(
 ) -> str | None:
     """Why an episode ended without success (None if it succeeded), from its last step's ``info``: the
     simulation diverged; a directional break toppled the tower the wrong way; a failed primitive knocked the
-    tower over; a built tower fell; objects left the workspace; the step limit (``out_of_steps``) ran out;
+    tower over; a built tower fell; objects left the workspace; the task's own ``failure_reason``; the step
+    limit (``out_of_steps``) ran out;
     the task gave up (Grasp's K consecutive failures); or else the MDP ended lost (a block set aside or out of
     reach)."""
     if success:
@@ -210,6 +212,8 @@ def episode_failure(
     ):
         if info.get(flag):
             return reason
+    if info.get("failure_reason"):  # a task's own name for it (StructureBuild's collapsed, scaffold_left, ...)
+        return str(info["failure_reason"])
     if out_of_steps:
         return "step_limit"
     return "gave_up" if truncated else "lost"

@@ -27,6 +27,7 @@ import gymnasium as gym
 import panda_grasp_env.agents.policies.experts
 import panda_grasp_env.agents.policies.grasping
 import panda_grasp_env.agents.policies.put_in_bin
+import panda_grasp_env.agents.policies.structures
 import panda_grasp_env.agents.policies.towers  # noqa: F401
 from panda_grasp_env.actions import ACTION_MODES
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS

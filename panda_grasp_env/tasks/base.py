@@ -15,7 +15,10 @@ Two kinds of step reach a task:
 * *low-level* steps (``ee_delta`` and ``joint`` modes, 25 Hz): ``evaluate`` is
   called with ``None``.  Goal-conditioned tasks (``goal_conditioned = True``)
   then also publish ``achieved_goal`` / ``desired_goal`` and a vectorised
-  ``compute_reward``, Fetch-style, so SB3's HER replay buffer works.
+  ``compute_reward``, Fetch-style, so SB3's HER replay buffer works -- in the
+  primitive modes too where ``goals_in_every_mode`` is set (the structures, whose
+  goal is the whole episode's subject); elsewhere a primitive-mode agent sees the
+  goal at the end of the state vector.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import numpy as np
 
 from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.model.scene import UNIFORM_BLOCK_COLOUR, SceneConfig
+from panda_grasp_env.perception.heightmap import HeightmapGrid
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import EnvId
 from panda_grasp_env.sim.workcell import Workcell
@@ -62,6 +66,9 @@ class Task(ABC):
     primitives: ClassVar[tuple[str, ...]] = ("grasp", "push", "place")
     #: Whether the task publishes goals for the low-level action modes.
     goal_conditioned: ClassVar[bool] = False
+    #: Whether a goal-conditioned task publishes them in the primitive and pixel modes too (a ``Dict``
+    #: observation with the goals, rewarded by ``compute_reward``), instead of at the end of the state vector.
+    goals_in_every_mode: ClassVar[bool] = False
     #: Action mode used when ``make`` is not given one.
     default_action_mode: ClassVar[str] = "primitive"
     #: Where low-level episodes may start besides the ready pose, relative to ``start_object`` (the env's
@@ -150,6 +157,15 @@ class Task(ABC):
         Vectorised: goals may carry leading batch dimensions (SB3's HER relabels in batches).
         """
         return goals_reached(achieved_goal, desired_goal).astype(np.float32) - 1.0
+
+    def dense_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
+        """The ``reward_type="dense"`` reward: ``dense_reward``'s goal distance unless a task knows better."""
+        return dense_reward(achieved_goal, desired_goal, info)
+
+    def goal_heightmap(self, grid: HeightmapGrid) -> np.ndarray | None:
+        """The goal as a heightmap on ``grid`` ((rows, cols) float32 metres above its floor) for pixel agents,
+        or None where the goal has no shape to draw (the default)."""
+        return None
 
 
 #: The ``reward_type`` options of goal-conditioned low-level envs.

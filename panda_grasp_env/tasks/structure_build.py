@@ -17,7 +17,8 @@ from scipy.optimize import linear_sum_assignment
 from panda_grasp_env.geometry import is_count
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.model.structure_suite import PILLAR_OFFSET, as_structure, cube, level, plank
-from panda_grasp_env.model.structures import STRUCTURE_PHYSICS, Piece, Structure, symmetry, wrapped
+from panda_grasp_env.model.structures import BLOCK_KINDS, STRUCTURE_PHYSICS, Piece, Structure, symmetry
+from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_of_boxes
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import EnvId, register_task
 from panda_grasp_env.sim.stepping import body_speeds
@@ -33,6 +34,63 @@ AWAY_DISTANCE = 0.08
 STILL_TIME, STILL_SPEED = 2.0, 0.01
 #: The most pieces a random structure has, and the default.
 MAX_PIECES, DEFAULT_PIECES = 8, 6
+#: A goal vector holds this many entries per object slot: centre x, y, z (world metres), the cosine and sine of
+#: the heading times the turns that map the piece onto itself (4 for a cube, 2 for a plank: equal for every
+#: equivalent heading), the tilt from upright (radians) and the kind (``KIND_CODES``; 0: no piece).
+GOAL_FIELDS = 7
+#: A piece kind's code in goal vectors.
+KIND_CODES = {kind: code for code, kind in enumerate(BLOCK_KINDS, start=1)}
+
+
+def goal_rows(kinds: list[str], positions: np.ndarray, yaws: np.ndarray, tilts: np.ndarray, slots: int) -> np.ndarray:
+    """Goal-vector rows (``slots``, ``GOAL_FIELDS``) of pieces of ``kinds`` at ``positions`` (n, 3) with ``yaws`` and
+    ``tilts`` (n,), radians; rows past the pieces are zeros (no piece)."""
+    rows = np.zeros((slots, GOAL_FIELDS))
+    turns = np.array([2 * np.pi / symmetry(kind) for kind in kinds])
+    n = len(kinds)
+    rows[:n, 0:3] = positions
+    rows[:n, 3], rows[:n, 4] = np.cos(turns * yaws), np.sin(turns * yaws)
+    rows[:n, 5] = tilts
+    rows[:n, 6] = [KIND_CODES[kind] for kind in kinds]
+    return rows
+
+
+def match_goal(achieved: np.ndarray, desired: np.ndarray) -> tuple[list[tuple[int, int]], float]:
+    """Match pieces to targets, given as goal-vector rows (``goal_rows``): each kind's pieces to its targets by
+    the assignment of least total distance (Hungarian), preferring pieces within ``PLACE_TOLERANCE``,
+    ``TURN_TOLERANCE`` and upright within ``TURN_TOLERANCE``.  Returns the (target row, piece row) pairs so
+    matched, and the mean distance (metres) from each target to its assigned piece."""
+    pairs, distance = [], 0.0
+    targets_of_kind = desired[:, 6].round().astype(int)
+    pieces_of_kind = achieved[:, 6].round().astype(int)
+    for code in set(targets_of_kind[targets_of_kind > 0]):
+        target_rows, pieces = np.flatnonzero(targets_of_kind == code), np.flatnonzero(pieces_of_kind == code)
+        targets = desired[target_rows]
+        turns = 2 * np.pi / symmetry(list(KIND_CODES)[code - 1])
+        ours = achieved[pieces]
+        cost = np.linalg.norm(ours[None, :, :3] - targets[:, None, :3], axis=2)
+        cross = targets[:, None, 3] * ours[None, :, 4] - targets[:, None, 4] * ours[None, :, 3]
+        dot = targets[:, None, 3] * ours[None, :, 3] + targets[:, None, 4] * ours[None, :, 4]
+        turn = np.abs(np.arctan2(cross, dot)) / turns
+        fits = (cost <= PLACE_TOLERANCE) & (turn <= TURN_TOLERANCE) & (ours[None, :, 5] <= TURN_TOLERANCE)
+        rows, columns = linear_sum_assignment(np.where(fits, cost, 1.0 + cost))
+        distance += float(cost[rows, columns].sum()) + 1.0 * (len(targets) - len(rows))  # a piece short: 1 m
+        pairs += [(int(target_rows[r]), int(pieces[c])) for r, c in zip(rows, columns) if fits[r, c]]
+    return pairs, distance / max(int((targets_of_kind > 0).sum()), 1)
+
+
+def _per_goal(achieved_goal: np.ndarray, desired_goal: np.ndarray, score: Any) -> np.ndarray:
+    """``score(achieved rows, desired rows)`` for each pair of goal vectors (..., slots * ``GOAL_FIELDS``)."""
+    achieved, desired = np.asarray(achieved_goal, dtype=float), np.asarray(desired_goal, dtype=float)
+    batch = achieved.shape[:-1]
+    pairs = zip(achieved.reshape(-1, achieved.shape[-1]), desired.reshape(-1, desired.shape[-1]))
+    values = [score(a.reshape(-1, GOAL_FIELDS), d.reshape(-1, GOAL_FIELDS)) for a, d in pairs]
+    return np.asarray(values, dtype=np.float32).reshape(batch)
+
+
+def placed_reward(achieved: np.ndarray, desired: np.ndarray) -> float:
+    """Minus the fraction of the goal's targets that no piece stands in (``match_goal``): 0 once all do."""
+    return len(match_goal(achieved, desired)[0]) / max(int((desired[:, 6] > 0).sum()), 1) - 1.0
 
 
 def random_structure(rng: np.random.Generator, max_pieces: int) -> Structure:
@@ -62,36 +120,52 @@ class StructureBuild(Task):
     """Build ``structure`` (options below), or take its ``removed`` pieces off it, with the primitives.
 
     Options: ``structure``: a suite name, a ``Structure`` or its mapping, or ``"random"`` (default: one drawn
-    per episode, ``random_structure``); ``max_pieces``: the random structures' most pieces (2-8, default 6;
-    the scene holds as many object slots).  ``info`` at reset gives ``structure`` (its name), ``n_targets``
-    and the goal pieces' ``targets`` (centres, world metres) and ``target_yaws`` (radians), padded with zeros
-    to the scene's object slots; after each step ``structure``, ``in_place`` (goal
-    pieces within 1 cm and 10 degrees of a target of their kind, identical pieces matched optimally),
-    ``placed_fraction``, ``away`` (removed and scaffold pieces 8 cm or more from the goal) and, on failure,
-    ``failure_reason``: ``collapsed`` (a piece in place fell out of it), ``lost`` (a piece left the table)
-    or ``scaffold_left``.  Success: every goal piece in place, nothing else in the goal's way, nothing held,
-    the pieces still for 2 s (the step waits up to 3 s for that once every piece is in place).  Reward: the
-    change in the placed fraction, +1 on success.  Terminates on success or when a piece leaves the table.
+    per episode, ``random_structure``); ``max_pieces``: the scene's object slots (2-8; default: the structure's
+    pieces, or 6 for random ones), the most pieces a random structure or a ``reset(options={"structure":
+    ...})`` one may have.
+
+    Goal-conditioned in every action mode: the observation is a ``Dict`` with ``achieved_goal`` (every object
+    slot's pose, ``goal_rows``) and ``desired_goal`` (the goal pieces' target poses, padded), and in pixel
+    observations ``goal_heightmap``, the goal drawn on the heightmap's grid.  ``compute_reward`` is minus the
+    fraction of targets that no piece of their kind stands in (within 1 cm and 10 degrees, upright; identical
+    pieces matched optimally, ``match_goal``), vectorised for hindsight relabelling; ``reward_type="dense"``
+    adds nothing but distance: minus the mean distance (metres) from each target to its matched piece.
+
+    ``info`` at reset gives ``structure`` (its name), ``n_targets`` and the goal pieces' ``targets`` (centres,
+    world metres) and ``target_yaws`` (radians), padded with zeros to the scene's object slots; after each step
+    ``structure``, ``in_place`` (targets a piece stands in), ``placed_fraction``, ``away`` (removed and scaffold
+    pieces 8 cm or more from the goal) and, once something went wrong and until success, ``failure_reason``,
+    the episode's last: ``collapsed`` (a piece in place fell out of it), ``lost`` (a piece left the table) or
+    ``scaffold_left`` (every target built, a scaffold still in the goal).  Success: every target held by a
+    piece, nothing else in the goal's way, nothing held, the pieces still for 2 s (the step waits up to 3 s for
+    that once every piece is in place).  Terminates on success or when a piece leaves the table.
     """
 
     name = "StructureBuild"
     env_ids = {"PandaStructure-v0": EnvId(40)}
     primitives = ("grasp", "place", "push")
+    goal_conditioned = True
+    goals_in_every_mode = True
+    reset_options = ("structure",)
 
-    def __init__(self, structure: Any = "random", max_pieces: int = DEFAULT_PIECES) -> None:
-        valid = is_count(max_pieces) and 2 <= max_pieces <= MAX_PIECES
-        check_option("max_pieces", max_pieces, valid, f"an int in [2, {MAX_PIECES}]")
+    def __init__(self, structure: Any = "random", max_pieces: int | None = None) -> None:
         try:
             self.fixed = None if structure == "random" else as_structure(structure)
         except ValueError as error:
             raise ValueError(f"task option 'structure': {error}") from None
-        self.n_slots = max_pieces if self.fixed is None else len(self.fixed.kinds)
-        self.structure: Structure = self.fixed or random_structure(np.random.default_rng(0), max_pieces)
-        self.max_pieces = max_pieces
+        fewest = 2 if self.fixed is None else len(self.fixed.kinds)
+        valid = max_pieces is None or (is_count(max_pieces) and max(fewest, 2) <= max_pieces <= MAX_PIECES)
+        check_option("max_pieces", max_pieces, valid, f"None or an int in [{max(fewest, 2)}, {MAX_PIECES}]")
+        default = DEFAULT_PIECES if self.fixed is None else fewest
+        self.n_slots = default if max_pieces is None else max_pieces
+        self.structure: Structure = self.fixed or random_structure(np.random.default_rng(0), self.n_slots)
+        self._episode_structure: Structure | None = None
         self._targets = np.zeros((0, 3))
         self._target_yaws = np.zeros(0)
+        self._target_kinds: list[str] = []
         self._slots = np.zeros(0, dtype=int)
         self._placed = 0
+        self._failure = ""  # the episode's last named failure
         self._still_since: float | None = None
         #: Where this episode's structure stands and its loose pieces lay at the start (set at reset).
         self.layout: StructureLayout | None = None
@@ -104,8 +178,29 @@ class StructureBuild(Task):
         moved = len(self.structure.removed) if self.structure.prebuilt else len(self.structure.pieces)
         return 2 * (moved + 2 * len(self.structure.scaffold))
 
+    @property
+    def goal_size(self) -> int:
+        return self.n_slots * GOAL_FIELDS
+
+    def apply_reset_options(self, cell: Workcell, options: dict[str, Any]) -> None:
+        """``structure``: this episode's structure (a suite name, a ``Structure`` or its mapping) with at most
+        ``max_pieces`` pieces; the next episodes go back to the ``structure`` option's."""
+        self._episode_structure = None
+        if "structure" not in options:
+            return
+        try:
+            structure = as_structure(options["structure"])
+        except ValueError as error:
+            raise ValueError(f"reset option 'structure': {error}") from None
+        if len(structure.kinds) > self.n_slots:
+            raise ValueError(
+                f"reset option 'structure': {structure.name!r} has {len(structure.kinds)} pieces; this env has "
+                f"{self.n_slots} object slots (make it with max_pieces={len(structure.kinds)} or more)"
+            )
+        self._episode_structure = structure
+
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
-        self.structure = self.fixed or random_structure(rng, self.max_pieces)
+        self.structure = self._episode_structure or self.fixed or random_structure(rng, self.n_slots)
         # Slots this structure leaves unused wait parked as cubes: a parked slot's height follows its shape, so
         # the last episode's shape would show in this one's observations.
         unused = cell.object_ids[len(self.structure.kinds) :]
@@ -116,8 +211,10 @@ class StructureBuild(Task):
         targets, yaws = self.structure.world_poses(layout.origin, layout.heading)
         goal = [i for i in range(len(self.structure.pieces)) if i not in self.structure.removed]
         self._targets, self._target_yaws = targets[goal], yaws[goal]
+        self._target_kinds = [self.structure.pieces[i].kind for i in goal]
         self._slots = cell.object_ids[: len(self.structure.kinds)]
         self._still_since = None
+        self._failure = ""
         self._placed = self.in_place(cell)
         # Padded to the scene's slots, so that every episode's info has one shape (vector envs stack it).
         targets, target_yaws = np.zeros((self.n_slots, 3)), np.zeros(self.n_slots)
@@ -129,26 +226,33 @@ class StructureBuild(Task):
             "target_yaws": target_yaws,
         }
 
+    # --- goals ----------------------------------------------------------------------
+    def achieved_goal(self, cell: Workcell) -> np.ndarray:
+        data, bodies = cell.data, self._slots
+        xmat = data.xmat[bodies]
+        yaws = np.arctan2(xmat[:, 3], xmat[:, 0])
+        tilts = np.arccos(np.clip(xmat[:, 8], -1.0, 1.0))
+        return goal_rows(list(self.structure.kinds), data.xpos[bodies], yaws, tilts, self.n_slots).ravel()
+
+    def desired_goal(self) -> np.ndarray:
+        upright = np.zeros(len(self._targets))
+        return goal_rows(self._target_kinds, self._targets, self._target_yaws, upright, self.n_slots).ravel()
+
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
+        return _per_goal(achieved_goal, desired_goal, placed_reward)
+
+    def dense_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
+        return _per_goal(achieved_goal, desired_goal, lambda a, d: -match_goal(a, d)[1])
+
+    def goal_heightmap(self, grid: HeightmapGrid) -> np.ndarray:
+        halves = np.array([BLOCK_KINDS[kind] for kind in self._target_kinds]).reshape(-1, 3)
+        return heightmap_of_boxes(grid, self._targets, halves, self._target_yaws)
+
     def _matches(self, cell: Workcell) -> tuple[int, set[int]]:
         """How many goal targets a piece of their kind stands in, and the slot indices of those pieces."""
-        data, kinds = cell.data, self.structure.kinds
-        goal_kinds = [p.kind for p in self.structure.goal]
-        placed, used = 0, set()
-        for kind in set(goal_kinds):
-            targets = [t for t, k in enumerate(goal_kinds) if k == kind]
-            pieces = [s for s, k in enumerate(kinds) if k == kind]
-            bodies = self._slots[pieces]
-            yaws = np.arctan2(data.xmat[bodies][:, 3], data.xmat[bodies][:, 0])
-            cost = np.linalg.norm(data.xpos[bodies][None, :, :] - self._targets[targets][:, None, :], axis=2)
-            turn = np.abs(wrapped(yaws[None, :] - self._target_yaws[targets][:, None], symmetry(kind)))
-            tilt = np.arccos(np.clip(data.xmat[bodies][:, 8], -1.0, 1.0))[None, :]
-            fits = (cost <= PLACE_TOLERANCE) & (turn <= TURN_TOLERANCE) & (tilt <= TURN_TOLERANCE)
-            rows, columns = linear_sum_assignment(np.where(fits, cost, 1.0 + cost))
-            for row, column in zip(rows, columns):
-                if fits[row, column]:
-                    placed += 1
-                    used.add(pieces[column])
-        return placed, used
+        desired = self.desired_goal().reshape(-1, GOAL_FIELDS)
+        pairs, _ = match_goal(self.achieved_goal(cell).reshape(-1, GOAL_FIELDS), desired)
+        return len(pairs), {piece for _, piece in pairs}
 
     def in_place(self, cell: Workcell) -> int:
         """Goal targets a piece of their kind stands in (within ``PLACE_TOLERANCE`` and ``TURN_TOLERANCE``)."""
@@ -191,12 +295,14 @@ class StructureBuild(Task):
             "away": away,
         }
         if lost:
-            info["failure_reason"] = "lost"
+            self._failure = "lost"
         elif placed < self._placed:
-            info["failure_reason"] = "collapsed"
+            self._failure = "collapsed"
         elif placed == len(self._targets) and not away and self.structure.scaffold:
-            info["failure_reason"] = "scaffold_left"
-        reward = (placed - self._placed) / len(self._targets) + (1.0 if success else 0.0)
+            self._failure = "scaffold_left"
+        if self._failure and not success:
+            info["failure_reason"] = self._failure
+        reward = placed / len(self._targets) - 1.0  # as compute_reward
         self._placed = placed
         return TaskStep(float(reward), success, success or lost, info)
 

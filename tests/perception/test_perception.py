@@ -5,7 +5,12 @@ import pytest
 
 from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.perception.camera import CameraModel
-from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_from_points, heightmap_from_rgbd
+from panda_grasp_env.perception.heightmap import (
+    HeightmapGrid,
+    heightmap_from_points,
+    heightmap_from_rgbd,
+    heightmap_of_boxes,
+)
 from panda_grasp_env.perception.noise import DepthNoise, RGBNoise
 from panda_grasp_env.perception.pose import (
     BlockPose,
@@ -296,3 +301,17 @@ def test_a_filled_heightmap_hole_takes_its_highest_neighbours_height_and_colour(
     heights, colours = heightmap_from_points(grid, points, np.array([[255, 0, 0], [0, 255, 0]], np.uint8))
     assert heights[1, 0] == pytest.approx(0.05)
     assert colours[1, 0].tolist() == [255, 0, 0]  # the red neighbour's colour, not a channel-wise max (yellow)
+
+
+def test_boxes_draw_their_tops_on_the_heightmap_grid():
+    grid = HeightmapGrid(((0.3, 0.7), (-0.2, 0.2), (0.0, 0.3)), 0.002)
+    centres = np.array([[0.5, 0.0, 0.025], [0.5, 0.0, 0.075]])
+    halves = np.array([[0.025, 0.025, 0.025], [0.07, 0.025, 0.025]])
+    heights = heightmap_of_boxes(grid, centres, halves, np.array([0.0, np.pi / 2]))
+    assert heights.max() == pytest.approx(0.1)
+    # The plank turned a quarter: 5 cm along x, 14 cm along y.
+    assert (heights > 0).sum() * 0.002**2 == pytest.approx(0.05 * 0.14, rel=0.05)
+    row, col = (int(i) for i in grid.world_to_cell(np.array([0.5, 0.06])))
+    assert heights[row, col] == pytest.approx(0.1)
+    row, col = (int(i) for i in grid.world_to_cell(np.array([0.54, 0.0])))
+    assert heights[row, col] == 0.0

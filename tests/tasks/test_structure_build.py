@@ -8,7 +8,7 @@ from panda_grasp_env.agents.policies.structure_builder import build_structure
 from panda_grasp_env.env import PandaEnv
 from panda_grasp_env.model.structure_suite import SUITE
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.tasks.structure_build import StructureBuild, random_structure
+from panda_grasp_env.tasks.structure_build import GOAL_FIELDS, StructureBuild, random_structure
 
 PLACED = PrimitiveResult("place", True, "ok")
 
@@ -20,6 +20,7 @@ PLACED = PrimitiveResult("place", True, "ok")
         ({"structure": "tower_99"}, "structure"),
         ({"structure": {"name": "x"}}, "structure"),
         ({"max_pieces": 1}, "max_pieces"),
+        ({"structure": "ring_8", "max_pieces": 6}, "max_pieces"),
     ],
 )
 def test_bad_options_name_the_culprit(options, culprit):
@@ -48,6 +49,58 @@ def test_the_certificate_builds_what_the_task_calls_a_success(structure, seed):
     assert build_structure(env.cell, task.structure, task.layout, slots).success
     after = task.evaluate(env.cell, PLACED)
     assert after.success and after.terminated and after.info["placed_fraction"] == 1.0 and after.info["away"]
+    observation = env._observe()
+    assert after.reward == env.compute_reward(observation["achieved_goal"], observation["desired_goal"], {}) == 0.0
+    env.close()
+
+
+def test_goals_are_observed_in_the_primitive_mode_and_relabel_as_hindsight_needs():
+    env = PandaEnv(task="StructureBuild", structure="bridge", obs_mode="state")
+    observation, info = env.reset(seed=0)
+    assert set(observation) == {"observation", "achieved_goal", "desired_goal"}
+    assert env.observation_space.contains(observation)
+    desired = observation["desired_goal"].reshape(-1, GOAL_FIELDS)
+    np.testing.assert_allclose(desired[:, :3], info["targets"], atol=1e-6)
+    assert list(desired[:, 6]) == [1, 1, 2]  # cube, cube, plank
+    achieved = observation["achieved_goal"]
+    assert env.compute_reward(achieved, observation["desired_goal"], {}) == -1.0  # nothing built yet
+    # Hindsight: what was achieved, taken as the goal, is reached; batches keep their shape.
+    batch = np.stack([achieved, observation["desired_goal"]])
+    np.testing.assert_array_equal(env.compute_reward(batch, batch[[0, 0]], {}), [0.0, -1.0])
+    # One cube on a target: a third of the goal.
+    one = achieved.reshape(-1, GOAL_FIELDS).copy()
+    one[0, :5] = desired[1, :5]
+    assert env.compute_reward(one.ravel(), observation["desired_goal"], {}) == pytest.approx(-2 / 3)
+    one[0, 5] = 0.5  # tilted 29 degrees: not in place
+    assert env.compute_reward(one.ravel(), observation["desired_goal"], {}) == -1.0
+    env.close()
+
+
+def test_pixel_observations_draw_the_goal_and_dense_rewards_measure_distance():
+    env = PandaEnv(
+        task="StructureBuild", structure="portal", obs_mode="heightmap", action_mode="pixel", reward_type="dense"
+    )
+    observation, _ = env.reset(seed=1)
+    goal = observation["goal_heightmap"][..., 0]
+    assert env.observation_space.contains(observation)
+    assert goal.max() == pytest.approx(0.15, abs=1e-6)  # the lintel's top: two cubes and a plank
+    # Four 5 cm pillars' and a 14 x 5 cm lintel's footprint, in 2 mm cells (the lintel covers the pillars' tops).
+    assert abs((goal > 0).sum() * 0.002**2 - 0.14 * 0.05) < 0.0015
+    reward = env.compute_reward(observation["achieved_goal"], observation["desired_goal"], {})
+    assert -1.0 < reward < -0.05  # metres from the loose pieces to their targets
+    env.close()
+
+
+@pytest.mark.unit
+def test_an_episode_may_build_another_structure_that_fits_the_slots():
+    env = PandaEnv(task="StructureBuild", max_pieces=7, obs_mode="state")
+    _, info = env.reset(seed=0, options={"structure": "table"})
+    assert info["structure"] == "table" and info["n_targets"] == 7
+    _, info = env.reset(seed=0)
+    assert info["structure"].startswith("random_")
+    for bad, culprit in ((("ring_8"), "8 pieces"), ("tower_99", "structure")):
+        with pytest.raises(ValueError, match=culprit):
+            env.reset(seed=0, options={"structure": bad})
     env.close()
 
 
