@@ -70,8 +70,6 @@ class StructurePlanner:
         kind = "lookahead" if lookahead else "greedy"
         self.name = f"structure_{kind}_{perceiver.name}"
         self.failures: Counter = Counter()
-        #: What-if runs per decision, for the report (the lookahead's budget spent).
-        self.what_ifs: list[int] = []
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
         if not isinstance(observation, dict) or "desired_goal" not in observation:
@@ -225,7 +223,6 @@ class StructurePlanner:
                 break
             runs += 1
             if self._stands(index, seen, []).stands:
-                self.what_ifs.append(runs)
                 return index
         for index in ready:
             for column in self._scaffold_columns(index, seen):
@@ -234,9 +231,7 @@ class StructurePlanner:
                 runs += 1
                 if self._stands(index, seen, column).stands:
                     self.scaffolds = column
-                    self.what_ifs.append(runs)
                     return None
-        self.what_ifs.append(runs)
         return ready[0] if ready else None
 
     def _pinches(self, index: int, filled: np.ndarray) -> int:

@@ -1,7 +1,8 @@
 """Did my change matter?  ``evaluate.py compare RUN_A RUN_B`` (or ``panda-evaluate compare``) compares two
 results folders (``evaluate.py --out``) cell by cell: for each (agent, task) both ran, the difference in each
 rate, tested, and a verdict — "better", "worse" or "no detectable change" (B against A) — at a stated level
-after a correction for the number of tests.
+after a correction for the number of tests.  ``--agents A,B`` compares two agents instead, task by task:
+A's cells in RUN_A against B's in RUN_B (one run may be both).
 
 - Trial success and completion (one outcome per episode): Fisher's exact test for two proportions
   (two-sided; conditional, so conservative at small N).
@@ -70,6 +71,23 @@ def load(folder: Path) -> dict[str, Any]:
         return json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as error:
         raise ValueError(f"{folder} is not a finished evaluate.py results folder ({path}: {error})") from None
+
+
+def one_agent(results: dict[str, Any], agent: str, label: str) -> dict[str, Any]:
+    """``results`` with only ``agent``'s cells and episodes, the agent named ``label``: two agents' cells
+    compared as one (``--agents``).  ``ValueError`` if the run has no episode of ``agent``."""
+    metrics = {
+        f"{label}/{task}": figures
+        for key, figures in results["metrics"].items()
+        for name, task in [split_key(key)]
+        if name == agent
+    }
+    if not metrics:
+        raise ValueError(f"the run has no episodes of agent {agent!r}")
+    episodes = [
+        {**e, "spec": {**e["spec"], "agent": label}} for e in results["episodes"] if e["spec"]["agent"] == agent
+    ]
+    return {**results, "metrics": metrics, "episodes": episodes}
 
 
 def protocol_differences(a: dict[str, Any], b: dict[str, Any]) -> tuple[list[str], list[str]]:
@@ -344,7 +362,15 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--alpha", type=float, default=0.05, help="level of the corrected tests (default 0.05)")
     parser.add_argument("--correction", choices=list(CORRECTIONS), default="holm", help="multiple-test correction")
     parser.add_argument("--out", type=Path, default=None, help="the HTML page (default RUN_B/compare.html)")
+    parser.add_argument(
+        "--agents",
+        default=None,
+        metavar="A,B",
+        help="compare agent A of RUN_A with agent B of RUN_B, task by task (RUN_A and RUN_B may be one run)",
+    )
     args = parser.parse_args(argv)
+    if args.agents is not None and len(args.agents.split(",")) != 2:
+        parser.error(f"--agents takes two agent names, A,B; got {args.agents!r}")
     if not 0 < args.alpha < 1:
         parser.error(f"--alpha must lie in (0, 1), got {args.alpha}")
     return args
@@ -354,6 +380,10 @@ def main(argv: list[str]) -> int:
     args = parse_args(argv)
     try:
         a, b = load(args.run_a), load(args.run_b)
+        if args.agents is not None:
+            agent_a, agent_b = args.agents.split(",")
+            label = f"{agent_a}→{agent_b}"
+            a, b = one_agent(a, agent_a, label), one_agent(b, agent_b, label)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -133,3 +133,13 @@ def test_corrections_and_tests():
     # 5/5 grasps in each of run A's episodes, 0/5 in B's: the smallest p ten episodes can give
     numerators = np.array([5.0] * 5 + [0.0] * 5)
     assert compare.ratio_permutation(numerators, np.full(10, 5.0), in_a) < 0.02
+
+
+def test_two_agents_of_one_run_are_compared_task_by_task(tmp_path, capsys):
+    run = write_run(tmp_path / "a", 1, weaken=("planned", "TowerBuild"))
+    out = verdicts(capsys, run, run, "--agents", "planned,oracle", "--out", tmp_path / "c.html")
+    # planned (0.3) against oracle (0.95) on TowerBuild; GraspClutter has no oracle cell.
+    assert "1 (agent, task) cells" in out and "1 better" in out
+    assert any(line.startswith("BETTER") and "planned→oracle/TowerBuild" in line for line in out.splitlines())
+    assert evaluate.main(["compare", str(run), str(run), "--agents", "planned,nobody"]) == 2
+    assert "no episodes of agent 'nobody'" in capsys.readouterr().err

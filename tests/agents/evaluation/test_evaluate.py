@@ -462,3 +462,14 @@ def test_evaluate_runs_a_shipped_checkpoint_by_name_and_skips_other_tasks(finish
     assert (out / "curve_tiny.png").exists()
     with pytest.raises(SystemExit):
         evaluate.main(["--agents", "nope", "--out", str(out)])
+
+
+def test_a_users_structure_in_a_protocol_file_is_built_by_the_lookahead_planner(tmp_path):
+    """docs/examples/gate_protocol.yaml: a structure defined outside the package, built through evaluate.py."""
+    from pathlib import Path
+
+    protocol = Path(__file__).resolve().parents[3] / "docs" / "examples" / "gate_protocol.yaml"
+    flags = ["--config", str(protocol), "--agents", "planned_lookahead", "--seeds", "1", "--no-video"]
+    assert evaluate.main([*flags, "--out", str(tmp_path)]) == 0
+    (episode,) = json.loads((tmp_path / "results.json").read_text())["episodes"]
+    assert episode["spec"]["task"] == "Structure" and episode["success"], episode
