@@ -15,17 +15,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from panda_grasp_env.model.structures import Piece, Structure, symmetry, wrapped
+from panda_grasp_env.model.structures import Structure, grip_headings, symmetry, wrapped
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.primitives.top_down import grasp, place
-from panda_grasp_env.sim.stacking import crowding
+from panda_grasp_env.sim.stacking import HAND_REACH, least_crowded
 from panda_grasp_env.sim.structure_layout import StructureLayout
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.structure_build import AWAY_DISTANCE, PLACE_TOLERANCE, TURN_TOLERANCE
-
-#: Pieces farther than this (metres) from a grasp or place are out of the open hand's way (it reaches ~11 cm
-#: along its closing axis); nearer ones weigh by the inverse square of their distance (``sim.stacking.crowding``).
-HAND_REACH = 0.15
 
 
 @dataclass
@@ -36,14 +32,6 @@ class BuildOutcome:
     steps: list[PrimitiveResult] = field(default_factory=list)
     misplaced: list[int] = field(default_factory=list)
     success: bool = False
-
-
-def grip_headings(piece: Piece, yaw: float) -> list[float]:
-    """Closing-axis headings (radians) that grip a piece of ``piece.kind`` lying at ``yaw``: across a cube's
-    faces, across a plank's width."""
-    if piece.kind == "cube":
-        return [yaw, yaw + np.pi / 2]
-    return [yaw + np.pi / 2]
 
 
 def bottom_up_order(structure: Structure) -> list[int]:
@@ -80,14 +68,13 @@ class StructureBuilder:
     def _clearest(self, centre: np.ndarray, headings: list[float], height: float, exclude: int) -> float:
         """Of ``headings`` (radians), the one whose closing axis points least at the pieces in the way, within
         [-pi/2, pi/2) (the hand is symmetric under a half turn)."""
-        obstacles = self._in_the_way(centre, height, exclude)
-        return float(wrapped(min(headings, key=lambda heading: crowding(centre, heading, obstacles, power=2)), np.pi))
+        return least_crowded(centre, headings, self._in_the_way(centre, height, exclude))
 
     def _grasp(self, index: int) -> bool:
         body, piece = self.slots[index], self.structure.pieces[index]
         position = self.cell.data.xpos[body].copy()
         yaw = float(np.arctan2(self.cell.data.xmat[body][3], self.cell.data.xmat[body][0]))
-        heading = self._clearest(position, grip_headings(piece, yaw), position[2] - piece.half_extents[2], index)
+        heading = self._clearest(position, grip_headings(piece.kind, yaw), position[2] - piece.half_extents[2], index)
         result = grasp(self.cell, *position, heading)
         self.outcome.steps.append(result)
         return result.success

@@ -16,9 +16,9 @@ import numpy as np
 from scipy import ndimage
 
 from panda_grasp_env.agents.policies.base import require
-from panda_grasp_env.model.structures import BLOCK_KINDS, symmetry, wrapped
+from panda_grasp_env.model.structures import BLOCK_KINDS, grip_headings, symmetry, wrapped
 from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_of_boxes
-from panda_grasp_env.tasks.structure_build import AWAY_DISTANCE, GOAL_FIELDS, KIND_CODES, match_goal
+from panda_grasp_env.tasks.structure_build import AWAY_DISTANCE, GOAL_FIELDS, match_goal, read_rows
 
 #: A heightmap cell this high (metres) holds something; material this much higher than the goal there is in
 #: the goal's way; a target whose exposed top is seen this near its height holds its piece.
@@ -70,10 +70,8 @@ class Targets:
     @classmethod
     def of(cls, desired_goal: np.ndarray) -> Targets:
         rows = np.asarray(desired_goal, dtype=float).reshape(-1, GOAL_FIELDS)
-        rows = rows[rows[:, 6] > 0.5]
-        kinds = [list(KIND_CODES)[int(round(code)) - 1] for code in rows[:, 6]]
-        turns = np.array([2 * np.pi / symmetry(kind) for kind in kinds])
-        return cls(kinds, rows[:, :3], np.arctan2(rows[:, 4], rows[:, 3]) / turns)
+        kinds, centres, yaws = read_rows(rows[rows[:, 6] > 0.5])
+        return cls(kinds, centres, yaws)
 
     @property
     def half_extents(self) -> np.ndarray:
@@ -91,12 +89,6 @@ class Targets:
                 below.append(other)
         return below
 
-    def grip_headings(self, index: int) -> list[float]:
-        """Closing-axis headings (radians) that hold target ``index``'s piece as it stands there: across a
-        cube's faces, across a plank's width."""
-        yaw = float(self.yaws[index])
-        return [yaw, yaw + np.pi / 2] if self.kinds[index] == "cube" else [yaw + np.pi / 2]
-
     def free_headings(self, index: int, standing: np.ndarray) -> list[float]:
         """Of ``grip_headings``, those whose open fingers strike none of the ``standing`` targets (a mask) that
         rise above target ``index``'s bottom."""
@@ -106,7 +98,7 @@ class Targets:
             for j in np.flatnonzero(standing)
             if j != index and self.centres[j, 2] + self.half_extents[j, 2] > bottom + 0.001
         ]
-        for heading in self.grip_headings(index):
+        for heading in grip_headings(self.kinds[index], float(self.yaws[index])):
             axis, across = np.array([np.cos(heading), np.sin(heading)]), np.array([-np.sin(heading), np.cos(heading)])
             struck = False
             for j in others:
@@ -229,13 +221,11 @@ class OraclePieces:
         filled[[target for target, _ in pairs]] = True
         used = {piece for _, piece in pairs}
         seen = Seen(filled)
-        for row, values in enumerate(achieved):
-            if row in used or values[6] < 0.5 or values[2] < -0.1:  # on a target, no piece, or off the table
-                continue
-            kind = list(KIND_CODES)[int(round(values[6])) - 1]
-            piece = SeenPiece(
-                kind, values[:3].copy(), float(np.arctan2(values[4], values[3])) * symmetry(kind) / (2 * np.pi)
-            )
+        free = [row for row, values in enumerate(achieved) if row not in used and values[6] > 0.5 and values[2] > -0.1]
+        for values, kind, centre, yaw in zip(
+            achieved[free], *read_rows(achieved[free])
+        ):  # not on a target, on the table
+            piece = SeenPiece(kind, centre.copy(), float(yaw))
             near_goal = np.linalg.norm(self.targets.centres[:, :2] - values[:2], axis=1).min() < AWAY_DISTANCE
             lying = values[2] < piece.half_height + 0.005
             (seen.excess if near_goal or not lying else seen.loose).append(piece)

@@ -29,14 +29,11 @@ import numpy as np
 from panda_grasp_env.agents.policies.base import PrimitiveActionWriter, record_failure
 from panda_grasp_env.agents.policies.registry import register_agent, register_baseline
 from panda_grasp_env.agents.policies.structure_views import HeightmapPieces, OraclePieces, Seen, SeenPiece, Targets
-from panda_grasp_env.model.structures import BLOCK_KINDS, TIERS, wrapped
+from panda_grasp_env.model.structures import BLOCK_KINDS, TIERS, grip_headings, wrapped
 from panda_grasp_env.sim.stability import WhatIf, what_if
-from panda_grasp_env.sim.stacking import crowding
+from panda_grasp_env.sim.stacking import HAND_REACH, least_crowded
 from panda_grasp_env.sim.structure_layout import LOOSE_REACH, LOOSE_REGION
 
-#: Pieces within this distance (metres) of a grasp or place weigh on the hand's heading (it reaches ~11 cm along
-#: its closing axis when open).
-HAND_REACH = 0.15
 #: Where the scaffold search puts a column's centre past a piece's far end, metres along its long axis (the
 #: column stands partly outside it, so that a grasp can reach it later).
 SCAFFOLD_OFFSETS = (0.01, 0.0, 0.02, -0.01)
@@ -162,8 +159,9 @@ class StructurePlanner:
         return self.writer("place", 0.5, 0.0, 0.0, z=0.0)
 
     def _grasp(self, piece: SeenPiece, plan: _Plan, seen: Seen) -> np.ndarray:
-        headings = [piece.yaw, piece.yaw + np.pi / 2] if piece.kind == "cube" else [piece.yaw + np.pi / 2]
-        heading = self._clearest(piece.position, headings, piece.position[2] - piece.half_height, seen, piece)
+        heading = self._clearest(
+            piece.position, grip_headings(piece.kind, piece.yaw), piece.position[2] - piece.half_height, seen, piece
+        )
         plan.turn = piece.yaw - heading
         self.plan = plan
         return self.writer("grasp", piece.position[0], piece.position[1], heading, z=piece.position[2])
@@ -199,8 +197,7 @@ class StructurePlanner:
         obstacles = np.array(
             [xy for xy, top in tops if top > height + 0.001 and 1e-3 < np.linalg.norm(xy - centre[:2]) < HAND_REACH]
         ).reshape(-1, 2)
-        best = min(headings, key=lambda heading: crowding(centre, heading, obstacles, power=2))
-        return float(wrapped(best, np.pi))
+        return least_crowded(centre, headings, obstacles)
 
     def _drop_spot(self, seen: Seen) -> np.ndarray:
         """The table point (x, y) within the loose pieces' region and reach farthest from every target and piece."""

@@ -212,6 +212,12 @@ def symmetry(kind: str) -> float:
     return np.pi / 2 if kind == "cube" else np.pi
 
 
+def grip_headings(kind: str, yaw: float) -> list[float]:
+    """Closing-axis headings (radians) that grip a piece of ``kind`` lying at ``yaw``: across a cube's faces,
+    across a plank's width."""
+    return [yaw, yaw + np.pi / 2] if kind == "cube" else [yaw + np.pi / 2]
+
+
 def wrapped(angle: float | np.ndarray, period: float) -> float | np.ndarray:
     """``angle`` (radians) modulo ``period``, into [-period/2, period/2)."""
     return (angle + period / 2) % period - period / 2

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from panda_grasp_env.model.structures import wrapped
+
 
 def wrap_quarter_turn(angle: np.ndarray | float) -> np.ndarray | float:
     """Angle modulo a cube's 90 degree symmetry, into [-pi/4, pi/4)."""
@@ -72,6 +74,19 @@ def crowding(centre: np.ndarray, heading: float, obstacles: np.ndarray, power: i
     distances = np.maximum(np.linalg.norm(offsets, axis=1), 1e-6)
     along = np.abs(offsets @ [np.cos(heading), np.sin(heading)]) / distances
     return float(np.sum(along / distances**power))
+
+
+#: Pieces farther than this (metres) from a grasp or place are out of the open hand's way (it reaches ~11 cm along
+#: its closing axis); nearer ones weigh by the inverse square of their distance (``least_crowded``).
+HAND_REACH = 0.15
+
+
+def least_crowded(centre: np.ndarray, headings: list[float], obstacles: np.ndarray) -> float:
+    """Of ``headings`` (radians), the one whose closing axis points least at ``obstacles`` (centres (n, 2)),
+    weighed by the inverse square of their distance (``crowding``), within [-pi/2, pi/2) (the hand is
+    symmetric under a half turn)."""
+    best = min(headings, key=lambda heading: crowding(centre, heading, obstacles, power=2))
+    return float(wrapped(best, np.pi))
 
 
 def clearest_grasp_heading(positions: np.ndarray, index: int, yaw: float) -> float:

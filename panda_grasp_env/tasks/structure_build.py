@@ -55,6 +55,14 @@ def goal_rows(kinds: list[str], positions: np.ndarray, yaws: np.ndarray, tilts: 
     return rows
 
 
+def read_rows(rows: np.ndarray) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """The kinds, centres (n, 3, world metres) and headings (n, radians modulo the kind's symmetry) of goal-vector
+    rows that each hold a piece: ``goal_rows`` read back."""
+    kinds = [list(KIND_CODES)[int(round(code)) - 1] for code in rows[:, 6]]
+    turns = np.array([2 * np.pi / symmetry(kind) for kind in kinds]).reshape(-1)
+    return kinds, rows[:, :3], np.arctan2(rows[:, 4], rows[:, 3]) / turns
+
+
 def match_goal(achieved: np.ndarray, desired: np.ndarray) -> tuple[list[tuple[int, int]], float]:
     """Match pieces to targets, given as goal-vector rows (``goal_rows``): each kind's pieces to its targets by
     the assignment of least total distance (Hungarian), preferring pieces within ``PLACE_TOLERANCE``,
@@ -166,6 +174,7 @@ class StructureBuild(Task):
         self._slots = np.zeros(0, dtype=int)
         self._placed = 0
         self._failure = ""  # the episode's last named failure
+        self._drawn: tuple[HeightmapGrid, np.ndarray] | None = None
         self._still_since: float | None = None
         #: Where this episode's structure stands and its loose pieces lay at the start (set at reset).
         self.layout: StructureLayout | None = None
@@ -215,6 +224,7 @@ class StructureBuild(Task):
         self._slots = cell.object_ids[: len(self.structure.kinds)]
         self._still_since = None
         self._failure = ""
+        self._drawn = None  # the goal heightmap, drawn when first asked for
         self._placed = self.in_place(cell)
         # Padded to the scene's slots, so that every episode's info has one shape (vector envs stack it).
         targets, target_yaws = np.zeros((self.n_slots, 3)), np.zeros(self.n_slots)
@@ -245,8 +255,11 @@ class StructureBuild(Task):
         return _per_goal(achieved_goal, desired_goal, lambda a, d: -match_goal(a, d)[1])
 
     def goal_heightmap(self, grid: HeightmapGrid) -> np.ndarray:
-        halves = np.array([BLOCK_KINDS[kind] for kind in self._target_kinds]).reshape(-1, 3)
-        return heightmap_of_boxes(grid, self._targets, halves, self._target_yaws)
+        # Drawn once an episode: observations ask for it every step.
+        if self._drawn is None or self._drawn[0] != grid:
+            halves = np.array([BLOCK_KINDS[kind] for kind in self._target_kinds]).reshape(-1, 3)
+            self._drawn = (grid, heightmap_of_boxes(grid, self._targets, halves, self._target_yaws))
+        return self._drawn[1]
 
     def _matches(self, cell: Workcell) -> tuple[int, set[int]]:
         """How many goal targets a piece of their kind stands in, and the slot indices of those pieces."""
