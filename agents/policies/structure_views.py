@@ -16,9 +16,9 @@ import numpy as np
 from scipy import ndimage
 
 from panda_grasp_env.agents.policies.base import require
-from panda_grasp_env.model.structures import BLOCK_KINDS, grip_headings, symmetry, wrapped
+from panda_grasp_env.model.structures import BLOCK_KINDS, Piece, grip_headings, symmetry, wrapped
 from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_of_boxes
-from panda_grasp_env.tasks.structure_build import AWAY_DISTANCE, GOAL_FIELDS, match_goal, read_rows
+from panda_grasp_env.tasks.structure_build import GOAL_FIELDS, is_away, match_goal, read_rows
 
 #: A heightmap cell this high (metres) holds something; material this much higher than the goal there is in
 #: the goal's way; a target whose exposed top is seen this near its height holds its piece.
@@ -26,10 +26,11 @@ OCCUPIED, EXCESS, TOP_TOLERANCE = 0.01, 0.02, 0.012
 #: How far (metres) beside a built target the heightmap may show its heights (the overhead camera sees its
 #: sides) before they count as something else in the goal's way.
 SMEAR = 0.015
-#: A component of the heightmap this large (square metres) is a plank lying flat, a smaller one a cube (their
-#: footprints: 35 and 25 cm^2, seen ~30 % larger through the heightmap's blurred edges); smaller than
-#: ``NOISE_AREA`` is noise.
-PLANK_AREA, NOISE_AREA = 0.005, 0.0008
+#: A component of the heightmap smaller than this (square metres) is noise.
+NOISE_AREA = 0.0008
+#: How much longer (metres) a piece lying flat looks through the heightmap's blurred edges: a component is of
+#: the kind whose length comes nearest its least bounding rectangle's long side, less this.
+EDGE_BLUR = 0.008
 #: The open fingers reach this far (metres) along the closing axis from a placed piece's centre, and are this
 #: wide across it (half): a piece standing higher than the place's bottom within both is struck.
 FINGER_REACH, FINGER_HALF_WIDTH = 0.045, 0.012
@@ -77,6 +78,11 @@ class Targets:
     def half_extents(self) -> np.ndarray:
         return np.array([BLOCK_KINDS[kind] for kind in self.kinds]).reshape(-1, 3)
 
+    def pieces(self, mask: np.ndarray | None = None) -> list[Piece]:
+        """The targets (those in ``mask``, default all) as pieces at their world poses."""
+        chosen = range(len(self.kinds)) if mask is None else np.flatnonzero(mask)
+        return [Piece(self.kinds[i], tuple(self.centres[i]), float(self.yaws[i])) for i in chosen]
+
     def bottom(self, index: int) -> float:
         return float(self.centres[index, 2] - self.half_extents[index, 2])
 
@@ -122,26 +128,33 @@ class Targets:
         return bool(np.linalg.norm(self.centres[a, :2] - self.centres[b, :2]) < reach - 0.01)
 
 
-def _yaw_of_cells(points: np.ndarray, kind: str) -> float:
-    """The heading (radians, modulo the kind's symmetry) of the rectangle of least area around ``points`` (n, 2),
-    searched by the degree."""
+def _rectangle_of_cells(points: np.ndarray) -> tuple[float, float]:
+    """The least-area rectangle around ``points`` (n, 2), searched by the degree: the heading of its long side
+    (radians, in [0, pi)) and that side's length (metres)."""
     centred = points - points.mean(axis=0)
-    best, best_area = 0.0, np.inf
-    for yaw in np.deg2rad(np.arange(0.0, 180.0 if kind == "plank" else 90.0, 1.0)):
-        along = centred @ [np.cos(yaw), np.sin(yaw)]
-        across = centred @ [-np.sin(yaw), np.cos(yaw)]
-        area = np.ptp(along) * np.ptp(across)
-        # A plank's long axis: the one its cells spread along most.
-        if area < best_area - 1e-9 and (kind != "plank" or np.ptp(along) >= np.ptp(across)):
-            best, best_area = float(yaw), area
-    return float(wrapped(best, symmetry(kind)))
+    best, best_area, best_length = 0.0, np.inf, 0.0
+    for yaw in np.deg2rad(np.arange(0.0, 180.0, 1.0)):
+        along = np.ptp(centred @ [np.cos(yaw), np.sin(yaw)])
+        across = np.ptp(centred @ [-np.sin(yaw), np.cos(yaw)])
+        if along >= across and along * across < best_area - 1e-9:
+            best, best_area, best_length = float(yaw), along * across, float(along)
+    return best, best_length
+
+
+def kind_of_cells(points: np.ndarray) -> tuple[str, float]:
+    """The kind of the piece lying flat whose heightmap cells are ``points`` (n, 2; world metres): the kind whose
+    length comes nearest the cells' least bounding rectangle's long side, less ``EDGE_BLUR``; and its heading
+    (radians, modulo the kind's symmetry)."""
+    yaw, length = _rectangle_of_cells(points)
+    kind = min(BLOCK_KINDS, key=lambda k: abs(2 * BLOCK_KINDS[k][0] - (length - EDGE_BLUR)))
+    return kind, float(wrapped(yaw, symmetry(kind)))
 
 
 class HeightmapPieces:
     """Pieces from the overhead heightmap (``obs_mode`` with ``heightmap``, wide enough for the loose pieces:
     the benchmarks' ``STRUCTURE_OPTIONS``).  Loose pieces lie flat on the table away from
-    the goal: each connected region is one piece, a plank by its area, at the heading of its least bounding
-    rectangle.  A target holds its piece when the heights over its exposed top (not under another target) come
+    the goal: each connected region is one piece, of the kind its least bounding rectangle's length says
+    (``kind_of_cells``), at that rectangle's heading.  A target holds its piece when the heights over its exposed top (not under another target) come
     within ``TOP_TOLERANCE`` of it, or when targets that do cover it whole.  What stands ``EXCESS`` above what
     the targets built explain is in the goal's way."""
 
@@ -195,11 +208,11 @@ class HeightmapPieces:
             area = region.sum() * self.grid.resolution**2
             if area < NOISE_AREA:
                 continue
-            kind = "plank" if area >= PLANK_AREA else "cube"
             points = self.cells[region]
+            kind, yaw = kind_of_cells(points)
             top = float(heights[region].max()) + self.grid.bounds[2][0]
             centre = np.array([*points.mean(axis=0), top - BLOCK_KINDS[kind][2]])
-            pieces.append(SeenPiece(kind, centre, _yaw_of_cells(points, kind)))
+            pieces.append(SeenPiece(kind, centre, yaw))
         return pieces
 
 
@@ -212,6 +225,7 @@ class OraclePieces:
 
     def reset(self, observation: Any, info: dict[str, Any], targets: Targets, agent: str) -> None:
         self.targets = targets
+        self.goal = targets.pieces()
 
     def __call__(self, observation: Any) -> Seen:
         achieved = np.asarray(observation["achieved_goal"], dtype=float).reshape(-1, GOAL_FIELDS)
@@ -226,7 +240,7 @@ class OraclePieces:
             achieved[free], *read_rows(achieved[free])
         ):  # not on a target, on the table
             piece = SeenPiece(kind, centre.copy(), float(yaw))
-            near_goal = np.linalg.norm(self.targets.centres[:, :2] - values[:2], axis=1).min() < AWAY_DISTANCE
+            near_goal = not is_away(values[:2], self.goal)
             lying = values[2] < piece.half_height + 0.005
             (seen.excess if near_goal or not lying else seen.loose).append(piece)
         return seen

@@ -9,7 +9,10 @@ where comes from a perceiver (``structure_views``): ``HeightmapPieces`` reads th
 * else grasps a loose piece for the next target: the lowest target whose supports stand, nearest the robot
   first (``greedy``); the ``lookahead`` planner first checks each such target in a copy of the simulation
   (``sim.stability.what_if``: the piece set there, one second run) and takes the first that stands, and where
-  none does, it tries one scaffold: a column of spare cubes under the far end of the target's piece;
+  none does, it tries one scaffold: a column of spare props under the far end of the target's piece;
+* pushes a scaffold of its own out sideways (``structures.slide_outs``) once what it holds stands without it,
+  when nothing is left to place or the next place would stand in the hand's way out (the lookahead leaves
+  such places for last);
 * with a piece in the hand, places it on its target, or a piece taken away at the free table spot farthest
   from everything.
 
@@ -29,14 +32,28 @@ import numpy as np
 from panda_grasp_env.agents.policies.base import PrimitiveActionWriter, record_failure
 from panda_grasp_env.agents.policies.registry import register_agent, register_baseline
 from panda_grasp_env.agents.policies.structure_views import HeightmapPieces, OraclePieces, Seen, SeenPiece, Targets
-from panda_grasp_env.model.structures import BLOCK_KINDS, TIERS, grip_headings, wrapped
+from panda_grasp_env.model.structures import (
+    BLOCK_KINDS,
+    TIERS,
+    Piece,
+    SlideOut,
+    grip_headings,
+    roomiest,
+    slide_outs,
+    wrapped,
+)
 from panda_grasp_env.sim.stability import WhatIf, what_if
 from panda_grasp_env.sim.stacking import HAND_REACH, least_crowded
 from panda_grasp_env.sim.structure_layout import LOOSE_REACH, LOOSE_REGION
+from panda_grasp_env.tasks.structure_build import resting_on
 
-#: Where the scaffold search puts a column's centre past a piece's far end, metres along its long axis (the
-#: column stands partly outside it, so that a grasp can reach it later).
-SCAFFOLD_OFFSETS = (0.01, 0.0, 0.02, -0.01)
+#: How far (metres) the scaffold search puts a prop column under a piece's far end, along its long axis: the
+#: rest stands out, for the fingers to push it out later (``structures.slide_outs``).
+SCAFFOLD_UNDER = (0.015, 0.01, 0.02)
+#: A scaffold of the planner's own is still where it was set when a piece is seen this near (metres): within
+#: its half-length, as the heightmap sees only the part standing out from under what it holds, or only the part
+#: outside the goal's area as loose.  Pushes that fail to move it are tried ``SLIDE_TRIES`` times.
+SCAFFOLD_SEEN, SLIDE_TRIES = BLOCK_KINDS["prop"][0] + 0.005, 2
 #: The benchmarks these agents play: the env's own structure, and one per tier of the named suite.
 STRUCTURE_BENCHMARKS = ("Structure", *(f"Structures{tier}" for tier in range(1, len(TIERS) + 1)))
 #: Most what-if runs one decision may make (each is ~1 s of simulated time): the lookahead's budget.
@@ -78,9 +95,10 @@ class StructurePlanner:
         self.perceiver.reset(observation, info, self.targets, self.name)
         self.plan: _Plan | None = None
         self.holding = False
-        #: Scaffold cubes still to stand: (centre (x, y, z), yaw); and where those standing were put (x, y).
+        #: Scaffold props still to stand: (centre (x, y, z), yaw); those standing: (centre, yaw, pushes tried).
         self.scaffolds: list[tuple[np.ndarray, float]] = []
-        self.standing_scaffolds: list[np.ndarray] = []
+        self.standing_scaffolds: list[list[Any]] = []
+        self.push_distance = float(info["action_layout"].get("push_distance", 0.0))
 
     # --- acting ---------------------------------------------------------------------
     def act(self, observation: Any, info: dict[str, Any]) -> np.ndarray:
@@ -106,25 +124,31 @@ class StructurePlanner:
         blocking = [
             p
             for p in seen.excess
-            if not unfilled.any() or (self._on_unfilled(p, unfilled) and not self._is_own_scaffold(p))
+            if not self._is_own_scaffold(p) and (not unfilled.any() or self._on_unfilled(p, unfilled))
         ]
         if blocking:
             piece = max(blocking, key=lambda p: p.position[2])
             return self._grasp(piece, _Plan(piece.kind, 0.0, drop=self._drop_spot(seen)), seen)
         if self.scaffolds:
             centre, yaw = self.scaffolds[0]
-            piece = self._loose_of("cube", centre, seen, keep=self._needed(seen))
+            piece = self._loose_of("prop", centre, seen, keep=self._needed(seen, "prop"))
             if piece is not None:
                 self.scaffolds.pop(0)
-                self.standing_scaffolds.append(centre[:2])
-                return self._grasp(piece, _Plan("cube", 0.0, scaffold=(centre, yaw)), seen)
-            self.scaffolds.clear()  # no spare cube left for it
+                self.standing_scaffolds.append([centre, yaw, 0])
+                return self._grasp(piece, _Plan("prop", 0.0, scaffold=(centre, yaw)), seen)
+            self.scaffolds.clear()  # no spare prop left for it
         ready = [i for i in np.flatnonzero(unfilled) if all(seen.filled[j] for j in targets.supports(int(i)))]
         # Lowest first; among equals, nearest the robot's base (the world's origin) first.
         ready.sort(key=lambda i: (round(targets.bottom(i), 3), float(np.linalg.norm(targets.centres[i, :2]))))
+        exits = self._exits(seen)
+        ready.sort(key=lambda i: self._blocks_exit(int(i), exits))  # places in a scaffold's way out last
         choice = self._choose(ready, seen) if self.lookahead else (ready[0] if ready else None)
         if self.scaffolds:  # the lookahead found that a scaffold must stand first
             return self._grasp_next(seen)
+        if exits and (choice is None or self._blocks_exit(choice, exits)):
+            action = self._slide_out(exits, seen)
+            if action is not None:
+                return action
         if choice is None:
             self.failures["no_candidate"] += 1
             return self._idle()
@@ -140,16 +164,17 @@ class StructurePlanner:
         return bool(np.any(near & unfilled))
 
     def _is_own_scaffold(self, piece: SeenPiece) -> bool:
-        return any(np.linalg.norm(piece.position[:2] - xy) < 0.02 for xy in self.standing_scaffolds)
+        return any(np.linalg.norm(piece.position[:2] - c[:2]) < SCAFFOLD_SEEN for c, _, _ in self.standing_scaffolds)
 
-    def _needed(self, seen: Seen) -> int:
-        return int(sum(1 for i in np.flatnonzero(~seen.filled) if self.targets.kinds[i] == "cube"))
+    def _needed(self, seen: Seen, kind: str) -> int:
+        """Pieces of ``kind`` the targets still to build need."""
+        return int(sum(1 for i in np.flatnonzero(~seen.filled) if self.targets.kinds[i] == kind))
 
     def _loose_of(self, kind: str, near: np.ndarray, seen: Seen, keep: int = 0) -> SeenPiece | None:
         """The free piece of ``kind`` nearest ``near``, if more than ``keep`` of them are free: loose, or fallen
         flat on the table in the goal's area (not a scaffold standing)."""
-        fallen = [p for p in seen.excess if p.position[2] < p.half_height + 0.005 and not self._is_own_scaffold(p)]
-        candidates = [p for p in seen.loose + fallen if p.kind == kind]
+        fallen = [p for p in seen.excess if p.position[2] < p.half_height + 0.005]
+        candidates = [p for p in seen.loose + fallen if p.kind == kind and not self._is_own_scaffold(p)]
         if len(candidates) <= keep:
             return None
         return min(candidates, key=lambda p: float(np.linalg.norm(p.position[:2] - near[:2])))
@@ -172,7 +197,7 @@ class StructurePlanner:
             centre, yaw = self.targets.centres[plan.target], float(self.targets.yaws[plan.target])
             bottom = self.targets.bottom(plan.target)
         elif plan.scaffold is not None:
-            (centre, yaw), bottom = plan.scaffold, float(plan.scaffold[0][2]) - BLOCK_KINDS["cube"][2]
+            (centre, yaw), bottom = plan.scaffold, float(plan.scaffold[0][2]) - BLOCK_KINDS["prop"][2]
         else:
             centre, yaw, bottom = np.array([*plan.drop, 0.0]), 0.0, 0.0
             return self.writer("place", centre[0], centre[1], wrapped(yaw - plan.turn, np.pi), z=bottom)
@@ -265,11 +290,11 @@ class StructurePlanner:
         return what_if(self.cell.model, self.cell.data, moves, watched)
 
     def _scaffold_columns(self, index: int, seen: Seen) -> list[list[tuple[np.ndarray, float]]]:
-        """Columns of spare cubes that could hold target ``index``'s piece up: under its far end (past its
-        supports) at ``SCAFFOLD_OFFSETS``, as high as its bottom, clear of the goal's other targets."""
+        """Columns of spare props that could hold target ``index``'s piece up: under its far end (past its
+        supports) by ``SCAFFOLD_UNDER``, as high as its bottom, clear of the goal's other targets."""
         targets = self.targets
-        levels = int(round(targets.bottom(index) / (2 * BLOCK_KINDS["cube"][2])))
-        spare = sum(1 for p in seen.loose if p.kind == "cube") - self._needed(seen)
+        levels = int(round(targets.bottom(index) / (2 * BLOCK_KINDS["prop"][2])))
+        spare = sum(1 for p in seen.loose if p.kind == "prop") - self._needed(seen, "prop")
         if levels < 1 or spare < levels:
             return []
         yaw, half = float(targets.yaws[index]), targets.half_extents[index, 0]
@@ -278,13 +303,67 @@ class StructurePlanner:
         base = targets.centres[supports, :2].mean(axis=0) if supports else targets.centres[index, :2]
         side = np.sign((targets.centres[index, :2] - base) @ axis) or 1.0  # the overhanging end
         columns = []
-        for offset in SCAFFOLD_OFFSETS:
-            xy = targets.centres[index, :2] + side * (half + offset - BLOCK_KINDS["cube"][0]) * axis
+        for under in SCAFFOLD_UNDER:
+            xy = targets.centres[index, :2] + side * (half + BLOCK_KINDS["prop"][0] - under) * axis
+            column = [(np.array([*xy, (2 * k + 1) * BLOCK_KINDS["prop"][2]]), yaw) for k in range(levels)]
             others = [j for j in range(len(targets.kinds)) if j != index and targets.bottom(j) < targets.bottom(index)]
             if any(np.linalg.norm(targets.centres[j, :2] - xy) < 0.05 for j in others):
                 continue
-            columns.append([(np.array([*xy, (2 * k + 1) * BLOCK_KINDS["cube"][2]]), yaw) for k in range(levels)])
+            columns.append(column)
         return columns
+
+    # --- scaffolds out -------------------------------------------------------------
+    def _exits(self, seen: Seen) -> list[tuple[list[Any], list[SlideOut]]]:
+        """The planner's scaffolds still standing where it set them, each with the pushes that slide it out from
+        under the built targets resting on it (none: nothing rests on it yet, or the fingers cannot reach)."""
+        if "push" not in self.writer.primitives or not self.push_distance:
+            return []
+        pieces = seen.loose + seen.excess
+        built = self.targets.pieces(seen.filled)
+        exits = []
+        for entry in list(self.standing_scaffolds):
+            centre, yaw, tries = entry
+            there = any(np.linalg.norm(p.position[:2] - centre[:2]) < SCAFFOLD_SEEN for p in pieces)
+            if tries and not there:  # pushed out
+                self.standing_scaffolds.remove(entry)
+            if tries >= SLIDE_TRIES or not there:
+                continue
+            prop = Piece("prop", tuple(centre), yaw)
+            covers = resting_on(prop, built)
+            pushes = slide_outs(prop, covers) if covers else []
+            if pushes:
+                exits.append((entry, pushes))
+        return exits
+
+    def _blocks_exit(self, index: int, exits: list[tuple[list[Any], list[SlideOut]]]) -> bool:
+        """Whether target ``index``'s piece would stand where the hand passes pushing a scaffold out (every way
+        out of some scaffold)."""
+        piece = self.targets.pieces()[index]
+        return any(all(push.passes_over(piece, self.push_distance) for push in pushes) for _, pushes in exits)
+
+    def _slide_out(self, exits: list[tuple[list[Any], list[SlideOut]]], seen: Seen) -> np.ndarray | None:
+        """The push that takes the first scaffold out which what it holds no longer needs (a what-if run with
+        the scaffold moved off to a free spot), on the stroke that ends farthest from the other pieces."""
+        bodies, centres = self._bodies()
+        drop = self._drop_spot(seen)
+        for entry, pushes in exits:
+            centre, yaw, _ = entry
+            body = int(bodies[np.argmin(np.linalg.norm(centres - centre, axis=1))])
+            near = np.linalg.norm(centres[:, :2] - centre[:2], axis=1) < 0.3
+            watched = {int(b) for b in bodies[near & (centres[:, 2] > -0.1)]} - {body}
+            moves = {body: (np.array([*drop, centre[2]]), yaw)}
+            if not what_if(self.cell.model, self.cell.data, moves, watched).stands:
+                continue
+            others = np.array([c[:2] for b, c in zip(bodies, centres) if b != body and c[2] > -0.1])
+            built = self.targets.pieces(seen.filled)
+            clear = [p for p in pushes if not any(p.passes_over(piece, self.push_distance) for piece in built)]
+            if not clear:
+                continue
+            push = roomiest(clear, centre, others, self.push_distance)
+            entry[2] += 1
+            x, y, z = push.start
+            return self.writer("push", x, y, push.heading, z=z)
+        return None
 
 
 @register_baseline(*STRUCTURE_BENCHMARKS)

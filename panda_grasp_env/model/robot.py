@@ -29,6 +29,17 @@ HOME_YAW = -np.pi / 2
 #: Finger joint command when open / closed (each finger slides 0-0.04 m).
 FINGER_OPEN = 0.04
 FINGER_CLOSED = 0.0
+#: The fingertips reach this far (metres) below the grasp site.
+FINGERTIP_DEPTH = 0.015
+#: The closed hand seen from its grasp site, metres (the Panda model's collision geometry; a test measures it):
+#: the hand body's bottom above the site, its half-length along the closing axis and half-width across it;
+#: the fingers' half-width along the closing axis at their widest (their base, up to 8.3 cm above the site) and
+#: over their lowest 3 cm (what touches a pushed piece); and their half-thickness across the closing axis
+#: below the base.
+HAND_BODY_ABOVE_SITE, HAND_BODY_HALF_LENGTH, HAND_BODY_HALF_WIDTH = 0.072, 0.105, 0.044
+FINGER_HALF_WIDTH = 0.027
+FINGER_TIP_HALF_WIDTH = 0.021
+FINGER_HALF_THICKNESS = 0.020
 
 
 def fast_index(indices: np.ndarray) -> slice | np.ndarray:

@@ -136,39 +136,44 @@ def _balance() -> list[Structure]:
 
 
 #: The scaffolding tier's overhang: a plank on one cube, its centre this far (metres) past the cube's centre,
-#: held by two cubes on its near end; alone it tips, and the cubes can only go on it once it lies there.
-CANTILEVER_OFFSET = 0.035
+#: held by cubes on its near end; alone it tips, and the cubes can only go on it once it lies there.  The
+#: pillar stands this far behind the structure's origin, which keeps the prop within ``MAX_RADIUS``.
+CANTILEVER_OFFSET, CANTILEVER_PILLAR = 0.035, -0.03
+#: How far (metres) the scaffolding tier's prop reaches under the plank's far end: the rest of it stands out,
+#: for the fingers to push it out sideways (``structures.slide_outs``).
+PROP_UNDER = 0.015
 
 
 def _scaffolding() -> list[Structure]:
-    near = CANTILEVER_OFFSET - PILLAR_OFFSET
-    cantilever = (cube(0.0, 0.0, 0), plank(CANTILEVER_OFFSET, 0.0, 1), cube(near, 0.0, 2), cube(near, 0.0, 3))
-    tall = (
-        cube(0.0, 0.0, 0),
-        cube(0.0, 0.0, 1),
-        plank(CANTILEVER_OFFSET, 0.0, 2),
-        cube(near, 0.0, 3),
-        cube(near, 0.0, 4),
-    )
-    # The prop stands under the plank's far end, 1 cm out past it: a push along y at that end slides it out.
-    prop = CANTILEVER_OFFSET + PLANK_HALF - EDGE / 2 + 0.01
+    pillar, plank_x = CANTILEVER_PILLAR, CANTILEVER_PILLAR + CANTILEVER_OFFSET
+    near = plank_x - PILLAR_OFFSET
+    base = (cube(pillar, 0.0, 0), plank(plank_x, 0.0, 1))
+    cantilever = (*base, cube(near, 0.0, 2), cube(near, 0.0, 3))
+    # A plank across the near end holds the overhang and a cube out on it; the prop must leave before that cube
+    # goes on, as the hand pushing the prop out passes where it stands.  Low: the arm reaching for the prop
+    # passes over the near end, and struck a third cube stacked there.
+    lookout = (*base, plank(near, 0.0, 2, np.pi / 2), cube(plank_x + EDGE / 2, 0.0, 2))
+    prop_x = plank_x + PLANK_HALF + BLOCK_KINDS["prop"][0] - PROP_UNDER
+    prop = (Piece("prop", (prop_x, 0.0, level(0))),)
     return [
         Structure(
             "cantilever",
             cantilever,
             5,
-            "a plank overhanging one cube, held by two cubes on its near end; a spare cube props its far end "
-            "until they are on, then leaves",
-            scaffold=(cube(prop, 0.0, 0),),
+            "a plank overhanging one cube, held by two cubes on its near end; a prop holds its far end up until "
+            "they are on, then slides out",
+            scaffold=prop,
             unstable=((0, 1),),
         ),
         Structure(
-            "tall_cantilever",
-            tall,
+            "lookout",
+            lookout,
             5,
-            "the cantilever on a two-cube column, propped by a spare two-cube column",
-            scaffold=(cube(prop, 0.0, 0), cube(prop, 0.0, 1)),
-            unstable=((0, 1, 2),),
+            "a plank overhanging one cube, a plank across its near end and a cube out on the overhang: the prop "
+            "must slide out before that cube goes on",
+            scaffold=prop,
+            unstable=((0, 1),),
+            order=(0, 4, 1, 2, 4, 3),
         ),
     ]
 

@@ -27,15 +27,31 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.model.objects import ObjectShape
+from panda_grasp_env.model.robot import (
+    FINGER_HALF_THICKNESS,
+    FINGER_HALF_WIDTH,
+    FINGER_TIP_HALF_WIDTH,
+    FINGERTIP_DEPTH,
+    HAND_BODY_ABOVE_SITE,
+    HAND_BODY_HALF_LENGTH,
+    HAND_BODY_HALF_WIDTH,
+)
 from panda_grasp_env.model.scene import UNIFORM_BLOCK_COLOUR, SceneConfig
 
-#: Half extents (x, y, z) of each block kind, metres, in the piece's own frame: 5 cm cubes, and planks of
-#: 14 x 5 x 5 cm lying along their own x axis (the longest that keeps every part within the scene's 7 cm
-#: limit on a half extent; the fingers close across the 5 cm width).
+#: Half extents (x, y, z) of each block kind, metres, in the piece's own frame: 5 cm cubes; planks of
+#: 14 x 5 x 5 cm lying along their own x axis (the longest that keeps every part within the scene's 7 cm limit
+#: on a half extent; the fingers close across the 5 cm width); and props, 8 x 5 x 5 cm, the scaffolding tier's
+#: temporary blocks (``PROP_FRICTION``).
 BLOCK_KINDS: dict[str, tuple[float, float, float]] = {
     "cube": (0.025, 0.025, 0.025),
     "plank": (0.07, 0.025, 0.025),
+    "prop": (0.04, 0.025, 0.025),
 }
+#: A prop's sliding friction against everything it touches: a slider (waxed, or a plastic such as acetal on
+#: wood).  A prop under a plank's end carries a fifth of its load; pushing it out at the blocks' 1.0 dragged the
+#: plank round on its pillar by 15-23 mm, at 0.3 the plank stays within 4 mm of its place.  At 0.1 the pushed
+#: prop glides ahead of the fingers, out of touch at most control steps.
+PROP_FRICTION = 0.3
 #: A structure's scene: stiff world contacts (``SceneConfig.stiff_contacts``).  On MuJoCo's soft default
 #: contacts a stack loaded off its centre leans as its contacts sink unevenly and creeps: the four-cube stair
 #: at 80 % of its greatest overhang fell at some headings, the cantilever slid 8.7 mm across the table in
@@ -78,9 +94,11 @@ class Piece:
 
     def shape(self, rgb: tuple[float, float, float] = UNIFORM_BLOCK_COLOUR) -> ObjectShape:
         """The object-slot shape of this piece's kind (a box of ``DENSITY``: a cube weighs 0.1 kg, a plank
-        0.28 kg), coloured ``rgb``."""
+        0.28 kg, a prop 0.16 kg, with ``PROP_FRICTION``), coloured ``rgb``."""
         hx, hy, hz = BLOCK_KINDS[self.kind]
-        return ObjectShape("cube", (hx,), rgb) if self.kind == "cube" else ObjectShape("box", (hx, hy, hz), rgb)
+        if self.kind == "cube":
+            return ObjectShape("cube", (hx,), rgb)
+        return ObjectShape("box", (hx, hy, hz), rgb, friction=PROP_FRICTION if self.kind == "prop" else None)
 
     def corners(self) -> np.ndarray:
         """The footprint's four corners (4, 2) in the structure's frame, metres."""
@@ -103,8 +121,9 @@ class Structure:
     removed: tuple[int, ...] = ()
     scaffold: tuple[Piece, ...] = ()
     unstable: tuple[tuple[int, ...], ...] = field(default=())
-    #: The order its certificate places the pieces in (the scaffold's numbered after them), or takes the
-    #: removed ones away; empty: bottom up.
+    #: The order its certificate places the pieces in (the scaffold's numbered after them; a scaffold piece's
+    #: second appearance takes it away again), or takes the removed ones away; empty: bottom up, the scaffold
+    #: taken away last.
     order: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
@@ -132,11 +151,18 @@ class Structure:
         object.__setattr__(self, "scaffold", scaffold)
         if self.prebuilt and scaffold:
             raise ValueError(f"{where}: a prebuilt structure has no scaffold")
-        order = _indices(self.order, n + len(scaffold), f"{where}: order")
-        steps = sorted(self.removed) if self.prebuilt else list(range(n + len(scaffold)))
-        if order and sorted(order) != steps:
-            raise ValueError(f"{where}: order must list each of {steps} once, got {list(order)}")
-        object.__setattr__(self, "order", order)
+        steps = (
+            sorted(self.removed) if self.prebuilt else sorted([*range(n + len(scaffold)), *range(n, n + len(scaffold))])
+        )
+        valid = isinstance(self.order, (tuple, list)) and all(
+            isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in self.order
+        )
+        if not valid or (self.order and sorted(self.order) != steps):
+            raise ValueError(
+                f"{where}: order must list each of {sorted(set(steps))} once (a scaffold piece's twice: placed, "
+                f"then taken away), got {self.order!r}"
+            )
+        object.__setattr__(self, "order", tuple(int(i) for i in self.order))
         self._check_geometry(where)
 
     def _check_geometry(self, where: str) -> None:
@@ -208,13 +234,14 @@ class Structure:
 
 
 def symmetry(kind: str) -> float:
-    """The turn (radians) that maps a piece of ``kind`` onto itself: a quarter for a cube, a half for a plank."""
+    """The turn (radians) that maps a piece of ``kind`` onto itself: a quarter for a cube, a half for a plank or
+    a prop."""
     return np.pi / 2 if kind == "cube" else np.pi
 
 
 def grip_headings(kind: str, yaw: float) -> list[float]:
     """Closing-axis headings (radians) that grip a piece of ``kind`` lying at ``yaw``: across a cube's faces,
-    across a plank's width."""
+    across a plank's or a prop's width."""
     return [yaw, yaw + np.pi / 2] if kind == "cube" else [yaw + np.pi / 2]
 
 
@@ -260,17 +287,107 @@ def _interpenetrate(a: Piece, b: Piece) -> bool:
 
 def footprints_within(a: Piece, b: Piece, gap: float) -> bool:
     """Whether two pieces' footprints come closer than ``gap`` (metres; negative: overlap by more than its
-    size) along every edge normal of either: the separating axis test for rectangles, whose gap along an axis
-    is never more than their true distance."""
-    ca, cb = a.corners(), b.corners()
-    for corners in (ca, cb):
+    size): ``rectangles_within`` of their corners."""
+    return rectangles_within(a.corners(), b.corners(), gap)
+
+
+def rectangles_within(a: np.ndarray, b: np.ndarray, gap: float) -> bool:
+    """Whether two rectangles, by their corners in order round each (4, 2), come closer than ``gap`` (metres)
+    along every edge normal of either: the separating axis test, whose gap along an axis is never more than
+    their true distance."""
+    for corners in (a, b):
         for k in range(2):
             edge = corners[k + 1] - corners[k]
             normal = np.array([-edge[1], edge[0]]) / np.linalg.norm(edge)
-            pa, pb = ca @ normal, cb @ normal
+            pa, pb = a @ normal, b @ normal
             if max(pb.min() - pa.max(), pa.min() - pb.max()) >= gap:
                 return False
     return True
+
+
+def footprint_distance(point: Sequence[float], piece: Piece) -> float:
+    """Distance (metres) from table point ``point`` (x, y) to ``piece``'s footprint: 0 inside it.  The piece's
+    position and yaw are read in the point's frame."""
+    c, s = math.cos(piece.yaw), math.sin(piece.yaw)
+    dx, dy = point[0] - piece.position[0], point[1] - piece.position[1]
+    hx, hy, _ = piece.half_extents
+    along, across = abs(c * dx + s * dy) - hx, abs(-s * dx + c * dy) - hy
+    return float(math.hypot(max(along, 0.0), max(across, 0.0)))
+
+
+#: A slide-out's margins, metres: the hand clears the covering pieces' end and top by ``SLIDE_CLEARANCE``, the
+#: fingers come down ``SLIDE_START_GAP`` beside the prop, and they press on ``SLIDE_MIN_CONTACT`` of its face or
+#: more.
+SLIDE_CLEARANCE, SLIDE_START_GAP, SLIDE_MIN_CONTACT = 0.004, 0.01, 0.01
+
+
+@dataclass(frozen=True)
+class SlideOut:
+    """A push that takes a prop out sideways from under the pieces it holds up (``slide_outs``): the closed
+    fingers' start (grasp site x, y, z; metres, world) and the stroke's heading (radians)."""
+
+    start: tuple[float, float, float]
+    heading: float
+
+    def passes_over(self, piece: Piece, distance: float) -> bool:
+        """Whether the hand's body, on this push's stroke of ``distance`` metres, would meet ``piece`` (a world
+        pose): it stands taller than the body's bottom, under the body's sweep."""
+        if piece.position[2] + piece.half_extents[2] <= self.start[2] + HAND_BODY_ABOVE_SITE:
+            return False
+        along = np.array([math.cos(self.heading), math.sin(self.heading)])
+        across = np.array([-along[1], along[0]])
+        middle = np.array(self.start[:2]) + distance / 2 * along
+        half_along, half_across = distance / 2 + HAND_BODY_HALF_WIDTH, HAND_BODY_HALF_LENGTH
+        signs = ((1, 1), (-1, 1), (-1, -1), (1, -1))
+        sweep = np.array([middle + i * half_along * along + j * half_across * across for i, j in signs])
+        return rectangles_within(piece.corners(), sweep, 0.0)
+
+
+def slide_outs(prop: Piece, covers: Sequence[Piece]) -> list[SlideOut]:
+    """Pushes that slide ``prop`` out from under ``covers`` (the pieces resting on it; world poses).
+
+    The top-down hand cannot reach under a piece: its body hangs ``HAND_BODY_ABOVE_SITE`` over the grasp site,
+    and no grasp or push from above fits between a prop and what it holds.  A prop that stands out past the
+    covers' end can still be pushed across: the closed fingers come down beside it just past that end (their
+    widest part clear of it), the body passes over the covers' top, and the fingertips press on the part of
+    the prop's face that stands out.  Returns the two strokes (one each way) across the side of the prop that
+    lets the fingers press on the most of its face, if that is ``SLIDE_MIN_CONTACT`` or more; none where the
+    prop is too far under, or too low under its covers, for the fingers to reach.
+    """
+    centre = np.array(prop.position[:2])
+    bottom, top = prop.position[2] - prop.half_extents[2], prop.position[2] + prop.half_extents[2]
+    cover_top = max(p.position[2] + p.half_extents[2] for p in covers)
+    corners = np.concatenate([p.corners() for p in covers]) - centre
+    z = max(cover_top - HAND_BODY_ABOVE_SITE + SLIDE_CLEARANCE, bottom + FINGERTIP_DEPTH + 0.005)
+    if z - FINGERTIP_DEPTH > top - SLIDE_MIN_CONTACT:
+        return []
+    found = []
+    for quarter in range(4):
+        angle = prop.yaw + quarter * np.pi / 2
+        out = np.array([math.cos(angle), math.sin(angle)])
+        half_out, half_across = prop.half_extents[quarter % 2], prop.half_extents[(quarter + 1) % 2]
+        fingers = float((corners @ out).max()) + FINGER_HALF_WIDTH + SLIDE_CLEARANCE
+        contact = min(half_out, fingers + FINGER_TIP_HALF_WIDTH) - max(-half_out, fingers - FINGER_TIP_HALF_WIDTH)
+        if contact < SLIDE_MIN_CONTACT:
+            continue
+        for side in (1.0, -1.0):
+            across = side * np.array([-out[1], out[0]])
+            start = centre + fingers * out - (half_across + FINGER_HALF_THICKNESS + SLIDE_START_GAP) * across
+            found.append((contact, SlideOut((float(start[0]), float(start[1]), float(z)), math.atan2(*across[::-1]))))
+    best = max((contact for contact, _ in found), default=0.0)
+    return [push for contact, push in found if contact == best]
+
+
+def roomiest(pushes: Sequence[SlideOut], prop: Sequence[float], others: np.ndarray, distance: float) -> SlideOut:
+    """Of ``pushes`` (non-empty), the one that leaves the prop centred at table point ``prop`` farthest from the
+    ``others`` (centres (n, 2)) after a stroke of ``distance`` metres."""
+    others = np.asarray(others, dtype=float).reshape(-1, 2)
+
+    def room(push: SlideOut) -> float:
+        end = np.asarray(prop[:2]) + distance * np.array([math.cos(push.heading), math.sin(push.heading)])
+        return float(np.linalg.norm(others - end, axis=1).min(initial=np.inf))
+
+    return max(pushes, key=room)
 
 
 def structure_scene(base: SceneConfig, structure: Structure) -> SceneConfig:

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 
 from panda_grasp_env.control.controller import CartesianController, JointTargets
-from panda_grasp_env.model.robot import HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
+from panda_grasp_env.model.robot import FINGERTIP_DEPTH, HOME_POSITION, HOME_QPOS, HOME_YAW, PandaRobot
 from panda_grasp_env.sim.collateral import CollateralMonitor
 from panda_grasp_env.sim.extents import body_vertical_extent
 from panda_grasp_env.sim.fixtures import Fixtures
@@ -26,7 +26,6 @@ WORKSPACE = np.array([[0.25, 0.75], [-0.35, 0.35], [0.0, 0.45]])
 #: Transit: the lowest point of the hand (fingertips, 15 mm below the grasp site) or of the object it carries
 #: crosses this far above the tallest object, metres; and the grasp site never lower than TRANSIT_MIN_HEIGHT.
 TRANSIT_CLEARANCE = 0.03
-FINGERTIP_DEPTH = 0.015
 TRANSIT_MIN_HEIGHT = 0.12
 #: Reset IK solutions kept (least recently used dropped first).
 TELEPORT_CACHE_SIZE = 64

@@ -135,9 +135,9 @@ def lay_out_start(cell: Workcell, structure: Structure, rng: np.random.Generator
     """Clear ``cell`` and lay out an episode's start, at rest: ``structure`` standing at a drawn site (a
     prebuilt one; its layout's loose places are free spots for the pieces to remove), or every piece, the
     scaffold's too, loose (``draw_layout``).  Returns the layout and the object slots (body ids) holding the
-    structure's pieces in order."""
+    structure's pieces in order, then the scaffold's."""
     cell.clear()
-    slots = cell.object_ids[: len(structure.pieces)]
+    slots = cell.object_ids[: len(structure.kinds)]
     if structure.prebuilt:
         layout = draw_layout(rng, structure, [structure.pieces[i] for i in structure.removed])
         stand_pieces(cell, structure, structure.pieces, slots, layout.origin, layout.heading)

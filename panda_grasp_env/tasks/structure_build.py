@@ -17,7 +17,15 @@ from scipy.optimize import linear_sum_assignment
 from panda_grasp_env.geometry import is_count
 from panda_grasp_env.model.scene import SceneConfig
 from panda_grasp_env.model.structure_suite import PILLAR_OFFSET, as_structure, cube, level, plank
-from panda_grasp_env.model.structures import BLOCK_KINDS, STRUCTURE_PHYSICS, Piece, Structure, symmetry
+from panda_grasp_env.model.structures import (
+    BLOCK_KINDS,
+    STRUCTURE_PHYSICS,
+    Piece,
+    Structure,
+    footprint_distance,
+    footprints_within,
+    symmetry,
+)
 from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_of_boxes
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.registration import EnvId, register_task
@@ -28,8 +36,9 @@ from panda_grasp_env.tasks.base import Task, TaskStep, check_option, with_scene
 
 #: A goal piece is in place within this distance (metres) and turn and tilt (radians) of a target of its kind.
 PLACE_TOLERANCE, TURN_TOLERANCE = 0.01, np.deg2rad(10.0)
-#: A removed or scaffold piece is away at this distance (metres) or more from every goal target.
-AWAY_DISTANCE = 0.08
+#: A removed or scaffold piece is away once its centre lies this far (metres) or more from every goal target's
+#: footprint (``is_away``): 8 cm from a cube target's centre, straight out from a face.
+AWAY_DISTANCE = 0.055
 #: The finished structure must stand still (every piece slower than ``STILL_SPEED``, m/s) this long, seconds.
 STILL_TIME, STILL_SPEED = 2.0, 0.01
 #: The most pieces a random structure has, and the default.
@@ -101,6 +110,23 @@ def placed_reward(achieved: np.ndarray, desired: np.ndarray) -> float:
     return len(match_goal(achieved, desired)[0]) / max(int((desired[:, 6] > 0).sum()), 1) - 1.0
 
 
+def is_away(point: np.ndarray, goal: list[Piece]) -> bool:
+    """Whether a spare piece whose centre stands at table point ``point`` (x, y) is out of the ``goal``'s way
+    (world poses): ``AWAY_DISTANCE`` or more from every goal piece's footprint."""
+    return all(footprint_distance(point, piece) >= AWAY_DISTANCE for piece in goal)
+
+
+def resting_on(piece: Piece, others: list[Piece]) -> list[Piece]:
+    """Those of ``others`` (world poses, as ``piece``'s) whose bottom lies on ``piece``'s top within 1 cm and
+    whose footprint overlaps its."""
+    top = piece.position[2] + piece.half_extents[2]
+    return [
+        other
+        for other in others
+        if abs(other.position[2] - other.half_extents[2] - top) < 0.01 and footprints_within(piece, other, 0.0)
+    ]
+
+
 def random_structure(rng: np.random.Generator, max_pieces: int) -> Structure:
     """A structure of at most ``max_pieces`` pieces (>= 2) from the motifs of tiers 1-3, sized at random: a
     tower whose levels shift by up to 4 mm and turn by up to 0.2 rad, a row at a random pitch, or a bridge
@@ -142,7 +168,7 @@ class StructureBuild(Task):
     ``info`` at reset gives ``structure`` (its name), ``n_targets`` and the goal pieces' ``targets`` (centres,
     world metres) and ``target_yaws`` (radians), padded with zeros to the scene's object slots; after each step
     ``structure``, ``in_place`` (targets a piece stands in), ``placed_fraction``, ``away`` (removed and scaffold
-    pieces 8 cm or more from the goal) and, once something went wrong and until success, ``failure_reason``,
+    pieces out of the goal's way, ``is_away``) and, once something went wrong and until success, ``failure_reason``,
     the episode's last: ``collapsed`` (a piece in place fell out of it), ``lost`` (a piece left the table) or
     ``scaffold_left`` (every target built, a scaffold still in the goal).  Success: every target held by a
     piece, nothing else in the goal's way, nothing held, the pieces still for 2 s (the step waits up to 3 s for
@@ -272,15 +298,13 @@ class StructureBuild(Task):
         return self._matches(cell)[0]
 
     def _others_away(self, cell: Workcell, used: set[int]) -> bool:
-        """Every piece not standing in a target lies ``AWAY_DISTANCE`` or more from every goal target (only
-        where the goal leaves pieces over: removal and scaffolds)."""
+        """Every piece not standing in a target is away from the goal (``is_away``; only where the goal leaves
+        pieces over: removal and scaffolds)."""
         spare = [s for s in range(len(self._slots)) if s not in used]
         if len(spare) + len(used) == len(self._targets):
             return True
-        return all(
-            np.linalg.norm(self._targets[:, :2] - cell.data.xpos[self._slots[s]][:2], axis=1).min() >= AWAY_DISTANCE
-            for s in spare
-        )
+        goal = [Piece(k, tuple(c), float(y)) for k, c, y in zip(self._target_kinds, self._targets, self._target_yaws)]
+        return all(is_away(cell.data.xpos[self._slots[s]][:2], goal) for s in spare)
 
     def on_control_step(self, cell: Workcell) -> None:
         moving = body_speeds(cell.data, self._slots) >= STILL_SPEED

@@ -2,7 +2,20 @@ import mujoco
 import numpy as np
 import pytest
 
-from panda_grasp_env.model.robot import FINGER_OPEN, HOME_POSITION, HOME_YAW, fast_index
+from panda_grasp_env.model.robot import (
+    FINGER_CLOSED,
+    FINGER_HALF_THICKNESS,
+    FINGER_HALF_WIDTH,
+    FINGER_OPEN,
+    FINGER_TIP_HALF_WIDTH,
+    FINGERTIP_DEPTH,
+    HAND_BODY_ABOVE_SITE,
+    HAND_BODY_HALF_LENGTH,
+    HAND_BODY_HALF_WIDTH,
+    HOME_POSITION,
+    HOME_YAW,
+    fast_index,
+)
 from panda_grasp_env.model.scene import FINGER_BODIES, MAX_FINGER_GAP, SceneConfig
 from panda_grasp_env.sim.workcell import Workcell
 
@@ -147,3 +160,54 @@ def test_fast_index_is_a_slice_only_for_consecutive_indices():
     assert np.array_equal(values[fast_index(np.array([3, 4, 5]))], values[[3, 4, 5]])
     for indices in (np.array([3, 5, 6]), np.array([5, 4]), np.array([], dtype=int)):
         assert fast_index(indices) is indices
+
+
+def reach(model, data, geom: int, direction: np.ndarray) -> float:
+    """How far (metres) collision geom ``geom`` reaches along unit ``direction`` (world): its support."""
+    centre, rotation, size = data.geom_xpos[geom], data.geom_xmat[geom].reshape(3, 3), model.geom_size[geom]
+    kind = model.geom_type[geom]
+    if kind == mujoco.mjtGeom.mjGEOM_MESH:
+        mesh = model.geom_dataid[geom]
+        start = model.mesh_vertadr[mesh]
+        vertices = model.mesh_vert[start : start + model.mesh_vertnum[mesh]] @ rotation.T + centre
+        return float((vertices @ direction).max())
+    if kind == mujoco.mjtGeom.mjGEOM_BOX:
+        return float(centre @ direction + np.abs(rotation.T @ direction) @ size)
+    if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        return float(centre @ direction + abs(rotation[:, 2] @ direction) * size[1] + size[0])
+    assert kind == mujoco.mjtGeom.mjGEOM_SPHERE, kind
+    return float(centre @ direction + size[0])
+
+
+@pytest.mark.unit
+def test_the_hand_constants_match_the_models_collision_geometry():
+    """``model.robot``'s closed-hand sizes, measured on the collision geoms of the closed fingers and of the
+    hand body, from the grasp site: what the scaffold slide-out's clearances rest on."""
+    cell = Workcell(SceneConfig())
+    cell.robot.teleport_fingers(FINGER_CLOSED)
+    mujoco.mj_forward(cell.model, cell.data)
+    model, data = cell.model, cell.data
+    site, yaw = cell.robot.ee_position, cell.robot.ee_yaw
+    closing, across, up = (
+        np.array([np.cos(yaw), np.sin(yaw), 0.0]),
+        np.array([-np.sin(yaw), np.cos(yaw), 0.0]),
+        np.eye(3)[2],
+    )
+    fingers, body = [], []
+    for geom in range(model.ngeom):
+        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.geom_bodyid[geom])) or ""
+        if model.geom_contype[geom] or model.geom_conaffinity[geom]:
+            (fingers if "finger" in name else body if name.endswith(("link7", "hand")) else []).append(geom)
+
+    def extent(geoms, direction):
+        return max(reach(model, data, g, direction) for g in geoms) - site @ direction
+
+    assert -extent(fingers, -up) == pytest.approx(-FINGERTIP_DEPTH, abs=0.001)
+    assert max(extent(fingers, closing), extent(fingers, -closing)) == pytest.approx(FINGER_HALF_WIDTH, abs=0.001)
+    tips = [g for g in fingers if extent([g], up) < 0.0315 + 1e-4]  # the geoms of the fingers' lowest 3 cm
+    assert max(extent(tips, closing), extent(tips, -closing)) <= FINGER_TIP_HALF_WIDTH + 1e-4
+    below_base = [g for g in fingers if extent([g], up) < 0.056 + 1e-4]
+    assert max(extent(below_base, across), extent(below_base, -across)) <= FINGER_HALF_THICKNESS + 1e-4
+    assert -extent(body, -up) == pytest.approx(HAND_BODY_ABOVE_SITE, abs=0.001)
+    assert max(extent(body, closing), extent(body, -closing)) <= HAND_BODY_HALF_LENGTH
+    assert max(extent(body, across), extent(body, -across)) <= HAND_BODY_HALF_WIDTH

@@ -3,8 +3,16 @@ import json
 import numpy as np
 import pytest
 
+from panda_grasp_env.model.robot import FINGER_HALF_WIDTH, HAND_BODY_ABOVE_SITE
 from panda_grasp_env.model.structure_suite import SUITE, as_structure, named_structure, tier_structures
-from panda_grasp_env.model.structures import TIERS, Piece, Structure
+from panda_grasp_env.model.structures import (
+    PROP_FRICTION,
+    TIERS,
+    Piece,
+    Structure,
+    footprint_distance,
+    slide_outs,
+)
 
 pytestmark = pytest.mark.unit
 
@@ -53,6 +61,15 @@ def test_world_poses_turn_and_shift_the_structure_frame():
         ({"name": "x", "pieces": [{"kind": "cube", "position": [0, 0, 0.025]}], "unstable": [[3]]}, "unstable"),
         ({"name": "x", "pieces": [{"kind": "cube", "position": [0, 0, 0.025]}], "tier": 9}, "tier"),
         ({"name": "x", "pieces": [{"kind": "cube", "position": [0, 0, 0.025]}], "height": 1}, "height"),
+        (  # a scaffold piece is placed, then taken away: it appears twice
+            {
+                "name": "x",
+                "pieces": [{"kind": "cube", "position": [0, 0, 0.025]}],
+                "scaffold": [{"kind": "prop", "position": [0.1, 0, 0.025]}],
+                "order": [0, 1],
+            },
+            "twice",
+        ),
     ],
 )
 def test_a_malformed_structure_is_refused_naming_the_culprit(raw, culprit):
@@ -70,3 +87,59 @@ def test_turned_planks_that_cross_overlap_and_planks_side_by_side_do_not():
 def test_an_unknown_name_lists_the_suite():
     with pytest.raises(ValueError, match="tower_4"):
         as_structure("tower_99")
+
+
+def test_a_scaffold_is_placed_and_taken_away_in_its_order():
+    structure = SUITE["lookout"]
+    n = len(structure.pieces)
+    assert [i for i in structure.order if i >= n] == [n, n]  # placed, then slid out
+    assert structure.order.index(n, structure.order.index(n) + 1) < structure.order.index(3)  # before the far cube
+
+
+def test_footprint_distance_is_zero_inside_and_euclidean_past_a_corner():
+    plank = Piece("plank", (0.0, 0.0, 0.025), np.pi / 2)  # 14 cm along y
+    assert footprint_distance((0.01, 0.06), plank) == 0.0
+    assert footprint_distance((0.0, 0.1), plank) == pytest.approx(0.03)
+    assert footprint_distance((0.055, 0.11), plank) == pytest.approx(0.05)
+
+
+def test_a_prop_is_a_slider():
+    assert Piece("prop", (0.0, 0.0, 0.025)).shape().friction == PROP_FRICTION < 0.5
+    assert Piece("cube", (0.0, 0.0, 0.025)).shape().friction is None
+
+
+def world_pieces(name, heading=0.7):
+    structure = SUITE[name]
+    every = structure.pieces + structure.scaffold
+    centres, yaws = structure.world_poses((0.5, 0.1), heading, every)
+    return [Piece(p.kind, tuple(c), float(y)) for p, c, y in zip(every, centres, yaws)]
+
+
+def test_the_cantilevers_prop_slides_out_sideways_with_the_hand_clear_of_the_plank():
+    pillar, plank, *_, prop = world_pieces("cantilever")
+    pushes = slide_outs(prop, [plank])
+    assert len(pushes) == 2
+    axis = np.array([np.cos(plank.yaw), np.sin(plank.yaw)])
+    end = np.array(plank.position[:2]) @ axis + 0.07
+    for push in pushes:
+        stroke = np.array([np.cos(push.heading), np.sin(push.heading)])
+        assert abs(stroke @ axis) < 1e-9  # across the plank
+        assert np.array(push.start[:2]) @ axis - end > FINGER_HALF_WIDTH  # the fingers past its end
+        assert push.start[2] + HAND_BODY_ABOVE_SITE > plank.position[2] + 0.025  # the hand over its top
+        assert push.start[2] - 0.015 < prop.position[2] + 0.025 - 0.01  # the fingertips on the prop's face
+    assert pushes[0].heading == pytest.approx(pushes[1].heading + np.pi, abs=1e-9) or pushes[
+        0
+    ].heading == pytest.approx(pushes[1].heading - np.pi, abs=1e-9)
+
+
+def test_a_prop_all_under_its_plank_cannot_be_slid_out():
+    plank = Piece("plank", (0.0, 0.0, 0.075))
+    assert not slide_outs(Piece("prop", (0.03, 0.0, 0.025)), [plank])
+    assert slide_outs(Piece("prop", (0.07 + 0.025, 0.0, 0.025)), [plank])
+
+
+def test_the_lookouts_far_cube_stands_in_the_way_out_and_its_cross_plank_does_not():
+    pillar, plank, cross, far, prop = world_pieces("lookout")
+    pushes = slide_outs(prop, [plank])
+    assert all(push.passes_over(far, 0.1) for push in pushes)
+    assert not any(push.passes_over(cross, 0.1) or push.passes_over(plank, 0.1) for push in pushes)

@@ -7,8 +7,9 @@ import pytest
 from panda_grasp_env.agents.policies.structure_builder import build_structure
 from panda_grasp_env.env import PandaEnv
 from panda_grasp_env.model.structure_suite import SUITE
+from panda_grasp_env.model.structures import Piece
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.tasks.structure_build import GOAL_FIELDS, StructureBuild, random_structure
+from panda_grasp_env.tasks.structure_build import GOAL_FIELDS, StructureBuild, is_away, random_structure
 
 PLACED = PrimitiveResult("place", True, "ok")
 
@@ -128,3 +129,11 @@ def test_random_actions_build_nothing():
                 break
         assert not info["is_success"]
     env.close()
+
+
+@pytest.mark.unit
+def test_a_prop_under_a_planks_end_is_in_the_goals_way_though_its_centre_lies_far_off():
+    plank = Piece("plank", (0.5, 0.0, 0.075))
+    prop = np.array([0.5 + 0.07 + 0.04 - 0.015, 0.0])  # 9.5 cm from the plank's centre, 1.5 cm under it
+    assert not is_away(prop, [plank])
+    assert is_away(prop + [0.0, 0.09], [plank])  # slid out sideways

@@ -4,11 +4,14 @@ greedy and lookahead planners that differ where order matters."""
 import gymnasium as gym
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from panda_grasp_env.agents.evaluation.benchmarks import STRUCTURE_OPTIONS
-from panda_grasp_env.agents.policies.structure_views import HeightmapPieces, OraclePieces, Targets
+from panda_grasp_env.agents.policies.structure_views import HeightmapPieces, OraclePieces, Targets, kind_of_cells
 from panda_grasp_env.agents.policies.structures import lookahead_planner, structure_planner
 from panda_grasp_env.model.structure_suite import named_structure
+from panda_grasp_env.model.structures import BLOCK_KINDS, symmetry, wrapped
+from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_of_boxes
 from panda_grasp_env.tasks.structure_build import KIND_CODES, goal_rows
 
 
@@ -25,7 +28,7 @@ def test_targets_are_read_back_from_the_desired_goal():
     assert targets.kinds == ["cube"] * 4 + ["plank"]
     assert targets.supports(4) == [1, 3] and targets.supports(1) == [0] and targets.supports(0) == []
     np.testing.assert_allclose(targets.yaws[4] % np.pi, 0.3, atol=1e-9)
-    assert set(KIND_CODES) == {"cube", "plank"}
+    assert KIND_CODES == {"cube": 1, "plank": 2, "prop": 3}
 
 
 @pytest.mark.unit
@@ -80,3 +83,27 @@ def test_the_lookahead_builds_the_seesaw_in_the_order_that_stands_where_greedy_f
     assert not greedy["is_success"]
     lookahead = play("seesaw", lambda env: lookahead_planner(env, 100), seed=100)
     assert lookahead["is_success"] and lookahead["in_place"] == 4
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("kind", ["cube", "prop", "plank"])
+@pytest.mark.parametrize("yaw", [0.0, 0.4, 1.3, 2.9])
+def test_a_piece_lying_flat_is_known_by_its_length_on_the_heightmap(kind, yaw):
+    grid = HeightmapGrid(((0.3, 0.7), (-0.2, 0.2), (0.0, 0.3)), 0.004)
+    heights = heightmap_of_boxes(grid, np.array([[0.5, 0.0, 0.025]]), np.array([BLOCK_KINDS[kind]]), np.array([yaw]))
+    # The camera sees edges blurred: one cell more all round.
+    seen = ndimage.binary_dilation(heights > 0.01)
+    rows, cols = np.nonzero(seen)
+    found, heading = kind_of_cells(grid.cell_centres(rows, cols))
+    assert found == kind
+    assert abs(wrapped(heading - yaw, symmetry(kind))) < np.deg2rad(3)
+
+
+# The cantilever's plank tips alone: the lookahead stands the spare prop under its far end, builds, then slides
+# the prop out once the near cubes hold the plank.  The lookout's prop must go before its far cube.
+@pytest.mark.parametrize("name", ["cantilever", "lookout"])
+def test_the_lookahead_stands_a_scaffold_and_slides_it_out_where_greedy_fails(name):
+    lookahead = play(name, lambda env: lookahead_planner(env, 0), seed=0)
+    assert lookahead["is_success"] and lookahead["away"]
+    greedy = play(name, lambda env: structure_planner(env, 0, oracle=False), seed=0)
+    assert not greedy["is_success"]
