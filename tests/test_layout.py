@@ -7,8 +7,9 @@ and a PyPI package is named ``perception``: research code must be able to have b
 from __future__ import annotations
 
 import ast
-import json
+import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -114,40 +115,6 @@ def test_every_env_module_is_in_a_layer_folder_or_the_gym_api():
     assert top_level == {"__init__", "geometry", "registration", "config_fields", *gym_api}
 
 
-def test_no_import_cycles():
-    graph, state, cycles = import_graph(), {}, []
-
-    def visit(module: str, path: list[str]) -> None:
-        state[module] = "open"
-        for target in sorted(graph[module]):
-            if state.get(target) == "open":
-                cycles.append(path[path.index(target) :] + [target] if target in path else [module, target])
-            elif target not in state:
-                visit(target, [*path, target])
-        state[module] = "done"
-
-    for module in sorted(graph):
-        if module not in state:
-            visit(module, [module])
-    assert cycles == []
-
-
-def test_no_module_imports_a_layer_above_its_own():
-    rank = {name: i for i, name in enumerate(LAYERS)}
-    upward = [
-        f"{m} ({layer(m)}) -> {t} ({layer(t)})"
-        for m, targets in import_graph().items()
-        for t in targets
-        if rank[layer(t)] > rank[layer(m)]
-    ]
-    assert upward == []
-
-
-def test_the_simulation_imports_nothing_of_the_tasks_or_the_gym_api():
-    sim_imports = [(m, t) for m, targets in import_graph().items() if layer(m) == "sim" for t in targets]
-    assert [f"{m} -> {t}" for m, t in sim_imports if layer(t) in ("tasks", "gym_api")] == []
-
-
 @pytest.mark.parametrize("folder", ["sim", "primitives"])
 def test_inside_a_layer_a_module_imports_only_the_modules_the_reference_page_lists_before_it(folder):
     """docs/reference/simulation.md lists the modules bottom first; every module of the folder is on it."""
@@ -182,54 +149,75 @@ def test_what_runs_after_every_control_step_is_added_from_above_the_simulation()
     assert {layer(m) for m, _ in added} == {"sim", "gym_api", "tooling"}
 
 
-#: The evaluation sub-package, bottom first: a module imports only those before it.  The benchmarks (ids, options,
-#: seed counts) and the metrics stand alone; an episode is played from the protocol's spec; the runner and the
-#: report build on episodes.
-EVALUATION = ("benchmarks", "metrics", "protocol", "episodes", "runner", "report")
+def wheel_layout(tmp_path: Path) -> Path:
+    """The package's modules as a wheel lays them out (``agents/`` and ``perception/`` inside
+    ``panda_grasp_env/``), with ``pyproject.toml`` beside them: what import-linter reads its graph from."""
+    root = tmp_path / "wheel"
+    for folder, installed in (("panda_grasp_env", ""), ("agents", "agents"), ("perception", "perception")):
+        for path in (ROOT / folder).rglob("*.py"):
+            target = root / "panda_grasp_env" / installed / path.relative_to(ROOT / folder)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(path, target)
+    shutil.copy(ROOT / "pyproject.toml", root)
+    return root
 
 
-@pytest.mark.unit
-def test_the_evaluation_modules_import_only_those_below_them():
+def lint_imports(root: Path) -> subprocess.CompletedProcess:
+    """import-linter's command on the contracts of ``pyproject.toml`` (``[tool.importlinter]``), in ``root``."""
+    command = [str(Path(sys.executable).parent / "lint-imports"), "--no-cache"]
+    environment = {**os.environ, "PYTHONPATH": str(root)}
+    return subprocess.run(command, cwd=root, env=environment, capture_output=True, text=True, timeout=300)
+
+
+def test_the_import_contracts_hold(tmp_path):
+    """The layers, the agents' and the evaluation's sub-layers, and no cycles (``pyproject.toml``)."""
+    done = lint_imports(wheel_layout(tmp_path))
+    assert done.returncode == 0 and "Contracts: 4 kept, 0 broken." in done.stdout, done.stdout[-3000:]
+    analysed = int(re.search(r"Analyzed (\d+) files", done.stdout).group(1))
+    assert analysed == len(module_files())  # agents/ and perception/ too
+
+
+@pytest.mark.parametrize(
+    ("planted", "contract"),
+    [
+        ({"sim/planted.py": "from panda_grasp_env.tasks import base\n"}, "Layers"),
+        ({"perception/planted.py": "import panda_grasp_env.agents.evaluation.report\n"}, "Layers"),
+        ({"agents/policies/planted.py": "import panda_grasp_env.agents.learning.training\n"}, "Agents"),
+        ({"agents/evaluation/metrics.py": "import panda_grasp_env.agents.evaluation.runner\n"}, "Evaluation"),
+        (
+            {
+                "sim/planted_a.py": "import panda_grasp_env.sim.planted_b\n",
+                "sim/planted_b.py": "import panda_grasp_env.sim.planted_a\n",
+            },
+            "No cycles",
+        ),
+    ],
+)
+def test_an_import_planted_against_the_contracts_is_caught(tmp_path, planted, contract):
+    root = wheel_layout(tmp_path)
+    for name, source in planted.items():  # a new module, or an import added to one
+        path = root / "panda_grasp_env" / name
+        path.write_text((path.read_text() if path.exists() else "") + source)
+    done = lint_imports(root)
+    assert done.returncode != 0 and re.search(rf"^{contract}.* BROKEN", done.stdout, re.M), done.stdout[-3000:]
+
+
+def test_every_agents_and_evaluation_module_has_its_place_in_the_contracts():
+    """A new module of ``agents/`` lands in a sub-package, and one of the evaluation in its layers."""
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    listed = {m.strip() for c in contracts if c["type"] == "layers" for layer in c["layers"] for m in layer.split(":")}
     package = "panda_grasp_env.agents.evaluation"
-    rank = {f"{package}.{name}": i for i, name in enumerate(EVALUATION)}
-    assert {m for m in module_files() if m.startswith(f"{package}.")} == set(rank)  # a new module takes a place
-    graph = import_graph()
-    upward = [f"{m} -> {t}" for m in rank for t in graph[m] if rank.get(t, -1) > rank[m]]
-    assert upward == []
-
-
-#: The agents' sub-packages, bottom first: evaluation plays the policies; learning validates its runs through
-#: evaluation's episodes and metrics.  Nothing else sits in agents/ (its ``checkpoints/`` are package data).
-AGENT_PACKAGES = ("policies", "evaluation", "learning")
-#: The only imports against that order: a learned agent reads what learning wrote, its training config (the env
-#: and the view of it the policy was trained on) and its policy files.  They close a loop between the
-#: sub-packages, never between modules (``test_no_import_cycles``): config and policy_files import nothing of
-#: evaluation or of the policies.
-LEARNED_AGENT_READS = {
-    "panda_grasp_env.agents.policies.learned -> panda_grasp_env.agents.learning.config",
-    "panda_grasp_env.agents.policies.learned -> panda_grasp_env.agents.learning.policy_files",
-}
-
-
-def test_the_agents_sub_packages_import_only_those_below_them():
-    rank = {name: i for i, name in enumerate(AGENT_PACKAGES)}
-    package_of = {m: m.split(".")[2] for m in module_files() if m.startswith("panda_grasp_env.agents.")}
-    assert set(package_of.values()) == set(rank)  # every module is in a sub-package
-    graph = import_graph()
-    upward = {
-        f"{m} -> {t}"
-        for m in package_of
-        for t in graph[m] & package_of.keys()
-        if rank[package_of[t]] > rank[package_of[m]]
-    }
-    assert upward == LEARNED_AGENT_READS
+    assert {m for m in module_files() if m.startswith(f"{package}.")} <= listed
+    assert {".".join(m.split(".")[:3]) for m in module_files() if m.startswith("panda_grasp_env.agents.")} <= listed
 
 
 @pytest.mark.unit
 def test_the_tests_mirror_the_layers():
     """A layer's tests sit in a folder named after it (the agents' in one per sub-package; the falls package,
     counted as tooling, in its own); only the project-wide checks sit at the top of ``tests/``."""
-    layer_folders = {*LAYERS, "falls", *(f"agents/{package}" for package in AGENT_PACKAGES)} - {"agents", "tooling"}
+    layer_folders = {*LAYERS, "falls", *(f"agents/{package}" for package in ("policies", "evaluation", "learning"))}
+    layer_folders -= {"agents", "tooling"}
     folders = {path.parent.relative_to(ROOT / "tests").as_posix() for path in (ROOT / "tests").rglob("test_*.py")}
     assert folders - {"."} <= layer_folders
     top = sorted(path.name for path in (ROOT / "tests").glob("test_*.py"))
@@ -263,33 +251,6 @@ def test_outside_the_repository_only_panda_grasp_env_is_importable(tmp_path):
     assert found == '{"agents": false, "perception": false}'
 
 
-@pytest.mark.parametrize("installed", [True, False], ids=["beside-an-editable-install", "without-an-install"])
-def test_a_second_checkout_runs_its_own_code(tmp_path, installed):
-    """A copy of the checkout imports all three packages from itself: with this checkout installed editable,
-    the install's mapping of agents/ and perception/ must not win; without an install, both must import."""
-    import shutil
-
-    checkout = tmp_path / "other-checkout"
-    for folder in ("panda_grasp_env", "agents", "perception"):
-        shutil.copytree(ROOT / folder, checkout / folder, ignore=shutil.ignore_patterns("checkpoints", "__pycache__"))
-    shutil.copy(ROOT / "pyproject.toml", checkout)
-    forget_the_install = (
-        "sys.meta_path[:] = [f for f in sys.meta_path if 'editable' not in type(f).__module__]\n"
-        f"sys.path[:] = [p for p in sys.path if p.rstrip('/') != {str(ROOT)!r}]\n"
-    )
-    script = (
-        "import json, sys\n"
-        + ("" if installed else forget_the_install)
-        + "import panda_grasp_env, panda_grasp_env.agents.policies.towers, panda_grasp_env.perception.heightmap\n"
-        "print(json.dumps([sys.modules[n].__file__ for n in ('panda_grasp_env', 'panda_grasp_env.agents',\n"
-        "    'panda_grasp_env.perception', 'panda_grasp_env.agents.policies.towers')]))\n"
-    )
-    done = subprocess.run([sys.executable, "-c", script], cwd=checkout, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-2000:]
-    files = json.loads(done.stdout.strip().splitlines()[-1])
-    assert all(Path(f).is_relative_to(checkout) for f in files), files
-
-
 @pytest.mark.unit
 def test_a_runs_commit_label_sees_changes_anywhere_in_the_repository(monkeypatch):
     # The label a card carries ("+changes": code no commit holds) must look at agents/, perception/ and the
@@ -306,18 +267,3 @@ def test_a_runs_commit_label_sees_changes_anywhere_in_the_repository(monkeypatch
     monkeypatch.setattr(runs.subprocess, "run", fake_git)
     assert runs.commit.__wrapped__() == "abc1234+changes"
     assert all(Path(command[command.index("-C") + 1]) == ROOT for command in calls)
-
-
-def test_importing_the_env_leaves_jax_out_while_qpsolvers_keeps_its_solvers():
-    """qpsolvers' jaxopt backend imports jax before finding jaxopt missing; the package skips that import."""
-
-    def run(code: str) -> dict:
-        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-        return json.loads(done.stdout.strip().splitlines()[-1])
-
-    report = "print(json.dumps({'jax': 'jax' in sys.modules, 'solvers': qpsolvers.available_solvers}))"
-    plain = run(f"import json, sys, qpsolvers; {report}")
-    if not plain["jax"]:
-        pytest.skip("qpsolvers does not import jax here (jax not installed, or jaxopt is)")
-    ours = run(f"import json, sys, panda_grasp_env, qpsolvers; {report}")
-    assert not ours["jax"] and ours["solvers"] == plain["solvers"]

@@ -2,7 +2,7 @@
 
 An episode is fully determined by its ``EpisodeSpec`` (agent, task, seed, options): the env is reset with the
 seed and every agent draws from generators seeded from it, so results repeat bit for bit, in any process, in
-any order.  A ``Protocol`` is one run's set of them (``evaluate.py``'s agents, tasks, seeds and task options).
+any order.  A ``RunProtocol`` is one run's set of them (``evaluate.py``'s agents, tasks, seeds and task options).
 The benchmark tasks themselves, their env ids and their quick and full seed counts, are declared in
 ``benchmarks``.
 """
@@ -311,7 +311,7 @@ def task_options_from_pairs(pairs: list[str], tasks: list[str]) -> dict[str, Any
 
 
 @dataclass(frozen=True)
-class Protocol:
+class RunProtocol:
     """One run's episodes: every (agent, task) pair that applies (``skip_reason``), on the chosen seeds, with
     ``task_options`` on top of each task's ``make`` options."""
 

@@ -16,7 +16,13 @@ import numpy as np
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 from panda_grasp_env.agents.evaluation.episodes import clip_path, first_of_each_pair, run_episode
 from panda_grasp_env.agents.evaluation.metrics import aggregate
-from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, Protocol, code_label, imported_files, is_low_level
+from panda_grasp_env.agents.evaluation.protocol import (
+    EpisodeSpec,
+    RunProtocol,
+    code_label,
+    imported_files,
+    is_low_level,
+)
 from panda_grasp_env.tooling.runs import machine, versions, write_atomically
 
 
@@ -41,7 +47,7 @@ def applicable(task: str, metrics: dict) -> dict[str, float | None]:
     }
 
 
-def write_results(records: dict[str, dict], protocol: Protocol, skipped: dict[str, str], out: Path) -> dict:
+def write_results(records: dict[str, dict], protocol: RunProtocol, skipped: dict[str, str], out: Path) -> dict:
     """results.json (protocol, provenance, metrics, episodes), results.csv (the metrics) and timing.json (wall
     time per episode, milliseconds per decision) in ``out`` from the episode ``records``; returns the metrics
     ``table``, the ``timing`` and the ``protocol`` record."""
@@ -156,7 +162,7 @@ def videos(specs: list[EpisodeSpec], out: Path) -> list[Path]:
     return written
 
 
-def learning_curves(protocol: Protocol, out: Path) -> list[str]:
+def learning_curves(protocol: RunProtocol, out: Path) -> list[str]:
     """Copy each evaluated checkpoint's learning curve into ``out``; Markdown lines that show them."""
     lines = []
     for checkpoint in protocol.checkpoints():
@@ -174,7 +180,7 @@ def learning_curves(protocol: Protocol, out: Path) -> list[str]:
 
 def write_report(
     out: Path,
-    protocol: Protocol,
+    protocol: RunProtocol,
     skipped: dict[str, str],
     table_md: str,
     video_paths: list[Path],

@@ -43,7 +43,7 @@ import numpy as np
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS, default_benchmarks
 from panda_grasp_env.agents.evaluation.episodes import close_kept_env
 from panda_grasp_env.agents.evaluation.protocol import (
-    Protocol,
+    RunProtocol,
     all_agents,
     baseline,
     import_modules,
@@ -250,7 +250,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             parser.error("--ray needs Ray: pip install -e '.[ray]'")
     if args.out is None:
         args.out = Path("results/demo" if args.demo else "results/full" if args.full else "results/quick")
-    args.protocol = Protocol(
+    args.protocol = RunProtocol(
         agents=tuple(args.agents),
         tasks=tuple(args.tasks),
         full=args.full,
