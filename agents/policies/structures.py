@@ -277,7 +277,7 @@ class StructurePlanner:
         moves: dict[int, tuple[np.ndarray, float]] = {}
         free = list(seen.loose)
         for centre, yaw, piece_kind in [(self.targets.centres[index], float(self.targets.yaws[index]), kind)] + [
-            (c, y, "cube") for c, y in column
+            (c, y, "prop") for c, y in column
         ]:
             piece = next((p for p in free if p.kind == piece_kind), None)
             if piece is None:
