@@ -40,6 +40,7 @@ from panda_grasp_env.agents.policies.registry import (
 )
 from panda_grasp_env.env_options import AGENT_OPTIONS
 from panda_grasp_env.registration import ENV_IDS, TASKS
+from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_text
 from panda_grasp_env.tooling.runs import apply_key_values
 
 if TYPE_CHECKING:
@@ -188,7 +189,7 @@ def learned_skip_reason(agent: str, task: str) -> str | None:
         return trained_for
     if is_low_level(benchmark.env_id, benchmark.options) != is_low_level(config.env_id, config.env_kwargs):
         return f"{trained_for}, at the other level of action"
-    card = (checkpoint.path / "checkpoint.json").read_text()
+    card = read_text(checkpoint.path / "checkpoint.json", MAX_DOCUMENT_BYTES)
     mismatch = _policy_mismatch(checkpoint.path.resolve(), card, checkpoint.provenance()["policy_sha256"], task)
     return None if mismatch is None else f"{trained_for}; on {task}: {mismatch}"
 

@@ -17,6 +17,7 @@ import numpy as np
 from panda_grasp_env.agents.evaluation.episodes import clip_path, first_of_each_pair, run_episode
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, code_label, import_modules
 from panda_grasp_env.geometry import is_count, is_number
+from panda_grasp_env.tooling.reading import MAX_LOG_BYTES, parse_json, read_text
 from panda_grasp_env.tooling.runs import ray_tasks, write_atomically
 
 
@@ -103,15 +104,16 @@ def _load(path: Path, code: str, keys: set[str]) -> tuple[dict[str, dict], list[
     code wrote for this protocol (episode ``keys``), with the fields and types it writes, is a ``ValueError``
     naming the line: an edited record is refused, never reported."""
     done, stale = {}, []
-    lines = path.read_text().splitlines() if path.exists() else []
+    text = read_text(path, MAX_LOG_BYTES) if path.exists() or path.is_symlink() else ""
+    lines = text.splitlines()
     for number, line in enumerate(lines, 1):
         where = f"{path} line {number}"
         try:
-            record = json.loads(line)
-        except json.JSONDecodeError:
-            if number == len(lines):
+            record = parse_json(line, where)
+        except ValueError as error:
+            if number == len(lines) and not text.endswith("\n"):  # every record ends its line
                 continue
-            raise ValueError(f"{where} is not JSON; --resume reads only records this program wrote") from None
+            raise ValueError(f"{error}; --resume reads only records this program wrote") from None
         if not isinstance(record, dict):
             raise ValueError(f"{where} is not an episode record (a JSON object)")
         if record.get("commit") == code:

@@ -18,7 +18,7 @@ import gymnasium as gym
 
 from panda_grasp_env.geometry import is_count
 from panda_grasp_env.registration import ENTRY_POINT, ENV_IDS
-from panda_grasp_env.tooling.runs import read_json
+from panda_grasp_env.tooling.reading import read_json
 
 #: The largest ``metadata.json`` read (bytes): spaces and specs are small; a Box's bounds are listed in full.
 MAX_METADATA_BYTES = 16 << 20

@@ -39,7 +39,8 @@ from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS
 from panda_grasp_env.agents.evaluation.episodes import make_agent, make_env
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, all_agents, skip_reason, task_options_from_pairs
 from panda_grasp_env.agents.learning.datasets import open_dataset, recorded_env
-from panda_grasp_env.tooling.runs import commit, is_signed, read_json, sha256, sign_run_files, write_json
+from panda_grasp_env.tooling.reading import read_json
+from panda_grasp_env.tooling.runs import commit, is_signed, sha256, sign_run_files, write_json
 
 #: A shard's manifest, in its dataset folder.
 MANIFEST = "manifest.json"

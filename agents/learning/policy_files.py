@@ -21,7 +21,8 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.geometry import is_count
-from panda_grasp_env.tooling.runs import atomic_path, read_json, sha256, write_json
+from panda_grasp_env.tooling.reading import read_json
+from panda_grasp_env.tooling.runs import atomic_path, sha256, write_json
 
 #: The file format written by ``save_policy``; ``load_policy`` refuses others.
 FORMAT = 1

@@ -22,14 +22,15 @@ from panda_grasp_env.agents.learning.seed_figures import study_markdown
 from panda_grasp_env.agents.policies import learned
 from panda_grasp_env.agents.policies.learned import SHIPPED_FILES
 from panda_grasp_env.agents.policies.policy_agent import ACTING_RULES, check_acting_rules
-from panda_grasp_env.tooling.runs import atomic_path, read_json, resume_summary, write_atomically, write_json
+from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, MAX_LOG_BYTES, read_json, read_json_lines
+from panda_grasp_env.tooling.runs import atomic_path, resume_summary, write_atomically, write_json
 
 
 def read_evaluations(run_dir: Path) -> list[dict[str, Any]]:
     path = run_dir / "evaluations.jsonl"
     if not path.exists():
         return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return [record for _, record in read_json_lines(path, MAX_LOG_BYTES)]
 
 
 def plot_curve(run_dir: Path, title: str, steps: str = "environment steps") -> None:
@@ -130,7 +131,7 @@ def earlier_tests(run_dir: Path, best_steps: int, steps: int) -> list[dict[str, 
     path = run_dir / "final.json"
     if not path.is_file():
         return []
-    previous = json.loads(path.read_text())
+    previous = read_json(path, MAX_DOCUMENT_BYTES)
     if (previous.get("best_steps"), previous.get("steps")) != (best_steps, steps):
         return []
     test = {"test_commit": previous.get("test_commit"), "metrics": previous["metrics"]}
@@ -150,7 +151,7 @@ def demonstrations_summary(config: TrainConfig) -> str:
 def model_card(config: TrainConfig, run_dir: Path, final: dict[str, Any], name: str | None = None) -> str:
     """The model card (markdown) of a run or shipped checkpoint folder; ``name``: the checkpoint's name, when it
     was shipped under another name than its run's (``config.name``)."""
-    meta = json.loads((run_dir / "meta.json").read_text())
+    meta = read_json(run_dir / "meta.json", MAX_DOCUMENT_BYTES)
     m = final["metrics"]
     low_level = is_low_level(config.env_id, config.env_kwargs)
 
@@ -276,7 +277,7 @@ def seeds_section(folder: Path) -> list[str]:
     attached with ``attach_study``), or nothing."""
     if not (folder / "seeds.json").is_file():
         return []
-    study = json.loads((folder / "seeds.json").read_text())
+    study = read_json(folder / "seeds.json", MAX_DOCUMENT_BYTES)
     return ["## Over training seeds", "", study_markdown(study), "", "![performance profile](seeds_profile.png)", ""]
 
 
@@ -297,13 +298,13 @@ def ship(run_dir: Path, name: str, **acting: bool) -> Path:
     if any(acting.values()) and config.algo not in HEIGHTMAP_ALGORITHMS:
         on = [rule for rule, value in acting.items() if value]
         raise ValueError(f"{', '.join(on)}: only heightmap_dqn policies act by these rules, {run_dir} is {config.algo}")
-    best = json.loads((run_dir / "best.json").read_text())
+    best = read_json(run_dir / "best.json", MAX_DOCUMENT_BYTES)
     staging = learned.CHECKPOINTS / f".{name}.tmp"
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     for f in SHIPPED_FILES:
         shutil.copy2(run_dir / f, staging / f.replace("best_policy.", "policy."))
-    final = json.loads((run_dir / "final.json").read_text())
+    final = read_json(run_dir / "final.json", MAX_DOCUMENT_BYTES)
     (staging / "card.md").write_text(model_card(config, run_dir, final, name))  # under the checkpoint's name
     size = (staging / "policy.safetensors").stat().st_size
     if size > 20e6:
@@ -312,7 +313,7 @@ def ship(run_dir: Path, name: str, **acting: bool) -> Path:
     write_json(
         staging / "checkpoint.json",
         {
-            "policy_class": json.loads((staging / "policy.json").read_text())["policy_class"],
+            "policy_class": read_json(staging / "policy.json", MAX_DOCUMENT_BYTES)["policy_class"],
             "steps": best["steps"],
             "env_id": config.env_id,
             "task": task_label(config.env_id, config.env_kwargs),
@@ -335,7 +336,7 @@ def ship(run_dir: Path, name: str, **acting: bool) -> Path:
 def attach_study(study_dir: Path, checkpoint: Path) -> Path:
     """Give shipped ``checkpoint`` the study in ``study_dir`` (seeds.json, seeds_profile.png) and rewrite its
     card; ``ValueError`` unless the study trained the checkpoint's config (its seed aside)."""
-    study = json.loads((study_dir / "study.json").read_text())
+    study = read_json(study_dir / "study.json", MAX_DOCUMENT_BYTES)
     config = load_run(checkpoint)
     own = {k: v for k, v in dataclasses.asdict(config).items() if k != "seed"}
     differing = sorted(k for k in own.keys() | study["config"].keys() if own.get(k) != study["config"].get(k))
@@ -343,6 +344,6 @@ def attach_study(study_dir: Path, checkpoint: Path) -> Path:
         raise ValueError(f"{study_dir} trained another config than {checkpoint.name}'s: {differing} differ")
     shutil.copyfile(study_dir / "study.json", checkpoint / "seeds.json")
     shutil.copyfile(study_dir / "profile.png", checkpoint / "seeds_profile.png")
-    final = json.loads((checkpoint / "final.json").read_text())
+    final = read_json(checkpoint / "final.json", MAX_DOCUMENT_BYTES)
     write_atomically(checkpoint / "card.md", model_card(config, checkpoint, final, checkpoint.name))
     return checkpoint

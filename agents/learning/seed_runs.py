@@ -17,7 +17,6 @@ seeds.json and seeds_profile.png, and the model card and evaluate.py's report.ht
 from __future__ import annotations
 
 import dataclasses
-import json
 import multiprocessing
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,7 @@ import yaml
 
 from panda_grasp_env.agents.learning.config import TrainConfig, config_from_dict
 from panda_grasp_env.agents.learning.seed_figures import profile_figure, score, study_markdown, study_summary
+from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json, read_text
 from panda_grasp_env.tooling.runs import ray_tasks, write_atomically, write_json
 
 
@@ -56,7 +56,7 @@ def train_seed(raw: dict[str, Any], runs_dir: str) -> dict[str, Any]:
     same = [
         d
         for d in sorted(runs.glob(f"{config.name}-seed{config.seed}*"))
-        if (d / "config.yaml").is_file() and (d / "config.yaml").read_text() == _config_text(config)
+        if (d / "config.yaml").is_file() and read_text(d / "config.yaml", MAX_DOCUMENT_BYTES) == _config_text(config)
     ]
     finished = [d for d in same if (d / "final.json").is_file()]
     resumable = [d for d in same if (d / "latest.zip").is_file() and not (d / "final.json").is_file()]
@@ -69,7 +69,8 @@ def train_seed(raw: dict[str, Any], runs_dir: str) -> dict[str, Any]:
     else:
         run_dir = start_run(config, runs)
         train(config, run_dir, progress_bar=False)
-    return {"seed": config.seed, "run_dir": str(run_dir), "final": json.loads((run_dir / "final.json").read_text())}
+    final = read_json(run_dir / "final.json", MAX_DOCUMENT_BYTES)
+    return {"seed": config.seed, "run_dir": str(run_dir), "final": final}
 
 
 def _train_seed(arguments: tuple[dict[str, Any], str]) -> dict[str, Any]:

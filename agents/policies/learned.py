@@ -29,7 +29,8 @@ import numpy as np
 from panda_grasp_env.agents.learning.config import TrainConfig, config_from_dict, make_env, observation_transform
 from panda_grasp_env.agents.learning.policy_files import export_sb3, load_policy, load_sb3, policy_paths
 from panda_grasp_env.agents.policies.policy_agent import ACTING_RULES, PolicyAgent, check_acting_rules
-from panda_grasp_env.tooling.runs import read_json, sha256
+from panda_grasp_env.tooling.reading import read_json, read_yaml
+from panda_grasp_env.tooling.runs import sha256
 
 CHECKPOINTS = Path(__file__).resolve().parents[1] / "checkpoints"
 SHIPPED_FILES = (
@@ -92,16 +93,7 @@ def read_checkpoint_facts(path: Path) -> dict[str, Any]:
 
 def read_config(path: Path) -> TrainConfig:
     """A checkpoint's config.yaml (YAML's safe subset, at most ``MAX_CONFIG_BYTES``); ``ValueError`` naming it."""
-    import yaml
-
-    try:
-        if path.stat().st_size > MAX_CONFIG_BYTES:
-            raise ValueError(f"{path} holds {path.stat().st_size} bytes, more than the {MAX_CONFIG_BYTES} it may")
-        raw = yaml.safe_load(path.read_text())
-    except OSError as error:
-        raise ValueError(f"cannot read {path}: {error.strerror or error}") from None
-    except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as error:
-        raise ValueError(f"{path} is not valid YAML: {error}") from None
+    raw = read_yaml(path, MAX_CONFIG_BYTES)
     if not isinstance(raw, dict) or not all(isinstance(k, str) for k in raw):
         raise ValueError(f"{path} must be a mapping of training config keys")
     return config_from_dict(raw, str(path))

@@ -35,6 +35,7 @@ from panda_grasp_env.agents.evaluation.protocol import is_low_level
 from panda_grasp_env.agents.evaluation.report import describe_seeds
 from panda_grasp_env.commands.results_figures import agent_order, split_key
 from panda_grasp_env.commands.results_page import page_html, table_html
+from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json
 from panda_grasp_env.tooling.runs import write_atomically
 
 #: Shuffles of the permutation tests, and the seed they are drawn from.
@@ -68,7 +69,7 @@ def load(folder: Path) -> dict[str, Any]:
     """A run's results.json; ``ValueError`` naming the folder if it has none."""
     path = Path(folder) / "results.json"
     try:
-        return json.loads(path.read_text())
+        return read_json(path, MAX_DOCUMENT_BYTES)
     except (OSError, json.JSONDecodeError) as error:
         raise ValueError(f"{folder} is not a finished evaluate.py results folder ({path}: {error})") from None
 

@@ -56,6 +56,7 @@ from panda_grasp_env.commands.results_figures import save_pngs
 from panda_grasp_env.commands.results_page import write_page
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre
 from panda_grasp_env.sim.workcell import Workcell
+from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_yaml
 from panda_grasp_env.tooling.runs import interrupt_on_signals
 from panda_grasp_env.tooling.video import VideoRecorder
 
@@ -117,12 +118,7 @@ PROTOCOL_KEYS = {
 
 def protocol_argv(path: Path) -> list[str]:
     """The flags a ``--config`` protocol file stands for; ``ValueError`` naming a bad key or value."""
-    import yaml
-
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as error:
-        raise ValueError(f"cannot read protocol file {path}: {error}") from None
+    raw = read_yaml(path, MAX_DOCUMENT_BYTES)
     if not isinstance(raw, dict):
         raise ValueError(f"protocol file {path} must be a mapping of {list(PROTOCOL_KEYS)}")
     unknown = [k for k in raw if k not in PROTOCOL_KEYS]

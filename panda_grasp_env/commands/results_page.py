@@ -31,6 +31,7 @@ from panda_grasp_env.commands.results_figures import (
     success_figure,
     svg,
 )
+from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json
 from panda_grasp_env.tooling.runs import write_atomically
 
 # --- the heatmap ---------------------------------------------------------------------------------------------
@@ -294,7 +295,7 @@ def seeds_section(checkpoint: str) -> str:
         return ""
     from panda_grasp_env.agents.learning.seed_figures import study_html
 
-    return study_html(json.loads(path.read_text()))
+    return study_html(read_json(path, MAX_DOCUMENT_BYTES))
 
 
 def _protocol(results: dict[str, Any]) -> str:
@@ -327,8 +328,8 @@ def _protocol(results: dict[str, Any]) -> str:
 
 def build_page(out: Path) -> str:
     """report.html's text for the results folder ``out`` (results.json, timing.json, videos/, curve_*.png)."""
-    results = json.loads((out / "results.json").read_text())
-    timing = json.loads((out / "timing.json").read_text()) if (out / "timing.json").is_file() else {}
+    results = read_json(out / "results.json", MAX_DOCUMENT_BYTES)
+    timing = read_json(out / "timing.json", MAX_DOCUMENT_BYTES) if (out / "timing.json").is_file() else {}
     table = results["metrics"]
     tasks = results["protocol"]["tasks"]
     skipped = results["protocol"].get("skipped", {})

@@ -32,13 +32,13 @@ Splits are by sequence: seed % 10 in 0-7 train, 8 validation, 9 test.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json
 from panda_grasp_env.tooling.runs import sha256
 
 SHARD_ARRAYS = (
@@ -101,7 +101,7 @@ def read_metadata(root: Path | str) -> dict[str, Any]:
         raise ValueError(
             f"{root} is not a fall dataset: metadata.json missing (record one with python -m panda_grasp_env.falls)"
         )
-    return json.loads(path.read_text())
+    return read_json(path, MAX_DOCUMENT_BYTES)
 
 
 def verify_shard(root: Path, entry: dict[str, Any]) -> None:

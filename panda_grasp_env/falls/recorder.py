@@ -34,6 +34,7 @@ import numpy as np
 from panda_grasp_env.falls.config import BREAKERS, LATER_SETTINGS, RENDER_SIZE, RecorderSettings
 from panda_grasp_env.falls.dataset import SHARD_ARRAYS, split_of
 from panda_grasp_env.sim.stepping import body_speeds
+from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json
 from panda_grasp_env.tooling.runs import (
     atomic_path,
     checked_config,
@@ -233,7 +234,7 @@ def finished_shard(out: Path, index: int, count: int) -> dict[str, Any] | None:
     sidecar = out / f"{name}.json"
     if not sidecar.is_file() or not (out / name).is_file():
         return None
-    entry = json.loads(sidecar.read_text())
+    entry = read_json(sidecar, MAX_DOCUMENT_BYTES)
     if (
         entry["sequences"] != count
         or (out / name).stat().st_size != entry["bytes"]
@@ -257,7 +258,9 @@ def record_dataset(
     # A folder recorded before LATER_SETTINGS existed was recorded as their defaults record.
     defaults = {key: value for key, value in asdict(RecorderSettings()).items() if key in LATER_SETTINGS}
     recorded = (
-        json.loads(json.dumps(defaults)) | json.loads(settings_file.read_text()) if settings_file.exists() else None
+        json.loads(json.dumps(defaults)) | read_json(settings_file, MAX_DOCUMENT_BYTES)
+        if settings_file.exists()
+        else None
     )
     if recorded is not None and recorded != json.loads(json.dumps(wanted)):
         raise ValueError(f"{out} holds a recording with other settings ({settings_file}); use another --out")

@@ -4,7 +4,6 @@ the model card, and the shipped copy of a finished run (``train.py --ship``)."""
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import shutil
 from pathlib import Path
@@ -19,6 +18,7 @@ from panda_grasp_env.falls.dataset import read_metadata, tower_heights
 from panda_grasp_env.falls.directions import DIRECTION_TOLERANCE, FALL_SHIFT
 from panda_grasp_env.falls.model import ARCHITECTURE, FallPredictor, load_fall_model, predict_batch
 from panda_grasp_env.model.scene import DEFAULT_COLOURS
+from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, MAX_LOG_BYTES, read_json, read_json_lines
 from panda_grasp_env.tooling.runs import atomic_path, resume_summary
 
 #: Colours of the class maps in strips: background, then the blocks' own colours in the scene's order (up to 8).
@@ -59,7 +59,7 @@ def plot_fall_curve(run_dir: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = [json.loads(line) for line in (run_dir / "evaluations.jsonl").read_text().splitlines() if line.strip()]
+    rows = [row for _, row in read_json_lines(run_dir / "evaluations.jsonl", MAX_LOG_BYTES)]
     figure, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
     for axis, x, label in (
         (axes[0], [r["epoch"] for r in rows], "epoch"),
@@ -111,7 +111,7 @@ def track_head_summary(run_dir: Path) -> str | None:
     """How a run's track head was fitted before the ConvLSTM's epochs (``track_pretraining.json``), if it was."""
     if not (run_dir / "track_pretraining.json").is_file():
         return None
-    fitted = json.loads((run_dir / "track_pretraining.json").read_text())
+    fitted = read_json(run_dir / "track_pretraining.json", MAX_DOCUMENT_BYTES)
     losses = fitted["validation_loss"]
     return (
         f"track head fitted alone first: {fitted['epochs']} epochs on {fitted['training_rows']} training rows "
@@ -123,7 +123,7 @@ def track_head_summary(run_dir: Path) -> str | None:
 
 def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
     """card.md of a finished run: what was trained on what, the test figures against the baselines, the config."""
-    meta = json.loads((run_dir / "meta.json").read_text())
+    meta = read_json(run_dir / "meta.json", MAX_DOCUMENT_BYTES)
     m, direction = final["metrics"], final["direction"]
     rows = []
     for name in m:

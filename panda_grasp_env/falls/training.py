@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-import yaml
 
 from panda_grasp_env.falls.config import FallConfig, fall_config
 from panda_grasp_env.falls.dataset import FallSequences, load_split, read_metadata
@@ -49,6 +48,7 @@ from panda_grasp_env.falls.model import (
 )
 from panda_grasp_env.falls.records import fall_card, plot_fall_curve, write_strips
 from panda_grasp_env.falls.tracks import SEEN_AREA, TrackHead, block_tracks, track_features
+from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json, read_yaml
 from panda_grasp_env.tooling.runs import (
     atomic_path,
     check_run_files,
@@ -382,7 +382,7 @@ def test_fall_model(folder: Path | str, dataset: str | None = None) -> dict[str,
     weights = folder / ("best.pt" if (folder / "best.pt").is_file() else "model.pt")
     if not weights.is_file() or not (folder / "config.yaml").is_file():
         raise ValueError(f"{folder} is not a fall-dynamics run or checkpoint (best.pt or model.pt, config.yaml)")
-    config = fall_config(yaml.safe_load((folder / "config.yaml").read_text()), str(folder / "config.yaml"))
+    config = fall_config(read_yaml(folder / "config.yaml", MAX_DOCUMENT_BYTES), str(folder / "config.yaml"))
     model, saved = load_fall_model(weights)
     path = dataset or config.dataset
     test = load_split(path, "test", saved.get("label_source", config.label_source), depth=model.use_depth)
@@ -397,6 +397,6 @@ def test_fall_model(folder: Path | str, dataset: str | None = None) -> dict[str,
     }
     result["evaluation_seconds"] = round(time.perf_counter() - began, 1)
     record = folder / "retest.json"
-    results = json.loads(record.read_text()) if record.is_file() else {}
+    results = read_json(record, MAX_DOCUMENT_BYTES) if record.is_file() else {}
     write_json(record, {**results, str(path): result})
     return result

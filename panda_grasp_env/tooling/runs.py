@@ -20,6 +20,8 @@ from typing import Any, TypeVar
 import yaml
 from pydantic import TypeAdapter, ValidationError
 
+from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json
+
 Config = TypeVar("Config")
 Result = TypeVar("Result")
 
@@ -48,39 +50,6 @@ def sha256(path: Path) -> str:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
-
-
-def read_json(path: Path, max_bytes: int, max_depth: int = 32) -> Any:
-    """The JSON value in ``path``, read as data from a file someone else may have written: ``ValueError`` naming
-    the file if it is larger than ``max_bytes``, not UTF-8, not JSON, or nested deeper than ``max_depth``
-    (before Python's recursion limit could be reached)."""
-    try:
-        size = path.stat().st_size
-        if size > max_bytes:
-            raise ValueError(f"{path} holds {size} bytes, more than the {max_bytes} such a file may")
-        text = path.read_bytes().decode("utf-8")
-    except OSError as error:
-        raise ValueError(f"cannot read {path}: {error.strerror or error}") from None
-    except UnicodeDecodeError:
-        raise ValueError(f"{path} is not UTF-8 text") from None
-    depth = deepest = 0
-    in_string = escaped = False
-    for char in text:  # the nesting depth, counted outside strings, before the parser recurses into it
-        if in_string:
-            in_string, escaped = (in_string, False) if escaped else (char != '"', char == "\\")
-        elif char == '"':
-            in_string = True
-        elif char in "[{":
-            depth += 1
-            deepest = max(deepest, depth)
-        elif char in "]}":
-            depth -= 1
-    if deepest > max_depth:
-        raise ValueError(f"{path} nests {deepest} levels deep, more than the {max_depth} such a file may")
-    try:
-        return json.loads(text)
-    except (json.JSONDecodeError, RecursionError) as error:
-        raise ValueError(f"{path} is not valid JSON: {error}") from None
 
 
 def write_json(path: Path, payload: Any) -> None:
@@ -236,7 +205,7 @@ def sign_run_files(run_dir: Path, names: list[str]) -> None:
     Resume files that only a pickle can hold (SB3's model zip, its replay buffer) run code when loaded;
     ``check_run_files`` loads them only if the signature matches, i.e. this user wrote them in this folder."""
     path = run_dir / SIGNATURES
-    signatures = json.loads(path.read_text()) if path.is_file() else {}
+    signatures = read_json(path, 1 << 20) if path.is_file() else {}
     signatures.update({name: _signature(run_dir, name) for name in names})
     write_json(path, signatures)
 
@@ -349,20 +318,20 @@ def record_resume(run_dir: Path, overrides: list[str]) -> None:
     """Append a resumed session to meta.json's ``resumed`` list: when, at which commit, after how many steps
     (progress.json, where the run keeps one) and with which ``key=value`` overrides -- config.yaml holds only
     the latest values, so this is how a card tells a two-stage recipe from a one-stage one."""
-    meta = json.loads((run_dir / "meta.json").read_text())
+    meta = read_json(run_dir / "meta.json", MAX_DOCUMENT_BYTES)
     progress = run_dir / "progress.json"
     session = {"at": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "commit": commit(), "overrides": list(overrides)}
     if progress.is_file():
-        session["after_steps"] = json.loads(progress.read_text())["steps"]
+        session["after_steps"] = read_json(progress, MAX_DOCUMENT_BYTES)["steps"]
     meta.setdefault("resumed", []).append(session)
     write_json(run_dir / "meta.json", meta)
 
 
 def forget_failed_resume(run_dir: Path) -> None:
     """Drop the last ``record_resume`` entry if the run made no progress since it (the session failed to start)."""
-    meta = json.loads((run_dir / "meta.json").read_text())
+    meta = read_json(run_dir / "meta.json", MAX_DOCUMENT_BYTES)
     sessions, progress = meta.get("resumed", []), run_dir / "progress.json"
-    steps = json.loads(progress.read_text())["steps"] if progress.is_file() else None
+    steps = read_json(progress, MAX_DOCUMENT_BYTES)["steps"] if progress.is_file() else None
     if sessions and sessions[-1].get("after_steps") == steps:
         sessions.pop()
         write_json(run_dir / "meta.json", meta)

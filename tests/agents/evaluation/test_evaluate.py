@@ -416,7 +416,7 @@ TAMPERINGS = {
         ),
         "line 2: episode random/TowerBreak/99 is not one of this protocol's",
     ),
-    "not JSON mid-file": (lambda lines: lines[1][:30], "line 2 is not JSON"),
+    "not JSON mid-file": (lambda lines: lines[1][:30], "line 2 is not valid JSON"),
     "bad timing": (
         lambda lines: tampered(lines, lambda r: r["timing"].update(wall_seconds="slow")),
         "line 2: timing must hold",

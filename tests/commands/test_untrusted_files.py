@@ -1,0 +1,107 @@
+"""Files someone else wrote, handed to the project's readers: every bad one is refused at once, with one
+``ValueError`` that names the file, and nothing is read past the bound.
+
+The readers: the bounded JSON / YAML / JSON-lines readers themselves (``tooling.reading``), a Minari dataset's
+``metadata.json``, a checkpoint's ``config.yaml``, an ``evaluate.py --config`` protocol file and an
+``evaluate.py --resume`` episode log.  The files: a FIFO, ``/dev/zero`` (the device, and a symlink to it), a
+directory, a file past the size bound, JSON and YAML nested 10,000 deep, a 341-byte YAML alias bomb, a
+self-referencing alias, and bytes that are not UTF-8.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import tracemalloc
+from pathlib import Path
+
+import pytest
+
+from panda_grasp_env.agents.evaluation.runner import _load as load_resume_log
+from panda_grasp_env.agents.learning.datasets import dataset_metadata
+from panda_grasp_env.agents.policies.learned import read_config
+from panda_grasp_env.commands.evaluate import protocol_argv
+from panda_grasp_env.tooling.reading import read_json, read_json_lines, read_yaml
+
+pytestmark = [pytest.mark.unit, pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="FIFOs and devices: Linux")]
+
+#: Nine levels of nine aliases each: 9**10 nodes once expanded, from 341 bytes.
+ALIAS_BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+    f"{b}: &{b} [{', '.join([f'*{a}'] * 9)}]\n" for a, b in zip("abcdefghi", "bcdefghij")
+)
+
+
+def bad_file(folder: Path, kind: str, name: str) -> Path:
+    """A file called ``name`` in ``folder`` that is ``kind``."""
+    path = folder / name
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "device link":
+        path.symlink_to("/dev/zero")
+    elif kind == "directory":
+        path.mkdir()
+    elif kind == "oversized":  # 300 MiB of zeros, sparse: past every bound
+        path.touch()
+        os.truncate(path, 300 << 20)
+    elif kind == "deep json":
+        path.write_text("[" * 10_000 + "]" * 10_000 + "\n")
+    elif kind == "deep yaml":
+        path.write_text("{a: " * 10_000 + "1" + "}" * 10_000 + "\n")
+    elif kind == "alias bomb":
+        path.write_text(ALIAS_BOMB)
+    elif kind == "self alias":
+        path.write_text("a: &a [*a]\n")
+    elif kind == "not utf-8":
+        path.write_bytes(b'{"a":\n1,\n"\xff"}\n')
+    return path
+
+
+KINDS = ("fifo", "device link", "directory", "oversized", "deep json", "deep yaml", "alias bomb", "self alias")
+KINDS += ("not utf-8",)
+
+
+def resume_log(path: Path) -> object:
+    """``evaluate.py --resume``'s reading of an episode log."""
+    return load_resume_log(path, "abc1234", set())
+
+
+READERS = {
+    "json": (lambda path: read_json(path, 16 << 20), "data.json"),
+    "json lines": (lambda path: list(read_json_lines(path, 16 << 20)), "log.jsonl"),
+    "yaml": (lambda path: read_yaml(path, 16 << 20), "data.yaml"),
+    "dataset metadata": (lambda path: dataset_metadata(path.parent), "metadata.json"),
+    "checkpoint config": (read_config, "config.yaml"),
+    "protocol file": (protocol_argv, "protocol.yaml"),
+    "resume log": (resume_log, "episodes.jsonl"),
+}
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("reader", sorted(READERS))
+def test_a_bad_file_is_refused_at_once_in_one_line_naming_it(tmp_path, reader, kind):
+    read, name = READERS[reader]
+    path = bad_file(tmp_path, kind, name)
+    tracemalloc.start()
+    start = time.perf_counter()
+    try:
+        with pytest.raises(ValueError) as refused:
+            read(path)
+        seconds, (_, peak) = time.perf_counter() - start, tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    message = str(refused.value)
+    assert str(path) in message and "\n" not in message, message
+    assert seconds < 1.0 and peak < 64 << 20  # nothing read past the bound
+
+
+def test_a_bad_line_of_a_log_is_named_by_its_number(tmp_path):
+    path = tmp_path / "log.jsonl"
+    path.write_text('{"a": 1}\n\n{"a": \n{"b": 2}\n')
+    with pytest.raises(ValueError, match=r"log\.jsonl line 3"):
+        list(read_json_lines(path, 1 << 10))
+
+
+def test_yaml_anchors_that_stay_small_still_read(tmp_path):
+    path = tmp_path / "ok.yaml"
+    path.write_text("base: &base {lr: 0.001, gamma: 0.99}\nrun: *base\n")
+    assert read_yaml(path, 1 << 10) == {"base": {"lr": 0.001, "gamma": 0.99}, "run": {"lr": 0.001, "gamma": 0.99}}
