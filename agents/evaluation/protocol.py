@@ -78,7 +78,7 @@ def import_modules(names: Iterable[str]) -> None:
                     raise
             else:
                 importlib.import_module(name)
-        except (ImportError, ValueError) as error:
+        except Exception as error:  # whatever the module raises at import: one line naming it
             raise ValueError(f"--import {name}: {type(error).__name__}: {error}") from None
 
 

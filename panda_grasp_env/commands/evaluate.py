@@ -102,6 +102,9 @@ def demo(args: argparse.Namespace) -> int:
     return 0 if build.success and displaced >= 2 else 1
 
 
+#: The most episodes one (agent, task) pair may play in a run: ``--seeds`` and ``--seed-list`` are bounded
+#: before any episode spec is made.
+MAX_SEEDS = 100_000
 #: ``--config`` file keys and the flags they stand for: a protocol (who plays what, on which seeds, with which
 #: options) in one YAML file.
 PROTOCOL_KEYS = {
@@ -235,8 +238,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         if unknown or not chosen:
             parser.error(f"unknown {name} {unknown or chosen}; valid: {list(valid)}")
         setattr(args, name, chosen)
-    if args.workers < 1 or (args.seeds is not None and args.seeds < 1) or args.seed_start < 0:
-        parser.error("--workers and --seeds must be positive, --seed-start >= 0")
+    if args.workers < 1 or (args.seeds is not None and not 1 <= args.seeds <= MAX_SEEDS) or args.seed_start < 0:
+        parser.error(f"--workers must be positive, --seeds in [1, {MAX_SEEDS}], --seed-start >= 0")
     args.seed_list = parse_seed_list(parser, args)
     args.task_options = parse_task_options(parser, args.task_options, args.tasks)
     if args.ray is not None:
@@ -269,8 +272,8 @@ def parse_seed_list(parser: argparse.ArgumentParser, args: argparse.Namespace) -
         seeds = [int(s) for s in args.seed_list.split(",") if s.strip()]
     except ValueError:
         parser.error(f"--seed-list must be comma-separated integers, got {args.seed_list!r}")
-    if not seeds or min(seeds) < 0 or len(set(seeds)) < len(seeds):
-        parser.error(f"--seed-list must hold distinct seeds >= 0, got {args.seed_list!r}")
+    if not seeds or min(seeds) < 0 or len(set(seeds)) < len(seeds) or len(seeds) > MAX_SEEDS:
+        parser.error(f"--seed-list must hold distinct seeds >= 0, at most {MAX_SEEDS}, got {args.seed_list[:80]!r}")
     return seeds
 
 

@@ -94,7 +94,10 @@ class TowerBuild(Task):
         check_option("broken_share", broken_share, is_number(broken_share) and 0 <= broken_share <= 1, "in [0, 1]")
         check_option("order", order, order in ("any", "fixed"), "'any' or 'fixed'")
         check_option(
-            "tolerance", tolerance, tolerance is None or 0 < float(tolerance) <= 0.025, "None or in (0, 0.025] m"
+            "tolerance",
+            tolerance,
+            tolerance is None or (is_number(tolerance) and 0 < tolerance <= 0.025),
+            "None or a number in (0, 0.025] m",
         )
         check_block_colours(block_colours)
         self.n_blocks = n_blocks

@@ -82,6 +82,13 @@ def test_broken_share_outside_zero_to_one_is_named(share):
 
 
 @pytest.mark.unit
+@pytest.mark.parametrize("tolerance", ["0.01", [0.01], 0.0, 0.05, float("nan"), True])
+def test_a_tolerance_that_is_not_a_number_in_range_is_named_at_make(tolerance):
+    with pytest.raises(ValueError, match="tolerance"):
+        make("PandaTowerBuild-v0", tolerance=tolerance)
+
+
+@pytest.mark.unit
 @pytest.mark.parametrize("n_blocks", [6, 8])
 @pytest.mark.parametrize("env_id", ["PandaTowerBuild-v0", "PandaTowerBreak-v0", "PandaBuildAndBreak-v0"])
 def test_tall_tower_tasks_lay_out_six_or_eight_blocks_of_distinct_colours(env_id, n_blocks):

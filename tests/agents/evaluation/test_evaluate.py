@@ -447,6 +447,25 @@ def test_negative_seeds_get_the_projects_message(capsys):
         assert "--seed-list must hold distinct seeds >= 0" in err and "expected one argument" not in err
 
 
+@pytest.mark.unit
+def test_a_billion_seeds_is_refused_before_any_spec_is_made(capsys):
+    for argv in (["--seeds", str(10**9)], ["--seed-list", ",".join(map(str, range(evaluate.MAX_SEEDS + 1)))]):
+        with pytest.raises(SystemExit):
+            evaluate.parse_args(argv)
+        assert str(evaluate.MAX_SEEDS) in capsys.readouterr().err
+
+
+@pytest.mark.unit
+def test_an_import_that_raises_is_one_error_line_naming_the_module(tmp_path, capsys):
+    broken = tmp_path / "broken_lab.py"
+    broken.write_text("raise RuntimeError('the lab server is down')\n")
+    with pytest.raises(SystemExit) as exited:
+        evaluate.parse_args(["--import", str(broken), "--tasks", "Grasp", "--seeds", "1"])
+    err = capsys.readouterr().err
+    assert exited.value.code == 2 and "Traceback" not in err
+    assert f"--import {broken}: RuntimeError: the lab server is down" in err.splitlines()[-1]
+
+
 def test_evaluate_runs_a_shipped_checkpoint_by_name_and_skips_other_tasks(finished_run, tmp_path, monkeypatch):
     from panda_grasp_env.commands import evaluate
 
