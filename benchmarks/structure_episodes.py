@@ -34,7 +34,7 @@ from panda_grasp_env.tooling.runs import atomic_path
 from panda_grasp_env.tooling.video import write_lines
 
 #: The structures shown, one per row: where order, the fingers' room and a scaffold decide.
-ROWS = ("seesaw", "counterweight_tower", "ring_8", "cantilever")
+ROWS = ("seesaw", "counterweight_tower", "ring_8", "cantilever", "lookout")
 TILE = (320, 240)
 PLANNERS = {"planned": lambda env, seed: structure_planner(env, seed, False), "planned_lookahead": lookahead_planner}
 
@@ -55,6 +55,7 @@ def episode(name: str, agent: str, seed: int) -> tuple[np.ndarray, np.ndarray, f
     env = gym.make("panda_grasp_env:PandaStructure-v0", structure=name, **STRUCTURE_OPTIONS)
     planner = PLANNERS[agent](env, seed)
     observation, info = env.reset(seed=seed)
+    targets = info["n_targets"]
     planner.reset(observation, info)
     actions, done = 0, False
     while not done:  # the env's step limit ends it
@@ -63,7 +64,7 @@ def episode(name: str, agent: str, seed: int) -> tuple[np.ndarray, np.ndarray, f
     layout = env.unwrapped.task.layout
     outcome = "success" if info["is_success"] else info.get("failure_reason") or "step limit"
     frame = view(env.unwrapped.cell, layout.origin, layout.heading)
-    write_lines(frame, [f"{agent}: {outcome}", f"{actions} actions, {info['in_place']}/{info['n_targets']} in place"])
+    write_lines(frame, [f"{agent}: {outcome}", f"{actions} actions, {info['in_place']}/{targets} in place"])
     print(f"{name:20s} seed {seed} {agent:18s} {outcome:14s} {actions:3d} actions")
     env.close()
     return frame, layout.origin, layout.heading

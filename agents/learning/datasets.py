@@ -10,7 +10,6 @@ own registration of the recorded id, after checking that the id is one of ours.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -18,10 +17,14 @@ import gymnasium as gym
 
 from panda_grasp_env.geometry import is_count
 from panda_grasp_env.registration import ENTRY_POINT, ENV_IDS
-from panda_grasp_env.tooling.reading import read_json
+from panda_grasp_env.tooling.reading import parse_json, read_json
 
 #: The largest ``metadata.json`` read (bytes): spaces and specs are small; a Box's bounds are listed in full.
 MAX_METADATA_BYTES = 16 << 20
+
+
+#: ``gymnasium.make``'s own parameters: an env spec's keyword arguments may not name them.
+MAKE_PARAMETERS = frozenset({"id", "max_episode_steps", "autoreset", "apply_api_compatibility", "disable_env_checker"})
 
 
 def dataset_metadata(folder: Path | str) -> dict[str, Any]:
@@ -38,6 +41,7 @@ def dataset_metadata(folder: Path | str) -> dict[str, Any]:
                 f"{path} lacks its {key}: Minari would build the recorded env to learn it, and this "
                 f"project builds no env a dataset describes"
             )
+        parse_json(metadata[key], f"{path}: {key}")  # a space nested deeper than any of ours is refused here
     for key in ("env_spec", "eval_env_spec"):
         if metadata.get(key) is not None:
             env_spec(metadata, key, path)
@@ -47,10 +51,7 @@ def dataset_metadata(folder: Path | str) -> dict[str, Any]:
 def env_spec(metadata: dict[str, Any], key: str, source: Path | str) -> tuple[str, dict[str, Any], int | None]:
     """(id, keyword arguments, max_episode_steps) of the env spec ``metadata[key]`` records, checked: the id
     must be one this project registers, with this project's entry point and no extra wrappers."""
-    try:
-        spec = json.loads(metadata[key]) if isinstance(metadata[key], str) else None
-    except (json.JSONDecodeError, RecursionError):
-        spec = None
+    spec = parse_json(metadata[key], f"{source}: {key}") if isinstance(metadata[key], str) else None
     if not isinstance(spec, dict):
         raise ValueError(f"{source}: {key} is not a JSON env spec")
     env_id, entry_point = spec.get("id"), spec.get("entry_point")
@@ -72,6 +73,9 @@ def env_spec(metadata: dict[str, Any], key: str, source: Path | str) -> tuple[st
     kwargs, steps = spec.get("kwargs") or {}, spec.get("max_episode_steps")
     if not isinstance(kwargs, dict) or not all(isinstance(k, str) for k in kwargs):
         raise ValueError(f"{source}: {key} keyword arguments must be a mapping, got {kwargs!r}")
+    taken = sorted(set(kwargs) & MAKE_PARAMETERS)
+    if taken:
+        raise ValueError(f"{source}: {key} keyword arguments {taken} are gymnasium.make's own, not the env's")
     if steps is not None and (not is_count(steps) or steps < 1):
         raise ValueError(f"{source}: {key} max_episode_steps must be a positive int, got {steps!r}")
     return env_id, kwargs, steps

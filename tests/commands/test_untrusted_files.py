@@ -10,6 +10,7 @@ self-referencing alias, and bytes that are not UTF-8.
 
 from __future__ import annotations
 
+import json
 import os
 import time
 import tracemalloc
@@ -21,6 +22,7 @@ from panda_grasp_env.agents.evaluation.runner import _load as load_resume_log
 from panda_grasp_env.agents.learning.datasets import dataset_metadata
 from panda_grasp_env.agents.policies.learned import read_config
 from panda_grasp_env.commands.evaluate import protocol_argv
+from panda_grasp_env.registration import ENTRY_POINT
 from panda_grasp_env.tooling.reading import read_json, read_json_lines, read_yaml
 
 pytestmark = [pytest.mark.unit, pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="FIFOs and devices: Linux")]
@@ -105,3 +107,23 @@ def test_yaml_anchors_that_stay_small_still_read(tmp_path):
     path = tmp_path / "ok.yaml"
     path.write_text("base: &base {lr: 0.001, gamma: 0.99}\nrun: *base\n")
     assert read_yaml(path, 1 << 10) == {"base": {"lr": 0.001, "gamma": 0.99}, "run": {"lr": 0.001, "gamma": 0.99}}
+
+
+def write_metadata(folder: Path, **fields) -> Path:
+    metadata = {"observation_space": '{"type": "Box"}', "action_space": '{"type": "Box"}', **fields}
+    (folder / "metadata.json").write_text(json.dumps(metadata))
+    return folder
+
+
+def test_a_dataset_whose_space_nests_ten_thousand_deep_is_refused_naming_its_metadata(tmp_path):
+    folder = write_metadata(tmp_path, observation_space="[" * 10_000 + "]" * 10_000)
+    with pytest.raises(ValueError, match=r"metadata\.json: observation_space nests 10000 levels deep"):
+        dataset_metadata(folder)
+
+
+@pytest.mark.parametrize("taken", ["max_episode_steps", "id"])
+def test_an_env_spec_whose_kwargs_hold_makes_own_parameters_is_refused(tmp_path, taken):
+    spec = {"id": "PandaPush-v0", "entry_point": ENTRY_POINT, "kwargs": {taken: 5}}
+    folder = write_metadata(tmp_path, env_spec=json.dumps(spec))
+    with pytest.raises(ValueError, match=f"metadata.json: env_spec keyword arguments \\['{taken}'\\]"):
+        dataset_metadata(folder)
