@@ -210,8 +210,10 @@ class StructureBuild(Task):
 
     @property
     def ideal_actions(self) -> int:
+        """A grasp and a place per piece moved, and per scaffold piece a grasp, a place and the push that slides
+        it out (``structures.slide_outs``)."""
         moved = len(self.structure.removed) if self.structure.prebuilt else len(self.structure.pieces)
-        return 2 * (moved + 2 * len(self.structure.scaffold))
+        return 2 * moved + 3 * len(self.structure.scaffold)
 
     @property
     def goal_size(self) -> int:
