@@ -70,8 +70,8 @@ def load(folder: Path) -> dict[str, Any]:
     path = Path(folder) / "results.json"
     try:
         return read_json(path, MAX_DOCUMENT_BYTES)
-    except (OSError, json.JSONDecodeError) as error:
-        raise ValueError(f"{folder} is not a finished evaluate.py results folder ({path}: {error})") from None
+    except ValueError as error:  # the reader names the file: missing, not a regular file, too large, not JSON
+        raise ValueError(f"{folder} is not a finished evaluate.py results folder ({error})") from None
 
 
 def one_agent(results: dict[str, Any], agent: str, label: str) -> dict[str, Any]:

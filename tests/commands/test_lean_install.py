@@ -27,6 +27,7 @@ IMPORT_NAMES = {
     "mkdocstrings": ["mkdocstrings"],
     "pytest": [],  # the test runner itself: it is what runs this test
     "pytest-xdist": [],
+    "import-linter": ["importlinter"],  # the layer contracts, run by the suite (tests/test_layout.py)
 }
 
 BLOCKED_RUN = """

@@ -26,6 +26,31 @@ def test_every_shipped_config_loads():
         assert load_config(CONFIGS / f"{name}.yaml").name == name
 
 
+def test_no_shipped_config_or_checkpoint_trains_on_the_named_structures():
+    """The named suite is test-only: a training may build random structures (``structure: random``), never one
+    of the suite's, whether named or given as a mapping (``configs/`` and every shipped checkpoint's
+    config.yaml, recursively)."""
+    from testkit import ROOT
+
+    from panda_grasp_env.model.structure_suite import SUITE
+
+    def strings(value):
+        if isinstance(value, dict):
+            for key, item in value.items():
+                yield str(key)
+                yield from strings(item)
+        elif isinstance(value, list):
+            for item in value:
+                yield from strings(item)
+        elif isinstance(value, str):
+            yield value
+
+    files = [*CONFIGS.rglob("*.yaml"), *(ROOT / "agents" / "checkpoints").rglob("config.yaml")]
+    assert len(files) > 20
+    used = {path.name: set(strings(yaml.safe_load(path.read_text()))) & set(SUITE) for path in files}
+    assert {name: names for name, names in used.items() if names} == {}
+
+
 def test_unknown_key_fails_listing_the_valid_ones(tmp_path):
     path = write_config(tmp_path, name="x", env_id="PandaPush-v0", algo="sac", total_steps=10, learning_rate=1)
     with pytest.raises(ValueError, match=r"unknown key\(s\) \['learning_rate'\].*valid keys: .*total_steps"):
