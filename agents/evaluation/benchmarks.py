@@ -105,7 +105,7 @@ STRUCTURE_OPTIONS = {
 
 
 def structure_benchmarks() -> dict[str, Benchmark]:
-    """``Structure``: the env's ``structure`` option (random structures of tiers 1-3, or yours through
+    """``Structure``: the env's ``structure`` option (random structures of tiers 1-4, or yours through
     ``--task-options structure=...``); ``Structures1`` .. ``Structures6``: each tier of the named suite, one
     structure per seed in turn (seed ``s`` builds the tier's structure ``s mod n``), 10 seeds per structure in
     the full protocol."""

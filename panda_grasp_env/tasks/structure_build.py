@@ -1,8 +1,8 @@
 """StructureBuild: build a target structure of cubes and planks (``model.structures``), or take pieces off one.
 
 The target is a structure of the named suite (``model.structure_suite``: test-only), a user's ``Structure``
-(or its mapping), or ``"random"``: a structure drawn per episode from the first three tiers' motifs (a tower,
-a row, a bridge) with random sizes, never one of the suite's.  Identical pieces are interchangeable: each
+(or its mapping), or ``"random"``: a structure drawn per episode from the motifs of tiers 1-4
+(``model.structure_generator``) with random sizes, never one resembling the suite's.  Identical pieces are interchangeable: each
 kind's pieces are matched to its targets by the assignment that minimises the total distance (Hungarian).
 World frame, metres, radians.
 """
@@ -16,7 +16,8 @@ from scipy.optimize import linear_sum_assignment
 
 from panda_grasp_env.geometry import is_count
 from panda_grasp_env.model.scene import SceneConfig
-from panda_grasp_env.model.structure_suite import PILLAR_OFFSET, as_structure, cube, level, plank
+from panda_grasp_env.model.structure_generator import GENERATED_TIERS, MAX_PIECES, check_tiers, random_structure
+from panda_grasp_env.model.structure_suite import as_structure
 from panda_grasp_env.model.structures import (
     BLOCK_KINDS,
     STRUCTURE_PHYSICS,
@@ -41,8 +42,8 @@ PLACE_TOLERANCE, TURN_TOLERANCE = 0.01, np.deg2rad(10.0)
 AWAY_DISTANCE = 0.055
 #: The finished structure must stand still (every piece slower than ``STILL_SPEED``, m/s) this long, seconds.
 STILL_TIME, STILL_SPEED = 2.0, 0.01
-#: The most pieces a random structure has, and the default.
-MAX_PIECES, DEFAULT_PIECES = 8, 6
+#: The object slots of a random structure's scene unless ``max_pieces`` says otherwise.
+DEFAULT_PIECES = 6
 #: A goal vector holds this many entries per object slot: centre x, y, z (world metres), the cosine and sine of
 #: the heading times the turns that map the piece onto itself (4 for a cube, 2 for a plank: equal for every
 #: equivalent heading), the tilt from upright (radians) and the kind (``KIND_CODES``; 0: no piece).
@@ -127,36 +128,16 @@ def resting_on(piece: Piece, others: list[Piece]) -> list[Piece]:
     ]
 
 
-def random_structure(rng: np.random.Generator, max_pieces: int) -> Structure:
-    """A structure of at most ``max_pieces`` pieces (>= 2) from the motifs of tiers 1-3, sized at random: a
-    tower whose levels shift by up to 4 mm and turn by up to 0.2 rad, a row at a random pitch, or a bridge
-    or portal on pillars at a random spacing."""
-    motifs = ["tower", "row"] + (["bridge"] if max_pieces >= 3 else [])
-    motif = motifs[int(rng.integers(len(motifs)))]
-    if motif == "tower":
-        n = int(rng.integers(2, min(5, max_pieces) + 1))
-        shifts, turns = rng.uniform(-0.004, 0.004, (n, 2)), rng.uniform(-0.2, 0.2, n)
-        pieces = tuple(Piece("cube", (*shifts[k], level(k)), turns[k]) for k in range(n))
-    elif motif == "row":
-        n = int(rng.integers(2, min(4, max_pieces) + 1))
-        pitch = rng.uniform(0.058, 0.08)
-        pieces = tuple(cube((k - (n - 1) / 2) * pitch, 0.0, 0) for k in range(n))
-    else:
-        height = int(rng.integers(1, 3)) if max_pieces >= 5 else 1
-        offset = rng.uniform(PILLAR_OFFSET - 0.008, PILLAR_OFFSET)
-        pillars = tuple(cube(x, 0.0, k) for x in (-offset, offset) for k in range(height))
-        pieces = (*pillars, plank(0.0, 0.0, height))
-    return Structure(f"random_{motif}", pieces)
-
-
 @register_task
 class StructureBuild(Task):
     """Build ``structure`` (options below), or take its ``removed`` pieces off it, with the primitives.
 
     Options: ``structure``: a suite name, a ``Structure`` or its mapping, or ``"random"`` (default: one drawn
-    per episode, ``random_structure``); ``max_pieces``: the scene's object slots (2-8; default: the structure's
-    pieces, or 6 for random ones), the most pieces a random structure or a ``reset(options={"structure":
-    ...})`` one may have.
+    per episode, ``model.structure_generator.random_structure``); ``tiers``: the tiers a random structure's
+    motif comes from (one of 1-4 or a list; default all four; only with ``structure="random"``);
+    ``max_pieces``: the scene's object slots (2-8; default: the structure's pieces, or 6 for random ones), the
+    block budget of a random structure and the most pieces a ``reset(options={"structure": ...})`` one may
+    have.
 
     Goal-conditioned in every action mode: the observation is a ``Dict`` with ``achieved_goal`` (every object
     slot's pose, ``goal_rows``) and ``desired_goal`` (the goal pieces' target poses, padded), and in pixel
@@ -182,17 +163,25 @@ class StructureBuild(Task):
     goals_in_every_mode = True
     reset_options = ("structure",)
 
-    def __init__(self, structure: Any = "random", max_pieces: int | None = None) -> None:
+    def __init__(
+        self, structure: Any = "random", max_pieces: int | None = None, tiers: Any = GENERATED_TIERS
+    ) -> None:
         try:
-            self.fixed = None if structure == "random" else as_structure(structure)
+            self.fixed = None if isinstance(structure, str) and structure == "random" else as_structure(structure)
         except ValueError as error:
             raise ValueError(f"task option 'structure': {error}") from None
+        try:
+            self.tiers = check_tiers(tiers)
+        except ValueError as error:
+            raise ValueError(f"task option 'tiers': {error}") from None
+        if self.fixed is not None and self.tiers != GENERATED_TIERS:
+            raise ValueError("task option 'tiers' draws random structures: it needs structure='random'")
         fewest = 2 if self.fixed is None else len(self.fixed.kinds)
         valid = max_pieces is None or (is_count(max_pieces) and max(fewest, 2) <= max_pieces <= MAX_PIECES)
         check_option("max_pieces", max_pieces, valid, f"None or an int in [{max(fewest, 2)}, {MAX_PIECES}]")
         default = DEFAULT_PIECES if self.fixed is None else fewest
         self.n_slots = default if max_pieces is None else max_pieces
-        self.structure: Structure = self.fixed or random_structure(np.random.default_rng(0), self.n_slots)
+        self.structure: Structure = self.fixed or random_structure(np.random.default_rng(0), self.n_slots, self.tiers)
         self._episode_structure: Structure | None = None
         self._targets = np.zeros((0, 3))
         self._target_yaws = np.zeros(0)
@@ -237,7 +226,7 @@ class StructureBuild(Task):
         self._episode_structure = structure
 
     def reset(self, cell: Workcell, rng: np.random.Generator) -> dict[str, Any]:
-        self.structure = self._episode_structure or self.fixed or random_structure(rng, self.n_slots)
+        self.structure = self._episode_structure or self.fixed or random_structure(rng, self.n_slots, self.tiers)
         # Slots this structure leaves unused wait parked as cubes: a parked slot's height follows its shape, so
         # the last episode's shape would show in this one's observations.
         unused = cell.object_ids[len(self.structure.kinds) :]

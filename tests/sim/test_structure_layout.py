@@ -1,11 +1,12 @@
-"""Every named structure stands when laid out exactly, and every partial build it lists as unstable falls
-(with its scaffold standing in, it stands): five simulated seconds each, after half a second in which the
+"""Every named structure, and a sample of the random training ones, stands when laid out exactly, and every
+partial build listed as unstable falls (with its scaffold standing in, it stands): five simulated seconds each, after half a second in which the
 contacts take the load."""
 
 import numpy as np
 import pytest
 
 from panda_grasp_env.model.scene import SceneConfig
+from panda_grasp_env.model.structure_generator import GENERATED_TIERS, MAX_PIECES, random_structure
 from panda_grasp_env.model.structure_suite import SUITE
 from panda_grasp_env.model.structures import structure_scene
 from panda_grasp_env.sim.structure_layout import stand_pieces
@@ -84,3 +85,20 @@ def test_a_partial_build_listed_as_unstable_falls_and_stands_on_its_scaffold(cel
         if structure.scaffold:
             propped = partial + list(structure.scaffold)
             assert_stood(motion_after_standing(cell, structure, propped, *POSES[0]), (indices, "propped"))
+
+
+def generated(tier, count, seed):
+    """``count`` random training structures of ``tier`` on the largest budget (``random_structure``)."""
+    rng = np.random.default_rng(seed)
+    return [random_structure(rng, MAX_PIECES, tier) for _ in range(count)]
+
+
+@pytest.mark.parametrize("tier", GENERATED_TIERS)
+def test_random_training_structures_laid_out_exactly_stand_five_seconds(cells, tier):
+    for structure in generated(tier, 6, seed=tier):
+        cell = cells(structure)
+        assert_stood(motion_after_standing(cell, structure, structure.pieces, *POSES[1]), structure.to_dict())
+        for indices in structure.unstable:  # the seesaw's far cube alone tips it
+            partial = [structure.pieces[i] for i in indices]
+            shift, tilt, settling = motion_after_standing(cell, structure, partial, *POSES[0])
+            assert (shift + settling).max() > FELL_SHIFT or tilt.max() > FELL_TILT, (structure.to_dict(), indices)

@@ -9,7 +9,7 @@ from panda_grasp_env.env import PandaEnv
 from panda_grasp_env.model.structure_suite import SUITE
 from panda_grasp_env.model.structures import Piece
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.tasks.structure_build import GOAL_FIELDS, StructureBuild, is_away, random_structure
+from panda_grasp_env.tasks.structure_build import GOAL_FIELDS, StructureBuild, is_away
 
 PLACED = PrimitiveResult("place", True, "ok")
 
@@ -22,6 +22,9 @@ PLACED = PrimitiveResult("place", True, "ok")
         ({"structure": {"name": "x"}}, "structure"),
         ({"max_pieces": 1}, "max_pieces"),
         ({"structure": "ring_8", "max_pieces": 6}, "max_pieces"),
+        ({"tiers": 5}, "tiers"),
+        ({"tiers": []}, "tiers"),
+        ({"structure": "bridge", "tiers": [2]}, "tiers"),
     ],
 )
 def test_bad_options_name_the_culprit(options, culprit):
@@ -29,14 +32,15 @@ def test_bad_options_name_the_culprit(options, culprit):
         StructureBuild(**options)
 
 
-@pytest.mark.unit
-def test_random_structures_stay_within_the_budget_and_are_never_the_suites():
-    rng = np.random.default_rng(0)
-    drawn = [random_structure(rng, budget) for budget in (2, 3, 6, 8) for _ in range(50)]
-    assert all(len(s.pieces) <= b for s, b in zip(drawn, [2] * 50 + [3] * 50 + [6] * 50 + [8] * 50))
-    suite = {tuple(s.pieces) for s in SUITE.values()}
-    assert not any(tuple(s.pieces) in suite for s in drawn)
-    assert {s.name for s in drawn} == {"random_tower", "random_row", "random_bridge"}
+def test_random_structures_come_from_the_tiers_asked_for_within_the_budget():
+    env = PandaEnv(task="StructureBuild", tiers=[4], max_pieces=5, obs_mode="state")
+    names = set()
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        assert env.task.structure.tier == 4 and len(env.task.structure.kinds) <= 5
+        names.add(info["structure"])
+    assert names <= {"random_stair", "random_tee", "random_seesaw"}
+    env.close()
 
 
 @pytest.mark.parametrize(("structure", "seed"), [("bridge", 3), ("random", 4), ("pyramid_top", 3)])
