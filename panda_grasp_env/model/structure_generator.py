@@ -42,7 +42,9 @@ def _centred(pieces: Sequence[Piece]) -> tuple[Piece, ...]:
     """``pieces`` shifted so that their footprint's centre lies at the origin."""
     xy = np.array([p.position[:2] for p in pieces])
     centre = (xy.min(axis=0) + xy.max(axis=0)) / 2
-    return tuple(Piece(p.kind, (p.position[0] - centre[0], p.position[1] - centre[1], p.position[2]), p.yaw) for p in pieces)
+    return tuple(
+        Piece(p.kind, (p.position[0] - centre[0], p.position[1] - centre[1], p.position[2]), p.yaw) for p in pieces
+    )
 
 
 def tower(rng: np.random.Generator, budget: int) -> Structure:
@@ -134,7 +136,9 @@ def resembles(pieces: Sequence[Piece], other: Sequence[Piece]) -> bool:
     other_kinds, other_across, other_heights = _signature(other)
     if kinds != other_kinds:
         return False
-    return bool(np.all(np.abs(across - other_across) < RESEMBLANCE) and np.all(np.abs(heights - other_heights) < RESEMBLANCE))
+    return bool(
+        np.all(np.abs(across - other_across) < RESEMBLANCE) and np.all(np.abs(heights - other_heights) < RESEMBLANCE)
+    )
 
 
 def check_tiers(tiers: object) -> tuple[int, ...]:
@@ -144,7 +148,9 @@ def check_tiers(tiers: object) -> tuple[int, ...]:
     if (
         not isinstance(values, (list, tuple))
         or not values
-        or not all(isinstance(t, (int, np.integer)) and not isinstance(t, bool) and t in GENERATED_TIERS for t in values)
+        or not all(
+            isinstance(t, (int, np.integer)) and not isinstance(t, bool) and t in GENERATED_TIERS for t in values
+        )
     ):
         raise ValueError(f"tiers must be one of {GENERATED_TIERS} or a non-empty list of them, got {tiers!r}")
     return tuple(sorted({int(t) for t in values}))

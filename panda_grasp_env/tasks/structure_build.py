@@ -163,9 +163,7 @@ class StructureBuild(Task):
     goals_in_every_mode = True
     reset_options = ("structure",)
 
-    def __init__(
-        self, structure: Any = "random", max_pieces: int | None = None, tiers: Any = GENERATED_TIERS
-    ) -> None:
+    def __init__(self, structure: Any = "random", max_pieces: int | None = None, tiers: Any = GENERATED_TIERS) -> None:
         try:
             self.fixed = None if isinstance(structure, str) and structure == "random" else as_structure(structure)
         except ValueError as error:

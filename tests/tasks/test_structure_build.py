@@ -6,7 +6,6 @@ import pytest
 
 from panda_grasp_env.agents.policies.structure_builder import build_structure
 from panda_grasp_env.env import PandaEnv
-from panda_grasp_env.model.structure_suite import SUITE
 from panda_grasp_env.model.structures import Piece
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.tasks.structure_build import GOAL_FIELDS, StructureBuild, is_away
