@@ -54,8 +54,8 @@ SCAFFOLD_UNDER = (0.015, 0.01, 0.02)
 #: its half-length, as the heightmap sees only the part standing out from under what it holds, or only the part
 #: outside the goal's area as loose.  Pushes that fail to move it are tried ``SLIDE_TRIES`` times.
 SCAFFOLD_SEEN, SLIDE_TRIES = BLOCK_KINDS["prop"][0] + 0.005, 2
-#: The benchmarks these agents play: the env's own structure, and one per tier of the named suite.
-STRUCTURE_BENCHMARKS = ("Structure", *(f"Structures{tier}" for tier in range(1, len(TIERS) + 1)))
+#: The benchmarks these agents play: the env's own structure, one per tier of the named suite, and its sample.
+STRUCTURE_BENCHMARKS = ("Structure", *(f"Structures{tier}" for tier in range(1, len(TIERS) + 1)), "StructuresSample")
 #: Most what-if runs one decision may make (each is ~1 s of simulated time): the lookahead's budget.
 WHAT_IF_BUDGET = 24
 
