@@ -8,6 +8,7 @@ A frozen pydantic dataclass: each option's type and ``description`` say what val
 from __future__ import annotations
 
 import functools
+import os
 from collections.abc import Callable
 from dataclasses import replace
 from typing import Annotated, Any, Literal
@@ -91,7 +92,8 @@ def render_mode_here(render_mode: Any) -> str | None:
     """``render_mode`` if it is None or a render mode that works on this machine; else ``ValueError``."""
     if render_mode == "human" and not display_available():
         raise ValueError(
-            "render_mode='human' needs a display (neither DISPLAY nor WAYLAND_DISPLAY is set); "
+            "render_mode='human' needs a display whose server answers (DISPLAY or WAYLAND_DISPLAY names none that "
+            f"does: DISPLAY={os.environ.get('DISPLAY')!r}); "
             "use 'rgb_array' and save the frames, e.g. with gymnasium's RecordVideo"
         )
     if render_mode is not None and not (isinstance(render_mode, str) and render_mode in RENDER_MODES):

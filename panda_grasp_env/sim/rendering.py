@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import atexit
 import os
+import socket
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -36,12 +37,48 @@ _GEOM_GROUPS = {"fast": (0, 2), "pretty": (0, 1)}
 RENDER_MODES = ("rgb_array", "rgb_array_list", "depth_array", "human")
 
 
+#: How long (seconds) a display's server may take to accept a connection before it counts as not answering.
+DISPLAY_TIMEOUT = 1.0
+
+
+def _answers(address: str | tuple[str, int], family: int) -> bool:
+    """Whether a server accepts a connection at ``address`` within ``DISPLAY_TIMEOUT``."""
+    try:
+        with socket.socket(family, socket.SOCK_STREAM) as probe:
+            probe.settimeout(DISPLAY_TIMEOUT)
+            probe.connect(address)
+        return True
+    except OSError:
+        return False
+
+
+def x_display_answers(display: str) -> bool:
+    """Whether the X server of ``display`` (``DISPLAY``: ``[host]:number[.screen]``) accepts a connection: its
+    local socket (``/tmp/.X11-unix/X<number>``, or the abstract one Linux servers also listen on), else TCP
+    port 6000 + number on the host."""
+    host, _, rest = display.rpartition(":")
+    number = rest.split(".")[0]
+    if not number.isdigit():
+        return False
+    if host in ("", "unix") or host.startswith("/"):
+        path = host if host.startswith("/") else f"/tmp/.X11-unix/X{number}"
+        return _answers(path, socket.AF_UNIX) or (
+            sys.platform.startswith("linux") and _answers(f"\0/tmp/.X11-unix/X{number}", socket.AF_UNIX)
+        )
+    return _answers((host, 6000 + int(number)), socket.AF_INET)
+
+
 def display_available() -> bool:
-    """Whether an on-screen window can open: on Linux an X11 or Wayland display must be named (without one,
-    MuJoCo's viewer ends the process from C, past any Python handler); other systems always have one."""
-    if sys.platform.startswith("linux"):
-        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-    return True
+    """Whether an on-screen window can open: on Linux an X11 or Wayland display must be named and its server
+    must answer (without one, MuJoCo's viewer ends the process from C, past any Python handler); other systems
+    always have one."""
+    if not sys.platform.startswith("linux"):
+        return True
+    wayland, runtime = os.environ.get("WAYLAND_DISPLAY"), os.environ.get("XDG_RUNTIME_DIR", "")
+    if wayland and _answers(wayland if wayland.startswith("/") else os.path.join(runtime, wayland), socket.AF_UNIX):
+        return True
+    display = os.environ.get("DISPLAY")
+    return bool(display) and x_display_answers(display)
 
 
 def advertised_render_modes() -> list[str]:

@@ -538,10 +538,27 @@ def test_human_rendering_through_gym_make_without_a_display_is_the_documented_va
 
 
 @pytest.mark.unit
-def test_human_rendering_through_gym_make_with_a_display_is_the_mujoco_viewer(monkeypatch):
+def test_a_display_whose_server_does_not_answer_is_the_documented_value_error_at_make(monkeypatch, tmp_path):
+    """DISPLAY set with no X server behind it: refused at make, where reset used to end the process (GLFW)."""
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    for display in (":97", f"{tmp_path / 'nothing'}:0", "127.0.0.1:97", "not a display"):
+        monkeypatch.setenv("DISPLAY", display)
+        with pytest.raises(ValueError, match="needs a display whose server answers"):
+            gym.make("panda_grasp_env:PandaTowerBuild-v0", render_mode="human")
+
+
+@pytest.mark.unit
+def test_human_rendering_through_gym_make_with_a_display_is_the_mujoco_viewer(monkeypatch, tmp_path):
+    import socket
+
     from gymnasium.wrappers import HumanRendering
 
-    monkeypatch.setenv("DISPLAY", ":55")  # made, not reset: reset opens the viewer, which needs a real display
+    # A display whose server answers: a listening socket named as DISPLAY's path.  Made, not reset: reset
+    # opens the viewer, which needs a real X server.
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    server.bind(str(tmp_path / "X0"))
+    server.listen(1)
+    monkeypatch.setenv("DISPLAY", f"{tmp_path / 'X0'}:0")
     env = gym.make("panda_grasp_env:PandaTowerBuild-v0", render_mode="human")
     wrappers = []
     layer = env
@@ -551,3 +568,4 @@ def test_human_rendering_through_gym_make_with_a_display_is_the_mujoco_viewer(mo
     assert HumanRendering not in wrappers and env.unwrapped.render_mode == "human"
     assert "human" in env.unwrapped.metadata["render_modes"]
     env.close()
+    server.close()
