@@ -243,7 +243,7 @@ class PixelActions(ActionMode):
 
     def validate(self, action: Any) -> tuple[int, int]:
         array = np.asarray(action)
-        if array.shape not in ((), (1,)) or array.dtype.kind not in "iu":
+        if array.shape != () or array.dtype.kind not in "iu":  # Discrete: one index, as its sample() gives
             raise ValueError(f"pixel action must be one integer index, got {action!r} (dtype {array.dtype})")
         index = int(array.reshape(()))
         if not 0 <= index < self.space.n:

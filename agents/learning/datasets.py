@@ -14,13 +14,17 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
+from panda_grasp_env.agents.learning.policy_files import MAX_SPACE_ELEMENTS, MAX_SPACE_KEYS
 from panda_grasp_env.geometry import is_count
 from panda_grasp_env.registration import ENTRY_POINT, ENV_IDS
 from panda_grasp_env.tooling.reading import parse_json, read_json
 
 #: The largest ``metadata.json`` read (bytes): spaces and specs are small; a Box's bounds are listed in full.
 MAX_METADATA_BYTES = 16 << 20
+#: The most episodes or steps a dataset's metadata may count.
+MAX_DATASET_COUNT = 10**9
 
 
 #: ``gymnasium.make``'s own parameters: an env spec's keyword arguments may not name them.
@@ -41,11 +45,59 @@ def dataset_metadata(folder: Path | str) -> dict[str, Any]:
                 f"{path} lacks its {key}: Minari would build the recorded env to learn it, and this "
                 f"project builds no env a dataset describes"
             )
-        parse_json(metadata[key], f"{path}: {key}")  # a space nested deeper than any of ours is refused here
+        # A space nested deeper than any of ours is refused by the reader; one whose counts would overflow or
+        # whose elements, over all its parts, would not fit in memory, here: before Minari allocates it.
+        check_minari_space(parse_json(metadata[key], f"{path}: {key}"), f"{path}: {key}")
+    for key in ("total_episodes", "total_steps"):
+        count = metadata.get(key)
+        if count is not None and (not is_count(count) or not 0 <= count <= MAX_DATASET_COUNT):
+            raise ValueError(
+                f"{path}: {key} must be a whole number from 0 to {MAX_DATASET_COUNT}, got {str(count)[:40]}"
+            )
     for key in ("env_spec", "eval_env_spec"):
         if metadata.get(key) is not None:
             env_spec(metadata, key, path)
     return metadata
+
+
+def check_minari_space(space: Any, where: str) -> None:
+    """``ValueError`` naming ``where`` unless ``space`` is a Minari space description (``serialize_space``) of
+    this project's kinds whose counts fit an int32 and whose elements, over all its parts, number at most
+    ``MAX_SPACE_ELEMENTS``."""
+    total = 0
+
+    def visit(node: Any, field: str) -> None:
+        nonlocal total
+        kind = node.get("type") if isinstance(node, dict) else None
+        if kind in ("Dict", "Tuple"):
+            parts = node.get("subspaces")
+            parts = list(parts.values()) if kind == "Dict" and isinstance(parts, dict) else parts
+            if not isinstance(parts, list) or len(parts) > MAX_SPACE_KEYS:
+                raise ValueError(f"{where}: {field} must hold at most {MAX_SPACE_KEYS} subspaces")
+            for index, part in enumerate(parts):
+                visit(part, f"{field}.{index}")
+            return
+        if kind == "Box":
+            sizes = node.get("shape")
+        elif kind == "MultiBinary":
+            sizes = node.get("n") if isinstance(node.get("n"), list) else [node.get("n")]
+        elif kind == "Discrete":
+            sizes, n, start = [1], node.get("n"), node.get("start", 0)
+            if not (is_count(n) and 1 <= n < 2**31 and isinstance(start, int) and abs(start) < 2**31):
+                raise ValueError(f"{where}: {field} Discrete n and start must be int32 whole numbers, got {n!r:.40}")
+        elif kind == "MultiDiscrete":
+            sizes = [len(node.get("nvec") or [])]
+            if not all(is_count(n) and n < 2**31 for n in node.get("nvec") or []):
+                raise ValueError(f"{where}: {field} MultiDiscrete nvec must be int32 counts")
+        else:
+            raise ValueError(f"{where}: {field} is not a space of a kind this project records, got {str(kind)[:40]}")
+        if not isinstance(sizes, list) or len(sizes) > 8 or not all(is_count(n) for n in sizes):
+            raise ValueError(f"{where}: {field} {kind} shape must be at most 8 whole numbers")
+        total += int(np.prod(sizes, dtype=object))
+        if total > MAX_SPACE_ELEMENTS:
+            raise ValueError(f"{where}: its spaces hold more than {MAX_SPACE_ELEMENTS} elements in all")
+
+    visit(space, "space")
 
 
 def env_spec(metadata: dict[str, Any], key: str, source: Path | str) -> tuple[str, dict[str, Any], int | None]:

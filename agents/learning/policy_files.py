@@ -21,7 +21,7 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.geometry import is_count
-from panda_grasp_env.tooling.reading import read_json
+from panda_grasp_env.tooling.reading import parse_json, read_json
 from panda_grasp_env.tooling.runs import atomic_path, sha256, write_json
 
 #: The file format written by ``save_policy``; ``load_policy`` refuses others.
@@ -41,11 +41,16 @@ MAX_WIDTH = 4096
 MAX_ENTRIES = 32
 #: Tighter limits on arguments that multiply whole networks (SB3 defaults to 2 critics, TQC's paper used 5).
 ARGUMENT_LIMITS = {"n_critics": 10}
-#: Most parameters a policy may have (counted on PyTorch's meta device, which allocates nothing).
+#: Most parameters and buffer elements a policy may have (counted on PyTorch's meta device, which allocates
+#: nothing): 256 MB of float32.
 MAX_PARAMETERS = 64_000_000
-#: Most elements of one Box space, and most sub-spaces of a Dict space.
+#: Most elements of the spaces of one description (a Box, or all of a Dict's together), and most sub-spaces
+#: of a Dict space.
 MAX_SPACE_ELEMENTS = 1 << 22
 MAX_SPACE_KEYS = 64
+#: The keys of policy.json, and the dtype (safetensors' name) of every weight; the longest safetensors header.
+DESCRIPTION_KEYS = ("format", "policy_class", "arguments", "weights_sha256")
+WEIGHT_DTYPE, MAX_HEADER_BYTES = "F32", 1 << 20
 #: The dtypes a Box space may have.
 SPACE_DTYPES = ("uint8", "int8", "int16", "int32", "int64", "float16", "float32", "float64", "bool")
 
@@ -148,10 +153,35 @@ def _short(value: Any) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
+def declared_elements(description: Any) -> int:
+    """The elements the spaces of ``description`` (``space_to_json``'s form) would allocate in all, read from
+    their shapes alone: a Box's or MultiBinary's product of sizes, one for any other space, the sum over a
+    Dict's.  Malformed parts count one: ``space_from_json`` names them."""
+    if not isinstance(description, dict) or len(description) != 1:
+        return 1
+    ((kind, fields),) = description.items()
+    if not isinstance(fields, dict):
+        return 1
+    if kind == "Dict":
+        return sum(declared_elements(sub) for sub in fields.values())
+    sizes = fields.get("shape") if kind == "Box" else fields.get("n") if kind == "MultiBinary" else None
+    sizes = [sizes] if is_count(sizes) else sizes
+    if isinstance(sizes, list) and all(is_count(n) for n in sizes):
+        return int(np.prod([max(n, 1) for n in sizes], dtype=object))
+    return 1
+
+
 def space_from_json(description: Any, field: str = "space") -> gym.Space:
     """The space ``space_to_json`` described; ``ValueError`` naming ``field`` (where the description sits) for
-    anything else, and for shapes, counts or dtypes beyond ``MAX_SPACE_ELEMENTS``, ``MAX_SPACE_KEYS`` and
-    ``SPACE_DTYPES``, before anything is allocated."""
+    anything else, and for shapes, counts or dtypes beyond ``MAX_SPACE_ELEMENTS`` (one space, and all of a
+    Dict's together), ``MAX_SPACE_KEYS`` and ``SPACE_DTYPES``, before anything is allocated."""
+    total = declared_elements(description)
+    if total > MAX_SPACE_ELEMENTS:
+        raise ValueError(f"{field}: its spaces hold {total} elements in all, more than {MAX_SPACE_ELEMENTS}")
+    return _space_from_json(description, field)
+
+
+def _space_from_json(description: Any, field: str) -> gym.Space:
     if not isinstance(description, dict) or len(description) != 1:
         raise ValueError(f"{field}: not a space description: {_short(description)}")
     ((kind, fields),) = description.items()
@@ -197,7 +227,7 @@ def space_from_json(description: Any, field: str = "space") -> gym.Space:
             return gym.spaces.MultiBinary(sizes if isinstance(n, list) else sizes[0])
         if len(fields) > MAX_SPACE_KEYS:
             raise ValueError(f"{field} has {len(fields)} sub-spaces, more than {MAX_SPACE_KEYS}")
-        return gym.spaces.Dict({key: space_from_json(sub, f"{field}.{key}") for key, sub in fields.items()})
+        return gym.spaces.Dict({key: _space_from_json(sub, f"{field}.{key}") for key, sub in fields.items()})
     except KeyError as error:
         raise ValueError(f"{field}: malformed {kind} space description, no {error}") from None
     except (TypeError, OverflowError, AssertionError) as error:
@@ -263,7 +293,8 @@ def _decode(value: Any, source: Path, field: str = "arguments") -> Any:
 
 
 def count_parameters(policy_class: type, arguments: dict[str, Any]) -> int:
-    """The parameters ``policy_class(**arguments)`` would have, built on PyTorch's meta device: shapes without
+    """The elements ``policy_class(**arguments)`` would hold, its parameters and its buffers (the heightmap
+    policy's rotation grids grow with rotations x grid), built on PyTorch's meta device: shapes without
     storage, so a policy of any size costs nothing to count."""
     from unittest import mock
 
@@ -274,7 +305,7 @@ def count_parameters(policy_class: type, arguments: dict[str, Any]) -> int:
     # every part stays on the meta device.
     with th.device("meta"), mock.patch.object(BaseModel, "device", property(lambda self: th.device("meta"))):
         policy = policy_class(**arguments, lr_schedule=BasePolicy._dummy_schedule)
-    return sum(p.numel() for p in policy.parameters())
+    return sum(tensor.numel() for tensor in (*policy.parameters(), *policy.buffers()))
 
 
 # --- files ----------------------------------------------------------------------------------------------
@@ -329,6 +360,11 @@ def load_policy(stem: Path | str) -> Any:
     facts = read_json(description, MAX_DESCRIPTION_BYTES, MAX_DEPTH)
     if not isinstance(facts, dict) or facts.get("format") != FORMAT or isinstance(facts.get("format"), bool):
         raise ValueError(f"{description} is not a policy file of format {FORMAT}")
+    unknown = sorted(set(facts) - set(DESCRIPTION_KEYS))
+    if unknown:
+        raise ValueError(
+            f"{description}: unknown key(s) {_short(unknown)}; a policy file holds {list(DESCRIPTION_KEYS)}"
+        )
     policy_class = _allowed(facts.get("policy_class"), policy_classes(), "policy class", description)
     if not isinstance(facts.get("arguments"), dict):
         raise ValueError(f"{description}: arguments must be a mapping")
@@ -341,22 +377,43 @@ def load_policy(stem: Path | str) -> Any:
         )
     if sha256(weights) != facts.get("weights_sha256"):
         raise ValueError(f"{weights} is missing or is not the weights {description} records (SHA-256 differs)")
+    check_weight_dtypes(weights)
     try:
         parameters = count_parameters(policy_class, arguments)
     except Exception as error:  # arguments of another version or of no policy: say which file
         raise ValueError(f"cannot build the policy of {description}: {error}") from None
     if parameters > MAX_PARAMETERS:
         raise ValueError(
-            f"{description}: arguments build a policy of {parameters} parameters, more than the "
-            f"{MAX_PARAMETERS} this project loads"
+            f"{description}: arguments build a policy of {parameters} parameters and buffer elements, more than "
+            f"the {MAX_PARAMETERS} this project loads"
         )
     try:
         policy = policy_class(**arguments, lr_schedule=BasePolicy._dummy_schedule)
         load_model(policy, str(weights), strict=True, device="cpu")
     except Exception as error:  # arguments of another version, tensors of other shapes: say which files
         raise ValueError(f"cannot build the policy of {description} with {weights.name}: {error}") from error
+    for name, tensor in policy.state_dict().items():
+        if tensor.is_floating_point() and not bool(tensor.isfinite().all()):
+            raise ValueError(f"{weights}: tensor {name!r} holds NaN or infinite weights")
     policy.set_training_mode(False)
     return policy
+
+
+def check_weight_dtypes(weights: Path) -> None:
+    """``ValueError`` naming ``weights`` and the tensor unless every tensor of the safetensors file is float32
+    (``WEIGHT_DTYPE``: what ``save_policy`` writes), read from the file's header before any tensor is."""
+    with open(weights, "rb") as handle:
+        head = handle.read(8)
+        size = int.from_bytes(head, "little") if len(head) == 8 else -1
+        if not 0 < size <= MAX_HEADER_BYTES:
+            raise ValueError(f"{weights} is not a safetensors file (header of {size} bytes)")
+        header = parse_json(handle.read(size).decode("utf-8", errors="replace"), f"{weights} header", 4)
+    if not isinstance(header, dict):
+        raise ValueError(f"{weights} is not a safetensors file (its header is not a mapping)")
+    for name, entry in header.items():
+        dtype = entry.get("dtype") if isinstance(entry, dict) else None
+        if name != "__metadata__" and dtype != WEIGHT_DTYPE:
+            raise ValueError(f"{weights}: tensor {_short(name)} is {_short(dtype)}, not {WEIGHT_DTYPE} (float32)")
 
 
 def export_sb3(policy: Any, path: Path | str) -> Path:

@@ -197,7 +197,17 @@ def main(argv: list[str] | None = None) -> int:
             return report_fall(train_fall_model(config, run_dir, resume, progress, args.trust), run_dir)
         outcome = train(config, run_dir, resume=resume, progress_bar=progress, trust=args.trust)
     except KeyboardInterrupt:
-        print(f"\ninterrupted: checkpoint saved; continue with  python train.py --resume {run_dir}", file=sys.stderr)
+        if any(run_dir.glob("latest.*")):
+            print(
+                f"\ninterrupted: checkpoint saved; continue with  python train.py --resume {run_dir}", file=sys.stderr
+            )
+        else:  # stopped while setting up, before the first checkpoint: a clean start, not a folder --resume refuses
+            shutil.rmtree(run_dir, ignore_errors=True)
+            print(
+                f"\ninterrupted before the first checkpoint: nothing was saved and {run_dir} is removed; the same "
+                "command starts the run again",
+                file=sys.stderr,
+            )
         return 130
     except ValueError as error:  # a new run that could not start (an init_policy of another network) leaves no folder
         if args.resume is None and not any(run_dir.glob("latest.*")):

@@ -255,6 +255,9 @@ class ObjectSpec:
             unknown = [k for k in size if k not in SHAPES]  # a mesh's size is its own
             if unknown:
                 raise ValueError(f"size: unknown shape(s) {unknown}; valid: {list(SHAPES)}")
+            unused = [k for k in size if k not in kinds]  # a size for a shape never drawn would be ignored
+            if unused:
+                raise ValueError(f"size: shape(s) {unused} are not among the spec's shapes {list(kinds)}")
             checked = {}
             for kind, components in size.items():
                 expected = len(DEFAULT_SIZE_RANGES[kind])

@@ -109,8 +109,11 @@ def test_yaml_anchors_that_stay_small_still_read(tmp_path):
     assert read_yaml(path, 1 << 10) == {"base": {"lr": 0.001, "gamma": 0.99}, "run": {"lr": 0.001, "gamma": 0.99}}
 
 
+BOX = '{"type": "Box", "dtype": "float32", "shape": [3], "low": [0, 0, 0], "high": [1, 1, 1]}'
+
+
 def write_metadata(folder: Path, **fields) -> Path:
-    metadata = {"observation_space": '{"type": "Box"}', "action_space": '{"type": "Box"}', **fields}
+    metadata = {"observation_space": BOX, "action_space": BOX, **fields}
     (folder / "metadata.json").write_text(json.dumps(metadata))
     return folder
 
@@ -127,3 +130,31 @@ def test_an_env_spec_whose_kwargs_hold_makes_own_parameters_is_refused(tmp_path,
     folder = write_metadata(tmp_path, env_spec=json.dumps(spec))
     with pytest.raises(ValueError, match=f"metadata.json: env_spec keyword arguments \\['{taken}'\\]"):
         dataset_metadata(folder)
+
+
+MANY_BOXES = {"type": "Box", "dtype": "float64", "shape": [1 << 22], "low": 0, "high": 1}
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"action_space": '{"type": "Discrete", "n": 1' + "0" * 30 + ', "start": 0}'}, "Discrete n and start"),
+        (
+            {"observation_space": json.dumps({"type": "Dict", "subspaces": {f"b{i}": MANY_BOXES for i in range(64)}})},
+            r"its spaces hold more than 4194304 elements in all",
+        ),
+        ({"action_space": '{"type": "Text", "max_length": 10}'}, r"not a space of a kind this project records"),
+        ({"total_episodes": 10**15}, r"total_episodes must be a whole number from 0 to 1000000000"),
+        ({"total_steps": "12"}, r"total_steps must be a whole number"),
+    ],
+)
+def test_a_dataset_whose_spaces_or_counts_would_not_fit_is_refused_before_minari_allocates(tmp_path, fields, message):
+    """Each within the bound of its own field (a 3 kB metadata file), refused in one line naming the file."""
+    tracemalloc.start()
+    started = time.perf_counter()
+    with pytest.raises(ValueError, match=message) as refused:
+        dataset_metadata(write_metadata(tmp_path, **fields))
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert "metadata.json" in str(refused.value) and "\n" not in str(refused.value)
+    assert time.perf_counter() - started < 1.0 and peak < 64 << 20

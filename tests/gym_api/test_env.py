@@ -265,7 +265,9 @@ def test_factored_pixel_mode_is_the_pixel_mode_per_dimension():
 def test_bad_pixel_actions_raise():
     env = make("PandaTowerBreak-v0", action_mode="pixel")
     env.reset(seed=0)
-    for action, message in ((-1, "outside"), (env.action_space.n, "outside"), (1.5, "integer")):
+    bad = ((-1, "outside"), (env.action_space.n, "outside"), (1.5, "integer"), (True, "integer"))
+    shaped = ([5], np.array([5]), (5,), np.array([[5]]))  # a Discrete action is one index, not a sequence of one
+    for action, message in (*bad, *((a, "one integer index") for a in shaped)):
         with pytest.raises(ValueError, match=message):
             env.step(action)
     env.close()

@@ -135,6 +135,7 @@ def test_the_shorthands_are_one_spec():
         ({"objects": [{"weight": 1}]}, "weight"),
         ({"objects": [{"shape": "cone"}]}, "shape"),
         ({"objects": [{"shape": "cube", "size": (0.02, 0.03)}]}, "size"),
+        ({"objects": [{"shape": "cube", "size": {"sphere": [0.02]}}]}, r"size: shape\(s\) \['sphere'\] are not"),
         ({"objects": [{"friction": float("nan")}]}, "friction"),
         ({"objects": [{"pose": "upside"}]}, "pose"),
         ({"objects": [{"rgb": (1, 0)}]}, "rgb"),

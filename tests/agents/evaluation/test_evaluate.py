@@ -262,7 +262,8 @@ def test_the_default_protocols_cover_every_registered_benchmark(protocol):
     named_only = {
         t
         for t in BENCHMARKS
-        if t.startswith(("GraspMesh", "Structure")) and t != "StructuresSample"
+        if t.startswith(("GraspMesh", "Structure"))
+        and t != "StructuresSample"
         or t.endswith(tuple(map(str, TALL_TOWERS)))
     }
     assert named_only and set(chosen.tasks) == set(BENCHMARKS) - named_only == set(default_benchmarks())

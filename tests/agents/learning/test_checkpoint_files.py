@@ -369,15 +369,25 @@ BOUNDS = {
     ),
     "parameters counted": (
         lambda f: f["arguments"].update(net_arch={"pi": [4000] * 3, "qf": [4000] * 3}, n_critics=10),
-        r"arguments build a policy of \d+ parameters, more than the 64000000",
+        r"arguments build a policy of \d+ parameters and buffer elements, more than the 64000000",
     ),
     "many critics": (lambda f: f["arguments"].update(n_critics=4096), r"arguments.n_critics is 4096, more than"),
     "long lists": (lambda f: f["arguments"].update(net_arch=[8] * 10_000), r"arguments.net_arch has 10000 entries"),
     "huge box": (
         lambda f: set_box_shape(f, [2_000_000_000]),
-        r"arguments.observation_space.Dict.observation.Box.shape must be a whole number from 1 to",
+        r"arguments.observation_space: its spaces hold 2000000006 elements in all, more than 4194304",
     ),
-    "big box": (lambda f: set_box_shape(f, [4096, 4096]), r"Box.shape \[4096, 4096\] has more than 4194304 elements"),
+    "big box": (
+        lambda f: set_box_shape(f, [4096, 4096]),
+        r"its spaces hold 16777222 elements in all, more than 4194304",
+    ),
+    "many boxes": (  # each within the bound, 64 of them 2 GB of float64: counted together
+        lambda f: f["arguments"]["observation_space"]["__space__"].update(
+            Dict={f"b{i}": {"Box": {"dtype": "float64", "low": 0, "high": 1, "shape": [1 << 22]}} for i in range(64)}
+        ),
+        r"arguments.observation_space: its spaces hold 268435456 elements in all, more than 4194304",
+    ),
+    "unknown key": (lambda f: f.update(note="hi"), r"policy.json: unknown key\(s\) \['note'\]"),
     "box of strings": (lambda f: set_box_shape(f, ["37"]), r"Box.shape must be a whole number"),
     "object dtype": (
         lambda f: f["arguments"]["action_space"]["__space__"]["Box"].update(dtype="object"),
@@ -398,6 +408,62 @@ def test_policy_files_beyond_a_bound_are_refused_naming_the_file_and_the_field(s
     with pytest.raises(ValueError, match=message) as refused:
         learned.LearnedAgent(sac_folder)
     assert str(sac_folder / "policy.json") in str(refused.value)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("rotations", "message"),
+    [
+        (40, r"parameters and buffer elements, more than the 64000000"),
+        (2047, r"action_space.Discrete.n must be a whole number from 1 to 2147483647"),  # 51.8 GB of grids
+    ],
+)
+def test_a_heightmap_policy_whose_rotation_grids_would_not_fit_is_refused_before_allocating(
+    tmp_path, rotations, message
+):
+    """rotations x a 4 x 1024 x 1024 grid, every field within its own bound: its rotation buffers (not
+    parameters) are counted too, on the meta device."""
+    folder = tmp_path / "dqn"
+    shutil.copytree(learned.CHECKPOINTS / "push_grasp_dqn", folder)
+
+    def bomb(facts):
+        arguments = facts["arguments"]
+        arguments["rotations"] = rotations
+        arguments["observation_space"]["__space__"]["Box"]["shape"] = [4, 1024, 1024]
+        arguments["action_space"]["__space__"]["Discrete"]["n"] = 2 * rotations * 1024 * 1024
+
+    edit_json(folder / "policy.json", bomb)
+    with pytest.raises(ValueError, match=message):
+        learned.LearnedAgent(folder)
+
+
+def rewrite_weights(folder, change):
+    """Change the tensors of ``folder``'s policy.safetensors with ``change(tensors)`` and record their digest."""
+    from safetensors.torch import load_file, save_file
+
+    from panda_grasp_env.tooling.runs import sha256
+
+    weights = folder / "policy.safetensors"
+    tensors = load_file(str(weights))
+    change(tensors)
+    save_file(tensors, str(weights))
+    edit_json(folder / "policy.json", lambda f: f.update(weights_sha256=sha256(weights)))
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda t: t.update({k: v.double() for k, v in list(t.items())[:1]}), r"is 'F64', not F32"),
+        (lambda t: t.update({k: v.long() for k, v in list(t.items())[:1]}), r"is 'I64', not F32"),
+        (lambda t: next(iter(t.values())).view(-1)[0].fill_(float("nan")), r"holds NaN or infinite weights"),
+    ],
+)
+def test_weights_other_than_finite_float32_are_refused_naming_the_file(sac_folder, change, message):
+    rewrite_weights(sac_folder, change)
+    with pytest.raises(ValueError, match=message) as refused:
+        learned.LearnedAgent(sac_folder)
+    assert "policy.safetensors" in str(refused.value)
 
 
 @pytest.mark.unit

@@ -285,3 +285,19 @@ def test_retest_runs_on_a_shipped_checkpoint_too(finished_run, tmp_path, monkeyp
     card = (shipped / "card.md").read_text()
     assert "It acts as shipped, with its `FailureMemory`" in card and ", with its `FailureMemory`:" in card
     assert "disturbed objects per action" in card  # collateral, for primitive tasks
+
+
+@pytest.mark.unit
+def test_ctrl_c_before_the_first_checkpoint_says_so_and_leaves_a_clean_start(tmp_path, monkeypatch, capsys):
+    """Interrupted while setting up (before any checkpoint): no claim of a checkpoint, no half-made folder that
+    --resume would refuse; the same command starts again."""
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train, "train", interrupted)
+    cli = ["--config", str(CONFIGS / "push_sac_her.yaml"), "--runs", str(tmp_path), "--no-progress"]
+    assert train.main(cli) == 130
+    message = capsys.readouterr().err
+    assert "before the first checkpoint: nothing was saved" in message and "checkpoint saved" not in message
+    assert not (tmp_path / "push_sac_her-seed0").exists()
