@@ -10,7 +10,7 @@ import pytest
 import torch as th
 from testkit import CONFIGS, TINY_DQN
 
-from panda_grasp_env.agents.learning.config import TrainConfig, load_config
+from panda_grasp_env.agents.learning.config import TrainConfig, load_config, make_vec_env
 from panda_grasp_env.agents.learning.heightmap_policy import (
     HeightmapDQN,
     HeightmapQPolicy,
@@ -301,3 +301,23 @@ def test_ctrl_c_before_the_first_checkpoint_says_so_and_leaves_a_clean_start(tmp
     message = capsys.readouterr().err
     assert "before the first checkpoint: nothing was saved" in message and "checkpoint saved" not in message
     assert not (tmp_path / "push_sac_her-seed0").exists()
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("config", "setting", "message"),
+    [
+        ("push_grasp_dqn.yaml", "algo_kwargs.buffer_size=200000", r"algo_kwargs.buffer_size=200000: a buffer of"),
+        ("push_ppo.yaml", "algo_kwargs.n_steps=100000000", r"algo_kwargs.n_steps=100000000: a buffer of"),
+    ],
+)
+def test_a_buffer_past_the_bound_is_refused_before_sb3_allocates_it(tmp_path, config, setting, message):
+    from panda_grasp_env.agents.learning.training import build_model
+
+    loaded = load_config(CONFIGS / config, [setting, "n_envs=1", "vec_env=dummy"])
+    env = make_vec_env(loaded)
+    try:
+        with pytest.raises(ValueError, match=message + r" .* GiB, more than the 12 GiB a run may"):
+            build_model(loaded, env, None)
+    finally:
+        env.close()
