@@ -16,7 +16,7 @@ from pydantic import AfterValidator, ConfigDict, Field, StrictFloat, StrictInt, 
 from pydantic.dataclasses import dataclass
 
 from panda_grasp_env.config_fields import Count, Seed, distinct
-from panda_grasp_env.geometry import is_number
+from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.registration import ENV_IDS
 from panda_grasp_env.tooling.runs import apply_key_values, check_resume_changes, checked_config, config_value_error
 
@@ -363,6 +363,43 @@ def check_policy_resume(saved: TrainConfig, resumed: TrainConfig) -> None:
     """``ValueError`` naming the keys a resumed run changed that it cannot (see ``RESUME_CHANGEABLE``)."""
     buffer_changed = saved.algo_kwargs.get("buffer_size") != resumed.algo_kwargs.get("buffer_size")  # saved buffer
     check_resume_changes(saved, resumed, RESUME_CHANGEABLE, ["algo_kwargs.buffer_size"] if buffer_changed else [])
+
+
+#: Most bytes a run's replay or rollout buffer may take (SB3 allocates it whole when the model is built):
+#: half of a 24 GiB machine.  The largest shipped run's takes 1.9 GB.
+MAX_BUFFER_BYTES = 12 << 30
+
+
+def space_bytes(space: gym.Space) -> int:
+    """Bytes one value of ``space`` takes in an SB3 buffer (a Dict's parts summed; discrete actions as int64)."""
+    if isinstance(space, gym.spaces.Dict):
+        return sum(space_bytes(part) for part in space.spaces.values())
+    if isinstance(space, gym.spaces.Discrete):
+        return 8
+    return int(np.prod(space.shape, dtype=object)) * np.dtype(space.dtype).itemsize
+
+
+def check_buffer_bytes(config: TrainConfig, algo_class: type, env: Any, kwargs: dict[str, Any]) -> None:
+    """``ValueError`` naming the setting before SB3 allocates a buffer of more than ``MAX_BUFFER_BYTES``: an
+    off-policy run's ``buffer_size`` transitions (observation, next observation, action), or an on-policy run's
+    ``n_steps`` x ``n_envs`` observations and actions."""
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+    if config.algo in OFFLINE_ALGORITHMS:  # behaviour cloning keeps a one-transition buffer of its own
+        return
+    transition = space_bytes(env.observation_space) * 2 + space_bytes(env.action_space)
+    if issubclass(algo_class, OffPolicyAlgorithm):
+        setting, count = "algo_kwargs.buffer_size", kwargs.get("buffer_size", 1_000_000)
+    else:
+        setting, count = "algo_kwargs.n_steps", kwargs.get("n_steps", 2048) * env.num_envs
+    if not is_count(count):
+        return  # SB3 names a malformed value itself
+    needed = count * transition
+    if needed > MAX_BUFFER_BYTES:
+        raise ValueError(
+            f"{setting}={kwargs.get(setting.split('.')[-1], 'its default')}: a buffer of {count} transitions of "
+            f"{transition} bytes takes {needed / 2**30:.1f} GiB, more than the {MAX_BUFFER_BYTES >> 30} GiB a run may"
+        )
 
 
 def algo_arguments(config: TrainConfig) -> dict[str, Any]:

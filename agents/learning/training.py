@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-import numpy as np
 
 from panda_grasp_env.agents.evaluation.episodes import play_episode
 from panda_grasp_env.agents.evaluation.metrics import aggregate
@@ -33,11 +32,11 @@ from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, task_label
 from panda_grasp_env.agents.learning.config import (
     ALGORITHMS,
     HEIGHTMAP_ALGORITHMS,
-    OFFLINE_ALGORITHMS,
     SELECTION_SEED_OFFSET,
     TEST_SEED_OFFSET,
     TrainConfig,
     algo_arguments,
+    check_buffer_bytes,
     load_class,
     load_run,
     make_env,
@@ -58,7 +57,6 @@ from panda_grasp_env.agents.learning.records import (
 )
 from panda_grasp_env.agents.policies.learned import Checkpoint
 from panda_grasp_env.agents.policies.policy_agent import PolicyAgent
-from panda_grasp_env.geometry import is_count
 from panda_grasp_env.tooling.runs import (
     atomic_path,
     check_run_files,
@@ -111,43 +109,6 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
         )
     except TypeError as error:
         raise ValueError(f"{config.algo}: bad algo_kwargs/policy_kwargs/her: {error}") from None
-
-
-#: Most bytes a run's replay or rollout buffer may take (SB3 allocates it whole when the model is built):
-#: half of a 24 GiB machine.  The largest shipped run's takes 1.9 GB.
-MAX_BUFFER_BYTES = 12 << 30
-
-
-def space_bytes(space: gym.Space) -> int:
-    """Bytes one value of ``space`` takes in an SB3 buffer (a Dict's parts summed; discrete actions as int64)."""
-    if isinstance(space, gym.spaces.Dict):
-        return sum(space_bytes(part) for part in space.spaces.values())
-    if isinstance(space, gym.spaces.Discrete):
-        return 8
-    return int(np.prod(space.shape, dtype=object)) * np.dtype(space.dtype).itemsize
-
-
-def check_buffer_bytes(config: TrainConfig, algo_class: type, env: Any, kwargs: dict[str, Any]) -> None:
-    """``ValueError`` naming the setting before SB3 allocates a buffer of more than ``MAX_BUFFER_BYTES``: an
-    off-policy run's ``buffer_size`` transitions (observation, next observation, action), or an on-policy run's
-    ``n_steps`` x ``n_envs`` observations and actions."""
-    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
-
-    if config.algo in OFFLINE_ALGORITHMS:  # behaviour cloning keeps a one-transition buffer of its own
-        return
-    transition = space_bytes(env.observation_space) * 2 + space_bytes(env.action_space)
-    if issubclass(algo_class, OffPolicyAlgorithm):
-        setting, count = "algo_kwargs.buffer_size", kwargs.get("buffer_size", 1_000_000)
-    else:
-        setting, count = "algo_kwargs.n_steps", kwargs.get("n_steps", 2048) * env.num_envs
-    if not is_count(count):
-        return  # SB3 names a malformed value itself
-    needed = count * transition
-    if needed > MAX_BUFFER_BYTES:
-        raise ValueError(
-            f"{setting}={kwargs.get(setting.split('.')[-1], 'its default')}: a buffer of {count} transitions of "
-            f"{transition} bytes takes {needed / 2**30:.1f} GiB, more than the {MAX_BUFFER_BYTES >> 30} GiB a run may"
-        )
 
 
 def initial_policy_source(config: TrainConfig) -> Any:
