@@ -30,12 +30,13 @@ random heaps the push-grasp policy keeps completion >= 95 % at efficiency >= 80 
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-os.environ.setdefault("MUJOCO_GL", "egl")
+import panda_grasp_env  # noqa: E402, F401  (first: it chooses MUJOCO_GL before mujoco is imported)
+
+# isort: split
 
 import gymnasium as gym  # noqa: E402
 

@@ -12,12 +12,13 @@ thread and prints the policy's parameter count, the process's peak resident memo
 from __future__ import annotations
 
 import argparse
-import os
 import resource
 import sys
 import time
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+import panda_grasp_env  # noqa: E402, F401  (first: it chooses MUJOCO_GL before mujoco is imported)
+
+# isort: split
 
 
 def main() -> None:

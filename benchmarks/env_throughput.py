@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -115,8 +114,9 @@ def make_env(case: str) -> tuple[Any, Any, Any, int]:
 
 def measure(case: str, steps: int, seed: int = 0) -> dict[str, float]:
     """One case in this interpreter: env steps/s, and the physics figures (see the module docstring)."""
-    os.environ.setdefault("MUJOCO_GL", "egl")
     import numpy as np
+
+    import panda_grasp_env  # noqa: F401  (it chooses MUJOCO_GL before mujoco is imported)
 
     if case == "panda_gym_push":
         return measure_panda_gym(steps, seed)

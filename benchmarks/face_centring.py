@@ -17,13 +17,14 @@ the card (``train.py --retest``) and in docs/tall-towers.md.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from functools import partial
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-os.environ.setdefault("MUJOCO_GL", "egl")
+import panda_grasp_env  # noqa: E402, F401  (first: it chooses MUJOCO_GL before mujoco is imported)
+
+# isort: split
 
 
 from benchmarks._common import POLICY_COLUMNS, RandomChoice, Results, policy_figures, policy_row

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from collections import defaultdict
 from pathlib import Path
 
@@ -47,11 +46,11 @@ def split_figures() -> None:
 def previews(folder: Path, size: int = 96) -> None:
     """A 10 x 10 sheet per split of its evaluation objects, rendered alone on the table from above at 45 degrees,
     each labelled with its id: ``folder/mesh_objects_<split>.png``."""
-    os.environ.setdefault("MUJOCO_GL", "egl")
     import cv2
     import imageio.v3 as iio
     import mujoco
 
+    import panda_grasp_env  # noqa: F401  (it chooses MUJOCO_GL before mujoco is imported)
     from panda_grasp_env.model.objects import ObjectShape, apply_shape
     from panda_grasp_env.model.scene import SceneConfig
     from panda_grasp_env.sim.workcell import Workcell

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -47,10 +46,10 @@ RAW_STEPS = 5000
 
 def measure(row: str, primitives: int) -> dict[str, float]:
     """One row of ``ROWS`` in this interpreter (see the module docstring)."""
-    os.environ.setdefault("MUJOCO_GL", "egl")
     import gymnasium as gym
     import numpy as np
 
+    import panda_grasp_env  # noqa: F401  (it chooses MUJOCO_GL before mujoco is imported)
     from benchmarks._physics import raw_step_rate, timed_mj_step
     from panda_grasp_env.model.scene import SceneConfig
 

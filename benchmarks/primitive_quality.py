@@ -19,14 +19,15 @@ saved atomically after each section; ``--resume`` skips finished sections.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first mujoco import
+import panda_grasp_env  # noqa: E402, F401  (first: it chooses MUJOCO_GL before mujoco is imported)
+
+# isort: split
 
 import numpy as np  # noqa: E402
 

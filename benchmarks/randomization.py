@@ -22,12 +22,13 @@ and grasps 40000-40011 were used while writing it, and the depth-noise default w
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first mujoco import
+import panda_grasp_env  # noqa: E402, F401  (first: it chooses MUJOCO_GL before mujoco is imported)
+
+# isort: split
 
 import gymnasium as gym
 import numpy as np

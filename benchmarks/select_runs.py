@@ -14,13 +14,14 @@ that ranks first.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from functools import partial
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-os.environ.setdefault("MUJOCO_GL", "egl")
+import panda_grasp_env  # noqa: E402, F401  (first: it chooses MUJOCO_GL before mujoco is imported)
+
+# isort: split
 
 from benchmarks._common import Results, check_selection_episodes, policy_figures
 from panda_grasp_env.agents.evaluation.metrics import describe_rate

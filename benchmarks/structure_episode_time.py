@@ -10,13 +10,14 @@ then the median wall time.
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first mujoco import
+import panda_grasp_env  # noqa: E402, F401  (first: it chooses MUJOCO_GL before mujoco is imported)
+
+# isort: split
 
 import panda_grasp_env.agents.policies.structures  # noqa: F401  (registers planned_lookahead)
 from panda_grasp_env.agents.evaluation.episodes import close_kept_env, run_episode

@@ -10,10 +10,11 @@ propping it), seen from a camera aimed at it, captioned with its tier and name a
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first mujoco import
+import panda_grasp_env  # noqa: E402, F401  (first: it chooses MUJOCO_GL before mujoco is imported)
+
+# isort: split
 
 import mujoco
 import numpy as np

@@ -5,10 +5,12 @@ Importing the package imports every task module, which registers the task's Gymn
 """
 
 import os
+import sys
 
-# Headless machines have no X display: render offscreen through EGL unless told otherwise.
-# (Must happen before mujoco is first imported.)
-if "DISPLAY" not in os.environ:
+# The one place the GL backend is chosen (MuJoCo reads MUJOCO_GL when it is first imported): on Linux, frames
+# render offscreen through EGL, display or not; observations and videos need no window, and the viewer of
+# render_mode="human" opens its own through GLFW.  A MUJOCO_GL the user set wins.
+if sys.platform.startswith("linux"):
     os.environ.setdefault("MUJOCO_GL", "egl")
 
 import panda_grasp_env.tasks  # noqa: E402, F401  (registers the tasks and their ids)

@@ -65,7 +65,6 @@ def main(argv: list[str] | None = None) -> int:
     if threads is not None:
         print(f"torch threads: {threads} ({os.cpu_count()} cores here; --num-threads N to choose)")
     if script == "record_video":
-        os.environ.setdefault("MUJOCO_GL", "egl")  # its frames are offscreen, display or not
         if "--num-threads" in rest[:-1]:  # record_video has no such flag: this command applies it
             at = rest.index("--num-threads")
             if not rest[at + 1].isdigit() or int(rest[at + 1]) < 1:

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
-import os
 import platform
 import sys
 import time
@@ -123,11 +122,9 @@ def make_recorder_env(n_blocks: int) -> Any:
 
 
 class RecorderEnvs(dict):
-    """Recorder envs by tower height (blocks), each made when first asked for (offscreen: EGL unless the
-    process chose another ``MUJOCO_GL``)."""
+    """Recorder envs by tower height (blocks), each made when first asked for."""
 
     def __missing__(self, n_blocks: int) -> Any:
-        os.environ.setdefault("MUJOCO_GL", "egl")
         self[n_blocks] = env = make_recorder_env(n_blocks)
         return env
 
@@ -389,5 +386,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    os.environ.setdefault("MUJOCO_GL", "egl")
     sys.exit(main())

@@ -9,7 +9,8 @@ Two profiles:
   reflections, ~290 with collision geoms too; ``benchmarks/throughput.py`` prints today's rates);
 * ``pretty`` (videos): 4x multisampling, shadows, reflections, visual meshes.
 
-Set ``MUJOCO_GL=egl`` before importing mujoco on a machine without a display.
+The GL backend is ``MUJOCO_GL``, which importing ``panda_grasp_env`` sets to ``egl`` on Linux (its
+``__init__``) unless the user chose one.
 Depth is metres along the camera's optical axis; segmentation is per-pixel
 geom id (-1 for background).  ``EnvRenderer`` is what an env's ``render_mode``
 shows: front-camera frames, their video, or MuJoCo's viewer.
