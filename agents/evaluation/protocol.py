@@ -40,6 +40,7 @@ from panda_grasp_env.agents.policies.registry import (
 )
 from panda_grasp_env.env_options import AGENT_OPTIONS
 from panda_grasp_env.registration import ENV_IDS, TASKS
+from panda_grasp_env.tooling.extras import learning_stack_problem
 from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_text
 from panda_grasp_env.tooling.runs import apply_key_values
 
@@ -162,6 +163,8 @@ def skip_reason(agent: str, task: str) -> str | None:
         return None
     from panda_grasp_env.agents.policies.phased import PHASED_AGENTS
 
+    if learning_stack_problem("a learned agent") is not None:  # a checkpoint, alone or in phases
+        return learning_stack_problem(f"learned agent {agent}")
     if agent in PHASED_AGENTS:
         tasks = PHASED_AGENTS[agent].tasks
         return None if task in tasks else f"the phased agent {agent} plays {', '.join(tasks)}"

@@ -29,6 +29,7 @@ import numpy as np
 from panda_grasp_env.agents.learning.config import TrainConfig, config_from_dict, make_env, observation_transform
 from panda_grasp_env.agents.learning.policy_files import export_sb3, load_policy, load_sb3, policy_paths
 from panda_grasp_env.agents.policies.policy_agent import ACTING_RULES, PolicyAgent, check_acting_rules
+from panda_grasp_env.tooling.extras import require_learning_stack
 from panda_grasp_env.tooling.reading import read_json, read_yaml
 from panda_grasp_env.tooling.runs import sha256
 
@@ -103,7 +104,10 @@ class Checkpoint:
     """A shipped checkpoint folder (or any folder laid out the same way)."""
 
     def __init__(self, name_or_path: str | Path, trust: bool = False) -> None:
-        """``trust``: also load an SB3 ``policy.zip`` (a pickle) where the folder has no ``policy.json``."""
+        """``trust``: also load an SB3 ``policy.zip`` (a pickle) where the folder has no ``policy.json``.
+        ``ModuleNotFoundError`` naming the ``learn`` extra where it is not installed (its config names SB3
+        classes, checked on reading)."""
+        require_learning_stack(f"learned agent {Path(name_or_path).name}")
         path = Path(name_or_path)
         if not (path / "checkpoint.json").is_file():
             path = CHECKPOINTS / str(name_or_path)

@@ -327,7 +327,8 @@ def main(argv: list[str] | None = None) -> int:
     if skipped:  # the pairs and their reasons are in the report
         print(f"skipped {len(skipped)} agent/task pairs that do not apply (which and why: {args.out / 'report.html'})")
     if not specs:
-        print("nothing to run: no chosen agent applies to a chosen task", file=sys.stderr)
+        reasons = sorted(set(skipped.values()))
+        print(f"nothing to run: no chosen agent applies to a chosen task ({'; '.join(reasons[:3])})", file=sys.stderr)
         return 2
     started = time.perf_counter()
     try:

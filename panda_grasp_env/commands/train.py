@@ -32,6 +32,14 @@ from pathlib import Path
 
 import yaml
 
+from panda_grasp_env.tooling.extras import learning_stack_problem
+
+if learning_stack_problem("train.py") is not None:  # before the imports that need it: one line, no traceback
+    print(f"error: {learning_stack_problem('train.py')}", file=sys.stderr)
+    raise SystemExit(2)
+
+# isort: split
+
 from panda_grasp_env.agents.learning.config import check_policy_resume, config_from_dict, load_run, read_config
 from panda_grasp_env.agents.learning.training import retest, start_run, train
 from panda_grasp_env.agents.policies.policy_agent import ACTING_RULES

@@ -1,9 +1,12 @@
-"""The README's main command on what the README installs: ``python evaluate.py`` with no optional package.
+"""The README's main command on what the README installs, and a plain install without the learning stack.
 
 A fresh clone crashed here once: the default protocol plays no mesh task, but judging whether the mesh-trained
 checkpoints play the block tasks built their training envs, which need the ``objects`` extra.  This runs the
 default protocol -- its planning and one episode of every (agent, task) pair -- in a process in which every
-package of an extra that the main command does not install fails to import.
+package of an extra that the main command does not install fails to import.  A plain ``pip install
+panda_grasp_env`` (no ``learn`` extra: no torch, SB3, sb3-contrib, tensorboard or safetensors) makes, resets
+and steps every env id, plays the scripted agents through ``evaluate.py``, and refuses a learned agent and
+``train.py`` with one line naming the extra.
 """
 
 import json
@@ -28,7 +31,15 @@ IMPORT_NAMES = {
     "pytest": [],  # the test runner itself: it is what runs this test
     "pytest-xdist": [],
     "import-linter": ["importlinter"],  # the layer contracts, run by the suite (tests/test_layout.py)
+    # The learn extra (the README's main command installs it; a plain install does not).
+    "torch": ["torch"],
+    "stable-baselines3": ["stable_baselines3"],
+    "sb3-contrib": ["sb3_contrib"],
+    "tensorboard": ["tensorboard"],
+    "safetensors": ["safetensors"],
 }
+#: The extra the README's main command installs beside the core dependencies.
+MAIN_EXTRAS = ("learn",)
 
 BLOCKED_RUN = """
 import importlib.machinery, sys
@@ -77,12 +88,15 @@ def installed_with(names: set[str]) -> set[str]:
     return normal
 
 
-def optional_packages() -> list[str]:
-    """The import names (``IMPORT_NAMES``) of every extra's requirement that the core dependencies do not
-    install themselves: what a venv made by the README's main command lacks."""
+def optional_packages(installed_extras: tuple[str, ...] = MAIN_EXTRAS) -> list[str]:
+    """The import names (``IMPORT_NAMES``) of every extra's requirement that the core dependencies and
+    ``installed_extras`` do not install themselves: what a venv made by the README's main command lacks (or,
+    with none, a plain ``pip install panda_grasp_env``)."""
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    core = installed_with({requirement_name(req) for req in project["dependencies"]})
-    extras = {requirement_name(req) for reqs in project["optional-dependencies"].values() for req in reqs}
+    extras_of = project["optional-dependencies"]
+    core_requirements = [*project["dependencies"], *(req for extra in installed_extras for req in extras_of[extra])]
+    core = installed_with({requirement_name(req) for req in core_requirements} - {project["name"]})
+    extras = {requirement_name(req) for reqs in extras_of.values() for req in reqs} - {project["name"]}
     unknown = sorted(extras - set(IMPORT_NAMES))
     assert not unknown, f"name the import names of {unknown} in IMPORT_NAMES"
     missing = [extra for extra in extras if extra.lower().replace("_", "-") not in core]
@@ -105,3 +119,64 @@ def test_the_default_protocol_runs_with_every_optional_package_missing(tmp_path)
     pairs = results["metrics"]
     assert len(pairs) >= 40 and all(m["episodes"] == 1 for m in pairs.values())
     assert "grasp_mesh_dqn/GraspClutter" in pairs  # judged on a block task without the mesh set
+
+
+CORE_RUN = (
+    BLOCKED_RUN.split("from panda_grasp_env.commands import evaluate")[0]
+    + """
+import gymnasium as gym
+from panda_grasp_env.registration import ENV_IDS
+from panda_grasp_env.commands import evaluate
+
+for env_id in sorted(ENV_IDS):  # every id: made, reset and stepped by a random agent
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    for _ in range(2):
+        env.step(env.action_space.sample())
+    env.close()
+print("ids", len(ENV_IDS))
+try:
+    from panda_grasp_env.agents.policies.learned import LearnedAgent
+    LearnedAgent("tower_build_dqn")
+except ModuleNotFoundError as error:
+    print("learned:", error)
+agents = "random,planned,oracle,expert,planned_lookahead,tower_build_dqn"
+sys.exit(evaluate.main(["--agents", agents, "--no-video", "--seeds", "1", "--out", sys.argv[2]]))
+"""
+)
+
+
+def test_a_plain_install_runs_every_id_and_the_scripted_agents_and_names_the_learn_extra(tmp_path):
+    blocked = [name for name in optional_packages(installed_extras=()) if name not in IMPORT_NAMES["pybullet"]]
+    assert {"torch", "stable_baselines3", "sb3_contrib", "safetensors"} <= set(blocked)
+    out = tmp_path / "core"
+    done = subprocess.run(
+        [sys.executable, "-c", CORE_RUN, ",".join(blocked), str(out)],
+        capture_output=True,
+        text=True,
+        timeout=1200,
+        cwd=ROOT,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "learned: learned agent tower_build_dqn needs the learn extra" in done.stdout
+    assert "pip install 'panda_grasp_env[learn]'" in done.stdout
+    results = json.loads((out / "results.json").read_text())
+    agents = {key.split("/")[0] for key in results["metrics"]}
+    assert agents == {"random", "planned", "oracle", "expert", "planned_lookahead"}
+    assert "needs the learn extra" in results["protocol"]["skipped"]["tower_build_dqn/TowerBuild"]
+    trained = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            CORE_RUN.split("import gymnasium")[0] + "import runpy; sys.argv = ['train.py', '--help']; "
+            "runpy.run_path('train.py', run_name='__main__')",
+            ",".join(blocked),
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=ROOT,
+    )
+    assert trained.returncode == 2 and "error: train.py needs the learn extra" in trained.stderr
