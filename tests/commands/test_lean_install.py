@@ -103,17 +103,17 @@ def optional_packages(installed_extras: tuple[str, ...] = MAIN_EXTRAS) -> list[s
     return sorted({name for extra in missing for name in IMPORT_NAMES[extra]})
 
 
+def run_blocked(script: str, blocked: list[str], out) -> subprocess.CompletedProcess:
+    """``script`` (one of the above: it reads the blocked names and ``out``) in a fresh interpreter."""
+    command = [sys.executable, "-c", script, ",".join(blocked), str(out)]
+    return subprocess.run(command, capture_output=True, text=True, timeout=1200, cwd=ROOT)
+
+
 def test_the_default_protocol_runs_with_every_optional_package_missing(tmp_path):
     blocked = optional_packages()
     assert "pybullet_data" in blocked and "ray" in blocked
     out = tmp_path / "quick"
-    done = subprocess.run(
-        [sys.executable, "-c", BLOCKED_RUN, ",".join(blocked), str(out)],
-        capture_output=True,
-        text=True,
-        timeout=1200,
-        cwd=ROOT,
-    )
+    done = run_blocked(BLOCKED_RUN, blocked, out)
     assert done.returncode == 0, done.stderr[-3000:]
     results = json.loads((out / "results.json").read_text())
     pairs = results["metrics"]
@@ -151,13 +151,7 @@ def test_a_plain_install_runs_every_id_and_the_scripted_agents_and_names_the_lea
     blocked = [name for name in optional_packages(installed_extras=()) if name not in IMPORT_NAMES["pybullet"]]
     assert {"torch", "stable_baselines3", "sb3_contrib", "safetensors"} <= set(blocked)
     out = tmp_path / "core"
-    done = subprocess.run(
-        [sys.executable, "-c", CORE_RUN, ",".join(blocked), str(out)],
-        capture_output=True,
-        text=True,
-        timeout=1200,
-        cwd=ROOT,
-    )
+    done = run_blocked(CORE_RUN, blocked, out)
     assert done.returncode == 0, done.stderr[-3000:]
     assert "learned: learned agent tower_build_dqn needs the learn extra" in done.stdout
     assert "pip install 'panda_grasp_env[learn]'" in done.stdout
@@ -165,18 +159,6 @@ def test_a_plain_install_runs_every_id_and_the_scripted_agents_and_names_the_lea
     agents = {key.split("/")[0] for key in results["metrics"]}
     assert agents == {"random", "planned", "oracle", "expert", "planned_lookahead"}
     assert "needs the learn extra" in results["protocol"]["skipped"]["tower_build_dqn/TowerBuild"]
-    trained = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            CORE_RUN.split("import gymnasium")[0] + "import runpy; sys.argv = ['train.py', '--help']; "
-            "runpy.run_path('train.py', run_name='__main__')",
-            ",".join(blocked),
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=ROOT,
-    )
+    train_help = "import runpy; sys.argv = ['train.py', '--help']; runpy.run_path('train.py', run_name='__main__')"
+    trained = run_blocked(CORE_RUN.split("import gymnasium")[0] + train_help, blocked, out)
     assert trained.returncode == 2 and "error: train.py needs the learn extra" in trained.stderr
