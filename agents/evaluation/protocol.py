@@ -26,6 +26,7 @@ import gymnasium as gym
 # The built-in planned agents and experts register themselves (``registry``) when their modules are imported.
 import panda_grasp_env.agents.policies.experts
 import panda_grasp_env.agents.policies.grasping
+import panda_grasp_env.agents.policies.learned_physics
 import panda_grasp_env.agents.policies.put_in_bin
 import panda_grasp_env.agents.policies.structures
 import panda_grasp_env.agents.policies.towers  # noqa: F401
@@ -153,8 +154,10 @@ def skip_reason(agent: str, task: str) -> str | None:
     if agent == "expert":
         return None if task in EXPERTS else f"no scripted low-level expert is written for {task}"
     if agent in NAMED_AGENTS:
-        tasks = NAMED_AGENTS[agent].tasks
-        return None if task in tasks else f"agent {agent} was registered for {', '.join(tasks)}"
+        named = NAMED_AGENTS[agent]
+        if task not in named.tasks:
+            return f"agent {agent} was registered for {', '.join(named.tasks)}"
+        return learning_stack_problem(f"agent {agent}") if named.needs_learning_stack else None
     if agent in AGENTS:
         if is_low_level(BENCHMARKS[task].env_id, BENCHMARKS[task].options):
             return f"the {agent} baselines act through motion primitives; {task} is a low-level ee_delta task"

@@ -74,6 +74,8 @@ class NamedAgent:
     #: ``gymnasium.make`` options on top of each task's benchmark options: what it sees and how it acts
     #: (``obs_mode``, ``cameras``, ``action_mode``, ...).  The episode's own options (``--task-options``) win.
     env_options: Mapping[str, Any] = field(default_factory=dict)
+    #: Whether it needs the ``learn`` extra (torch): without it ``evaluate.py`` skips it, naming the extra.
+    needs_learning_stack: bool = False
 
 
 #: Agent name -> the agent registered under it (``evaluate.py --agents NAME``).
@@ -81,10 +83,10 @@ NAMED_AGENTS: dict[str, NamedAgent] = {}
 
 
 def register_agent(
-    name: str, *tasks: str, env_options: Mapping[str, Any] | None = None
+    name: str, *tasks: str, env_options: Mapping[str, Any] | None = None, needs_learning_stack: bool = False
 ) -> Callable[[Factory], Factory]:
     """Decorator: the factory ``(env, seed) -> agent`` is ``evaluate.py``'s agent ``name`` on benchmark ``tasks``,
-    playing in their envs with ``env_options`` on top.  ``ValueError`` if the name is empty, built in
+    playing in their envs with ``env_options`` on top (``needs_learning_stack``: it runs a torch model).  ``ValueError`` if the name is empty, built in
     (``BUILT_IN_AGENTS``), a shipped checkpoint's or taken, or if no task is named."""
     from panda_grasp_env.agents.policies.learned import available_checkpoints
 
@@ -100,7 +102,7 @@ def register_agent(
     def register(factory: Factory) -> Factory:
         if not callable(factory):
             raise ValueError(f"register_agent {name!r}: the factory must be callable, got {factory!r}")
-        NAMED_AGENTS[name] = NamedAgent(factory, tuple(tasks), dict(env_options or {}))
+        NAMED_AGENTS[name] = NamedAgent(factory, tuple(tasks), dict(env_options or {}), needs_learning_stack)
         return factory
 
     return register

@@ -23,10 +23,12 @@ frame, metres, radians.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 
 from panda_grasp_env.agents.policies.base import PrimitiveActionWriter, record_failure
@@ -60,6 +62,20 @@ STRUCTURE_BENCHMARKS = ("Structure", *(f"Structures{tier}" for tier in range(1, 
 WHAT_IF_BUDGET = 24
 
 
+class Verdict(Protocol):
+    """What a stability check found: whether everything watched stands."""
+
+    @property
+    def stands(self) -> bool: ...
+
+
+#: A stability check with ``what_if``'s signature: (model, data, moves {body: (position, yaw)}, watched bodies)
+#: -> a verdict; the simulator's own (``what_if``) or a learned model's (``learned_physics.FallModelCheck``).
+StabilityCheck = Callable[
+    [mujoco.MjModel, mujoco.MjData, Mapping[int, tuple[np.ndarray, float]], Sequence[int]], Verdict
+]
+
+
 @dataclass
 class _Plan:
     """What the hand's load is for: a target (index) or a drop spot (x, y), the load's kind and its heading
@@ -74,12 +90,19 @@ class _Plan:
 
 class StructurePlanner:
     """Builds the goal of ``PandaStructure-v0`` (see the module's docstring) with ``perceiver``'s pieces;
-    ``lookahead`` checks each place in a copy of ``env``'s simulation first (``env`` is needed only then)."""
+    ``lookahead`` checks each place in a copy of ``env``'s simulation first (``env`` is needed only then), with
+    ``check``: the simulator's what-if run, or a learned model's prediction of one."""
 
-    def __init__(self, perceiver: HeightmapPieces | OraclePieces, lookahead: bool, env: gym.Env | None = None) -> None:
+    def __init__(
+        self,
+        perceiver: HeightmapPieces | OraclePieces,
+        lookahead: bool,
+        env: gym.Env | None = None,
+        check: StabilityCheck = what_if,
+    ) -> None:
         if lookahead and env is None:
             raise ValueError("the lookahead planner needs the env, to copy its simulation")
-        self.perceiver, self.lookahead = perceiver, lookahead
+        self.perceiver, self.lookahead, self.check = perceiver, lookahead, check
         self.cell = env.unwrapped.cell if lookahead else None
         kind = "lookahead" if lookahead else "greedy"
         self.name = f"structure_{kind}_{perceiver.name}"
@@ -269,7 +292,7 @@ class StructurePlanner:
         bodies = np.asarray(self.cell.object_ids, dtype=int)
         return bodies, self.cell.data.xpos[bodies]
 
-    def _stands(self, index: int, seen: Seen, column: list[tuple[np.ndarray, float]]) -> WhatIf:
+    def _stands(self, index: int, seen: Seen, column: list[tuple[np.ndarray, float]]) -> Verdict:
         """Set target ``index``'s piece (the loose one the planner would take) and the ``column``'s cubes in a
         copy of the simulation, and run it: does everything built stand?"""
         bodies, centres = self._bodies()
@@ -287,7 +310,7 @@ class StructurePlanner:
             moves[body] = (centre, yaw)
         near = np.linalg.norm(centres[:, :2] - self.targets.centres[index, :2], axis=1) < 0.3
         watched = {int(b) for b in bodies[near & (centres[:, 2] > -0.1)]} | set(moves)
-        return what_if(self.cell.model, self.cell.data, moves, watched)
+        return self.check(self.cell.model, self.cell.data, moves, watched)
 
     def _scaffold_columns(self, index: int, seen: Seen) -> list[list[tuple[np.ndarray, float]]]:
         """Columns of spare props that could hold target ``index``'s piece up: under its far end (past its
@@ -352,7 +375,7 @@ class StructurePlanner:
             near = np.linalg.norm(centres[:, :2] - centre[:2], axis=1) < 0.3
             watched = {int(b) for b in bodies[near & (centres[:, 2] > -0.1)]} - {body}
             moves = {body: (np.array([*drop, centre[2]]), yaw)}
-            if not what_if(self.cell.model, self.cell.data, moves, watched).stands:
+            if not self.check(self.cell.model, self.cell.data, moves, watched).stands:
                 continue
             others = np.array([c[:2] for b, c in zip(bodies, centres) if b != body and c[2] > -0.1])
             built = self.targets.pieces(seen.filled)

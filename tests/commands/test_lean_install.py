@@ -141,7 +141,7 @@ try:
     LearnedAgent("tower_build_dqn")
 except ModuleNotFoundError as error:
     print("learned:", error)
-agents = "random,planned,oracle,expert,planned_lookahead,tower_build_dqn"
+agents = "random,planned,oracle,expert,planned_lookahead,planned_lookahead_learned,tower_build_dqn"
 sys.exit(evaluate.main(["--agents", agents, "--no-video", "--seeds", "1", "--out", sys.argv[2]]))
 """
 )
@@ -159,6 +159,7 @@ def test_a_plain_install_runs_every_id_and_the_scripted_agents_and_names_the_lea
     agents = {key.split("/")[0] for key in results["metrics"]}
     assert agents == {"random", "planned", "oracle", "expert", "planned_lookahead"}
     assert "needs the learn extra" in results["protocol"]["skipped"]["tower_build_dqn/TowerBuild"]
+    assert "needs the learn extra" in results["protocol"]["skipped"]["planned_lookahead_learned/StructuresSample"]
     train_help = "import runpy; sys.argv = ['train.py', '--help']; runpy.run_path('train.py', run_name='__main__')"
     trained = run_blocked(CORE_RUN.split("import gymnasium")[0] + train_help, blocked, out)
     assert trained.returncode == 2 and "error: train.py needs the learn extra" in trained.stderr
