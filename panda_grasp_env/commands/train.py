@@ -2,7 +2,7 @@
 
 Policies (SB3: ``heightmap_dqn``, ``sac``, ``tqc``, ``ppo``, and from demonstrations ``bc``, ``tqc_demos``,
 ``heightmap_dqn_demos``; ``agents/learning/training.py``) or, with
-``kind: fall_dynamics``, the falling-tower ConvLSTM (``panda_grasp_env/falls/training.py``).
+``kind: fall_dynamics``, the falling-tower ConvLSTM (``agents/learning/falls/training.py``).
 
 Overrides use dotted keys into mappings (``algo_kwargs.learning_rate=3e-4``,
 ``env_kwargs.rotations=8``); values are read as YAML.  Every run writes one
@@ -14,7 +14,7 @@ rliable (IQM, stratified-bootstrap CIs, performance profiles) in a study folder
 card.  ``--ship <run folder> --name N`` copies
 a finished run's model, card and curve to ``agents/checkpoints/N`` where
 ``panda_grasp_env.agents.policies.learned.LearnedAgent`` and ``evaluate.py`` find it (fall-dynamics runs:
-``panda_grasp_env/falls/checkpoints/N``).  ``--retest <run or checkpoint folder>`` runs a policy's final
+``agents/learning/falls/checkpoints/N``).  ``--retest <run or checkpoint folder>`` runs a policy's final
 held-out test again (final.json, card.md), e.g. after the evaluation protocol or the physics changed;
 on a fall-dynamics run or checkpoint it scores the model against the baselines on a recorded dataset's
 test split (``dataset=PATH``, default its own; retest.json).
@@ -41,10 +41,10 @@ if learning_stack_problem("train.py") is not None:  # before the imports that ne
 # isort: split
 
 from panda_grasp_env.agents.learning.config import check_policy_resume, config_from_dict, load_run, read_config
+from panda_grasp_env.agents.learning.falls.config import FALL_RESUME_CHANGEABLE, fall_config
+from panda_grasp_env.agents.learning.falls.training import start_fall_run, test_fall_model, train_fall_model
 from panda_grasp_env.agents.learning.training import retest, start_run, train
 from panda_grasp_env.agents.policies.policy_agent import ACTING_RULES
-from panda_grasp_env.falls.config import FALL_RESUME_CHANGEABLE, fall_config
-from panda_grasp_env.falls.training import start_fall_run, test_fall_model, train_fall_model
 from panda_grasp_env.tooling.runs import (
     check_resume_changes,
     forget_failed_resume,
@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"attached to {attach_study(args.ship, CHECKPOINTS / args.name)}")
                 return 0
             if (args.ship / "best.pt").exists():
-                from panda_grasp_env.falls.records import ship_fall_run
+                from panda_grasp_env.agents.learning.falls.records import ship_fall_run
 
                 if any(acting_rules(args).values()):
                     raise ValueError("a fall-dynamics model acts by no rules (the acting rules' flags)")
