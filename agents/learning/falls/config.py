@@ -15,7 +15,7 @@ from pydantic.dataclasses import dataclass
 
 from panda_grasp_env.config_fields import Count, Seed
 from panda_grasp_env.falls.shards import LABEL_SOURCES, read_metadata
-from panda_grasp_env.tooling.runs import checked_config, config_value_error
+from panda_grasp_env.tooling.runs import check_resume_changes, checked_config, config_value_error
 
 #: The weight of a term of the training loss.
 LossWeight = Annotated[StrictInt | StrictFloat, Field(ge=0, description="a number >= 0")]
@@ -76,6 +76,11 @@ class FallConfig:
 
 #: What ``--resume`` may change in a fall-dynamics run; every other key built its model, data or optimiser.
 FALL_RESUME_CHANGEABLE = ("epochs", "max_minutes", "torch_threads")
+
+
+def check_fall_resume(saved: FallConfig, resumed: FallConfig) -> None:
+    """``ValueError`` naming the keys a resumed run changed that it cannot (see ``FALL_RESUME_CHANGEABLE``)."""
+    check_resume_changes(saved, resumed, FALL_RESUME_CHANGEABLE)
 
 
 def fall_config(raw: dict[str, Any], source: str) -> FallConfig:
