@@ -23,6 +23,11 @@ from panda_grasp_env.commands import train
 from panda_grasp_env.falls.shards import split_of
 
 
+def tiny_fall_run(dataset, batch_size=4):
+    """Overrides that make ``configs/fall_convlstm.yaml`` a run of seconds on the recorded ``dataset``."""
+    return [f"dataset={dataset}", "hidden=8", f"batch_size={batch_size}", "torch_threads=1", "context=3", "rollout=3"]
+
+
 @pytest.mark.unit
 def test_a_dataset_recorded_before_tower_heights_loads_as_four_block_towers(fall_dataset, tmp_path):
     from panda_grasp_env.tooling.runs import sha256
@@ -148,7 +153,7 @@ def test_model_rollout_shapes_and_mismatch_errors():
 
 def test_fall_training_runs_resumes_reports_and_ships(fall_dataset, tmp_path, capsys, monkeypatch):
     config = "configs/fall_convlstm.yaml"
-    common = [f"dataset={fall_dataset}", "hidden=8", "batch_size=4", "torch_threads=1", "context=3", "rollout=3"]
+    common = tiny_fall_run(fall_dataset)
     assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *common, "epochs=1"]) == 0
     run = tmp_path / "fall_convlstm-seed0"
     assert train.main(["--resume", str(run), "hidden=16", "--no-progress"]) == 2  # the saved weights are 8 wide
@@ -315,7 +320,7 @@ def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
 
 def test_a_track_head_is_fitted_first_then_frozen_while_the_convlstm_trains_and_resumes(fall_dataset, tmp_path):
     config = "configs/fall_convlstm.yaml"
-    common = [f"dataset={fall_dataset}", "hidden=8", "batch_size=2", "torch_threads=1", "context=3", "rollout=3"]
+    common = tiny_fall_run(fall_dataset, batch_size=2)
     track = ["anchored_rollout=true", "track_head=true", "track_pretrain_epochs=3", "epoch_sequences=2"]
     args = ["--config", config, "--runs", str(tmp_path), "--no-progress", *common, *track, "val_sequences=1"]
     assert train.main([*args, "epochs=1"]) == 0
@@ -345,15 +350,7 @@ def test_a_track_head_is_fitted_first_then_frozen_while_the_convlstm_trains_and_
 def test_labels_only_model_trains_without_depth(fall_dataset, tmp_path):
     """The config reads depth (``use_depth: true``, covered above); with it off the model reads labels only."""
     config = "configs/fall_convlstm.yaml"
-    tiny = [
-        f"dataset={fall_dataset}",
-        "hidden=8",
-        "batch_size=4",
-        "torch_threads=1",
-        "context=3",
-        "rollout=3",
-        "epochs=1",
-    ]
+    tiny = [*tiny_fall_run(fall_dataset), "epochs=1"]
     assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *tiny, "use_depth=false"]) == 0
     model, _ = load_fall_model(tmp_path / "fall_convlstm-seed0" / "best.pt")
     assert not model.use_depth
@@ -419,15 +416,7 @@ def test_a_shipped_fall_model_loads_and_beats_copying_the_last_frame_on_its_card
 
 def test_an_epoch_interrupted_during_its_validation_is_validated_on_resume(fall_dataset, tmp_path, monkeypatch):
     config = "configs/fall_convlstm.yaml"
-    tiny = [
-        f"dataset={fall_dataset}",
-        "hidden=8",
-        "batch_size=4",
-        "torch_threads=1",
-        "context=3",
-        "rollout=3",
-        "epochs=1",
-    ]
+    tiny = [*tiny_fall_run(fall_dataset), "epochs=1"]
     scoring = fall_training.evaluate
 
     def interrupted(*args, **kwargs):
