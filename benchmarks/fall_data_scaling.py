@@ -5,7 +5,7 @@
                                            [--out results/benchmarks/fall_data_scaling.json]
 
 The fall model with a track head (``configs/fall_convlstm_tall.yaml``) plans each block's displacement to every
-next frame from the blocks' tracks over the context frames (``panda_grasp_env/falls/tracks.py``), and its
+next frame from the blocks' tracks over the context frames (``agents/learning/falls/tracks.py``), and its
 training fits that head alone before the ConvLSTM's epochs (``training.pretrain_track_head``).  Here the head
 is fitted the same way on the first N training sequences, for each N of ``--sizes``, and each block's mask at
 frame t moved by its planned displacement to t + horizon (``baselines.translate_blocks``) is scored on the
@@ -26,11 +26,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np
 import torch
 
-from panda_grasp_env.falls.baselines import translate_blocks
-from panda_grasp_env.falls.dataset import FallSequences, load_split
-from panda_grasp_env.falls.metrics import Confusion
-from panda_grasp_env.falls.model import FallPredictor
-from panda_grasp_env.falls.training import fit_track_head, track_windows
+from panda_grasp_env.agents.learning.falls.baselines import translate_blocks
+from panda_grasp_env.agents.learning.falls.dataset import FallSequences, load_split
+from panda_grasp_env.agents.learning.falls.metrics import Confusion
+from panda_grasp_env.agents.learning.falls.model import FallPredictor
+from panda_grasp_env.agents.learning.falls.training import fit_track_head, track_windows
 from panda_grasp_env.tooling.runs import write_json
 
 CONTEXT = 4

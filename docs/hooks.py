@@ -26,7 +26,7 @@ HELD_OUT_RESULTS = "<!-- held-out results heatmap -->"
 def checkpoint_folders() -> list[Path]:
     """Every shipped checkpoint's folder (learned policies, then fall-dynamics models)."""
     return sorted((ROOT / "agents" / "checkpoints").glob("*/card.md")) + sorted(
-        (ROOT / "panda_grasp_env" / "falls" / "checkpoints").glob("*/card.md")
+        (ROOT / "agents" / "learning" / "falls" / "checkpoints").glob("*/card.md")
     )
 
 

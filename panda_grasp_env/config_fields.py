@@ -1,6 +1,6 @@
 """Field types and checks the checked configs share: the env's options (``env_options.EnvOptions``), training
-configs (``panda_grasp_env.agents.learning.config.TrainConfig``) and the fall configs
-(``panda_grasp_env.falls.config``), all pydantic dataclasses."""
+configs (``panda_grasp_env.agents.learning.config.TrainConfig``, ``panda_grasp_env.agents.learning.falls.config``)
+and the falls recorder's settings (``panda_grasp_env.falls.settings``), all pydantic dataclasses."""
 
 from __future__ import annotations
 

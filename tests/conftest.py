@@ -79,3 +79,17 @@ def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert json.loads((run / "progress.json").read_text())["steps"] == 6
     assert train.main(["--resume", str(run), "total_steps=12", "--no-progress"]) == 0
     return run
+
+
+@pytest.fixture(scope="session")
+def fall_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A recorded falling-tower dataset, 10 sequences of ``FALL_RECORDING``; one per test process, for the tests
+    of the recorder (``tests/falls``) and of the fall model (``tests/agents/learning/falls``)."""
+    from testkit import FALL_RECORDING
+
+    from panda_grasp_env.falls.recorder import record_dataset
+    from panda_grasp_env.falls.settings import RecorderSettings
+
+    out = tmp_path_factory.mktemp("falls")
+    record_dataset(out, 10, RecorderSettings(**FALL_RECORDING), workers=1, progress=False)
+    return out

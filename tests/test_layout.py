@@ -214,9 +214,11 @@ def test_every_agents_and_evaluation_module_has_its_place_in_the_contracts():
 
 @pytest.mark.unit
 def test_the_tests_mirror_the_layers():
-    """A layer's tests sit in a folder named after it (the agents' in one per sub-package; the falls package,
-    counted as tooling, in its own); only the project-wide checks sit at the top of ``tests/``."""
-    layer_folders = {*LAYERS, "falls", *(f"agents/{package}" for package in ("policies", "evaluation", "learning"))}
+    """A layer's tests sit in a folder named after it (the agents' in one per sub-package, and the fall model's
+    training, a package of learning, in its own; the falls recorder, counted as tooling, in its own); only the
+    project-wide checks sit at the top of ``tests/``."""
+    agents = [f"agents/{package}" for package in ("policies", "evaluation", "learning", "learning/falls")]
+    layer_folders = {*LAYERS, "falls", *agents}
     layer_folders -= {"agents", "tooling"}
     folders = {path.parent.relative_to(ROOT / "tests").as_posix() for path in (ROOT / "tests").rglob("test_*.py")}
     assert folders - {"."} <= layer_folders

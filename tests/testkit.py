@@ -1,5 +1,5 @@
-"""What tests in different folders share: the checkout's paths, the tiny training run's settings and a small
-heightmap Q-policy with an observation to show it.  (``tests/`` is on ``sys.path`` through its conftest.)"""
+"""What tests in different folders share: the checkout's paths, the falling-tower recording's and the tiny
+training run's settings and a small heightmap Q-policy with an observation to show it.  (``tests/`` is on ``sys.path`` through its conftest.)"""
 
 from pathlib import Path
 
@@ -13,6 +13,10 @@ from panda_grasp_env.agents.learning.heightmap_policy import HeightmapQPolicy
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 DATA = ROOT / "tests" / "data"
+
+#: The falling-tower recording the recorder's and the fall model's tests share (``RecorderSettings`` keys; the
+#: conftest's ``fall_dataset`` records 10 sequences of it).
+FALL_RECORDING = {"frames": 10, "shard_size": 2, "seed": 7}
 
 #: A pixel-mode DQN small enough to train for a few steps in seconds (``train.py`` overrides).
 TINY_DQN = [

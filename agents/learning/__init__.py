@@ -6,5 +6,7 @@ runs (SB3 models, validation through ``evaluation``'s episodes, atomic checkpoin
 ``pixel`` mode's heightmap Q-network; ``policy_files``: policies as data (safetensors + JSON).
 ``demonstrations``: any agent's episodes recorded as Minari datasets; ``datasets``: those datasets read as
 data; ``imitation`` and ``heightmap_imitation``: learning from them.  ``records``: a run's evaluation log,
-learning curve, best policy and model card, and shipping it as a checkpoint.
+learning curve, best policy and model card, and shipping it as a checkpoint.  ``falls``: the fall-dynamics
+model (a ConvLSTM predicting how a struck tower falls) and its training runs, which ``train.py`` runs as it
+runs a policy's (a ``kind: fall_dynamics`` config), with its shipped models.
 """

@@ -9,7 +9,7 @@ move (and is ``start_shift`` from its place), the overhead camera is
 sampled every ``frame_interval`` seconds of simulated time: RGB, depth, the
 simulator's segmentation and ``perception``'s colour segmentation, cropped to
 a square around the tower, plus every block's pose.  The settings (``RecorderSettings``) are in
-``panda_grasp_env/falls/config.py``, the format and the loader in ``panda_grasp_env/falls/dataset.py``.
+``panda_grasp_env/falls/settings.py``, the format in ``panda_grasp_env/falls/shards.py``.
 
 Shards are written atomically by parallel workers; a rerun with the same
 arguments keeps the finished shards (checked by size and SHA-256) and records
@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.falls.config import BREAKERS, LATER_SETTINGS, RENDER_SIZE, RecorderSettings
-from panda_grasp_env.falls.dataset import SHARD_ARRAYS, split_of
+from panda_grasp_env.falls.settings import BREAKERS, LATER_SETTINGS, RENDER_SIZE, RecorderSettings
+from panda_grasp_env.falls.shards import SHARD_ARRAYS, split_of
 from panda_grasp_env.sim.stepping import body_speeds
 from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json
 from panda_grasp_env.tooling.runs import (

@@ -93,7 +93,7 @@ def commit() -> str:
     root = Path(__file__).resolve().parents[2]  # the repository (agents/, perception/ and train.py too)
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-        shipped = [":(exclude)agents/checkpoints", ":(exclude)panda_grasp_env/falls/checkpoints"]
+        shipped = [":(exclude)agents/checkpoints", ":(exclude)agents/learning/falls/checkpoints"]
         status = ["status", "--porcelain", "--untracked-files=no", "--", ".", *shipped]
         changes = subprocess.run(["git", "-C", str(root), *status], capture_output=True, text=True)
     except OSError:

@@ -162,7 +162,7 @@ def test_resume_loads_only_the_pickles_this_users_job_signed_in_that_folder(tiny
 
 @pytest.mark.unit
 def test_the_fall_model_loader_refuses_a_payload(tmp_path, marker):
-    from panda_grasp_env.falls.model import load_fall_model
+    from panda_grasp_env.agents.learning.falls.model import load_fall_model
 
     write_payload(tmp_path / "model.pt", marker)
     with pytest.raises(ValueError, match=f"cannot load fall-dynamics checkpoint {tmp_path / 'model.pt'}"):

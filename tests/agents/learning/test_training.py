@@ -19,7 +19,7 @@ from panda_grasp_env.agents.learning.policy_files import load_policy
 from panda_grasp_env.agents.learning.records import load_best_policy, save_best_policy, ship
 from panda_grasp_env.agents.learning.training import validation_score
 from panda_grasp_env.agents.policies import learned
-from panda_grasp_env.commands import train
+from panda_grasp_env.commands import run_kinds, train
 
 
 def test_a_run_folder_holds_everything_and_resumes(finished_run):
@@ -295,7 +295,7 @@ def test_ctrl_c_before_the_first_checkpoint_says_so_and_leaves_a_clean_start(tmp
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(train, "train", interrupted)
+    monkeypatch.setattr(run_kinds, "train", interrupted)  # a policy run's training (train.py runs it by its kind)
     cli = ["--config", str(CONFIGS / "push_sac_her.yaml"), "--runs", str(tmp_path), "--no-progress"]
     assert train.main(cli) == 130
     message = capsys.readouterr().err

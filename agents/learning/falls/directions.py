@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.falls.baselines import BASELINES, centroid
-from panda_grasp_env.falls.model import FallPredictor, check_compatible, predict_batch
+from panda_grasp_env.agents.learning.falls.baselines import BASELINES, centroid
+from panda_grasp_env.agents.learning.falls.model import FallPredictor, check_compatible, predict_batch
 from panda_grasp_env.perception.camera import CameraModel
 
 #: Horizontal shift (m) of a tower's mean block position, first frame to last, below which it did not fall.

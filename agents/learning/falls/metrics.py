@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from panda_grasp_env.falls.baselines import BASELINES
-from panda_grasp_env.falls.dataset import FallSequences
-from panda_grasp_env.falls.directions import fall_directions
-from panda_grasp_env.falls.model import FallPredictor, check_compatible, predict_batch
+from panda_grasp_env.agents.learning.falls.baselines import BASELINES
+from panda_grasp_env.agents.learning.falls.dataset import FallSequences
+from panda_grasp_env.agents.learning.falls.directions import fall_directions
+from panda_grasp_env.agents.learning.falls.model import FallPredictor, check_compatible, predict_batch
 
 
 @dataclass

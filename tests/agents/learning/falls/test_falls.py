@@ -1,4 +1,5 @@
-"""The falling-tower recorder, its shard format and loader, the ConvLSTM and its metrics and baselines."""
+"""The fall-dynamics model: the loader of recorded datasets, the ConvLSTM, its metrics and baselines, and its
+training runs through train.py (the recorder's tests: ``tests/falls/``)."""
 
 import dataclasses
 import json
@@ -9,139 +10,31 @@ import pytest
 import torch
 import yaml
 
+from panda_grasp_env.agents.learning.falls import records as fall_records
+from panda_grasp_env.agents.learning.falls import training as fall_training
+from panda_grasp_env.agents.learning.falls.baselines import constant_velocity, copy_last
+from panda_grasp_env.agents.learning.falls.config import fall_config
+from panda_grasp_env.agents.learning.falls.dataset import load_split
+from panda_grasp_env.agents.learning.falls.directions import fall_directions, image_to_world_direction
+from panda_grasp_env.agents.learning.falls.metrics import Confusion, evaluate
+from panda_grasp_env.agents.learning.falls.model import FallPredictor, load_fall_model
+from panda_grasp_env.agents.learning.falls.records import tower_words
 from panda_grasp_env.commands import train
-from panda_grasp_env.falls import records as fall_records
-from panda_grasp_env.falls import training as fall_training
-from panda_grasp_env.falls.baselines import constant_velocity, copy_last
-from panda_grasp_env.falls.config import LATER_SETTINGS, RecorderSettings, fall_config
-from panda_grasp_env.falls.dataset import load_split, split_of
-from panda_grasp_env.falls.directions import fall_directions, image_to_world_direction
-from panda_grasp_env.falls.metrics import Confusion, evaluate
-from panda_grasp_env.falls.model import FallPredictor, load_fall_model
-from panda_grasp_env.falls.recorder import RecorderEnvs, main, record_dataset, record_sequence, tower_height
-from panda_grasp_env.falls.records import tower_words
-from panda_grasp_env.model.scene import DEFAULT_COLOURS
-from panda_grasp_env.perception.camera import CameraModel
-from panda_grasp_env.tooling.runs import checked_config
-
-SETTINGS = RecorderSettings(frames=10, shard_size=2, seed=7)
+from panda_grasp_env.falls.shards import split_of
 
 
-@pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    out = tmp_path_factory.mktemp("falls")
-    record_dataset(out, 10, SETTINGS, workers=1, progress=False)
-    return out
-
-
-def test_recording_holds_frames_poses_and_metadata(dataset):
-    meta = json.loads((dataset / "metadata.json").read_text())
-    assert meta["sequences"] == 10 and len(meta["shards"]) == 5
-    assert meta["classes"][0] == "background" and len(meta["classes"]) == 5
-    assert meta["recording"]["sequences_per_second"] > 0
-    with np.load(dataset / "shard_00000.npz") as shard:
-        assert shard["rgb"].shape == (2, 10, 64, 64, 3)
-        assert shard["labels"].shape == shard["colour_labels"].shape == (2, 10, 64, 64)
-        assert shard["poses"].shape == (2, 10, 4, 7)
-        labels, colour = shard["labels"], shard["colour_labels"]
-        poses = shard["poses"]
-    assert set(np.unique(labels)) <= {0, 1, 2, 3, 4} and (labels > 0).any()
-    foreground = labels > 0
-    assert (labels == colour)[foreground].mean() > 0.8  # perception's colour segmentation mostly agrees
-    assert np.abs(poses[:, -1, :, :3] - poses[:, 0, :, :3]).max() > 0.02  # the towers fell
-
-
-def test_recording_is_deterministic_and_resumes(dataset, tmp_path):
-    out = tmp_path / "again"
-    record_dataset(out, 4, SETTINGS, workers=1, progress=False)
-    first = json.loads((dataset / "metadata.json").read_text())["shards"][:2]
-    again = json.loads((out / "metadata.json").read_text())["shards"]
-    assert [s["sha256"] for s in first] == [s["sha256"] for s in again]
-    stamp = (out / "shard_00000.npz").stat().st_mtime_ns
-    (out / "shard_00001.npz").write_bytes(b"broken")  # a shard cut short by a crash
-    meta = record_dataset(out, 4, SETTINGS, workers=1, progress=False)
-    assert meta["recording"]["sequences_recorded_now"] == 2  # only the broken shard again
-    assert (out / "shard_00000.npz").stat().st_mtime_ns == stamp
-    assert [s["sha256"] for s in meta["shards"]] == [s["sha256"] for s in first]
-    with pytest.raises(ValueError, match="other settings"):
-        record_dataset(out, 4, RecorderSettings(frames=12, shard_size=2, seed=7), workers=1, progress=False)
-    # A folder recorded before the later settings existed resumes: their defaults record what it holds.
-    settings = json.loads((out / "settings.json").read_text())
-    (out / "settings.json").write_text(json.dumps({k: v for k, v in settings.items() if k not in LATER_SETTINGS}))
-    assert record_dataset(out, 4, SETTINGS, workers=1, progress=False)["recording"]["sequences_recorded_now"] == 0
-
-
-def recorder_settings(**raw):
-    return checked_config(RecorderSettings, raw, "test settings")
+def tiny_fall_run(dataset, batch_size=4):
+    """Overrides that make ``configs/fall_convlstm.yaml`` a run of seconds on the recorded ``dataset``."""
+    return [f"dataset={dataset}", "hidden=8", f"batch_size={batch_size}", "torch_threads=1", "context=3", "rollout=3"]
 
 
 @pytest.mark.unit
-def test_bad_recorder_settings_fail_with_the_name():
-    with pytest.raises(ValueError, match=r"config frame_interval=0\.05: expected a multiple of the 0\.04 s"):
-        recorder_settings(frame_interval=0.05)
-    with pytest.raises(ValueError, match="config breaker='kick': expected one of"):
-        recorder_settings(breaker="kick")
-    for heights in [(9,), (1,), (), (6, 6), (6.0,), (True,)]:
-        with pytest.raises(ValueError, match="config tower_blocks="):
-            recorder_settings(tower_blocks=heights)
-    for levels in [(0, 6), (3, 2), (-1, 2), (0,)]:
-        with pytest.raises(ValueError, match="config strike_levels="):
-            recorder_settings(strike_levels=levels)
-    with pytest.raises(ValueError, match="strike_levels.*lowest tower"):
-        recorder_settings(tower_blocks=(4, 8), strike_levels=(4, 5))
-    with pytest.raises(ValueError, match="start_shift"):
-        recorder_settings(start_shift=-0.01)
-    with pytest.raises(ValueError, match=r"unknown key\(s\) \['frame'\] in test settings; valid keys: \['frames'"):
-        recorder_settings(frame=10)
-    with pytest.raises(ValueError, match="frames"):
-        RecorderSettings(frames=1)  # made directly, checked too
-    assert recorder_settings(tower_blocks=[6, 8], impulse=[0.1, 0.3]) == RecorderSettings(
-        tower_blocks=(6, 8), impulse=(0.1, 0.3)
-    )  # lists, as config files and the command line give them, are tuples
-    assert main(["--out", "/nonexistent/x", "--sequences", "0", "--no-progress"]) == 2
-    assert main(["--out", "/nonexistent/x", "--tower-blocks", "6,9", "--no-progress"]) == 2
-
-
-def test_tall_towers_draw_their_height_per_sequence_and_label_each_block_by_its_index(tmp_path):
-    settings = RecorderSettings(frames=4, shard_size=2, tower_blocks=(6, 8), strike_levels=(3, 5))
-    heights = [tower_height(seed, settings) for seed in range(40)]
-    assert heights == [tower_height(seed, settings) for seed in range(40)] and set(heights) == {6, 8}
-    assert heights[:2] == [6, 8]  # the two sequences recorded here
-    meta = record_dataset(tmp_path, 2, settings, progress=False)
-    assert meta["classes"] == ["background", *(f"block_{c}" for c in DEFAULT_COLOURS)]  # the tallest tower's
-    assert meta["tower_blocks"] == [6, 8]
-    camera = CameraModel(
-        *meta["camera"]["render_size"], *(np.array(meta["camera"][k]) for k in ("K", "rotation", "position"))
-    )
-    with np.load(tmp_path / "shard_00000.npz") as shard:
-        assert shard["n_blocks"].tolist() == [6, 8] and shard["poses"].shape == (2, 4, 8, 7)
-        for labels, poses, n, origin in zip(shard["labels"], shard["poses"], shard["n_blocks"], shard["crop_origin"]):
-            assert np.isnan(poses[:, n:]).all() and not np.isnan(poses[:, :n]).any()
-            assert set(np.unique(labels)) <= set(range(n + 1))
-            top = int(np.argmax(poses[0, :n, 2]))  # the standing tower's top block, seen from above before it falls
-            (u, v), _ = camera.world_to_pixel(poses[0, top, :3] + [0, 0, 0.025])
-            assert labels[0, round(v) - origin[1], round(u) - origin[0]] == top + 1
-    split = load_split(tmp_path, "train")
-    assert split.n_blocks.tolist() == [6, 8] and split.poses.shape == (2, 4, 8, 7)
-
-
-def test_with_a_start_shift_the_frames_start_once_a_block_left_its_place():
-    # Pushing fingers make a tall tower jitter faster than MOTION_SPEED long before it moves: without the shift
-    # this sequence's first frame showed its blocks within 1 mm of the tower.
-    settings = RecorderSettings(frames=2, tower_blocks=(8,), breaker="push", strike_levels=(4, 4), start_shift=0.005)
-    envs = RecorderEnvs()
-    first = record_sequence(envs, 2, settings)["poses"][0, :, :3]
-    envs[8].reset(seed=2)
-    assert np.linalg.norm(first - envs[8].unwrapped.cell.block_positions(), axis=1).max() >= 0.005
-
-
-@pytest.mark.unit
-def test_a_dataset_recorded_before_tower_heights_loads_as_four_block_towers(dataset, tmp_path):
+def test_a_dataset_recorded_before_tower_heights_loads_as_four_block_towers(fall_dataset, tmp_path):
     from panda_grasp_env.tooling.runs import sha256
 
-    meta = json.loads((dataset / "metadata.json").read_text())
+    meta = json.loads((fall_dataset / "metadata.json").read_text())
     for entry in meta["shards"]:
-        with np.load(dataset / entry["file"]) as shard:
+        with np.load(fall_dataset / entry["file"]) as shard:
             np.savez_compressed(tmp_path / entry["file"], **{k: shard[k] for k in shard.files if k != "n_blocks"})
         entry.update(bytes=(tmp_path / entry["file"]).stat().st_size, sha256=sha256(tmp_path / entry["file"]))
     del meta["tower_blocks"]
@@ -151,15 +44,15 @@ def test_a_dataset_recorded_before_tower_heights_loads_as_four_block_towers(data
 
 
 @pytest.mark.unit
-def test_loader_splits_by_sequence_and_names_a_corrupt_shard(dataset, tmp_path):
-    train_split = load_split(dataset, "train")
-    test_split = load_split(dataset, "test")
+def test_loader_splits_by_sequence_and_names_a_corrupt_shard(fall_dataset, tmp_path):
+    train_split = load_split(fall_dataset, "train")
+    test_split = load_split(fall_dataset, "test")
     assert all(split_of(int(s)) == "train" for s in train_split.seeds)
     assert set(train_split.seeds).isdisjoint(test_split.seeds)
-    assert len(train_split.labels) + len(test_split.labels) + len(load_split(dataset, "val").labels) == 10
+    assert len(train_split.labels) + len(test_split.labels) + len(load_split(fall_dataset, "val").labels) == 10
     copy = tmp_path / "copy"
     copy.mkdir()
-    for f in dataset.iterdir():
+    for f in fall_dataset.iterdir():
         (copy / f.name).write_bytes(f.read_bytes())
     data = bytearray((copy / "shard_00003.npz").read_bytes())
     data[100] ^= 0xFF
@@ -170,7 +63,7 @@ def test_loader_splits_by_sequence_and_names_a_corrupt_shard(dataset, tmp_path):
     with pytest.raises(ValueError, match="shard shard_00002.npz is truncated"):
         load_split(copy, "train")
     with pytest.raises(ValueError, match="unknown split"):
-        load_split(dataset, "training")
+        load_split(fall_dataset, "training")
 
 
 def moving_square(length=8, size=16, step=2):
@@ -258,9 +151,9 @@ def test_model_rollout_shapes_and_mismatch_errors():
         evaluate(model, np.zeros((1, 10, 16, 16), dtype=np.uint8), ["b", "1"], context=2)
 
 
-def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys, monkeypatch):
+def test_fall_training_runs_resumes_reports_and_ships(fall_dataset, tmp_path, capsys, monkeypatch):
     config = "configs/fall_convlstm.yaml"
-    common = [f"dataset={dataset}", "hidden=8", "batch_size=4", "torch_threads=1", "context=3", "rollout=3"]
+    common = tiny_fall_run(fall_dataset)
     assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *common, "epochs=1"]) == 0
     run = tmp_path / "fall_convlstm-seed0"
     assert train.main(["--resume", str(run), "hidden=16", "--no-progress"]) == 2  # the saved weights are 8 wide
@@ -277,7 +170,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     assert tower_words([6, 8]) == "6- or 8-block" and tower_words([4, 6, 8]) == "4-, 6- or 8-block"
     model, saved = load_fall_model(run / "best.pt")
     assert model.context == 3 and model.use_depth and saved["classes"][0] == "background"
-    assert load_split(dataset, "val", depth=True).depth.dtype == np.float16
+    assert load_split(fall_dataset, "val", depth=True).depth.dtype == np.float16
     monkeypatch.setattr(fall_records, "FALL_CHECKPOINTS", tmp_path / "shipped")
     assert train.main(["--ship", str(run), "--name", "tiny", "--avoid-failures"]) == 2  # no FailureMemory here
     assert train.main(["--ship", str(run), "--name", "tiny"]) == 0
@@ -296,8 +189,8 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
     assert train.main(["--retest", str(run)]) == 0 and train.main(["--retest", str(tmp_path / "shipped" / "tiny")]) == 0
     assert "constant_velocity" in capsys.readouterr().out
     retests = json.loads((run / "retest.json").read_text())
-    assert retests[str(dataset)]["metrics"]["model"] == final["metrics"]["model"]  # the final test, again
-    assert retests[str(dataset)]["direction"] == final["direction"]
+    assert retests[str(fall_dataset)]["metrics"]["model"] == final["metrics"]["model"]  # the final test, again
+    assert retests[str(fall_dataset)]["direction"] == final["direction"]
     assert train.main(["--retest", str(run), "dataset=/nowhere"]) == 2
     assert train.main(["--retest", str(run), "epochs=3"]) == 2
     # A latest.pt changed since this user's job wrote it is not resumed from (nor one of a copied run).
@@ -308,7 +201,7 @@ def test_fall_training_runs_resumes_reports_and_ships(dataset, tmp_path, capsys,
 
 @pytest.mark.unit
 def test_untrained_model_moves_each_block_by_its_own_velocity_and_displacement_targets_agree():
-    from panda_grasp_env.falls.model import FallPredictor, block_displacements, one_hot
+    from panda_grasp_env.agents.learning.falls.model import FallPredictor, block_displacements, one_hot
 
     labels = torch.zeros(1, 3, 32, 32, dtype=torch.long)
     for t in range(3):
@@ -330,7 +223,7 @@ def test_an_anchored_model_starts_as_copy_last_and_shifts_the_newest_true_frame_
     """Untrained, an anchored model copies the last frame; taught a motion of 2 px a frame, its fifth frame is
     the newest true frame shifted 10 px, sharp (one warp, not five), and the training loss compares the summed
     displacements with the blocks' displacement from that frame."""
-    from panda_grasp_env.falls.model import one_hot
+    from panda_grasp_env.agents.learning.falls.model import one_hot
 
     labels = torch.zeros(1, 3, 32, 32, dtype=torch.long)
     for t in range(3):
@@ -361,8 +254,8 @@ def moving_block_labels() -> torch.Tensor:
 
 @pytest.mark.unit
 def test_track_features_read_each_block_own_track_and_the_others_highest_first():
-    from panda_grasp_env.falls.model import one_hot
-    from panda_grasp_env.falls.tracks import block_tracks, track_feature_count, track_features
+    from panda_grasp_env.agents.learning.falls.model import one_hot
+    from panda_grasp_env.agents.learning.falls.tracks import block_tracks, track_feature_count, track_features
 
     frames = one_hot(moving_block_labels(), 3)
     centre, area, height = block_tracks(frames, 3)
@@ -381,7 +274,7 @@ def test_track_features_read_each_block_own_track_and_the_others_highest_first()
 
 @pytest.mark.unit
 def test_a_track_head_model_starts_as_copy_last_and_draws_every_frame_from_its_plan():
-    from panda_grasp_env.falls.model import one_hot
+    from panda_grasp_env.agents.learning.falls.model import one_hot
 
     labels = moving_block_labels()
     with pytest.raises(ValueError, match="track_horizon must be 0, or >= 1 with anchored=True; got 3"):
@@ -404,7 +297,7 @@ def test_a_track_head_model_starts_as_copy_last_and_draws_every_frame_from_its_p
 
 @pytest.mark.unit
 def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
-    from panda_grasp_env.falls.model import model_inputs
+    from panda_grasp_env.agents.learning.falls.model import model_inputs
 
     labels = np.zeros((1, 3, 32, 32), dtype=np.uint8)
     depth = np.full((1, 3, 32, 32), 1.0, dtype=np.float16)  # the table, 1 m below the camera
@@ -425,9 +318,9 @@ def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
         evaluate(model, np.zeros((1, 10, 32, 32), dtype=np.uint8), ["b", "1", "2"], context=2)
 
 
-def test_a_track_head_is_fitted_first_then_frozen_while_the_convlstm_trains_and_resumes(dataset, tmp_path):
+def test_a_track_head_is_fitted_first_then_frozen_while_the_convlstm_trains_and_resumes(fall_dataset, tmp_path):
     config = "configs/fall_convlstm.yaml"
-    common = [f"dataset={dataset}", "hidden=8", "batch_size=2", "torch_threads=1", "context=3", "rollout=3"]
+    common = tiny_fall_run(fall_dataset, batch_size=2)
     track = ["anchored_rollout=true", "track_head=true", "track_pretrain_epochs=3", "epoch_sequences=2"]
     args = ["--config", config, "--runs", str(tmp_path), "--no-progress", *common, *track, "val_sequences=1"]
     assert train.main([*args, "epochs=1"]) == 0
@@ -447,29 +340,29 @@ def test_a_track_head_is_fitted_first_then_frozen_while_the_convlstm_trains_and_
     assert rows[0]["val"]["t+1"]["frames"] == 3  # one validation sequence, 3 windows
     assert "constant_velocity" in json.loads((run / "final.json").read_text())["metrics"]
     assert "track head fitted alone first: 3 epochs" in (run / "card.md").read_text()
-    raw = {"kind": "fall_dynamics", "name": "tiny", "dataset": str(dataset)}
+    raw = {"kind": "fall_dynamics", "name": "tiny", "dataset": str(fall_dataset)}
     with pytest.raises(ValueError, match=r"config track_head=True: expected false unless anchored_rollout is true"):
         fall_config({**raw, "track_head": True}, "tiny.yaml")
     with pytest.raises(ValueError, match=r"config track_pretrain_epochs=2: expected 0 unless track_head is true"):
         fall_config({**raw, "track_pretrain_epochs": 2}, "tiny.yaml")
 
 
-def test_labels_only_model_trains_without_depth(dataset, tmp_path):
+def test_labels_only_model_trains_without_depth(fall_dataset, tmp_path):
     """The config reads depth (``use_depth: true``, covered above); with it off the model reads labels only."""
     config = "configs/fall_convlstm.yaml"
-    tiny = [f"dataset={dataset}", "hidden=8", "batch_size=4", "torch_threads=1", "context=3", "rollout=3", "epochs=1"]
+    tiny = [*tiny_fall_run(fall_dataset), "epochs=1"]
     assert train.main(["--config", config, "--runs", str(tmp_path), "--no-progress", *tiny, "use_depth=false"]) == 0
     model, _ = load_fall_model(tmp_path / "fall_convlstm-seed0" / "best.pt")
     assert not model.use_depth
-    split = load_split(dataset, "val")
+    split = load_split(fall_dataset, "val")
     assert split.depth is None
     assert evaluate(model, split.labels, split.classes, 3)["model"]["t+1"]["frames"] > 0
-    assert train.main(["--config", config, "--runs", str(tmp_path), f"dataset={dataset}", "use_depth=1"]) == 2
+    assert train.main(["--config", config, "--runs", str(tmp_path), f"dataset={fall_dataset}", "use_depth=1"]) == 2
 
 
 @pytest.mark.unit
-def test_bad_fall_configs_fail_with_the_name_and_the_shipped_config_loads(dataset, tmp_path):
-    raw = {"kind": "fall_dynamics", "name": "tiny", "dataset": str(dataset)}
+def test_bad_fall_configs_fail_with_the_name_and_the_shipped_config_loads(fall_dataset, tmp_path):
+    raw = {"kind": "fall_dynamics", "name": "tiny", "dataset": str(fall_dataset)}
     assert fall_config(raw, "tiny.yaml").context == 4
     with pytest.raises(ValueError, match=r"unknown key\(s\) \['epoch'\] in tiny.yaml; valid keys: \['kind'"):
         fall_config({**raw, "epoch": 3}, "tiny.yaml")
@@ -493,7 +386,7 @@ def test_bad_fall_configs_fail_with_the_name_and_the_shipped_config_loads(datase
     # The shipped model's config, as its run saved it, reads back unchanged (its dataset is not here); keys added
     # since default to what it was trained with.
     saved = yaml.safe_load((fall_records.FALL_CHECKPOINTS / "fall_convlstm" / "config.yaml").read_text())
-    config = fall_config({**saved, "dataset": str(dataset)}, "config.yaml")
+    config = fall_config({**saved, "dataset": str(fall_dataset)}, "config.yaml")
     added = {
         "anchored_rollout": False,
         "select_horizon": 1,
@@ -521,9 +414,9 @@ def test_a_shipped_fall_model_loads_and_beats_copying_the_last_frame_on_its_card
     )
 
 
-def test_an_epoch_interrupted_during_its_validation_is_validated_on_resume(dataset, tmp_path, monkeypatch):
+def test_an_epoch_interrupted_during_its_validation_is_validated_on_resume(fall_dataset, tmp_path, monkeypatch):
     config = "configs/fall_convlstm.yaml"
-    tiny = [f"dataset={dataset}", "hidden=8", "batch_size=4", "torch_threads=1", "context=3", "rollout=3", "epochs=1"]
+    tiny = [*tiny_fall_run(fall_dataset), "epochs=1"]
     scoring = fall_training.evaluate
 
     def interrupted(*args, **kwargs):

@@ -13,10 +13,10 @@ import numpy as np
 import torch
 import yaml
 
-from panda_grasp_env.falls.config import FallConfig
-from panda_grasp_env.falls.dataset import read_metadata, tower_heights
-from panda_grasp_env.falls.directions import DIRECTION_TOLERANCE, FALL_SHIFT
-from panda_grasp_env.falls.model import ARCHITECTURE, FallPredictor, load_fall_model, predict_batch
+from panda_grasp_env.agents.learning.falls.config import FallConfig
+from panda_grasp_env.agents.learning.falls.directions import DIRECTION_TOLERANCE, FALL_SHIFT
+from panda_grasp_env.agents.learning.falls.model import ARCHITECTURE, FallPredictor, load_fall_model, predict_batch
+from panda_grasp_env.falls.shards import read_metadata, tower_heights
 from panda_grasp_env.model.scene import DEFAULT_COLOURS
 from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, MAX_LOG_BYTES, read_json, read_json_lines
 from panda_grasp_env.tooling.runs import atomic_path, resume_summary
@@ -140,7 +140,7 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
             "",
             "ConvLSTM encoder-decoder predicting the next segmentation frames of a falling "
             f"{tower_words(tower_heights(read_metadata(config.dataset)))} tower "
-            "(`panda_grasp_env/falls/model.py`"
+            "(`agents/learning/falls/model.py`"
             + (", reading depth as well as labels" if config.use_depth else "")
             + "), trained by this repository's `train.py` with the resolved config below on "
             f"`{config.dataset}` ({meta['dataset']['sequences']} sequences, splits {meta['dataset']['splits']}).",
@@ -162,7 +162,7 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
             "first frame to last; "
             f"moved under {FALL_SHIFT * 100:.0f} cm: did not fall), predicted from the first {config.context} "
             "frames (the centroid of the block pixels of the predicted last frame minus that of the first; "
-            "`fall_directions` in `panda_grasp_env/falls/directions.py`), scored over the towers that fell and that the "
+            "`fall_directions` in `agents/learning/falls/directions.py`), scored over the towers that fell and that the "
             f"first frame shows (not hidden by the arm): the fraction within ±{DIRECTION_TOLERANCE:.0f}° and the "
             "median angular error, a prediction without a direction counting as 180°; `true_labels` is the true "
             "last frame through the same measure (a reference).",
@@ -188,7 +188,7 @@ FALL_CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
 
 def ship_fall_run(run_dir: Path, name: str, strips: int = 5) -> Path:
     """Copy a finished fall run's best model (weights only), card, curve, results and a few strips to
-    ``panda_grasp_env/falls/checkpoints/<name>`` (staged, then renamed into place)."""
+    ``agents/learning/falls/checkpoints/<name>`` (staged, then renamed into place)."""
     run_dir = Path(run_dir)
     missing = [
         f for f in ("best.pt", "final.json", "card.md", "curve.png", "config.yaml") if not (run_dir / f).is_file()

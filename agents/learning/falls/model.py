@@ -1,7 +1,7 @@
 """Fall dynamics: a ConvLSTM encoder-decoder that predicts the next segmentation frame of a falling tower.
 
 Input: the past ``context`` frames as one-hot class maps (background + one class
-per block colour, ``panda_grasp_env/falls/dataset.py``).  Five convolutions encode each
+per block colour, ``panda_grasp_env/falls/shards.py``).  Five convolutions encode each
 frame to a quarter-resolution feature map, a ConvLSTM carries the motion, and
 five convolutions decode correction logits, with skip connections from the
 newest frame's encoder features.  Blocks mostly translate between frames, so
@@ -60,7 +60,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from panda_grasp_env.falls.tracks import TrackHead, block_tracks, mask_centroids, track_feature_count, track_features
+from panda_grasp_env.agents.learning.falls.tracks import (
+    TrackHead,
+    block_tracks,
+    mask_centroids,
+    track_feature_count,
+    track_features,
+)
 
 #: Changes whenever the same weights would mean another model; saved in checkpoints and checked on load.
 ARCHITECTURE = 3

@@ -33,10 +33,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from panda_grasp_env.falls.config import FallConfig, fall_config
-from panda_grasp_env.falls.dataset import FallSequences, load_split, read_metadata
-from panda_grasp_env.falls.metrics import evaluate, test_scores
-from panda_grasp_env.falls.model import (
+from panda_grasp_env.agents.learning.falls.config import FallConfig, fall_config
+from panda_grasp_env.agents.learning.falls.dataset import FallSequences, load_split
+from panda_grasp_env.agents.learning.falls.metrics import evaluate, test_scores
+from panda_grasp_env.agents.learning.falls.model import (
     ARCHITECTURE,
     FallPredictor,
     block_displacements,
@@ -46,8 +46,9 @@ from panda_grasp_env.falls.model import (
     model_inputs,
     one_hot,
 )
-from panda_grasp_env.falls.records import fall_card, plot_fall_curve, write_strips
-from panda_grasp_env.falls.tracks import SEEN_AREA, TrackHead, block_tracks, track_features
+from panda_grasp_env.agents.learning.falls.records import fall_card, plot_fall_curve, write_strips
+from panda_grasp_env.agents.learning.falls.tracks import SEEN_AREA, TrackHead, block_tracks, track_features
+from panda_grasp_env.falls.shards import read_metadata
 from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json, read_yaml
 from panda_grasp_env.tooling.runs import (
     atomic_path,
