@@ -1,6 +1,7 @@
 """MkDocs hooks: a source tree laid out as the package installs (for the API reference), one page per
-registered id generated from the env itself, one page per checkpoint card (with its figures), and the
-Results page's heatmaps.
+registered id generated from the env itself, one page per checkpoint card (with its figures), the
+Environments page's table of env options (from their one declaration, ``EnvOptions``) and the Results page's
+heatmaps.
 
 ``agents/`` and ``perception/`` install as ``panda_grasp_env.agents`` and ``panda_grasp_env.perception``
 (pyproject's package-dir); griffe reads sources by path, so it is given ``build/api-src/panda_grasp_env``:
@@ -8,6 +9,9 @@ links to ``panda_grasp_env/``'s entries plus ``agents`` and ``perception``."""
 
 from __future__ import annotations
 
+import ast
+import inspect
+import re
 import shutil
 from pathlib import Path
 
@@ -18,6 +22,8 @@ ENV_IDS_SECTION = "Env ids (generated from the envs themselves)"
 CARDS_SECTION = "Checkpoint cards"
 #: Replaced in index.md by a link to every registered id's page.
 ENV_ID_LINKS = "<!-- env id links -->"
+#: Replaced in environments.md by the table of env options.
+ENV_OPTIONS_TABLE = "<!-- env options table -->"
 #: Replaced in results.md by the heatmaps of the published quick results and of the checkpoints' held-out tests.
 QUICK_RESULTS = "<!-- quick results heatmap -->"
 HELD_OUT_RESULTS = "<!-- held-out results heatmap -->"
@@ -91,6 +97,36 @@ def env_page(env_id: str) -> str:
     return "\n".join(lines)
 
 
+def attribute_docstrings(path: Path, class_name: str) -> dict[str, str]:
+    """The docstrings under the annotated attributes of class ``class_name`` in ``path`` (as griffe reads them
+    for the API reference; Python keeps none at run time), by attribute name."""
+    tree = ast.parse(path.read_text())
+    body = next(node for node in tree.body if isinstance(node, ast.ClassDef) and node.name == class_name).body
+    return {
+        field.target.id: inspect.cleandoc(doc.value.value)
+        for field, doc in zip(body, body[1:])
+        if isinstance(field, ast.AnnAssign) and isinstance(field.target, ast.Name)
+        if isinstance(doc, ast.Expr) and isinstance(doc.value, ast.Constant) and isinstance(doc.value.value, str)
+    }
+
+
+def env_options_table() -> str:
+    """Every env option with its type, default and docstring: ``PandaEnv``'s signature (read from
+    ``EnvOptions``) and ``EnvOptions``' field docstrings."""
+    from panda_grasp_env.env import PandaEnv
+    from panda_grasp_env.env_options import ENV_OPTIONS
+
+    docs = attribute_docstrings(ROOT / "panda_grasp_env" / "env_options.py", "EnvOptions")
+    parameters = inspect.signature(PandaEnv).parameters
+    rows = ["| option | type | default | what it does |", "|---|---|---|---|"]
+    for name in ENV_OPTIONS:
+        parameter = parameters[name]
+        kind = re.sub(r"\b[a-z_][\w.]*\.(?=[A-Z])", "", inspect.formatannotation(parameter.annotation))  # bare names
+        doc = " ".join(docs[name].split()).replace("|", "\\|")  # a pipe in text would end the cell
+        rows.append(f"| `{name}` | `{kind}` | `{parameter.default!r}` | {doc} |")
+    return "\n".join(rows)
+
+
 def on_config(config, **kwargs):  # MkDocs hook: the signature is MkDocs'
     """List the generated pages in the nav: every registered id, every checkpoint card."""
     from panda_grasp_env.registration import ENV_IDS
@@ -135,9 +171,14 @@ def results_heatmaps() -> dict[str, str]:
 
 
 def on_page_markdown(markdown, page, config, files, **kwargs):  # MkDocs hook: the signature is MkDocs'
-    """The home page's list of id pages, from the registry (a hand-kept list missed new ids); the Results
-    page's heatmaps."""
+    """The home page's list of id pages, from the registry (a hand-kept list missed new ids); the Environments
+    page's table of env options; the Results page's heatmaps."""
     from panda_grasp_env.registration import ENV_IDS
+
+    if page.file.src_uri == "environments.md":
+        if ENV_OPTIONS_TABLE not in markdown:
+            raise ValueError(f"docs/environments.md lost its {ENV_OPTIONS_TABLE} marker")
+        return markdown.replace(ENV_OPTIONS_TABLE, env_options_table())
 
     if page.file.src_uri == "results.md":
         for marker, table in results_heatmaps().items():

@@ -3,13 +3,12 @@
 The step loop (``PandaEnv.step``) reads top to bottom: validate the action,
 execute it (one primitive, or one 25 Hz control step), let the task judge the
 result, count, observe.  Tasks live in ``panda_grasp_env/tasks`` (one file
-each), action modes in ``actions.py``, observations in ``observations.py``, option
-checks in ``env_options.py``, where the hand starts in ``sim/starts.py``, render modes in ``sim/rendering.py``.
+each), action modes in ``actions.py``, observations in ``observations.py``, env
+options (declared once, checked) in ``env_options.py``, where the hand starts in ``sim/starts.py``, render modes in ``sim/rendering.py``.
 """
 
 from __future__ import annotations
 
-import inspect
 from typing import Any
 
 import gymnasium as gym
@@ -17,14 +16,13 @@ import numpy as np
 
 from panda_grasp_env.actions import EE_STEP, LOW_LEVEL_BOUNDS, ActionMode
 from panda_grasp_env.control.controller import ControllerLimits
-from panda_grasp_env.env_options import ENV_OPTIONS, EnvOptions
+from panda_grasp_env.env_options import ENV_OPTIONS, EnvOptions, with_env_options
 from panda_grasp_env.model.robot import HOME_YAW
-from panda_grasp_env.model.scene import CAMERA_NAMES, SceneConfig
+from panda_grasp_env.model.scene import CAMERA_NAMES
 from panda_grasp_env.observations import ObservationBuilder, Sensors
 from panda_grasp_env.perception.camera import CameraModel
-from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS
 from panda_grasp_env.primitives.result import COUNTERS
-from panda_grasp_env.randomization import DomainRandomizer, Randomization
+from panda_grasp_env.randomization import DomainRandomizer
 from panda_grasp_env.registration import make_task
 from panda_grasp_env.sim.rendering import RENDER_MODES, EnvRenderer, advertised_render_modes
 from panda_grasp_env.sim.starts import start_hand
@@ -39,44 +37,10 @@ class PandaEnv(gym.Env):
     Args:
         task: a registered task's name (``TowerBuild``, ``TowerBreak``, ``BuildAndBreak``, ``Grasp``, ``Push``,
             ``PutInBin``, or one of your own: ``registration.TASKS``).
-        obs_mode: ``state``, ``proprio``, ``rgb``, ``depth``, ``segmentation``, ``heightmap`` or a ``+``
-            combination.
-        action_mode: ``primitive``, ``pixel``, ``pixel_factored``, ``ee_delta``, ``joint`` or ``grasp_pose``
-            (default: the task's).
-        render_mode: ``rgb_array`` / ``depth_array`` (front camera), ``rgb_array_list`` (the frames since the
-            last ``reset``/``render``, taken at ``metadata["render_fps"]`` of simulated time, inside
-            primitives too: ``video.RecordMotionVideo``) or ``human`` (MuJoCo viewer).
-        cameras: cameras for image observations (``overhead``, ``front``, ``wrist``).
-        image_size: (width, height) of image observations, pixels.
-        heightmap_resolution: metres per heightmap cell (``heightmap`` obs and ``pixel`` actions).
-        heightmap_bounds: ((x0, x1), (y0, y1), (z0, z1)) world metres the heightmap covers.
-        rotations: number of headings in the ``pixel`` action mode (VPG: 16).
-        primitive_z: add a z component to ``primitive`` actions (default: heights chosen from the scene).
-        push_distance: push length, metres.
-        block_gripper: ``ee_delta`` only: fingers held closed, the action is (dx, dy, dz) (panda-gym's Push).
-        render_size: (width, height) of ``render()`` frames.
-        planner: OMPL planner of the ``grasp_pose`` mode (``panda_grasp_env.control.planning.PLANNERS``).
-        scene: base ``SceneConfig`` (block size, masses, friction, ...); the task sets the objects.
-        start_in_hand: low-level modes only: the probability (0-1) that an episode starts with the task's
-            object already between the closed fingers (``Task.start_object``: the object to lift, the
-            next block to stack) -- a training curriculum, as resets to demonstration states (Nair et al.
-            2018); evaluation keeps 0.
-        start_above_object: as ``start_in_hand``: the probability that an episode starts with the open hand
-            straight above that object, anywhere from around it to the usual start height (uniform); the
-            two curricula together cover the way from the usual start to the object.
-        start_behind_object: as ``start_in_hand``, for Push: the probability that an episode starts with the
-            hand at the block's height behind it on the line from the goal through the block, 0-10 cm
-            (uniform) short of touching it -- where a push towards the goal begins.
-            The start probabilities sum to at most 1; ``info["start"]`` says how an episode started: ``ready``
-            or one of ``Task.start_states`` (``in_hand``, ``above_object``, ``behind_object``).
-        randomization: domain randomisation at each reset (``randomization.Randomization``, a dict of its
-            fields, or True for its defaults): lights, fixed camera poses, object hues, table colour, object
-            mass and friction, depth-observation noise.  None (default): off, and nothing is drawn.
-        reward_type: the low-level reward of a goal-conditioned task (``ee_delta``/``joint`` modes of Push,
-            Lift, Stack): ``sparse`` (default; Fetch's 0 when every goal point is within 5 cm, else -1) or
-            ``dense`` (panda-gym's: minus the distance, metres, between achieved and desired goal).
-            ``compute_reward`` gives the same, so HER relabels either.  A diverged step earns -1 in both.
-        **task_options: passed to the task (see each task's docstring).
+        **options: by keyword, the env options and the task's options.  The env options (``obs_mode``,
+            ``action_mode``, ``render_mode``, cameras, sizes, scene, curricula, randomisation, reward type) are
+            the fields of [`EnvOptions`][panda_grasp_env.env_options.EnvOptions], each with its default and what
+            it does; the others are passed to the task (see each task's docstring).
     """
 
     # The class names every mode, "human" included: ``gymnasium.make`` reads the class's metadata, and where
@@ -85,78 +49,63 @@ class PandaEnv(gym.Env):
     # that work here (``advertised_render_modes``), which is what checkers read.
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 25}
 
-    def __init__(
-        self,
-        task: str = "TowerBuild",
-        obs_mode: str = "state",
-        action_mode: str | None = None,
-        render_mode: str | None = None,
-        cameras: tuple[str, ...] | str = ("overhead",),
-        image_size: tuple[int, int] = (84, 84),
-        heightmap_resolution: float = 0.002,
-        heightmap_bounds: tuple = DEFAULT_BOUNDS,
-        rotations: int = 16,
-        primitive_z: bool = False,
-        push_distance: float = 0.1,
-        block_gripper: bool = False,
-        render_size: tuple[int, int] = (640, 480),
-        planner: str = "RRTConnect",
-        scene: SceneConfig | None = None,
-        start_in_hand: float = 0.0,
-        start_above_object: float = 0.0,
-        start_behind_object: float = 0.0,
-        randomization: Randomization | dict[str, Any] | bool | None = None,
-        reward_type: str = "sparse",
-        **task_options: Any,
-    ) -> None:
+    @with_env_options  # the signature names each env option, read from ``EnvOptions``
+    def __init__(self, task: str = "TowerBuild", **options: Any) -> None:
+        task_options = {name: value for name, value in options.items() if name not in ENV_OPTIONS}
         try:
             self.task = make_task(task, task_options)
         except ValueError as error:
-            names = [p for p in inspect.signature(PandaEnv.__init__).parameters if p not in ("self", "task_options")]
-            raise ValueError(f"{error}; env options: {names}") from None
-        given = locals()  # the env options as passed: every parameter but the task's
-        self.options = options = EnvOptions.checked(self.task, **{name: given[name] for name in ENV_OPTIONS})
+            raise ValueError(f"{error}; env options: {['task', *ENV_OPTIONS]}") from None
+        #: The env options, checked (``EnvOptions``).
+        self.options = env_options = EnvOptions.checked(
+            self.task, **{name: value for name, value in options.items() if name in ENV_OPTIONS}
+        )
         self.metadata = {**PandaEnv.metadata, "render_modes": advertised_render_modes()}
-        self.obs_mode, self.action_mode, self.render_mode = obs_mode, options.action_mode, render_mode
-        self.render_size, self.reward_type = options.render_size, reward_type
+        self.obs_mode, self.action_mode = env_options.obs_mode, env_options.action_mode
+        self.render_mode, self.render_size = env_options.render_mode, env_options.render_size
+        self.reward_type = env_options.reward_type
         #: Start state -> probability of an episode starting there (a training curriculum; empty: none).
-        self.start_curriculum = options.start_curriculum
-        mode = options.mode
+        self.start_curriculum = env_options.start_curriculum
+        mode = env_options.mode
         #: Whether the agent sees and is rewarded by goals: a goal-conditioned task in a low-level mode, or in
         #: any mode where the task says so (``Task.goals_in_every_mode``).
         self.goal_conditioned = self.task.goal_conditioned and (mode.low_level or self.task.goals_in_every_mode)
         self.task.fixed_hand_yaw = HOME_YAW if mode.fixed_hand_yaw else None
         # Low-level modes let the reference move EE_STEP per control step; primitives keep their own speeds.
         limits = ControllerLimits(linear_speed=EE_STEP / 0.04) if mode.low_level else None
-        self.cell = Workcell(options.scene_config(self.task), limits=limits)
+        self.cell = Workcell(env_options.scene_config(self.task), limits=limits)
         self.cell.physics.add_observer(self.task.on_control_step)
         # The callbacks below capture the sensors, not the env: the env then forms no reference cycle and is
         # freed as soon as it is dropped (``sim.parts``).
-        self.sensors = sensors = Sensors(self.cell, options.image_size, options.grid)
-        context = options.action_context(self.task, self.cell, lambda: sensors.heightmap()[0])
+        self.sensors = sensors = Sensors(self.cell, env_options.image_size, env_options.grid)
+        context = env_options.action_context(self.task, self.cell, lambda: sensors.heightmap()[0])
         self.actions: ActionMode = mode.build(context)
         if self.goal_conditioned:
             # Only goal envs have compute_reward (vectorised, for HER): checkers treat its presence as "GoalEnv".
-            self.compute_reward = self.task.compute_reward if reward_type == "sparse" else self.task.dense_reward
+            self.compute_reward = self.task.compute_reward if self.reward_type == "sparse" else self.task.dense_reward
         self._goal_in_state = self.task.goal_conditioned and not self.goal_conditioned  # at the state vector's end
         goal_size = self.task.goal_size if self.goal_conditioned else None
         extra_size = self.task.properties_size + (self.task.goal_size if self._goal_in_state else 0)
         drawing = None if goal_size is None else self.task.goal_heightmap  # the goal beside the heightmap
         sizes = (goal_size, extra_size, self.task.command_size, drawing)
-        self.observations = ObservationBuilder(self.cell, options.modalities, options.cameras, self.sensors, *sizes)
+        self.observations = ObservationBuilder(
+            self.cell, env_options.modalities, env_options.cameras, self.sensors, *sizes
+        )
         self.action_space = self.actions.space
         self.observation_space = self.observations.space
-        self.randomizer = None if options.randomization is None else DomainRandomizer(options.randomization, self.cell)
+        self.randomizer = (
+            None if env_options.randomization is None else DomainRandomizer(env_options.randomization, self.cell)
+        )
         if self.randomizer is not None:
             self.observations.depth_filter = self.randomizer.noisy_depth
         self.renderer = EnvRenderer(
             self.cell,
-            render_mode,
-            options.render_size,
+            self.render_mode,
+            env_options.render_size,
             self.metadata["render_fps"],
-            lambda: sensors.rgbd("front", *options.render_size)[1],
+            lambda: sensors.rgbd("front", *env_options.render_size)[1],
         )
-        if render_mode == "rgb_array_list":  # frames inside primitives too
+        if self.render_mode == "rgb_array_list":  # frames inside primitives too
             self.cell.physics.add_observer(self.renderer.on_control_step)
         self._counters = dict.fromkeys(COUNTERS, 0)
         self._clipped_total = 0

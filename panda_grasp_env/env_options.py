@@ -1,25 +1,30 @@
-"""``EnvOptions``: ``PandaEnv``'s options, checked before anything is built.
+"""``EnvOptions``: ``PandaEnv``'s env options, declared once and checked before anything is built.
 
-A frozen pydantic dataclass: each option's type and ``description`` say what values it takes, and
-``EnvOptions.checked`` turns the first bad one into a ``ValueError`` that names it, its value and what it takes.
-``PandaEnv``'s docstring says what each option does (its signature holds the defaults).
+A frozen pydantic dataclass: each field is one env option, with its type, its default and a docstring that
+says what it does; its ``description`` says what values it takes, and ``EnvOptions.checked`` turns the first
+bad one into a ``ValueError`` that names it, its value and what it takes.  ``PandaEnv.__init__`` takes them as
+keywords (``**options``: the env options are ``ENV_OPTIONS``, the rest go to the task), and its signature
+(``with_env_options``) is read from the fields.
 """
 
 from __future__ import annotations
 
 import functools
+import inspect
 import os
 from collections.abc import Callable
-from dataclasses import replace
-from typing import Annotated, Any, Literal
+from dataclasses import fields, replace
+from typing import Annotated, Any, Literal, get_type_hints
 
 import mujoco
 import numpy as np
 from pydantic import (
     AfterValidator,
     BeforeValidator,
+    ConfigDict,
     Field,
     InstanceOf,
+    PlainValidator,
     Strict,
     ValidationError,
     ValidationInfo,
@@ -32,7 +37,7 @@ from panda_grasp_env.actions import ACTION_MODES, ActionContext, ActionMode
 from panda_grasp_env.config_fields import distinct
 from panda_grasp_env.model.scene import CAMERA_NAMES, PRIMITIVE_NOSLIP_ITERATIONS, SceneConfig
 from panda_grasp_env.observations import parse_obs_mode
-from panda_grasp_env.perception.heightmap import HeightmapGrid
+from panda_grasp_env.perception.heightmap import DEFAULT_BOUNDS, HeightmapGrid
 from panda_grasp_env.primitives.parameters import PrimitiveSettings
 from panda_grasp_env.randomization import Randomization
 from panda_grasp_env.sim.rendering import RENDER_MODES, advertised_render_modes, display_available
@@ -52,7 +57,7 @@ START_OPTIONS = {
     "behind_object": "start_behind_object",
 }
 
-#: The ``PandaEnv`` options that set how an agent sees and acts (observation, action mode and their
+#: The env options that set how an agent sees and acts (observation, action mode and their
 #: resolutions); the others, and the task options, set the scene and the protocol.
 AGENT_OPTIONS = frozenset(
     {
@@ -77,7 +82,7 @@ def python_scalar(value: Any) -> Any:
     return value.item() if isinstance(value, np.generic) else value
 
 
-def one_of(valid: tuple[str, ...]) -> AfterValidator:
+def one_of(valid: tuple[str, ...]) -> PlainValidator:
     """The check of an option that names one of ``valid``: ``ValueError`` ``unknown <option> <value>; valid: [...]``."""
 
     def check(value: Any, info: ValidationInfo) -> str:
@@ -85,7 +90,7 @@ def one_of(valid: tuple[str, ...]) -> AfterValidator:
             raise ValueError(f"unknown {info.field_name} {value!r}; valid: {list(valid)}")
         return value
 
-    return AfterValidator(check)
+    return PlainValidator(check)
 
 
 def render_mode_here(render_mode: Any) -> str | None:
@@ -128,42 +133,84 @@ Probability = Annotated[Real, Field(ge=0.0, le=1.0, description="a probability i
 Span = tuple[Real, Real]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=ConfigDict(validate_default=True))  # a default of None becomes the task's
 class EnvOptions:
-    """``PandaEnv``'s options for one task, checked; the working forms (grid, modalities, start curriculum) are
-    read from them.  Build it with ``EnvOptions.checked``, which knows the task."""
+    """``PandaEnv``'s env options (``gym.make`` keyword arguments besides the task's options), declared once:
+    each field's type, default and docstring here are the option's; ``PandaEnv``'s signature and its list of
+    valid names are read from them.  Checked for one task, the working forms (grid, modalities, start
+    curriculum) are read from them: build it with ``EnvOptions.checked``, which knows the task."""
 
-    obs_mode: Annotated[Any, AfterValidator(valid_obs_mode)]
-    #: The action mode's name: the one given, or the task's default.
-    action_mode: Annotated[Any, one_of(tuple(ACTION_MODES))]
-    render_mode: Annotated[Any, AfterValidator(render_mode_here)]
+    # Where an option's own check is its whole validation (a PlainValidator), the type is what a user passes
+    # (the signature's) and pydantic neither converts the value nor answers before the check does.
+    obs_mode: Annotated[str, PlainValidator(valid_obs_mode)] = "state"
+    """``state``, ``proprio``, ``rgb``, ``depth``, ``segmentation``, ``heightmap`` or a ``+`` combination."""
+    action_mode: Annotated[str | None, one_of(tuple(ACTION_MODES))] = None
+    """``primitive``, ``pixel``, ``pixel_factored``, ``ee_delta``, ``joint`` or ``grasp_pose`` (default: the
+    task's).  Once checked, the action mode's name: the one given, or the task's default."""
+    render_mode: Annotated[str | None, PlainValidator(render_mode_here)] = None
+    """``rgb_array`` / ``depth_array`` (front camera), ``rgb_array_list`` (the frames since the last
+    ``reset``/``render``, taken at ``metadata["render_fps"]`` of simulated time, inside primitives too:
+    ``video.RecordMotionVideo``) or ``human`` (MuJoCo viewer)."""
     cameras: Annotated[
         tuple[Literal[CAMERA_NAMES], ...],
         BeforeValidator(lambda cameras: (cameras,) if isinstance(cameras, str) else cameras),  # one name
         AfterValidator(distinct),
         Field(min_length=1, description=f"distinct names from {list(CAMERA_NAMES)}"),
-    ]
-    image_size: ImageSize
-    heightmap_resolution: Annotated[Real, Field(gt=0.0, description="a positive number of metres")]
+    ] = ("overhead",)
+    """Cameras for image observations (``overhead``, ``front``, ``wrist``): a tuple of them, or one name."""
+    image_size: ImageSize = (84, 84)
+    """(width, height) of image observations, pixels."""
+    heightmap_resolution: Annotated[Real, Field(gt=0.0, description="a positive number of metres")] = 0.002
+    """Metres per heightmap cell (``heightmap`` obs and ``pixel`` actions)."""
     heightmap_bounds: Annotated[
         tuple[Span, Span, Span],
         AfterValidator(grid_bounds),
         Field(description="((x0, x1), (y0, y1), (z0, z1)) metres, each low < high"),
-    ]
-    rotations: Annotated[Whole, Field(ge=1, le=MAX_ROTATIONS, description=f"an int from 1 to {MAX_ROTATIONS}")]
-    primitive_z: Flag
-    push_distance: Annotated[Real, Field(gt=0.0, le=0.3, description="in (0, 0.3] m")]
-    block_gripper: Flag
-    render_size: ImageSize
-    planner: Annotated[str, Strict(), Field(description="an OMPL planner's name (a str)")]
+    ] = DEFAULT_BOUNDS
+    """((x0, x1), (y0, y1), (z0, z1)) world metres the heightmap covers."""
+    rotations: Annotated[Whole, Field(ge=1, le=MAX_ROTATIONS, description=f"an int from 1 to {MAX_ROTATIONS}")] = 16
+    """Number of headings in the ``pixel`` action mode (VPG: 16)."""
+    primitive_z: Flag = False
+    """Add a z component to ``primitive`` actions (default: heights chosen from the scene)."""
+    push_distance: Annotated[Real, Field(gt=0.0, le=0.3, description="in (0, 0.3] m")] = 0.1
+    """Push length, metres."""
+    block_gripper: Flag = False
+    """``ee_delta`` only: fingers held closed, the action is (dx, dy, dz) (panda-gym's Push)."""
+    render_size: ImageSize = (640, 480)
+    """(width, height) of ``render()`` frames."""
+    planner: Annotated[str, Strict(), Field(description="an OMPL planner's name (a str)")] = "RRTConnect"
+    """OMPL planner of the ``grasp_pose`` mode (``panda_grasp_env.control.planning.PLANNERS``)."""
     scene: Annotated[
         InstanceOf[SceneConfig] | None, Field(description="a panda_grasp_env.model.scene.SceneConfig or None")
-    ]
-    start_in_hand: Probability
-    start_above_object: Probability
-    start_behind_object: Probability
-    randomization: Annotated[Any, AfterValidator(Randomization.of)]
-    reward_type: Annotated[Any, one_of(REWARD_TYPES)]
+    ] = None
+    """Base ``SceneConfig`` (block size, masses, friction, gripper force, ...); the task sets the objects."""
+    start_in_hand: Probability = 0.0
+    """Low-level modes (``ee_delta``, ``joint``) only, with a task that can start so (``Grasp``, ``TowerBuild``):
+    the probability (0-1) that an episode starts with the task's object already between the closed fingers
+    where it lay (``Task.start_object``: the object to lift, the next block to stack) -- a training curriculum,
+    as resets to demonstration states (Nair et al. 2018); evaluation keeps 0.  An object too wide for the open
+    fingers at the fixed heading starts the episode normally.
+
+    The start probabilities sum to at most 1; with any of them ``info["start"]`` says how an episode started:
+    ``ready`` or one of ``Task.start_states`` (``in_hand``, ``above_object``, ``behind_object``: those the task
+    supports, relative to ``Task.start_object``)."""
+    start_above_object: Probability = 0.0
+    """As ``start_in_hand``: the probability that an episode starts with the open hand straight above that
+    object, anywhere from around it to the usual start height (uniform); the two curricula together cover the
+    way from the usual start to the object."""
+    start_behind_object: Probability = 0.0
+    """As ``start_in_hand``, for Push: the probability that an episode starts with the fingers closed and the
+    hand at the block's height behind it on the line from the goal through the block, 0-10 cm (uniform) short
+    of touching it -- where a push towards the goal begins."""
+    randomization: Annotated[Randomization | dict[str, Any] | bool | None, PlainValidator(Randomization.of)] = None
+    """Domain randomisation at each reset (``randomization.Randomization``, a dict of its fields, or True for
+    its defaults): lights, fixed camera poses, object hues, table colour, object mass and friction,
+    depth-observation noise.  None (default): off, and nothing is drawn."""
+    reward_type: Annotated[str, one_of(REWARD_TYPES)] = "sparse"
+    """The low-level reward of a goal-conditioned task (``ee_delta``/``joint`` modes of Push, Lift, Stack):
+    ``sparse`` (default; Fetch's 0 when every goal point is within 5 cm, else -1) or ``dense`` (panda-gym's:
+    minus the distance, metres, between achieved and desired goal).  ``compute_reward`` gives the same, so HER
+    relabels either.  A diverged step earns -1 in both."""
 
     @field_validator("action_mode", mode="before")
     @classmethod
@@ -201,8 +248,9 @@ class EnvOptions:
 
     @classmethod
     def checked(cls, task: Task, **options: Any) -> EnvOptions:
-        """The options of ``PandaEnv`` (same names, all of them) for ``task``; ``ValueError`` naming the first bad
-        one, its value and what it takes (the field's ``description``, else what its check said)."""
+        """The env options given (by name; the others take their defaults), checked for ``task``; ``ValueError``
+        naming the first bad one, its value and what it takes (the field's ``description``, else what its check
+        said)."""
         try:
             return cls.__pydantic_validator__.validate_python(options, context={"task": task})  # type: ignore[attr-defined]
         except ValidationError as error:
@@ -266,5 +314,21 @@ class EnvOptions:
         return ActionContext(cell, settings, self.grid, self.rotations, heightmap, self.block_gripper, self.planner)
 
 
-#: The names of ``PandaEnv``'s options (the parameters of ``PandaEnv.__init__`` but ``task`` and its options).
-ENV_OPTIONS = tuple(EnvOptions.__dataclass_fields__)
+#: The env options' names, in order (``PandaEnv``'s keyword arguments that are not the task's options).
+ENV_OPTIONS = tuple(field.name for field in fields(EnvOptions))
+
+
+def with_env_options(init: Callable[..., None]) -> Callable[..., None]:
+    """``init`` (``PandaEnv.__init__``: its named parameters, then ``**options``) with a signature that names each
+    env option instead: keyword-only, with its default and its type (without the checks), then
+    ``**task_options`` for the rest.  ``help``, IDEs and ``inspect.signature`` read it."""
+    signature = inspect.signature(init)
+    named = [p for p in signature.parameters.values() if p.kind != inspect.Parameter.VAR_KEYWORD]
+    types = get_type_hints(EnvOptions)  # Annotated stripped: the types a user passes
+    env_options = [
+        inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default, annotation=types[f.name])
+        for f in fields(EnvOptions)
+    ]
+    task_options = inspect.Parameter("task_options", inspect.Parameter.VAR_KEYWORD, annotation=Any)
+    init.__signature__ = signature.replace(parameters=[*named, *env_options, task_options])  # type: ignore[attr-defined]
+    return init

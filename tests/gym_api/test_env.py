@@ -323,6 +323,26 @@ def test_bad_options_raise_at_make(kwargs, message):
 
 
 @pytest.mark.unit
+def test_the_env_options_are_read_from_their_one_declaration():
+    # EnvOptions' fields are the env options: PandaEnv's signature (names, order, defaults) and the valid names
+    # an unknown option's error lists after the task's.
+    import dataclasses
+    import inspect
+    import re
+
+    from panda_grasp_env.env import PandaEnv
+    from panda_grasp_env.env_options import ENV_OPTIONS, EnvOptions
+
+    parameters = inspect.signature(PandaEnv).parameters
+    assert list(parameters) == ["task", *ENV_OPTIONS, "task_options"]
+    assert {name: parameters[name].default for name in ENV_OPTIONS} == {
+        field.name: field.default for field in dataclasses.fields(EnvOptions)
+    }
+    with pytest.raises(ValueError, match=re.escape(f"; env options: {['task', *ENV_OPTIONS]}") + "$"):
+        gym.make("panda_grasp_env:PandaTowerBuild-v0", colour="red")
+
+
+@pytest.mark.unit
 def test_reset_options_must_be_a_mapping():
     env = gym.make("panda_grasp_env:PandaTowerBreak-v0")
     with pytest.raises(ValueError, match="reset options must be a dict or None, got int"):
