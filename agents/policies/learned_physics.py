@@ -3,8 +3,8 @@
 ``FallModelCheck`` has the signature of ``sim.stability.what_if``: it sets the candidate's pieces in a copy of
 the simulation, but instead of running the physics it renders the overhead camera once (the simulator's
 segmentation of the watched pieces as block classes, and depth), hands that frame to the fall model
-(``falls.model``) as its context -- the pieces are at rest, so every context frame is that frame -- and reads
-the displacement the model plans for each block over its next frames.  A planned displacement of
+(``agents.learning.falls.model``) as its context -- the pieces are at rest, so every context frame is that
+frame -- and reads the displacement the model plans for each block over its next frames.  A planned displacement of
 ``threshold`` metres or more means "falls".  ``planned_lookahead_learned`` is the structure lookahead planner
 with this check in place of ``what_if``: the same orders, scaffold search and budget.
 
@@ -36,7 +36,7 @@ DEFAULT_FALL_MODEL = "fall_convlstm_tall"
 #: Planned displacement (metres, largest over the watched pieces, summed over the model's horizon) at or
 #: above which a candidate counts as falling.  One pixel of the recorder's crop is ~5 mm.
 DEFAULT_THRESHOLD = 0.004
-#: The camera the fall model was trained on, at the recorder's image size (``falls.config.RENDER_SIZE``).
+#: The camera the fall model was trained on, at the recorder's image size (``falls.settings.RENDER_SIZE``).
 CAMERA = "overhead"
 
 
@@ -62,9 +62,9 @@ class FallModelCheck:
         require_learning_stack("the learned stability check")
         import torch
 
-        from panda_grasp_env.falls.config import RENDER_SIZE
-        from panda_grasp_env.falls.model import load_fall_model
-        from panda_grasp_env.falls.records import FALL_CHECKPOINTS
+        from panda_grasp_env.agents.learning.falls.model import load_fall_model
+        from panda_grasp_env.agents.learning.falls.records import FALL_CHECKPOINTS
+        from panda_grasp_env.falls.settings import RENDER_SIZE
 
         if not (isinstance(threshold, (int, float)) and np.isfinite(threshold) and threshold > 0):
             raise ValueError(f"threshold must be a positive number of metres, got {threshold!r}")
@@ -112,7 +112,7 @@ class FallModelCheck:
     def predict(self, labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """Each block class's planned displacement (K, 2; pixels) over the model's horizon, from one frame at
         rest taken as every context frame."""
-        from panda_grasp_env.falls.model import model_inputs
+        from panda_grasp_env.agents.learning.falls.model import model_inputs
 
         torch = self.torch
         context = self.net.context
