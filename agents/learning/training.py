@@ -62,6 +62,7 @@ from panda_grasp_env.tooling.runs import (
     check_run_files,
     commit,
     new_run_folder,
+    read_progress,
     run_key,
     sign_run_files,
     write_atomically,
@@ -327,7 +328,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, progress_bar: bool,
 
     torch.set_num_threads(config.torch_threads)
     run_key()  # the key that signs its checkpoints: one others could know stops the run now, not at its first save
-    progress = json.loads((run_dir / "progress.json").read_text()) if resume else {"steps": 0, "wall_seconds": 0.0}
+    progress = read_progress(run_dir / "progress.json") if resume else {"steps": 0, "wall_seconds": 0.0}
     budget_left = config.max_minutes is None or progress["wall_seconds"] < 60 * config.max_minutes
     will_learn = progress["steps"] < config.total_steps and budget_left
     source = initial_policy_source(config) if config.init_policy is not None and not resume else None
@@ -433,7 +434,7 @@ def retest(run_dir: Path) -> dict[str, Any]:
     totals = run_dir / ("progress.json" if (run_dir / "progress.json").is_file() else "final.json")
     if not (run_dir / "best.json").is_file() or not totals.is_file():
         raise ValueError(f"{run_dir} has no best policy to test yet (best.json, {totals.name})")
-    progress = json.loads(totals.read_text())
+    progress = read_progress(totals)
     # A shipped checkpoint is tested as it acts when shipped (by its acting rules, if it has any).
     acting = Checkpoint(run_dir).acting if (run_dir / "checkpoint.json").is_file() else None
     return final_test(config, run_dir, int(progress["steps"]), float(progress["wall_seconds"]), acting)

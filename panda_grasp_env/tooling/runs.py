@@ -20,6 +20,7 @@ from typing import Any, TypeVar
 import yaml
 from pydantic import TypeAdapter, ValidationError
 
+from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json
 
 Config = TypeVar("Config")
@@ -314,6 +315,16 @@ def new_run_folder(runs_dir: Path, config: Any, **facts: Any) -> Path:
     return run_dir
 
 
+def read_progress(path: Path) -> dict[str, Any]:
+    """A run's totals (progress.json, or a shipped checkpoint's final.json): steps and wall seconds, read with
+    the bounded reader; ``ValueError`` naming the file unless both are numbers >= 0 (steps a whole number)."""
+    totals = read_json(path, MAX_DOCUMENT_BYTES)
+    steps, wall = (totals.get(k) for k in ("steps", "wall_seconds")) if isinstance(totals, dict) else (None, None)
+    if not (is_count(steps) and steps >= 0 and is_number(wall) and wall >= 0):
+        raise ValueError(f"{path} must hold steps (a whole number) and wall_seconds (a number >= 0)")
+    return {**totals, "steps": int(steps), "wall_seconds": float(wall)}
+
+
 def record_resume(run_dir: Path, overrides: list[str]) -> None:
     """Append a resumed session to meta.json's ``resumed`` list: when, at which commit, after how many steps
     (progress.json, where the run keeps one) and with which ``key=value`` overrides -- config.yaml holds only
@@ -322,7 +333,7 @@ def record_resume(run_dir: Path, overrides: list[str]) -> None:
     progress = run_dir / "progress.json"
     session = {"at": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "commit": commit(), "overrides": list(overrides)}
     if progress.is_file():
-        session["after_steps"] = read_json(progress, MAX_DOCUMENT_BYTES)["steps"]
+        session["after_steps"] = read_progress(progress)["steps"]
     meta.setdefault("resumed", []).append(session)
     write_json(run_dir / "meta.json", meta)
 
@@ -331,7 +342,7 @@ def forget_failed_resume(run_dir: Path) -> None:
     """Drop the last ``record_resume`` entry if the run made no progress since it (the session failed to start)."""
     meta = read_json(run_dir / "meta.json", MAX_DOCUMENT_BYTES)
     sessions, progress = meta.get("resumed", []), run_dir / "progress.json"
-    steps = read_json(progress, MAX_DOCUMENT_BYTES)["steps"] if progress.is_file() else None
+    steps = read_progress(progress)["steps"] if progress.is_file() else None
     if sessions and sessions[-1].get("after_steps") == steps:
         sessions.pop()
         write_json(run_dir / "meta.json", meta)

@@ -2,10 +2,11 @@
 ``ValueError`` that names the file, and nothing is read past the bound.
 
 The readers: the bounded JSON / YAML / JSON-lines readers themselves (``tooling.reading``), a Minari dataset's
-``metadata.json``, a checkpoint's ``config.yaml``, an ``evaluate.py --config`` protocol file and an
-``evaluate.py --resume`` episode log.  The files: a FIFO, ``/dev/zero`` (the device, and a symlink to it), a
-directory, a file past the size bound, JSON and YAML nested 10,000 deep, a 341-byte YAML alias bomb, a
-self-referencing alias, and bytes that are not UTF-8.
+``metadata.json``, a checkpoint's ``config.yaml``, an ``evaluate.py --config`` protocol file, an
+``evaluate.py --resume`` episode log, a ``train.py --config`` (the reader of a run folder's config.yaml too)
+and a run's ``progress.json`` (``train.py --resume``; a checkpoint's ``final.json`` under ``--retest``).  The
+files: a FIFO, ``/dev/zero`` (the device, and a symlink to it), a directory, a file past the size bound, JSON
+and YAML nested 10,000 deep, a 341-byte YAML alias bomb, a self-referencing alias, and bytes that are not UTF-8.
 """
 
 from __future__ import annotations
@@ -19,11 +20,13 @@ from pathlib import Path
 import pytest
 
 from panda_grasp_env.agents.evaluation.runner import _load as load_resume_log
+from panda_grasp_env.agents.learning.config import read_config as read_training_config
 from panda_grasp_env.agents.learning.datasets import dataset_metadata
 from panda_grasp_env.agents.policies.learned import read_config
 from panda_grasp_env.commands.evaluate import protocol_argv
 from panda_grasp_env.registration import ENTRY_POINT
 from panda_grasp_env.tooling.reading import read_json, read_json_lines, read_yaml
+from panda_grasp_env.tooling.runs import read_progress
 
 pytestmark = [pytest.mark.unit, pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="FIFOs and devices: Linux")]
 
@@ -75,6 +78,8 @@ READERS = {
     "checkpoint config": (read_config, "config.yaml"),
     "protocol file": (protocol_argv, "protocol.yaml"),
     "resume log": (resume_log, "episodes.jsonl"),
+    "training config": (read_training_config, "config.yaml"),
+    "run totals": (read_progress, "progress.json"),
 }
 
 
