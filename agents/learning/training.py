@@ -31,6 +31,7 @@ from panda_grasp_env.agents.evaluation.metrics import aggregate
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, task_label
 from panda_grasp_env.agents.learning.config import (
     ALGORITHMS,
+    DEMONSTRATION_ALGORITHMS,
     HEIGHTMAP_ALGORITHMS,
     SELECTION_SEED_OFFSET,
     TEST_SEED_OFFSET,
@@ -45,6 +46,7 @@ from panda_grasp_env.agents.learning.config import (
     steps_label,
     training_env,
 )
+from panda_grasp_env.agents.learning.imitation import Demonstrations
 from panda_grasp_env.agents.learning.policy_files import class_name
 from panda_grasp_env.agents.learning.records import (
     earlier_tests,
@@ -300,7 +302,10 @@ def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_b
 def start_run(config: TrainConfig, runs_dir: Path) -> Path:
     """A fresh run folder ``runs_dir/<name>-seed<seed>[-N]`` with config.yaml and meta.json (which, for a run
     that starts from ``init_policy``, records the checkpoint's folder, step and policy.zip digest); ``ValueError``
-    before anything is written if that checkpoint does not fit the run."""
+    before anything is written if that checkpoint does not fit the run, or if its demonstrations' dataset is
+    missing or refused (``imitation.Demonstrations.data_folder``)."""
+    if config.algo in DEMONSTRATION_ALGORITHMS:
+        Demonstrations.of(config.algo_kwargs["demonstrations"]).data_folder()
     if config.init_policy is None:
         return new_run_folder(runs_dir, config)
     return new_run_folder(runs_dir, config, init_policy=initial_policy_source(config).provenance())

@@ -163,3 +163,28 @@ def test_a_dataset_whose_spaces_or_counts_would_not_fit_is_refused_before_minari
     tracemalloc.stop()
     assert "metadata.json" in str(refused.value) and "\n" not in str(refused.value)
     assert time.perf_counter() - started < 1.0 and peak < 64 << 20
+
+
+@pytest.mark.parametrize(
+    "fields",
+    [
+        {"action_space": '{"type": "Discrete", "n": 1' + "0" * 30 + ', "start": 0}'},
+        {"observation_space": '{"type": "Dict", "subspaces": {"a": ' * 10_000 + BOX + "}}" * 10_000},
+        {"total_episodes": 10**15},
+    ],
+)
+def test_train_py_refuses_a_demonstration_dataset_before_it_makes_a_run_folder(tmp_path, capsys, fields):
+    """One error line naming the metadata, no "run folder:" line, no folder made and removed again."""
+    from panda_grasp_env.commands import train
+
+    (tmp_path / "ns" / "demos-v0" / "data").mkdir(parents=True)
+    write_metadata(tmp_path / "ns" / "demos-v0" / "data", **fields)
+    runs = tmp_path / "runs"
+    demonstrations = f"algo_kwargs.demonstrations={{dataset: ns/demos-v0, episodes: 1, path: {tmp_path}}}"
+    config = Path(__file__).parents[2] / "configs" / "stack_bc.yaml"
+    started = time.perf_counter()
+    assert train.main(["--config", str(config), "--runs", str(runs), "--no-progress", demonstrations]) == 2
+    assert time.perf_counter() - started < 1.0
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and err.startswith(f"error: {tmp_path}/ns/demos-v0/data/metadata.json")
+    assert not runs.exists() or not any(runs.iterdir())
