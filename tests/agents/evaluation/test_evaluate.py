@@ -420,6 +420,10 @@ TAMPERINGS = {
         ),
         "line 2: episode random/TowerBreak/99 is not one of this protocol's",
     ),
+    "a seed as a string": (  # its key is the int seed's, and it would sort against the others' ints
+        lambda lines: tampered(lines, lambda r: r["result"]["spec"].update(seed=str(r["result"]["spec"]["seed"]))),
+        "line 2: result.spec .* is not an episode's spec",
+    ),
     "not JSON mid-file": (lambda lines: lines[1][:30], "line 2 is not valid JSON"),
     "bad timing": (
         lambda lines: tampered(lines, lambda r: r["timing"].update(wall_seconds="slow")),
