@@ -375,7 +375,8 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, progress_bar: bool,
                     tb_log_name="run",
                 )
             except KeyboardInterrupt:
-                save_checkpoint(model, run_dir, callback.wall())
+                if hasattr(callback, "started"):  # not while SB3 set up (resetting the envs): nothing learned yet
+                    save_checkpoint(model, run_dir, callback.wall())
                 raise
     finally:
         env.close()

@@ -128,10 +128,21 @@ def ray_tasks(
 def interrupt_on_signals() -> None:
     """Let SIGTERM (cluster schedulers, ``kill``) and SIGINT end a long job the way Ctrl-C does: as a
     ``KeyboardInterrupt`` that saves what is finished.  (A shell starts background jobs with SIGINT
-    ignored; this restores it.)"""
+    ignored; this restores it.)  A signal that arrives while a garbage-collection callback (jax installs one)
+    or a ``__del__`` runs is raised once that code has returned: raised there, Python would print it as ignored
+    and the job would go on."""
+    import _thread
+    import gc
     import signal
+    import threading
 
     def interrupt(signum: int, frame: Any) -> None:
+        swallowing = {getattr(getattr(c, "__func__", c), "__code__", None) for c in gc.callbacks}
+        while frame is not None:
+            if frame.f_code in swallowing or frame.f_code.co_name == "__del__":
+                threading.Timer(0.005, _thread.interrupt_main, (signum,)).start()  # this handler again, soon
+                return
+            frame = frame.f_back
         raise KeyboardInterrupt(f"signal {signum}")
 
     signal.signal(signal.SIGTERM, interrupt)
