@@ -80,7 +80,7 @@ def import_modules(names: Iterable[str]) -> None:
                     raise
             else:
                 importlib.import_module(name)
-        except Exception as error:  # whatever the module raises at import: one line naming it
+        except (Exception, SystemExit) as error:  # whatever the module raises at import (sys.exit too): one line
             raise ValueError(f"--import {name}: {type(error).__name__}: {error}") from None
 
 

@@ -87,6 +87,8 @@ def _record_problem(record: dict, keys: set[str]) -> str | None:
         options = tuple((k, v) for k, v in spec["options"])
         if set(spec) != {"agent", "task", "seed", "options"} or not all(isinstance(k, str) for k, _ in options):
             raise TypeError
+        if not (isinstance(spec["agent"], str) and isinstance(spec["task"], str) and is_count(spec["seed"])):
+            raise TypeError  # a seed "0" would make the key of seed 0, and sort against the others' ints
         key = EpisodeSpec(spec["agent"], spec["task"], spec["seed"], options).key
     except (KeyError, TypeError, ValueError):
         return f"result.spec {spec!r:.80} is not an episode's spec"

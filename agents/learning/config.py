@@ -11,13 +11,13 @@ from typing import Annotated, Any, Literal
 
 import gymnasium as gym
 import numpy as np
-import yaml
 from pydantic import AfterValidator, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 from pydantic.dataclasses import dataclass
 
 from panda_grasp_env.config_fields import Count, Seed, distinct
 from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.registration import ENV_IDS
+from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_yaml
 from panda_grasp_env.tooling.runs import apply_key_values, check_resume_changes, checked_config, config_value_error
 
 #: Algorithm name -> (SB3 class path, default policy).  ``heightmap_dqn`` is VPG-style DQN for the pixel mode.
@@ -211,9 +211,7 @@ def read_config(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -
     """A YAML config as a mapping, with ``key=value`` overrides applied (``apply_key_values``: values read as
     YAML, dotted keys reaching into mappings)."""
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"config file {path} not found")
-    raw = yaml.safe_load(path.read_text()) or {}
+    raw = read_yaml(path, MAX_DOCUMENT_BYTES) or {}  # a regular file, bounded: size, nesting, aliases (tooling.reading)
     if not isinstance(raw, dict):
         raise ValueError(f"config {path} must be a mapping of keys to values")
     return apply_key_values(raw, overrides, "override")
@@ -414,4 +412,7 @@ def load_run(run_dir: Path) -> TrainConfig:
     """The resolved config of a run folder (its config.yaml); ``ValueError`` if it is not one."""
     if not (run_dir / "config.yaml").is_file():
         raise ValueError(f"{run_dir} is not a run folder (no config.yaml)")
-    return config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()), source=str(run_dir / "config.yaml"))
+    raw = read_yaml(run_dir / "config.yaml", MAX_DOCUMENT_BYTES)
+    if not isinstance(raw, dict):
+        raise ValueError(f"{run_dir / 'config.yaml'} must be a mapping of keys to values")
+    return config_from_dict(raw, source=str(run_dir / "config.yaml"))

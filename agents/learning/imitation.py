@@ -28,7 +28,7 @@ from sb3_contrib import TQC
 from stable_baselines3 import SAC
 from torch.nn import functional
 
-from panda_grasp_env.agents.learning.datasets import open_dataset
+from panda_grasp_env.agents.learning.datasets import dataset_metadata, open_dataset
 from panda_grasp_env.geometry import is_count, is_number
 
 
@@ -61,17 +61,23 @@ class Demonstrations:
             raise ValueError(f"demonstrations.successful_only must be a bool, got {spec.successful_only!r}")
         return spec
 
-    def episodes_data(self) -> list[Any]:
-        """The chosen episodes (Minari ``EpisodeData``), in recorded order; ``ValueError`` if the dataset is
-        missing, holds too few, or is not data alone (``datasets.open_dataset``)."""
+    def data_folder(self) -> Path:
+        """The dataset's data folder, its ``metadata.json`` checked (``datasets.dataset_metadata``): ``ValueError``
+        if the dataset is missing or its metadata is refused (``train.py`` asks before it makes a run folder)."""
         folder = Path(self.path) / self.dataset / "data"
         if not folder.is_dir():
             raise ValueError(
                 f"demonstrations: no Minari dataset {self.dataset!r} under {self.path} (record it with "
                 f"python -m panda_grasp_env.agents.learning.demonstrations)"
             )
+        dataset_metadata(folder)
+        return folder
+
+    def episodes_data(self) -> list[Any]:
+        """The chosen episodes (Minari ``EpisodeData``), in recorded order; ``ValueError`` if the dataset is
+        missing, holds too few, or is not data alone (``datasets.open_dataset``)."""
         chosen = []
-        for episode in open_dataset(folder).iterate_episodes():
+        for episode in open_dataset(self.data_folder()).iterate_episodes():
             success = bool(np.asarray(episode.infos.get("is_success", [False]))[-1]) if episode.infos else False
             if success or not self.successful_only:
                 chosen.append(episode)

@@ -31,6 +31,7 @@ from panda_grasp_env.agents.evaluation.metrics import aggregate
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, task_label
 from panda_grasp_env.agents.learning.config import (
     ALGORITHMS,
+    DEMONSTRATION_ALGORITHMS,
     HEIGHTMAP_ALGORITHMS,
     SELECTION_SEED_OFFSET,
     TEST_SEED_OFFSET,
@@ -45,6 +46,7 @@ from panda_grasp_env.agents.learning.config import (
     steps_label,
     training_env,
 )
+from panda_grasp_env.agents.learning.imitation import Demonstrations
 from panda_grasp_env.agents.learning.policy_files import class_name
 from panda_grasp_env.agents.learning.records import (
     earlier_tests,
@@ -62,6 +64,7 @@ from panda_grasp_env.tooling.runs import (
     check_run_files,
     commit,
     new_run_folder,
+    read_progress,
     run_key,
     sign_run_files,
     write_atomically,
@@ -299,7 +302,10 @@ def _callback(config: TrainConfig, run_dir: Path, wall_before: float, progress_b
 def start_run(config: TrainConfig, runs_dir: Path) -> Path:
     """A fresh run folder ``runs_dir/<name>-seed<seed>[-N]`` with config.yaml and meta.json (which, for a run
     that starts from ``init_policy``, records the checkpoint's folder, step and policy.zip digest); ``ValueError``
-    before anything is written if that checkpoint does not fit the run."""
+    before anything is written if that checkpoint does not fit the run, or if its demonstrations' dataset is
+    missing or refused (``imitation.Demonstrations.data_folder``)."""
+    if config.algo in DEMONSTRATION_ALGORITHMS:
+        Demonstrations.of(config.algo_kwargs["demonstrations"]).data_folder()
     if config.init_policy is None:
         return new_run_folder(runs_dir, config)
     return new_run_folder(runs_dir, config, init_policy=initial_policy_source(config).provenance())
@@ -327,7 +333,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, progress_bar: bool,
 
     torch.set_num_threads(config.torch_threads)
     run_key()  # the key that signs its checkpoints: one others could know stops the run now, not at its first save
-    progress = json.loads((run_dir / "progress.json").read_text()) if resume else {"steps": 0, "wall_seconds": 0.0}
+    progress = read_progress(run_dir / "progress.json") if resume else {"steps": 0, "wall_seconds": 0.0}
     budget_left = config.max_minutes is None or progress["wall_seconds"] < 60 * config.max_minutes
     will_learn = progress["steps"] < config.total_steps and budget_left
     source = initial_policy_source(config) if config.init_policy is not None and not resume else None
@@ -369,7 +375,8 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, progress_bar: bool,
                     tb_log_name="run",
                 )
             except KeyboardInterrupt:
-                save_checkpoint(model, run_dir, callback.wall())
+                if hasattr(callback, "started"):  # not while SB3 set up (resetting the envs): nothing learned yet
+                    save_checkpoint(model, run_dir, callback.wall())
                 raise
     finally:
         env.close()
@@ -433,7 +440,7 @@ def retest(run_dir: Path) -> dict[str, Any]:
     totals = run_dir / ("progress.json" if (run_dir / "progress.json").is_file() else "final.json")
     if not (run_dir / "best.json").is_file() or not totals.is_file():
         raise ValueError(f"{run_dir} has no best policy to test yet (best.json, {totals.name})")
-    progress = json.loads(totals.read_text())
+    progress = read_progress(totals)
     # A shipped checkpoint is tested as it acts when shipped (by its acting rules, if it has any).
     acting = Checkpoint(run_dir).acting if (run_dir / "checkpoint.json").is_file() else None
     return final_test(config, run_dir, int(progress["steps"]), float(progress["wall_seconds"]), acting)

@@ -159,6 +159,12 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # while the config or the run folder was read: nothing was trained
+        if args.ship is not None or args.retest is not None:
+            raise
+        again = "the same command starts it" if args.resume is None else f"--resume {args.resume} continues it"
+        print(f"\ninterrupted before training began: nothing was trained; {again}", file=sys.stderr)
+        return 130
     print(f"run folder: {run_dir}")
     resume, progress = args.resume is not None, not args.no_progress
     try:

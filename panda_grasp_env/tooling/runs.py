@@ -20,6 +20,7 @@ from typing import Any, TypeVar
 import yaml
 from pydantic import TypeAdapter, ValidationError
 
+from panda_grasp_env.geometry import is_count, is_number
 from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json
 
 Config = TypeVar("Config")
@@ -127,10 +128,21 @@ def ray_tasks(
 def interrupt_on_signals() -> None:
     """Let SIGTERM (cluster schedulers, ``kill``) and SIGINT end a long job the way Ctrl-C does: as a
     ``KeyboardInterrupt`` that saves what is finished.  (A shell starts background jobs with SIGINT
-    ignored; this restores it.)"""
+    ignored; this restores it.)  A signal that arrives while a garbage-collection callback (jax installs one)
+    or a ``__del__`` runs is raised once that code has returned: raised there, Python would print it as ignored
+    and the job would go on."""
+    import _thread
+    import gc
     import signal
+    import threading
 
     def interrupt(signum: int, frame: Any) -> None:
+        swallowing = {getattr(getattr(c, "__func__", c), "__code__", None) for c in gc.callbacks}
+        while frame is not None:
+            if frame.f_code in swallowing or frame.f_code.co_name == "__del__":
+                threading.Timer(0.005, _thread.interrupt_main, (signum,)).start()  # this handler again, soon
+                return
+            frame = frame.f_back
         raise KeyboardInterrupt(f"signal {signum}")
 
     signal.signal(signal.SIGTERM, interrupt)
@@ -314,6 +326,16 @@ def new_run_folder(runs_dir: Path, config: Any, **facts: Any) -> Path:
     return run_dir
 
 
+def read_progress(path: Path) -> dict[str, Any]:
+    """A run's totals (progress.json, or a shipped checkpoint's final.json): steps and wall seconds, read with
+    the bounded reader; ``ValueError`` naming the file unless both are numbers >= 0 (steps a whole number)."""
+    totals = read_json(path, MAX_DOCUMENT_BYTES)
+    steps, wall = (totals.get(k) for k in ("steps", "wall_seconds")) if isinstance(totals, dict) else (None, None)
+    if not (is_count(steps) and steps >= 0 and is_number(wall) and wall >= 0):
+        raise ValueError(f"{path} must hold steps (a whole number) and wall_seconds (a number >= 0)")
+    return {**totals, "steps": int(steps), "wall_seconds": float(wall)}
+
+
 def record_resume(run_dir: Path, overrides: list[str]) -> None:
     """Append a resumed session to meta.json's ``resumed`` list: when, at which commit, after how many steps
     (progress.json, where the run keeps one) and with which ``key=value`` overrides -- config.yaml holds only
@@ -322,7 +344,7 @@ def record_resume(run_dir: Path, overrides: list[str]) -> None:
     progress = run_dir / "progress.json"
     session = {"at": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "commit": commit(), "overrides": list(overrides)}
     if progress.is_file():
-        session["after_steps"] = read_json(progress, MAX_DOCUMENT_BYTES)["steps"]
+        session["after_steps"] = read_progress(progress)["steps"]
     meta.setdefault("resumed", []).append(session)
     write_json(run_dir / "meta.json", meta)
 
@@ -331,7 +353,7 @@ def forget_failed_resume(run_dir: Path) -> None:
     """Drop the last ``record_resume`` entry if the run made no progress since it (the session failed to start)."""
     meta = read_json(run_dir / "meta.json", MAX_DOCUMENT_BYTES)
     sessions, progress = meta.get("resumed", []), run_dir / "progress.json"
-    steps = read_json(progress, MAX_DOCUMENT_BYTES)["steps"] if progress.is_file() else None
+    steps = read_progress(progress)["steps"] if progress.is_file() else None
     if sessions and sessions[-1].get("after_steps") == steps:
         sessions.pop()
         write_json(run_dir / "meta.json", meta)

@@ -2,10 +2,11 @@
 ``ValueError`` that names the file, and nothing is read past the bound.
 
 The readers: the bounded JSON / YAML / JSON-lines readers themselves (``tooling.reading``), a Minari dataset's
-``metadata.json``, a checkpoint's ``config.yaml``, an ``evaluate.py --config`` protocol file and an
-``evaluate.py --resume`` episode log.  The files: a FIFO, ``/dev/zero`` (the device, and a symlink to it), a
-directory, a file past the size bound, JSON and YAML nested 10,000 deep, a 341-byte YAML alias bomb, a
-self-referencing alias, and bytes that are not UTF-8.
+``metadata.json``, a checkpoint's ``config.yaml``, an ``evaluate.py --config`` protocol file, an
+``evaluate.py --resume`` episode log, a ``train.py --config`` (the reader of a run folder's config.yaml too)
+and a run's ``progress.json`` (``train.py --resume``; a checkpoint's ``final.json`` under ``--retest``).  The
+files: a FIFO, ``/dev/zero`` (the device, and a symlink to it), a directory, a file past the size bound, JSON
+and YAML nested 10,000 deep, a 341-byte YAML alias bomb, a self-referencing alias, and bytes that are not UTF-8.
 """
 
 from __future__ import annotations
@@ -19,11 +20,13 @@ from pathlib import Path
 import pytest
 
 from panda_grasp_env.agents.evaluation.runner import _load as load_resume_log
+from panda_grasp_env.agents.learning.config import read_config as read_training_config
 from panda_grasp_env.agents.learning.datasets import dataset_metadata
 from panda_grasp_env.agents.policies.learned import read_config
 from panda_grasp_env.commands.evaluate import protocol_argv
 from panda_grasp_env.registration import ENTRY_POINT
 from panda_grasp_env.tooling.reading import read_json, read_json_lines, read_yaml
+from panda_grasp_env.tooling.runs import read_progress
 
 pytestmark = [pytest.mark.unit, pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="FIFOs and devices: Linux")]
 
@@ -75,6 +78,8 @@ READERS = {
     "checkpoint config": (read_config, "config.yaml"),
     "protocol file": (protocol_argv, "protocol.yaml"),
     "resume log": (resume_log, "episodes.jsonl"),
+    "training config": (read_training_config, "config.yaml"),
+    "run totals": (read_progress, "progress.json"),
 }
 
 
@@ -158,3 +163,28 @@ def test_a_dataset_whose_spaces_or_counts_would_not_fit_is_refused_before_minari
     tracemalloc.stop()
     assert "metadata.json" in str(refused.value) and "\n" not in str(refused.value)
     assert time.perf_counter() - started < 1.0 and peak < 64 << 20
+
+
+@pytest.mark.parametrize(
+    "fields",
+    [
+        {"action_space": '{"type": "Discrete", "n": 1' + "0" * 30 + ', "start": 0}'},
+        {"observation_space": '{"type": "Dict", "subspaces": {"a": ' * 10_000 + BOX + "}}" * 10_000},
+        {"total_episodes": 10**15},
+    ],
+)
+def test_train_py_refuses_a_demonstration_dataset_before_it_makes_a_run_folder(tmp_path, capsys, fields):
+    """One error line naming the metadata, no "run folder:" line, no folder made and removed again."""
+    from panda_grasp_env.commands import train
+
+    (tmp_path / "ns" / "demos-v0" / "data").mkdir(parents=True)
+    write_metadata(tmp_path / "ns" / "demos-v0" / "data", **fields)
+    runs = tmp_path / "runs"
+    demonstrations = f"algo_kwargs.demonstrations={{dataset: ns/demos-v0, episodes: 1, path: {tmp_path}}}"
+    config = Path(__file__).parents[2] / "configs" / "stack_bc.yaml"
+    started = time.perf_counter()
+    assert train.main(["--config", str(config), "--runs", str(runs), "--no-progress", demonstrations]) == 2
+    assert time.perf_counter() - started < 1.0
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and err.startswith(f"error: {tmp_path}/ns/demos-v0/data/metadata.json")
+    assert not runs.exists() or not any(runs.iterdir())

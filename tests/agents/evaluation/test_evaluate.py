@@ -420,6 +420,10 @@ TAMPERINGS = {
         ),
         "line 2: episode random/TowerBreak/99 is not one of this protocol's",
     ),
+    "a seed as a string": (  # its key is the int seed's, and it would sort against the others' ints
+        lambda lines: tampered(lines, lambda r: r["result"]["spec"].update(seed=str(r["result"]["spec"]["seed"]))),
+        "line 2: result.spec .* is not an episode's spec",
+    ),
     "not JSON mid-file": (lambda lines: lines[1][:30], "line 2 is not valid JSON"),
     "bad timing": (
         lambda lines: tampered(lines, lambda r: r["timing"].update(wall_seconds="slow")),
@@ -460,14 +464,21 @@ def test_a_billion_seeds_is_refused_before_any_spec_is_made(capsys):
 
 
 @pytest.mark.unit
-def test_an_import_that_raises_is_one_error_line_naming_the_module(tmp_path, capsys):
+@pytest.mark.parametrize(
+    ("code", "raised"),
+    [
+        ("raise RuntimeError('the lab server is down')", "RuntimeError: the lab server is down"),
+        ("import sys\nsys.exit(3)", "SystemExit: 3"),  # else the program ended with status 3, saying nothing
+    ],
+)
+def test_an_import_that_raises_is_one_error_line_naming_the_module(tmp_path, capsys, code, raised):
     broken = tmp_path / "broken_lab.py"
-    broken.write_text("raise RuntimeError('the lab server is down')\n")
+    broken.write_text(code + "\n")
     with pytest.raises(SystemExit) as exited:
         evaluate.parse_args(["--import", str(broken), "--tasks", "Grasp", "--seeds", "1"])
     err = capsys.readouterr().err
     assert exited.value.code == 2 and "Traceback" not in err
-    assert f"--import {broken}: RuntimeError: the lab server is down" in err.splitlines()[-1]
+    assert f"--import {broken}: {raised}" in err.splitlines()[-1]
 
 
 def test_evaluate_runs_a_shipped_checkpoint_by_name_and_skips_other_tasks(finished_run, tmp_path, monkeypatch):

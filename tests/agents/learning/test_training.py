@@ -303,6 +303,61 @@ def test_ctrl_c_before_the_first_checkpoint_says_so_and_leaves_a_clean_start(tmp
     assert not (tmp_path / "push_sac_her-seed0").exists()
 
 
+@pytest.mark.parametrize("moment", ["reading the run", "SB3 setting up"])
+def test_ctrl_c_while_setting_up_is_one_line_and_the_same_command_starts_again(tmp_path, monkeypatch, capsys, moment):
+    """Interrupted while the config and the run folder are read, or while SB3 sets up inside ``learn`` (resetting
+    the envs, before the run's callback starts): one line, exit 130, no folder (SB3's case was an
+    AttributeError traceback, and a folder left behind)."""
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    if moment == "reading the run":
+        monkeypatch.setattr(train, "start_run", interrupted)
+    else:
+        monkeypatch.setattr(BaseAlgorithm, "_setup_learn", interrupted)
+    cli = ["--config", str(CONFIGS / "grasp_clutter_dqn.yaml"), "--runs", str(tmp_path), "--no-progress", *TINY_DQN]
+    assert train.main(cli) == 130
+    err = capsys.readouterr().err
+    assert err.strip().count("\n") == 0 and "Traceback" not in err and "checkpoint saved" not in err
+    assert "nothing was" in err and "the same command" in err
+    assert not (tmp_path / "grasp_clutter_dqn-seed0").exists()
+
+
+def test_a_signal_that_lands_in_a_garbage_collection_callback_still_interrupts_the_job(monkeypatch):
+    """Raised inside a gc callback (jax installs one), a KeyboardInterrupt is printed as ignored and the job goes
+    on: a Ctrl-C during train.py's set-up was lost so, and the run trained to its end."""
+    import gc
+    import os
+    import signal
+    import time
+
+    from panda_grasp_env.tooling.runs import interrupt_on_signals
+
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    sent = []
+
+    def callback(phase, info):
+        if not sent:
+            sent.append(phase)
+            os.kill(os.getpid(), signal.SIGINT)  # delivered here, inside the callback
+
+    interrupt_on_signals()
+    gc.callbacks.append(callback)
+    try:
+        with pytest.raises(KeyboardInterrupt, match="signal 2"):
+            gc.collect()
+            deadline = time.monotonic() + 3
+            while time.monotonic() < deadline:
+                time.sleep(0.001)
+    finally:
+        gc.callbacks.remove(callback)
+        for number, handler in handlers.items():
+            signal.signal(number, handler)
+    assert sent
+
+
 @pytest.mark.unit
 @pytest.mark.parametrize(
     ("config", "setting", "message"),
