@@ -36,7 +36,8 @@ from panda_grasp_env.agents.policies.towers import build_tower, push_tower  # no
 from panda_grasp_env.control.controller import wrap_gripper_yaw  # noqa: E402
 from panda_grasp_env.geometry import yaw_quaternion  # noqa: E402
 from panda_grasp_env.model.scene import SceneConfig  # noqa: E402
-from panda_grasp_env.primitives.parameters import PrimitiveSettings, primitive_parameters  # noqa: E402
+from panda_grasp_env.primitives.parameters import PrimitiveSettings  # noqa: E402
+from panda_grasp_env.primitives.registry import Aim  # noqa: E402
 from panda_grasp_env.primitives.top_down import grasp, push  # noqa: E402
 from panda_grasp_env.sim.motion import WORKSPACE  # noqa: E402
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
@@ -171,7 +172,7 @@ def push_precision(trials: int, scene: SceneConfig, distance: float = 0.2, gap: 
         cell.clear()
         cell.set_body_pose(block, np.array([*centre, cell.config.block_size / 2]), yaw_quaternion(yaw))
         cell.settle(0.2)
-        z = primitive_parameters(cell, settings, "push", *start, heading, None)[2]
+        z = Aim("push", *start, heading).parameters(cell, settings).z
         rows.append(watched_push(cell, block, start, z, heading, distance))
     # The block should end up the stroke less the gap, plus the block's and the fingers' half thickness ahead.
     expected = 1e3 * (distance - gap + cell.config.block_size / 2)
