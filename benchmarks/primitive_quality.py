@@ -32,7 +32,7 @@ import panda_grasp_env  # noqa: E402, F401  (first: it chooses MUJOCO_GL before 
 import numpy as np  # noqa: E402
 
 from benchmarks._common import Results, rate  # noqa: E402
-from panda_grasp_env.agents.policies.towers import build_tower, push_tower  # noqa: E402
+from panda_grasp_env.agents.policies.towers import build_tower, on_workcell, push_tower  # noqa: E402
 from panda_grasp_env.control.controller import wrap_gripper_yaw  # noqa: E402
 from panda_grasp_env.geometry import yaw_quaternion  # noqa: E402
 from panda_grasp_env.model.scene import SceneConfig  # noqa: E402
@@ -71,7 +71,7 @@ def oracle_towers(trials: int) -> dict:
     built, yaw_errors, actions, failures = 0, [], [], Counter()
     for seed in range(trials):
         cell.reset(np.random.default_rng(seed), "scattered")
-        outcome = build_tower(cell)
+        outcome = build_tower(cell, on_workcell(cell))
         built += outcome.success
         actions.append(len(outcome.steps))
         if outcome.success:
@@ -95,7 +95,7 @@ def pushes(trials: int) -> dict:
         for seed in range(trials):
             cell.reset(np.random.default_rng(10_000 * (offset + 1) + seed), "tower")
             centre = tower_footprint_centre(cell.block_positions())
-            push_tower(cell, direction)
+            push_tower(cell, on_workcell(cell), direction)
             cell.wait(1.0)
             displaced = blocks_displaced(cell.block_positions(), centre, cell.config.block_size)
             displaced_counts.append(displaced)
@@ -201,8 +201,8 @@ def determinism() -> dict:
 
     def run(seed: int) -> np.ndarray:
         cell.reset(np.random.default_rng(seed), "scattered")
-        build_tower(cell)
-        push_tower(cell, "+x")
+        build_tower(cell, on_workcell(cell))
+        push_tower(cell, on_workcell(cell), "+x")
         return np.concatenate([cell.data.qpos, cell.data.qvel]).copy()
 
     first, _, second = run(3), run(4), run(3)

@@ -4,7 +4,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from panda_grasp_env.agents.policies.towers import build_tower, push_tower
+from panda_grasp_env.agents.policies.towers import build_tower, on_workcell, push_tower
 from panda_grasp_env.control.controller import wrap_gripper_yaw
 from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.model.robot import HOME_QPOS
@@ -65,7 +65,7 @@ def test_place_without_holding_fails_cleanly(cell):
 
 def test_oracle_builds_a_tower(cell):
     cell.reset(np.random.default_rng(5), "scattered")
-    outcome = build_tower(cell)
+    outcome = build_tower(cell, on_workcell(cell))
     assert outcome.success and len(outcome.steps) == 6
     assert outcome.max_yaw_error_deg < 3.0
 
@@ -75,7 +75,7 @@ def test_oracle_builds_a_tower(cell):
 def test_push_knocks_the_tower_over(cell, direction):
     cell.reset(np.random.default_rng(9), "tower")
     centre = cell.block_positions()[0, :2].copy()
-    result = push_tower(cell, direction)
+    result = push_tower(cell, on_workcell(cell), direction)
     cell.wait(1.0)
     assert result.success
     assert blocks_displaced(cell.block_positions(), centre, cell.config.block_size) >= 2
