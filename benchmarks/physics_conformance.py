@@ -34,7 +34,8 @@ import numpy as np  # noqa: E402
 from benchmarks._common import machine  # noqa: E402
 from panda_grasp_env.geometry import yaw_quaternion  # noqa: E402
 from panda_grasp_env.model.scene import SceneConfig  # noqa: E402
-from panda_grasp_env.primitives.parameters import PrimitiveSettings, primitive_parameters  # noqa: E402
+from panda_grasp_env.primitives.parameters import PrimitiveSettings  # noqa: E402
+from panda_grasp_env.primitives.registry import Aim  # noqa: E402
 from panda_grasp_env.primitives.top_down import push  # noqa: E402
 from panda_grasp_env.sim.workcell import Workcell  # noqa: E402
 from panda_grasp_env.tooling.runs import write_atomically  # noqa: E402
@@ -96,7 +97,7 @@ def watched_push(cell: Workcell, heading: float) -> tuple[float, float]:
 
     cell.physics.add_observer(watch)
     try:
-        height = primitive_parameters(cell, SETTINGS, "push", *start, heading, None)[2]
+        height = Aim("push", *start, heading).parameters(cell, SETTINGS).z
         push(cell, *start, height, heading, 0.15)
     finally:
         cell.physics.remove_observer(watch)

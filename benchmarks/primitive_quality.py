@@ -32,11 +32,12 @@ import panda_grasp_env  # noqa: E402, F401  (first: it chooses MUJOCO_GL before 
 import numpy as np  # noqa: E402
 
 from benchmarks._common import Results, rate  # noqa: E402
-from panda_grasp_env.agents.policies.towers import build_tower, push_tower  # noqa: E402
+from panda_grasp_env.agents.policies.towers import build_tower, on_workcell, push_tower  # noqa: E402
 from panda_grasp_env.control.controller import wrap_gripper_yaw  # noqa: E402
 from panda_grasp_env.geometry import yaw_quaternion  # noqa: E402
 from panda_grasp_env.model.scene import SceneConfig  # noqa: E402
-from panda_grasp_env.primitives.parameters import PrimitiveSettings, primitive_parameters  # noqa: E402
+from panda_grasp_env.primitives.parameters import PrimitiveSettings  # noqa: E402
+from panda_grasp_env.primitives.registry import Aim  # noqa: E402
 from panda_grasp_env.primitives.top_down import grasp, push  # noqa: E402
 from panda_grasp_env.sim.motion import WORKSPACE  # noqa: E402
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre  # noqa: E402
@@ -70,7 +71,7 @@ def oracle_towers(trials: int) -> dict:
     built, yaw_errors, actions, failures = 0, [], [], Counter()
     for seed in range(trials):
         cell.reset(np.random.default_rng(seed), "scattered")
-        outcome = build_tower(cell)
+        outcome = build_tower(cell, on_workcell(cell))
         built += outcome.success
         actions.append(len(outcome.steps))
         if outcome.success:
@@ -94,7 +95,7 @@ def pushes(trials: int) -> dict:
         for seed in range(trials):
             cell.reset(np.random.default_rng(10_000 * (offset + 1) + seed), "tower")
             centre = tower_footprint_centre(cell.block_positions())
-            push_tower(cell, direction)
+            push_tower(cell, on_workcell(cell), direction)
             cell.wait(1.0)
             displaced = blocks_displaced(cell.block_positions(), centre, cell.config.block_size)
             displaced_counts.append(displaced)
@@ -171,7 +172,7 @@ def push_precision(trials: int, scene: SceneConfig, distance: float = 0.2, gap: 
         cell.clear()
         cell.set_body_pose(block, np.array([*centre, cell.config.block_size / 2]), yaw_quaternion(yaw))
         cell.settle(0.2)
-        z = primitive_parameters(cell, settings, "push", *start, heading, None)[2]
+        z = Aim("push", *start, heading).parameters(cell, settings).z
         rows.append(watched_push(cell, block, start, z, heading, distance))
     # The block should end up the stroke less the gap, plus the block's and the fingers' half thickness ahead.
     expected = 1e3 * (distance - gap + cell.config.block_size / 2)
@@ -200,8 +201,8 @@ def determinism() -> dict:
 
     def run(seed: int) -> np.ndarray:
         cell.reset(np.random.default_rng(seed), "scattered")
-        build_tower(cell)
-        push_tower(cell, "+x")
+        build_tower(cell, on_workcell(cell))
+        push_tower(cell, on_workcell(cell), "+x")
         return np.concatenate([cell.data.qpos, cell.data.qvel]).copy()
 
     first, _, second = run(3), run(4), run(3)

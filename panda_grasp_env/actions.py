@@ -37,9 +37,15 @@ from panda_grasp_env.control.controller import JacobianServo, JointTargets
 from panda_grasp_env.geometry import is_count
 from panda_grasp_env.model.robot import FINGER_OPEN, HOME_YAW
 from panda_grasp_env.perception.heightmap import HeightmapGrid
-from panda_grasp_env.primitives.parameters import PrimitiveSettings, primitive_parameters
+from panda_grasp_env.primitives.parameters import (
+    MIN_GRASP_HEIGHT,
+    PoseGraspParameters,
+    PrimitiveSettings,
+    to_normalised,
+    to_world,
+)
+from panda_grasp_env.primitives.registry import PRIMITIVES, Aim, Target, run
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.primitives.top_down import MIN_GRASP_HEIGHT, run_primitive
 from panda_grasp_env.sim.motion import WORKSPACE
 from panda_grasp_env.sim.workcell import Workcell
 
@@ -69,10 +75,6 @@ def validate_box_action(action: Any, space: gym.spaces.Box) -> tuple[np.ndarray,
     return clipped, int(np.count_nonzero(clipped != array))
 
 
-#: Heights (metres) the z component of a ``primitive`` action spans, with ``primitive_z=True``.
-PRIMITIVE_Z_RANGE = (0.0, 0.3)
-
-
 def encode_primitive(
     primitives: tuple[str, ...] | list[str],
     with_z: bool,
@@ -90,14 +92,9 @@ def encode_primitive(
     if name not in primitives:
         raise ValueError(f"primitive {name!r} not available here; valid: {list(primitives)}")
     scores = [1.0 if p == name else -1.0 for p in primitives] if len(primitives) > 1 else []
-    position = [
-        2 * (x - WORKSPACE[0, 0]) / np.ptp(WORKSPACE[0]) - 1,
-        2 * (y - WORKSPACE[1, 0]) / np.ptp(WORKSPACE[1]) - 1,
-    ]
-    if with_z:
-        if z is None:
-            raise ValueError("this env's primitive actions include z: pass z")
-        position.append(2 * (z - PRIMITIVE_Z_RANGE[0]) / (PRIMITIVE_Z_RANGE[1] - PRIMITIVE_Z_RANGE[0]) - 1)
+    if with_z and z is None:
+        raise ValueError("this env's primitive actions include z: pass z")
+    position = to_normalised([x, y, z] if with_z else [x, y])
     wrapped_yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
     return np.array([*scores, *position, wrapped_yaw / np.pi], dtype=np.float32)
 
@@ -171,10 +168,6 @@ class PrimitiveActions(ActionMode):
         size = self.n_scores + (4 if settings.with_z else 3)
         self.space = gym.spaces.Box(-1.0, 1.0, (size,), dtype=np.float32)
 
-    @staticmethod
-    def _scale(value: float, low: float, high: float) -> float:  # [-1, 1] -> [low, high]
-        return low + (value + 1.0) / 2.0 * (high - low)
-
     def layout(self) -> dict[str, Any]:
         settings = self.settings
         return {
@@ -184,24 +177,21 @@ class PrimitiveActions(ActionMode):
             "push_distance": settings.push_distance,
         }
 
-    def decode(self, action: np.ndarray) -> tuple[str, float, float, float | None, float]:
-        """(primitive, x, y, z or None, yaw) in world units from a validated action."""
+    def decode(self, action: np.ndarray) -> Aim:
+        """Where a validated action points its primitive, in world units (z None: the scene's height)."""
         primitives = self.settings.primitives
         name = primitives[int(np.argmax(action[: self.n_scores]))] if self.n_scores else primitives[0]
         rest = action[self.n_scores :]
-        x = self._scale(rest[0], *WORKSPACE[0])
-        y = self._scale(rest[1], *WORKSPACE[1])
-        z = self._scale(rest[2], *PRIMITIVE_Z_RANGE) if self.settings.with_z else None
-        yaw = float(rest[-1]) * np.pi
-        return name, x, y, z, yaw
+        position = to_world(rest[:-1])  # x, y[, z]
+        z = position[2] if self.settings.with_z else None
+        return Aim(name, position[0], position[1], float(rest[-1]) * np.pi, z)
 
     def encode(self, name: str, x: float, y: float, yaw: float, z: float | None = None) -> np.ndarray:
         """The action that runs primitive ``name`` at world (x, y[, z]) metres with heading ``yaw`` radians."""
         return encode_primitive(self.settings.primitives, self.settings.with_z, name, x, y, yaw, z)
 
     def execute(self, cell: Workcell, action: np.ndarray) -> PrimitiveResult:
-        name, x, y, z, yaw = self.decode(action)
-        return run_primitive(cell, name, primitive_parameters(cell, self.settings, name, x, y, yaw, z))
+        return run(cell, self.decode(action).parameters(cell, self.settings))
 
 
 class PixelActions(ActionMode):
@@ -250,29 +240,25 @@ class PixelActions(ActionMode):
             raise ValueError(f"pixel action {index} outside [0, {self.space.n})")
         return index, 0
 
-    def decode(self, index: int) -> tuple[str, float, float, float]:
-        """(primitive, x, y, yaw) of an action index."""
+    def decode(self, index: int) -> Aim:
+        """Where an action index points its primitive: the cell's centre and the rotation's heading."""
         p, r, row, col = np.unravel_index(index, self.shape)
         x, y = self.grid.cell_centres(row, col)
-        return self.settings.primitives[p], float(x), float(y), 2 * np.pi * r / self.rotations
+        return Aim(self.settings.primitives[p], float(x), float(y), 2 * np.pi * r / self.rotations)
 
     def execute(self, cell: Workcell, action: int) -> PrimitiveResult:
-        name, x, y, yaw = self.decode(action)
-        return run_primitive(cell, name, primitive_parameters(cell, self.settings, name, x, y, yaw, None))
+        return run(cell, self.decode(action).parameters(cell, self.settings))
 
     def action_masks(self, holding: bool) -> np.ndarray:
         """Boolean mask over the flat action space (True = allowed)."""
         occupied = (self.heightmap() > self.OCCUPIED).astype(np.uint8)
         radius = max(1, int(round(self.NEAR / self.grid.resolution)))
         near = cv2.dilate(occupied, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2)).astype(bool)
+        where = {Target.ANYWHERE: True, Target.OBJECT: occupied.astype(bool), Target.NEAR_OBJECT: near}
         masks = np.zeros(self.shape, dtype=bool)
         for p, name in enumerate(self.settings.primitives):
-            if name == "place":
-                masks[p] = holding
-            elif name == "grasp":
-                masks[p] = occupied.astype(bool) & (not holding)
-            else:  # push, impulse
-                masks[p] = near & (not holding)
+            primitive = PRIMITIVES[name]  # a load in the hand to place, else an empty hand
+            masks[p] = where[primitive.target] & (holding == primitive.needs_load)
         if not masks.any():
             masks[:] = True  # nothing sensible to do: let the agent act anyway
         return masks.ravel()
@@ -412,30 +398,22 @@ class GraspPoseActions(ActionMode):
             )
         return array, clipped
 
-    def execute(self, cell: Workcell, action: np.ndarray) -> PrimitiveResult:
-        position = np.array(
-            [
-                PrimitiveActions._scale(action[0], *WORKSPACE[0]),
-                PrimitiveActions._scale(action[1], *WORKSPACE[1]),
-                PrimitiveActions._scale(action[2], *PRIMITIVE_Z_RANGE),
-            ]
-        )
+    def decode(self, action: np.ndarray) -> PoseGraspParameters:
+        """The grasp pose of a validated action."""
         quaternion = action[3:] / np.linalg.norm(action[3:])
         rotation = np.zeros(9)
         mujoco.mju_quat2Mat(rotation, quaternion)
-        return self.stack.grasp(cell, position, rotation.reshape(3, 3))
+        return PoseGraspParameters(to_world(action[:3]), rotation.reshape(3, 3))
+
+    def execute(self, cell: Workcell, action: np.ndarray) -> PrimitiveResult:
+        return self.stack.grasp(cell, self.decode(action))
 
 
 def encode_grasp_pose(position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """A ``grasp_pose``-mode action for the grasp site at ``position`` (world, metres) with ``rotation`` (3, 3)."""
     quaternion = np.zeros(4)
     mujoco.mju_mat2Quat(quaternion, np.asarray(rotation, dtype=float).ravel())
-    scaled = [
-        2 * (position[0] - WORKSPACE[0, 0]) / np.ptp(WORKSPACE[0]) - 1,
-        2 * (position[1] - WORKSPACE[1, 0]) / np.ptp(WORKSPACE[1]) - 1,
-        2 * (position[2] - PRIMITIVE_Z_RANGE[0]) / (PRIMITIVE_Z_RANGE[1] - PRIMITIVE_Z_RANGE[0]) - 1,
-    ]
-    return np.array([*scaled, *quaternion], dtype=np.float32)
+    return np.array([*to_normalised(position[:3]), *quaternion], dtype=np.float32)
 
 
 #: Every action mode by name.

@@ -21,7 +21,7 @@ from panda_grasp_env.model.robot import HOME_YAW
 from panda_grasp_env.model.scene import CAMERA_NAMES
 from panda_grasp_env.observations import ObservationBuilder, Sensors
 from panda_grasp_env.perception.camera import CameraModel
-from panda_grasp_env.primitives.result import COUNTERS
+from panda_grasp_env.primitives.registry import COUNTERS, count
 from panda_grasp_env.randomization import DomainRandomizer
 from panda_grasp_env.registration import make_task
 from panda_grasp_env.sim.rendering import RENDER_MODES, EnvRenderer, advertised_render_modes
@@ -174,7 +174,7 @@ class PandaEnv(gym.Env):
             verdict = TaskStep(-1.0 if self.goal_conditioned else 0.0, False, False)
         self.sensors.invalidate()
         if result is not None:
-            result.count(self._counters)
+            count(result, self._counters)
         info = {
             "is_success": verdict.success,
             **verdict.info,

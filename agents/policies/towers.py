@@ -3,13 +3,15 @@
 The tower agents perceive blocks in the env's depth images (``DepthBlocks``: by shape, colour not read, so
 all blocks may look alike; ``CameraBlocks`` finds blocks by colour, for tasks that name one by its colour) --
 or, in the ``Oracle*`` variants, read the simulator's true block poses -- and act through the env's
-``primitive`` action mode.  ``build_tower`` and ``push_tower`` are the same skills as scripts on a bare
-``Workcell`` (true poses: the demo of the simulation core and the primitive benchmarks), whose failures
-are the primitives' own.  World frame, metres, radians.
+``primitive`` action mode.  ``build_tower`` and ``push_tower`` are the same skills as scripts on true poses
+(the demo of the simulation core and the primitive benchmarks), whose failures are the primitives' own;
+they act through ``env.step`` (``through_env``: the demo) or, to measure the primitives alone, straight on
+a workcell (``on_workcell``: the primitive benchmarks).  World frame, metres, radians.
 """
 
 from __future__ import annotations
 
+import functools
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,8 +29,14 @@ from panda_grasp_env.perception.pose import (
     follow_blocks,
     wrap_quarter,
 )
+from panda_grasp_env.primitives.parameters import (
+    GraspParameters,
+    PlaceParameters,
+    PushParameters,
+    TopDownParameters,
+)
+from panda_grasp_env.primitives.registry import run
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.primitives.top_down import grasp, place, push
 from panda_grasp_env.sim.stacking import (
     clearest_grasp_heading,
     tower_footprint_centre,
@@ -321,12 +329,47 @@ register_baseline("TowerBreak", "TowerBreakDirectional")(block_baseline(TowerBre
 register_baseline("BuildAndBreak")(block_baseline(BuildAndBreakAgent, DepthBlocks))
 
 
-# --- scripts on a bare workcell (true poses) ---------------------------------------------------
+# --- scripts on true poses ---------------------------------------------------------------------
+
+#: How a script acts: it runs one primitive's parameters and says what came of it.
+Act = Callable[[TopDownParameters], PrimitiveResult]
+
+
+def through_env(env: gym.Env) -> Act:
+    """Act through ``env.step`` of an env in the ``primitive`` action mode: the parameters written as its action
+    (the heights too where the env takes them, ``primitive_z=True``; else the env reads them from the scene),
+    the step's ``info`` read back as the result.  A push is the env's ``push_distance`` long: a script's push of
+    another length raises ``ValueError``."""
+    actions = env.unwrapped.actions
+    push_distance = actions.settings.push_distance
+
+    def act(parameters: TopDownParameters) -> PrimitiveResult:
+        if isinstance(parameters, PushParameters) and parameters.distance != push_distance:
+            raise ValueError(
+                f"this env pushes {push_distance} m, not {parameters.distance}: make it with that push_distance"
+            )
+        x, y, z, yaw = parameters.x, parameters.y, parameters.z, parameters.yaw
+        info = env.step(actions.encode(parameters.primitive, x, y, yaw, z))[4]
+        return PrimitiveResult(
+            info["primitive"],
+            info["primitive_success"],
+            info["primitive_reason"],
+            info["primitive_sim_time"],
+            object=info["primitive_object"] or None,
+        )
+
+    return act
+
+
+def on_workcell(cell: Workcell) -> Act:
+    """Run the primitives straight on ``cell``: the primitives alone, without an env's actions or task (the
+    primitive benchmarks)."""
+    return functools.partial(run, cell)
 
 
 @dataclass
 class TowerOutcome:
-    """What a workcell-level tower build achieved, primitive by primitive."""
+    """What a scripted tower build achieved, primitive by primitive."""
 
     success: bool
     base: str
@@ -336,8 +379,9 @@ class TowerOutcome:
     max_yaw_error_deg: float = float("nan")
 
 
-def build_tower(cell: Workcell) -> TowerOutcome:
-    """Stack every block on the one nearest the workspace centre, yaw-aligned to it."""
+def build_tower(cell: Workcell, act: Act) -> TowerOutcome:
+    """Stack every block of ``cell`` on the one nearest the workspace centre, yaw-aligned to it, acting with
+    ``act``."""
     positions = cell.block_positions()
     base = int(np.argmin(np.linalg.norm(positions[:, :2] - [0.5, 0.0], axis=1)))
     base_xy, base_yaw = positions[base, :2].copy(), float(cell.block_yaws()[base])
@@ -346,14 +390,14 @@ def build_tower(cell: Workcell) -> TowerOutcome:
     for index in (i for i in range(len(positions)) if i != base):
         current = cell.block_positions()
         heading = clearest_grasp_heading(current, index, float(cell.block_yaws()[index]))
-        result = grasp(cell, *current[index], heading)
+        result = act(GraspParameters(*current[index], heading))
         outcome.steps.append(result)
         if not result.success:
             return outcome
         # Turn the hand so the held block's yaw matches the base's (modulo 90 degrees).
         held_relative_yaw = float(wrap_quarter_turn(cell.block_yaws()[index] - cell.robot.ee_yaw))
         top = cell.block_positions()[stacked, 2].max() + cell.config.block_size / 2
-        result = place(cell, base_xy[0], base_xy[1], top, base_yaw - held_relative_yaw)
+        result = act(PlaceParameters(base_xy[0], base_xy[1], top, base_yaw - held_relative_yaw))
         outcome.steps.append(result)
         if not result.success:
             return outcome
@@ -363,8 +407,9 @@ def build_tower(cell: Workcell) -> TowerOutcome:
     return outcome
 
 
-def push_tower(cell: Workcell, direction: str, distance: float = 0.16) -> PrimitiveResult:
-    """Push the standing tower with the closed gripper at mid-height, towards ``direction`` (one of BREAK_DIRECTIONS)."""
+def push_tower(cell: Workcell, act: Act, direction: str, distance: float = 0.16) -> PrimitiveResult:
+    """Push the standing tower of ``cell`` with the closed gripper at mid-height, towards ``direction`` (one of
+    BREAK_DIRECTIONS), ``distance`` metres, acting with ``act``."""
     if direction not in BREAK_DIRECTIONS:
         raise ValueError(f"unknown push direction {direction!r}; valid: {list(BREAK_DIRECTIONS)}")
     centre = tower_footprint_centre(cell.block_positions())
@@ -372,4 +417,4 @@ def push_tower(cell: Workcell, direction: str, distance: float = 0.16) -> Primit
     unit = np.array([np.cos(heading), np.sin(heading)])
     start = centre - unit * (cell.config.block_size / 2 + 0.04)
     height = min(cell.block_positions()[:, 2].max() / 2 + 0.01, 0.12)
-    return push(cell, start[0], start[1], height, heading, distance)
+    return act(PushParameters(start[0], start[1], height, heading, distance))

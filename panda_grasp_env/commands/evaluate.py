@@ -38,7 +38,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+import gymnasium as gym
 
 from panda_grasp_env.agents.evaluation.benchmarks import BENCHMARKS, default_benchmarks
 from panda_grasp_env.agents.evaluation.episodes import close_kept_env
@@ -51,41 +51,46 @@ from panda_grasp_env.agents.evaluation.protocol import (
 )
 from panda_grasp_env.agents.evaluation.report import results_table, videos, write_report, write_results
 from panda_grasp_env.agents.evaluation.runner import run_episodes
-from panda_grasp_env.agents.policies.towers import build_tower, push_tower
+from panda_grasp_env.agents.policies.towers import build_tower, push_tower, through_env
 from panda_grasp_env.commands.results_figures import save_pngs
 from panda_grasp_env.commands.results_page import write_page
 from panda_grasp_env.sim.stacking import blocks_displaced, tower_footprint_centre
-from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_yaml
 from panda_grasp_env.tooling.runs import interrupt_on_signals
 from panda_grasp_env.tooling.video import VideoRecorder
 
+#: The demo's env: its primitives are grasp, place and push, and the script gives the heights.
+DEMO_ENV = "panda_grasp_env:PandaBuildAndBreak-v0"
+
 
 def demo(args: argparse.Namespace) -> int:
-    """An oracle builds a 4-block tower with grasp and place primitives and pushes it over (MP4 + summary)."""
+    """An oracle builds a 4-block tower with grasp and place primitives and pushes it over, every primitive an
+    ``env.step`` of ``DEMO_ENV`` (MP4 + summary)."""
     args.out.mkdir(parents=True, exist_ok=True)
-    cell = Workcell()
-    cell.reset(np.random.default_rng(args.seed), "scattered")
+    env = gym.make(DEMO_ENV, action_mode="primitive", primitive_z=True, push_distance=0.16)
+    env.reset(seed=args.seed)
+    cell, act = env.unwrapped.cell, through_env(env)
     recorder = None if args.no_video else VideoRecorder(cell, args.out / "demo.mp4", width=640, height=480)
     start = time.perf_counter()
     try:
         if recorder:
             recorder.caption = "build: oracle grasp + place"
-        build = build_tower(cell)
+        build = build_tower(cell, act)
         for step in build.steps:
             print(f"  {step.primitive:6s} {step.object or '':13s} {step.reason:12s} {step.sim_time:5.2f} s simulated")
         print(f"tower built: {build.success} (max yaw error {build.max_yaw_error_deg:.2f} deg)")
         centre = tower_footprint_centre(cell.block_positions())
         if recorder:
             recorder.caption = f"break: push {args.push}"
-        push_result = push_tower(cell, args.push)
-        cell.wait(1.5)
+        push_result = push_tower(cell, act, args.push)
+        cell.wait(1.5)  # the blocks come to rest before they are counted: no action, the scene alone
         displaced = blocks_displaced(cell.block_positions(), centre, cell.config.block_size)
         print(f"push {args.push}: {push_result.reason}, {displaced} blocks displaced")
     finally:
         if recorder:
             video = recorder.save()
             print(f"video: {video} ({recorder.frames_written} frames)")
+        env.close()
     summary = {
         "seed": args.seed,
         "tower_built": build.success,

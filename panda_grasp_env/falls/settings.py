@@ -12,9 +12,9 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 from pydantic.dataclasses import dataclass
 
-from panda_grasp_env.actions import PRIMITIVE_Z_RANGE
 from panda_grasp_env.config_fields import Seed, distinct
 from panda_grasp_env.model.scene import SceneConfig
+from panda_grasp_env.primitives.parameters import PRIMITIVE_Z_RANGE
 from panda_grasp_env.tasks.base import TOWER_BLOCKS
 from panda_grasp_env.tooling.runs import config_value_error
 

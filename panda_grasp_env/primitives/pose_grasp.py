@@ -22,8 +22,8 @@ import numpy as np
 from panda_grasp_env.control.controller import JointTargets
 from panda_grasp_env.control.ik import PoseIK, ToleranceSampler
 from panda_grasp_env.control.planning import MotionPlanner, time_parametrise
-from panda_grasp_env.primitives.result import HOLD_TIME, PrimitiveResult, closed_on, lifted_and_held, record_collateral
-from panda_grasp_env.sim.stepping import PhysicsError
+from panda_grasp_env.primitives.parameters import PoseGraspParameters
+from panda_grasp_env.primitives.result import HOLD_TIME, PrimitiveResult, closed_on, lifted_and_held, run_motion
 from panda_grasp_env.sim.workcell import Workcell
 
 PRE_GRASP = 0.10  # metres back along the approach axis
@@ -33,7 +33,8 @@ TRANSIT_SPEED, APPROACH_SPEED = 0.5, 0.15
 
 
 class MotionStack:
-    """IK, planner and timing for one workcell; ``grasp`` executes a 6-DOF grasp pose on it."""
+    """IK, planner and timing for one workcell; ``grasp`` executes a 6-DOF grasp pose on it.  Its waits keep
+    the arm's joint targets (``keep_joint_targets``): the Cartesian controller would turn the hand top-down."""
 
     def __init__(self, cell: Workcell, planner: str = "RRTConnect", seed: int = 0, time_limit: float = 2.0) -> None:
         self.ik = PoseIK(cell.config)
@@ -57,24 +58,9 @@ class MotionStack:
                 break
             cell.physics.control_step(None)
 
-    @staticmethod
-    def _hold(cell: Workcell, seconds: float, until_fingers_stop: bool = False) -> None:
-        """Keep the arm's joint targets for ``seconds`` (the Cartesian controller would turn the hand
-        top-down), optionally stopping once the fingers have stopped."""
-        still = 0
-        for _ in range(max(1, round(seconds / cell.physics.control_dt))):
-            cell.physics.control_step(None)
-            still = still + 1 if cell.robot.finger_speed < 2e-3 else 0
-            if until_fingers_stop and still >= 3:
-                break
-
-    def _gripper(self, cell: Workcell, close: bool) -> None:
-        cell.robot.close_gripper() if close else cell.robot.open_gripper()
-        self._hold(cell, 0.8, until_fingers_stop=True)
-
     def _fail(self, cell: Workcell, reason: str, retreat: tuple[np.ndarray, np.ndarray] | None, obj: str | None = None):
         """Open, back out along the approach, go home; report ``reason``."""
-        self._gripper(cell, close=False)
+        cell.actuate_gripper(close=False, keep_joint_targets=True)
         if retreat is not None:
             self._follow(cell, self._line(cell, *retreat, APPROACH_SPEED))
         cell.motion.move_home()
@@ -83,19 +69,15 @@ class MotionStack:
     def _line(self, cell: Workcell, start: np.ndarray, end: np.ndarray, speed: float) -> np.ndarray:
         return time_parametrise(np.array([start, end]), self.max_velocity * speed, cell.physics.control_dt)
 
-    def grasp(self, cell: Workcell, position: np.ndarray, rotation: np.ndarray) -> PrimitiveResult:
-        """Grasp with the grasp site at ``position`` (world, metres) and orientation ``rotation`` (3, 3)."""
-        start_time, start_steps = cell.sim_time, cell.physics.steps
-        below = cell.fixtures.below(float(position[0]), float(position[1]))
-        cell.collateral.begin(() if below is None else (below,))
-        try:
-            result = self._grasp(cell, np.asarray(position, float), np.asarray(rotation, float))
-        except PhysicsError:
-            result = PrimitiveResult("grasp", False, "physics_error")
+    def grasp(self, cell: Workcell, parameters: PoseGraspParameters) -> PrimitiveResult:
+        """Grasp with the grasp site at ``parameters.position`` (world, metres) and orientation
+        ``parameters.rotation`` (3, 3), through ``run_motion`` as every primitive."""
+        return run_motion(cell, parameters, self._motion)
+
+    def _motion(self, cell: Workcell, parameters: PoseGraspParameters) -> PrimitiveResult:
+        result = self._grasp(cell, parameters.position, parameters.rotation)
         if result.object is not None:
             result.targets = {cell.model.body(result.object).id}
-        record_collateral(cell, result)
-        result.sim_time, result.physics_steps = cell.sim_time - start_time, cell.physics.steps - start_steps
         return result
 
     def _grasp(self, cell: Workcell, position: np.ndarray, rotation: np.ndarray) -> PrimitiveResult:
@@ -119,7 +101,7 @@ class MotionStack:
         plan = self.planner.plan(current, at_pre.qpos, self.time_limit)
         if not plan.success:
             return PrimitiveResult("grasp", False, "no_plan")
-        self._gripper(cell, close=False)
+        cell.actuate_gripper(close=False, keep_joint_targets=True)
         self._follow(cell, time_parametrise(plan.path, self.max_velocity * TRANSIT_SPEED, cell.physics.control_dt))
         with cell.collateral.work():  # approach, close, retreat, lift: the rest (planned path, home) is transit
             return self._close_and_lift(cell, at_grasp.qpos, at_pre.qpos, at_lift.qpos)
@@ -128,14 +110,14 @@ class MotionStack:
         self, cell: Workcell, at_grasp: np.ndarray, at_pre: np.ndarray, at_lift: np.ndarray
     ) -> PrimitiveResult:
         self._follow(cell, self._line(cell, at_pre, at_grasp, APPROACH_SPEED))
-        self._gripper(cell, close=True)
+        cell.actuate_gripper(close=True, keep_joint_targets=True)
         body = closed_on(cell)
         if body is None:
             return self._fail(cell, "missed", (cell.robot.joint_positions, at_pre))
         start_height = cell.data.xpos[body][2]
         self._follow(cell, self._line(cell, at_grasp, at_pre, APPROACH_SPEED))
         self._follow(cell, self._line(cell, at_pre, at_lift, TRANSIT_SPEED))
-        self._hold(cell, HOLD_TIME)
+        cell.wait(HOLD_TIME, keep_joint_targets=True)
         cell.controller.sync(cell.robot.joint_positions)  # later primitives start from here
         if not lifted_and_held(cell, body, start_height):
             return self._fail(cell, "dropped", None, cell.name_of(body))

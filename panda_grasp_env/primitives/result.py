@@ -1,10 +1,14 @@
-"""What a primitive reports, and the grasp check both grasp executors (top-down and 6-DOF) share."""
+"""What a primitive reports, and what every primitive's motion shares: the timing and collateral bookkeeping
+around it (``run_motion``) and the grasp check of both grasp motions (top-down and 6-DOF)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
+from panda_grasp_env.primitives.parameters import PrimitiveParameters
+from panda_grasp_env.sim.stepping import PhysicsError
 from panda_grasp_env.sim.workcell import Workcell
 
 MIN_LIFT = 0.05  # a grasp succeeds only if the object rose at least this much, metres
@@ -24,15 +28,6 @@ REASONS = (
     "no_plan",
     "no_contact",
 )
-#: The per-episode counters an env reports in ``info``: a primitive's attempts (and, where given, its
-#: successes) by primitive name.
-COUNTED = {
-    "grasp": ("grasps_attempted", "grasps_succeeded"),
-    "place": ("places", "places_succeeded"),
-    "push": ("pushes", None),
-    "impulse": ("impulses", None),
-}
-COUNTERS = tuple(name for names in COUNTED.values() for name in names if name is not None)
 
 
 @dataclass
@@ -48,7 +43,8 @@ class PrimitiveResult:
     physics_steps: int = 0
     #: Name of the object grasped / placed, if any.
     object: str | None = None
-    params: dict[str, float] = field(default_factory=dict)
+    #: The parameters it ran with, as its motion received them (None if it never ran).
+    parameters: PrimitiveParameters | None = None
     #: Body ids of what the primitive acted on: the object grasped (or aimed at) or placed; for pushes and
     #: impulses the piles (towers, heaps) of the objects struck.  Their motion is not collateral.
     targets: set[int] = field(default_factory=set)
@@ -60,14 +56,6 @@ class PrimitiveResult:
     transit_disturbed: list[str] = field(default_factory=list)
     #: Names of the objects other than the targets that moved (> 1 cm) or tipped over during the primitive.
     disturbed: list[str] = field(default_factory=list)
-
-    def count(self, counters: dict[str, int]) -> None:
-        """Add this primitive to an episode's ``COUNTERS``: one attempt, and one success if it succeeded."""
-        attempts, successes = COUNTED.get(self.primitive, (None, None))
-        if attempts is not None:
-            counters[attempts] += 1
-        if successes is not None:
-            counters[successes] += int(self.success)
 
     def info(self) -> dict[str, Any]:
         """The env's ``info`` entries of this primitive (seconds, names; collateral: see ``sim.collateral``)."""
@@ -112,3 +100,30 @@ def record_collateral(cell: Workcell, result: PrimitiveResult) -> None:
         result.success, result.reason = False, "collision"
     result.transit_disturbed = sorted(map(cell.name_of, record.transit_disturbed))
     result.disturbed = sorted(map(cell.name_of, record.disturbed))
+
+
+Parameters = TypeVar("Parameters", bound=PrimitiveParameters)
+
+
+def run_motion(
+    cell: Workcell, parameters: Parameters, motion: Callable[[Workcell, Parameters], PrimitiveResult]
+) -> PrimitiveResult:
+    """Run a primitive's ``motion`` with its ``parameters``, watched: the collateral watch (aimed at the fixture
+    under (x, y), ``Fixtures.below``: touching it is no collision) from the start to ``record_collateral``, the
+    simulated time and physics steps it took, and a divergence (``PhysicsError``) turned into a
+    ``"physics_error"`` result.  Every primitive, top-down or 6-DOF, runs through here."""
+    start_time, start_steps = cell.sim_time, cell.physics.steps
+    fixture = cell.fixtures.below(parameters.x, parameters.y)
+    cell.collateral.begin(set() if fixture is None else {fixture})
+    try:
+        result = motion(cell, parameters)
+    except PhysicsError:
+        result = PrimitiveResult(parameters.primitive, False, "physics_error")
+    except BaseException:
+        cell.collateral.cancel()
+        raise
+    record_collateral(cell, result)
+    result.sim_time = cell.sim_time - start_time
+    result.physics_steps = cell.physics.steps - start_steps
+    result.parameters = parameters
+    return result

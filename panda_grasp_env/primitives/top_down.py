@@ -1,10 +1,11 @@
 """Motion primitives in world coordinates, parametrised as in Visual Pushing and Grasping.
 
-``grasp(x, y, z, yaw)``, ``push(x, y, z, yaw, distance)`` and ``place(x, y, z, yaw)``
-each run a complete motion on a :class:`Workcell` and return a
-:class:`PrimitiveResult`.  They never raise for a bad *target* (outside the
-workspace, unreachable, blocked): the result says why it failed.  They raise
-``ValueError`` only for malformed arguments (NaN, wrong length, wrong type).
+``grasp(x, y, z, yaw)``, ``push(x, y, z, yaw, distance)``, ``place(x, y, z, yaw)`` and
+``impulse(x, y, z, yaw, magnitude)`` each run a complete motion on a :class:`Workcell` and return a
+:class:`PrimitiveResult`: each builds its parameters object (``primitives.parameters``: checked there) and
+runs its motion (``grasp_motion``, ...: what ``primitives.registry`` lists) through ``run_motion``.  They
+never raise for a bad *target* (outside the workspace, unreachable, blocked): the result says why it failed.
+They raise ``ValueError`` only for malformed arguments (NaN, inf, not a number, out of range).
 
 Positions are metres in the world frame; ``yaw`` is the heading (radians about
 world z) of the gripper's closing axis for grasp and place, and the direction
@@ -13,20 +14,22 @@ of motion for push.
 
 from __future__ import annotations
 
-import functools
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 import numpy as np
 
-from panda_grasp_env.geometry import is_number
-from panda_grasp_env.primitives.result import HOLD_TIME, PrimitiveResult, closed_on, lifted_and_held, record_collateral
+from panda_grasp_env.primitives.parameters import (
+    MIN_GRASP_HEIGHT,
+    GraspParameters,
+    ImpulseParameters,
+    PlaceParameters,
+    PushParameters,
+)
+from panda_grasp_env.primitives.result import HOLD_TIME, PrimitiveResult, closed_on, lifted_and_held, run_motion
 from panda_grasp_env.sim.extents import body_bottom_height, body_extent_along
 from panda_grasp_env.sim.motion import WORKSPACE
-from panda_grasp_env.sim.stepping import PhysicsError
 from panda_grasp_env.sim.workcell import Workcell
 
-#: Lowest grasp-site height: the fingertips reach 15 mm below the site.
-MIN_GRASP_HEIGHT = 0.02
 APPROACH_HEIGHT = 0.10  # pre-grasp / pre-place hover above the target, metres
 #: A place's hover may come down to this above its goal (metres) where the workspace's top leaves no room for
 #: ``APPROACH_HEIGHT``: the eighth block of a tower, its bottom at 0.35 m.  The transit comes in higher than the
@@ -43,55 +46,36 @@ PUSH_END_CORRECTIONS = 3  # times the stroke's goal moves on by what the hand st
 PUSH_BACK_OFF = 0.015  # metres the fingers back away along the stroke before rising
 
 
-def _check_number(primitive: str, name: str, value: float) -> float:
-    if not is_number(value):
-        raise ValueError(f"{primitive}: argument {name!r} must be a finite real number, got {value!r}")
-    return float(value)
-
-
 def _in_workspace(*points: np.ndarray) -> bool:
     return all(bool(np.all((p >= WORKSPACE[:, 0]) & (p <= WORKSPACE[:, 1]))) for p in points)
-
-
-def _timed(fn: Callable[..., PrimitiveResult]) -> Callable[..., PrimitiveResult]:
-    """Validate arguments, measure simulated time/steps and collateral, and turn divergence into a result."""
-    names = fn.__code__.co_varnames[1 : fn.__code__.co_argcount]
-
-    @functools.wraps(fn)
-    def wrapper(cell: Workcell, *args: float) -> PrimitiveResult:
-        if len(args) != len(names):
-            raise ValueError(f"{fn.__name__} takes {len(names)} arguments {list(names)}, got {len(args)}")
-        values = [_check_number(fn.__name__, n, v) for n, v in zip(names, args)]
-        start_time, start_steps = cell.sim_time, cell.physics.steps
-        cell.collateral.begin(_aimed_fixtures(cell, *values[:2]))
-        try:
-            result = fn(cell, *values)
-        except PhysicsError:
-            result = PrimitiveResult(fn.__name__, False, "physics_error")
-        except BaseException:
-            cell.collateral.cancel()
-            raise
-        record_collateral(cell, result)
-        result.sim_time = cell.sim_time - start_time
-        result.physics_steps = cell.physics.steps - start_steps
-        result.params = dict(zip(names, values))
-        return result
-
-    return wrapper
-
-
-def _aimed_fixtures(cell: Workcell, x: float, y: float) -> set[str]:
-    """The fixture a primitive at (x, y) works on or over (``Fixtures.below``): touching it is no collision."""
-    fixture = cell.fixtures.below(x, y)
-    return set() if fixture is None else {fixture}
 
 
 def _body_ids(*bodies: int | None) -> set[int]:
     return {int(b) for b in bodies if b is not None and b >= 0}
 
 
-@_timed
 def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> PrimitiveResult:
+    """Top-down grasp with the grasp site at (x, y, z) and closing axis at ``yaw`` (``grasp_motion``)."""
+    return run_motion(cell, GraspParameters(x, y, z, yaw), grasp_motion)
+
+
+def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> PrimitiveResult:
+    """Put the held object down with its centre over (x, y), its bottom on a surface at height ``z``
+    (``place_motion``)."""
+    return run_motion(cell, PlaceParameters(x, y, z, yaw), place_motion)
+
+
+def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: float) -> PrimitiveResult:
+    """Push from (x, y, z) in a straight line ``distance`` metres along heading ``yaw`` (``push_motion``)."""
+    return run_motion(cell, PushParameters(x, y, z, yaw, distance), push_motion)
+
+
+def impulse(cell: Workcell, x: float, y: float, z: float, yaw: float, magnitude: float) -> PrimitiveResult:
+    """Strike the free object nearest (x, y, z) with ``magnitude`` N s along heading ``yaw`` (``impulse_motion``)."""
+    return run_motion(cell, ImpulseParameters(x, y, z, yaw, magnitude), impulse_motion)
+
+
+def grasp_motion(cell: Workcell, parameters: GraspParameters) -> PrimitiveResult:
     """Top-down grasp with the grasp site at (x, y, z) and closing axis at ``yaw``.
 
     Open; transit to above (x, y) at the transit height; the work segment: come
@@ -103,6 +87,7 @@ def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     failure, so that the arm does not hide the table from the overhead camera.
     ``z`` is raised to ``MIN_GRASP_HEIGHT`` if lower.
     """
+    x, y, z, yaw = parameters.values()
     z = max(z, MIN_GRASP_HEIGHT)
     target = np.array([x, y, z])
     above = target + [0.0, 0.0, APPROACH_HEIGHT]
@@ -142,8 +127,7 @@ def grasp(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     )
 
 
-@_timed
-def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> PrimitiveResult:
+def place_motion(cell: Workcell, parameters: PlaceParameters) -> PrimitiveResult:
     """Put the held object down with its centre over (x, y) and its bottom on a surface at height ``z``.
 
     Transit above (x, y) at the transit height (the load hanging clear of
@@ -155,6 +139,7 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     centre within a quarter of the block size of (x, y) and its bottom within
     1 cm of ``z``.  ``yaw`` is the closing-axis heading during the place.
     """
+    x, y, z, yaw = parameters.values()
     body = cell.robot.body_between_fingers()
     if body is None:
         return PrimitiveResult("place", False, "not_holding")
@@ -194,8 +179,7 @@ def place(cell: Workcell, x: float, y: float, z: float, yaw: float) -> Primitive
     return PrimitiveResult("place", True, "ok", object=name, targets={body})
 
 
-@_timed
-def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: float) -> PrimitiveResult:
+def push_motion(cell: Workcell, parameters: PushParameters) -> PrimitiveResult:
     """Push with the closed gripper from (x, y, z) in a straight line ``distance`` metres along heading ``yaw``.
 
     The fingers' flat side faces the motion, and the hand keeps one heading from the transit to the retreat
@@ -209,8 +193,7 @@ def push(cell: Workcell, x: float, y: float, z: float, yaw: float, distance: flo
     tower the line misses by 10 cm.  ``"no_contact"``: the stroke touched nothing.  The targets are the
     piles the robot struck.
     """
-    if distance <= 0 or distance > 0.3:
-        raise ValueError(f"push: argument 'distance' must be in (0, 0.3] m, got {distance}")
+    x, y, z, yaw, distance = parameters.values()
     z = max(z, MIN_GRASP_HEIGHT)
     along = np.array([np.cos(yaw), np.sin(yaw), 0.0])
     start = np.array([x, y, z])
@@ -312,8 +295,7 @@ def push_line_targets(cell: Workcell, start: np.ndarray, end: np.ndarray) -> set
     return cell.collateral.pile(swept)
 
 
-@_timed
-def impulse(cell: Workcell, x: float, y: float, z: float, yaw: float, magnitude: float) -> PrimitiveResult:
+def impulse_motion(cell: Workcell, parameters: ImpulseParameters) -> PrimitiveResult:
     """Strike the free object nearest (x, y, z) with a horizontal impulse of ``magnitude`` N s along heading ``yaw``.
 
     The source study's way of toppling a tower: the robot does not move; the
@@ -321,8 +303,7 @@ def impulse(cell: Workcell, x: float, y: float, z: float, yaw: float, magnitude:
     ``IMPULSE_SETTLE`` seconds.  Fails with ``"missed"`` if no object centre is
     within 5 cm of the point.  The target is the struck object's pile.
     """
-    if not 0 < magnitude <= 1.0:
-        raise ValueError(f"impulse: argument 'magnitude' must be in (0, 1] N s, got {magnitude}")
+    x, y, z, yaw, magnitude = parameters.values()
     distances = np.linalg.norm(cell.object_positions() - [x, y, z], axis=1)
     nearest = int(np.argmin(distances))
     if distances[nearest] > 0.05:
@@ -337,19 +318,3 @@ def impulse(cell: Workcell, x: float, y: float, z: float, yaw: float, magnitude:
         cell.data.xfrc_applied[body] = 0.0
         cell.wait(IMPULSE_SETTLE)
     return PrimitiveResult("impulse", True, "ok", object=cell.name_of(body), targets=cell.collateral.pile({body}))
-
-
-PRIMITIVES: dict[str, Callable[..., PrimitiveResult]] = {
-    "grasp": grasp,
-    "push": push,
-    "place": place,
-    "impulse": impulse,
-}
-
-
-def run_primitive(cell: Workcell, name: str, params: Sequence[float]) -> PrimitiveResult:
-    """Run primitive ``name`` with a parameter vector (x, y, z, yaw[, distance or magnitude])."""
-    if name not in PRIMITIVES:
-        raise ValueError(f"unknown primitive {name!r}; valid: {sorted(PRIMITIVES)}")
-    values = np.asarray(params, dtype=float).ravel()
-    return PRIMITIVES[name](cell, *values.tolist())

@@ -169,20 +169,23 @@ class Workcell:
         return any(other in self.robot.body_ids for other in self.bodies_touching(body_id))
 
     # --- holding still ------------------------------------------------------
-    def wait(self, seconds: float) -> None:
-        """Keep the Cartesian controller's goal for ``seconds`` of simulated time."""
+    def wait(self, seconds: float, keep_joint_targets: bool = False) -> None:
+        """Keep the Cartesian controller's goal for ``seconds`` of simulated time; ``keep_joint_targets``: keep
+        the arm's joint targets instead (a hand not pointing down, which the controller would turn)."""
+        controller = None if keep_joint_targets else self.controller
         for _ in range(max(1, int(round(seconds / self.physics.control_dt)))):
-            self.physics.control_step(self.controller)
+            self.physics.control_step(controller)
 
-    def actuate_gripper(self, close: bool, timeout: float = 0.8) -> None:
-        """Open or close the gripper and wait until the fingers stop (or ``timeout`` seconds)."""
+    def actuate_gripper(self, close: bool, timeout: float = 0.8, keep_joint_targets: bool = False) -> None:
+        """Open or close the gripper and wait as ``wait`` does until the fingers stop (or ``timeout`` seconds)."""
         if close:
             self.robot.close_gripper()
         else:
             self.robot.open_gripper()
+        controller = None if keep_joint_targets else self.controller
         still = 0
         for _ in range(int(np.ceil(timeout / self.physics.control_dt))):
-            self.physics.control_step(self.controller)
+            self.physics.control_step(controller)
             still = still + 1 if self.robot.finger_speed < 2e-3 else 0
             if still >= 3:
                 break

@@ -137,7 +137,7 @@ def test_reference_speed_is_bounded(cell, rng):
 
 def test_ik_keeps_up_with_large_combined_moves(cell):
     """Regression: a 30 cm carry with a 78 degree turn once outran a 1.5 rad/s joint cap and sagged 12 cm."""
-    from panda_grasp_env.agents.policies.towers import build_tower
+    from panda_grasp_env.agents.policies.towers import build_tower, on_workcell
 
     errors = []
 
@@ -147,7 +147,7 @@ def test_ik_keeps_up_with_large_combined_moves(cell):
     cell.physics.add_observer(watch)
     try:
         cell.reset(np.random.default_rng(59), "scattered")
-        assert build_tower(cell).success
+        assert build_tower(cell, on_workcell(cell)).success
     finally:
         cell.physics.remove_observer(watch)
     assert max(errors) < 0.005

@@ -1,15 +1,18 @@
+import dataclasses
+
 import gymnasium as gym
 import numpy as np
 import pytest
 
-from panda_grasp_env.agents.policies.towers import build_tower, push_tower
+from panda_grasp_env.agents.policies.towers import build_tower, on_workcell, push_tower
 from panda_grasp_env.control.controller import wrap_gripper_yaw
 from panda_grasp_env.geometry import yaw_quaternion
 from panda_grasp_env.model.robot import HOME_QPOS
 from panda_grasp_env.model.scene import PUSH_FACE_HALF_SIZE, SceneConfig
-from panda_grasp_env.primitives.parameters import PrimitiveSettings, primitive_parameters
+from panda_grasp_env.primitives.parameters import MIN_GRASP_HEIGHT, GraspParameters, PrimitiveSettings
+from panda_grasp_env.primitives.registry import PRIMITIVES, Aim, run, run_primitive
 from panda_grasp_env.primitives.result import REASONS
-from panda_grasp_env.primitives.top_down import MIN_GRASP_HEIGHT, grasp, place, push, run_primitive
+from panda_grasp_env.primitives.top_down import grasp, place, push
 from panda_grasp_env.sim.stacking import blocks_displaced, wrap_quarter_turn
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
@@ -62,7 +65,7 @@ def test_place_without_holding_fails_cleanly(cell):
 
 def test_oracle_builds_a_tower(cell):
     cell.reset(np.random.default_rng(5), "scattered")
-    outcome = build_tower(cell)
+    outcome = build_tower(cell, on_workcell(cell))
     assert outcome.success and len(outcome.steps) == 6
     assert outcome.max_yaw_error_deg < 3.0
 
@@ -72,7 +75,7 @@ def test_oracle_builds_a_tower(cell):
 def test_push_knocks_the_tower_over(cell, direction):
     cell.reset(np.random.default_rng(9), "tower")
     centre = cell.block_positions()[0, :2].copy()
-    result = push_tower(cell, direction)
+    result = push_tower(cell, on_workcell(cell), direction)
     cell.wait(1.0)
     assert result.success
     assert blocks_displaced(cell.block_positions(), centre, cell.config.block_size) >= 2
@@ -102,7 +105,6 @@ def test_unreachable_targets_fail_with_a_reason(cell, call, reason):
         (lambda c: grasp(c, 0.5, 0.0, 0.02, float("inf")), "'yaw'"),
         (lambda c: grasp(c, 0.5, "0", 0.02, 0.0), "'y'"),
         (lambda c: push(c, 0.5, 0.0, 0.02, 0.0, -0.1), "'distance'"),
-        (lambda c: grasp(c, 0.5, 0.0, 0.02), "4 arguments"),
         (lambda c: run_primitive(c, "grasp", [0.5, 0.0, 0.02]), "4 arguments"),
         (lambda c: run_primitive(c, "throw", [0.5, 0.0, 0.02, 0.0]), "throw"),
     ],
@@ -110,6 +112,23 @@ def test_unreachable_targets_fail_with_a_reason(cell, call, reason):
 def test_malformed_arguments_raise_value_error(cell, call, culprit):
     with pytest.raises(ValueError, match=culprit):
         call(cell)
+
+
+@pytest.mark.unit
+def test_parameters_are_checked_once_when_made_and_reach_the_motion_unchanged(cell):
+    with pytest.raises(ValueError, match="grasp: argument 'x'"):
+        GraspParameters(float("nan"), 0.0, 0.02, 0.0)
+    with pytest.raises(TypeError):
+        grasp(cell, 0.5, 0.0, 0.02)  # a parameter missing: Python's own message
+    parameters = GraspParameters(np.float32(0.7), 0.3, 0, 0.0)
+    assert parameters.values() == (float(np.float32(0.7)), 0.3, 0.0, 0.0)
+    assert all(type(v) is float for v in parameters.values())
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        parameters.x = 0.5
+    cell.reset(np.random.default_rng(0), "scattered")
+    result = run(cell, parameters)
+    assert result.reason == "missed" and result.parameters is parameters
+    assert {name: p.parameters.primitive for name, p in PRIMITIVES.items()} == {n: n for n in PRIMITIVES}
 
 
 def _three_block_tower_and_a_block(cell, tower_xy, block_xy):
@@ -240,11 +259,11 @@ def test_with_push_faces_a_push_slides_a_block_to_where_the_stroke_ends_without_
     cell.physics.add_observer(watch)
     try:
         settings = PrimitiveSettings(primitives=("push",), push_distance=distance)
-        params = primitive_parameters(cell, settings, "push", *(centre - gap * along), heading, None)
-        result = push(cell, *params)
+        params = Aim("push", *(centre - gap * along), heading).parameters(cell, settings)
+        result = run(cell, params)
     finally:
         cell.physics.remove_observer(watch)
-    assert result.reason == "ok" and params[2] == MIN_GRASP_HEIGHT  # a lone block: pushed as low as the fingers go
+    assert result.reason == "ok" and params.z == MIN_GRASP_HEIGHT  # a lone block: pushed as low as the fingers go
     assert np.degrees(max(tilts)) < 5.0  # it slid; it did not tip onto its leading edge
     # The hand stopped within 2 mm of the stroke's end and the block did not spring back: it rests against
     # where the push faces stopped (the block's half width and the face's ahead of the grasp site), but for

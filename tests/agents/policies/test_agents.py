@@ -13,6 +13,9 @@ from panda_grasp_env.agents.policies.towers import (
     OracleBlocks,
     TowerBreakerAgent,
     TowerBuilderAgent,
+    build_tower,
+    push_tower,
+    through_env,
 )
 
 RGBD = {"obs_mode": "rgbd", "image_size": (640, 480)}
@@ -27,6 +30,27 @@ def run(env, agent, seed):
         actions += 1
         if terminated or truncated:
             return info, actions
+
+
+def test_the_tower_scripts_act_through_env_step():
+    """The demo's scripts: every primitive an env step, counted by the env and judged by its task."""
+    env = gym.make("panda_grasp_env:PandaBuildAndBreak-v0", primitive_z=True, push_distance=0.16)
+    env.reset(seed=0)
+    cell, act = env.unwrapped.cell, through_env(env)
+    outcome = build_tower(cell, act)
+    assert outcome.success and [s.primitive for s in outcome.steps] == ["grasp", "place"] * 3
+    assert push_tower(cell, act, "+y").success
+    assert env.unwrapped._counters == {
+        "grasps_attempted": 3,
+        "grasps_succeeded": 3,
+        "places": 3,
+        "places_succeeded": 3,
+        "pushes": 1,
+        "impulses": 0,
+    }
+    with pytest.raises(ValueError, match="pushes 0.16 m"):
+        push_tower(cell, act, "+y", distance=0.1)
+    env.close()
 
 
 @pytest.mark.parametrize("oracle", [False, True])
