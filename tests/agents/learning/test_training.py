@@ -313,8 +313,8 @@ def test_ctrl_c_while_setting_up_is_one_line_and_the_same_command_starts_again(t
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    if moment == "reading the run":
-        monkeypatch.setattr(train, "start_run", interrupted)
+    if moment == "reading the run":  # a policy run's start (train.py runs it by its kind)
+        monkeypatch.setitem(run_kinds.RUN_KINDS, None, dataclasses.replace(run_kinds.POLICY, start=interrupted))
     else:
         monkeypatch.setattr(BaseAlgorithm, "_setup_learn", interrupted)
     cli = ["--config", str(CONFIGS / "grasp_clutter_dqn.yaml"), "--runs", str(tmp_path), "--no-progress", *TINY_DQN]
