@@ -13,6 +13,7 @@ axis for grasp and place, the direction of motion for push and impulse).
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import astuple, dataclass, fields
 from typing import ClassVar, TypeVar
@@ -73,9 +74,9 @@ Parameters = TypeVar("Parameters", bound="TopDownParameters")
 
 
 @dataclass(frozen=True)
-class TopDownParameters:
+class TopDownParameters(ABC):
     """A top-down primitive's parameters: grasp-site (or object) point (x, y, z) and heading ``yaw``, each a
-    finite real number, stored as a float."""
+    finite real number, stored as a float.  Each primitive's subclass says how it is aimed (``aimed``)."""
 
     #: The primitive's name: its results' ``primitive`` and its messages'.
     primitive: ClassVar[str]
@@ -102,12 +103,12 @@ class TopDownParameters:
         return cls(*values)
 
     @classmethod
+    @abstractmethod
     def aimed(
         cls, cell: Workcell, settings: PrimitiveSettings, x: float, y: float, yaw: float, z: float | None
     ) -> TopDownParameters:
         """The parameters at world (x, y) with heading ``yaw``; ``z=None`` picks the height (metres) from the
         scene; what the agent does not choose comes from ``settings``."""
-        raise NotImplementedError
 
     def values(self) -> tuple[float, ...]:
         """The parameters in field order."""
