@@ -60,8 +60,6 @@ class FallModelCheck:
 
     def __init__(self, fall_model: str | Path = DEFAULT_FALL_MODEL, threshold: float = DEFAULT_THRESHOLD) -> None:
         require_learning_stack("the learned stability check")
-        import torch
-
         from panda_grasp_env.agents.learning.falls.model import load_fall_model
         from panda_grasp_env.agents.learning.falls.records import FALL_CHECKPOINTS
         from panda_grasp_env.falls.settings import RENDER_SIZE
@@ -75,7 +73,6 @@ class FallModelCheck:
         self.net.eval()
         if not self.net.track_horizon:
             raise ValueError(f"{path}: the check reads a fall model's planned displacements (a track head)")
-        self.torch = torch
         self.threshold = float(threshold)
         self.horizon = self.net.track_horizon
         self.frame_interval = float(saved.get("frame_interval", 0.04))
@@ -112,9 +109,10 @@ class FallModelCheck:
     def predict(self, labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """Each block class's planned displacement (K, 2; pixels) over the model's horizon, from one frame at
         rest taken as every context frame."""
+        import torch
+
         from panda_grasp_env.agents.learning.falls.model import model_inputs
 
-        torch = self.torch
         context = self.net.context
         with torch.no_grad():
             frames = model_inputs(
