@@ -26,6 +26,11 @@ ALGORITHMS: dict[str, tuple[str, str]] = {
         "panda_grasp_env.agents.learning.heightmap_policy:HeightmapDQN",
         "panda_grasp_env.agents.learning.heightmap_policy:HeightmapQPolicy",
     ),
+    # The same Q-policy on a goal heightmap, with hindsight goals and a block-count curriculum (goal_building.py).
+    "goal_heightmap_dqn": (
+        "panda_grasp_env.agents.learning.goal_building:GoalHeightmapDQN",
+        "panda_grasp_env.agents.learning.heightmap_policy:HeightmapQPolicy",
+    ),
     "sac": ("stable_baselines3:SAC", "MultiInputPolicy"),
     "tqc": ("sb3_contrib:TQC", "MultiInputPolicy"),
     "ppo": ("stable_baselines3:PPO", "MultiInputPolicy"),
@@ -39,7 +44,7 @@ ALGORITHMS: dict[str, tuple[str, str]] = {
     ),
 }
 #: The algorithms of the ``pixel`` mode's heightmap Q-policy (``panda_grasp_env.agents.learning.heightmap_policy``).
-HEIGHTMAP_ALGORITHMS = ("heightmap_dqn", "heightmap_dqn_demos")
+HEIGHTMAP_ALGORITHMS = ("heightmap_dqn", "heightmap_dqn_demos", "goal_heightmap_dqn")
 #: The algorithms that learn without stepping an env: their steps are minibatches.
 OFFLINE_ALGORITHMS = ("bc",)
 #: The algorithms that learn from ``algo_kwargs.demonstrations``.
@@ -55,7 +60,8 @@ SELECTION_SEED_OFFSET = 1_000
 #: As many selection episodes as fit below the test seeds.
 MOST_SELECTION_EPISODES = TEST_SEED_OFFSET - SELECTION_SEED_OFFSET
 
-#: Training rewards: ``task`` is the env's own; ``outcome`` pays each primitive for what it achieved (``OutcomeReward``).
+#: Training rewards: ``task`` is the env's own; ``outcome`` pays each primitive for what it achieved
+#: (``OutcomeReward`` for a tower, ``goal_building.StructureOutcomeReward`` for a structure).
 REWARDS = ("task", "outcome")
 
 
@@ -145,10 +151,16 @@ class TrainConfig:
         require(
             self.her is None or self.algo in HER_ALGORITHMS, "her", f"null unless algo is one of {list(HER_ALGORITHMS)}"
         )
+        task = ENV_IDS[self.env_id][0].get("task")
         require(
-            self.reward == "task" or ENV_IDS[self.env_id][0].get("task") == "TowerBuild",
+            self.reward == "task" or task in ("TowerBuild", "StructureBuild"),
             "reward",
-            "'task' unless env_id is a TowerBuild id (the outcome reward reads the stack height)",
+            "'task' unless env_id is a TowerBuild or StructureBuild id (the outcome reward reads its progress)",
+        )
+        require(
+            self.algo != "goal_heightmap_dqn" or (task == "StructureBuild" and self.reward == "outcome"),
+            "algo",
+            "goal_heightmap_dqn only on a StructureBuild id with reward: outcome (its hindsight goals need it)",
         )
         if self.algo in DEMONSTRATION_ALGORITHMS:
             from panda_grasp_env.agents.learning.imitation import Demonstrations
@@ -308,7 +320,15 @@ def training_env(config: TrainConfig) -> gym.Env:
 
     torch.set_num_threads(config.torch_threads)  # worker processes: never oversubscribe the cores
     env = make_env(config, training=True)
-    if config.reward == "outcome":
+    if config.algo == "goal_heightmap_dqn":
+        from panda_grasp_env.agents.learning.goal_building import BlockBudget
+
+        env = BlockBudget(env)
+    if config.reward == "outcome" and ENV_IDS[config.env_id][0].get("task") == "StructureBuild":
+        from panda_grasp_env.agents.learning.goal_building import StructureOutcomeReward
+
+        env = StructureOutcomeReward(env)
+    elif config.reward == "outcome":
         env = OutcomeReward(env)
     if config.algo in HEIGHTMAP_ALGORITHMS:
         from panda_grasp_env.agents.learning.heightmap_observations import EncodedHeightmap

@@ -20,6 +20,11 @@ cos and sin; for each rotation the network sees them as the command's
 direction *relative to that rotation's heading* (two constant planes after the
 map is rotated), so one set of weights learns "push where the command points"
 for every heading.
+A goal-conditioned structure task adds the goal plane (the goal heightmap,
+``encode_heightmap``'s ``goal``) after the holding plane: the network sees it
+rotated with the map, and beside it what the goal still lacks (the goal's
+height above the table's, cell by cell), and places are allowed on the goal's
+footprint as well as on occupied cells.
 
 ``HeightmapDQN`` trains only the rotation that was taken (one network pass per
 sample instead of R), as VPG does.
@@ -69,7 +74,7 @@ def sample(images: th.Tensor, grid: th.Tensor) -> th.Tensor:
 
 
 class HeightmapQNetwork(nn.Module):
-    """Q-values of every ``pixel`` action from an encoded heightmap (B, 4-7, H, W) uint8."""
+    """Q-values of every ``pixel`` action from an encoded heightmap (B, 4-8, H, W) uint8."""
 
     def __init__(
         self,
@@ -81,14 +86,16 @@ class HeightmapQNetwork(nn.Module):
         holding: bool = False,
         command: bool = False,
         refine: bool = False,
+        goal: bool = False,
     ) -> None:
         """``shape``: (primitives, rotations, rows, cols); ``near_cells``: push-mask radius in cells;
-        ``holding``: the input has the holding plane (after the heightmap's 4); ``command``: it ends with the
-        two command planes; ``refine``: add a half-resolution correction of the quarter-resolution scores
-        (see ``_scores``)."""
+        ``holding``: the input has the holding plane (after the heightmap's 4); ``goal``: then the goal plane;
+        ``command``: it ends with the two command planes; ``refine``: add a half-resolution correction of the
+        quarter-resolution scores (see ``_scores``)."""
         super().__init__()
-        self.holding, self.command = holding, command
-        channels = 4 + int(holding) + 2 * int(command)
+        self.holding, self.command, self.goal = holding, command, goal
+        self.goal_plane = 4 + int(holding)
+        channels = 4 + int(holding) + 2 * int(goal) + 2 * int(command)
         self.n_primitives, self.rotations, self.rows, self.cols = shape
         self.primitives, self.used = primitives, used
         side = math.ceil(math.hypot(self.rows, self.cols) / 4) * 4  # rotations never cut the workspace off
@@ -143,6 +150,9 @@ class HeightmapQNetwork(nn.Module):
         where they are known already.  Sampling back only the workspace's cells gives the same numbers as
         rotating the whole padded map back and cropping it."""
         maps = heightmaps[:, :-2] if self.command else heightmaps
+        if self.goal:
+            lacking = (maps[:, self.goal_plane : self.goal_plane + 1] - maps[:, 3:4]).clamp(min=0.0)
+            maps = th.cat([maps, lacking], 1)
         if grids is None:
             grids = rotation_grid(angles, self.side), self._crop(rotation_grid(-angles, self.side))
         rotated = sample(F.pad(maps, self.pad), grids[0])
@@ -201,7 +211,11 @@ class HeightmapQNetwork(nn.Module):
             holding = observations[:, 4:5].amax((2, 3), keepdim=True) > 127
         else:
             holding = th.zeros_like(occupied[:, :, :1, :1])
-        by_name = {"grasp": occupied & ~holding, "place": occupied & holding}
+        targets = occupied
+        if self.goal:
+            goal_height = observations[:, self.goal_plane : self.goal_plane + 1].float() * (HEIGHT_RANGE / 255.0)
+            targets = occupied | (goal_height > PixelActions.OCCUPIED)
+        by_name = {"grasp": occupied & ~holding, "place": targets & holding}
         per_primitive = th.cat([by_name.get(name, near & ~holding) for name in self.primitives], 1)
         used = th.tensor([name in self.used for name in self.primitives], device=observations.device)
         mask = per_primitive.unsqueeze(2) & used.view(1, -1, 1, 1, 1)
@@ -225,6 +239,7 @@ class HeightmapQPolicy(DQNPolicy):
         width: channels of the network's inner layers.
         refine: score at half instead of quarter resolution (``HeightmapQNetwork``), for precise places.
         command: the observations end with the two command planes (``encode_heightmap``'s ``heading``).
+        goal: the observations hold the goal plane after the holding plane (``encode_heightmap``'s ``goal``).
     """
 
     #: The name policy files give this class (``policy_files.class_name``): fixed, so that moving this module
@@ -244,15 +259,17 @@ class HeightmapQPolicy(DQNPolicy):
         width: int = 48,
         refine: bool = False,
         command: bool = False,
+        goal: bool = False,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
     ) -> None:
         primitives = tuple(primitives)
-        planes = observation_space.shape[0] - (2 if command else 0) if len(observation_space.shape) == 3 else 0
+        extra = 2 * int(command) + int(goal)
+        planes = observation_space.shape[0] - extra if len(observation_space.shape) == 3 else 0
         if planes not in (4, 5):
-            expected = "6 or 7" if command else "4 or 5"
             raise ValueError(
-                f"HeightmapQPolicy needs encoded heightmaps ({expected}, rows, cols), got {observation_space}"
+                f"HeightmapQPolicy needs encoded heightmaps ({4 + extra} or {5 + extra}, rows, cols), got "
+                f"{observation_space}"
             )
         sees_hand = planes == 5
         used = tuple(p for p in primitives if p != "place") if primitives_used is None else tuple(primitives_used)
@@ -276,6 +293,7 @@ class HeightmapQPolicy(DQNPolicy):
             "width": int(width),
             "refine": bool(refine),
             "command": bool(command),
+            "goal": bool(goal),
         }
         self.shape = shape
         super().__init__(
@@ -296,9 +314,10 @@ class HeightmapQPolicy(DQNPolicy):
             args["primitives_used"],
             args["width"],
             near_cells,
-            holding=self.observation_space.shape[0] - 2 * args["command"] == 5,
+            holding=self.observation_space.shape[0] - 2 * args["command"] - args["goal"] == 5,
             command=args["command"],
             refine=args["refine"],
+            goal=args["goal"],
         )
         return network.to(self.device)
 

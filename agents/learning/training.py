@@ -89,6 +89,7 @@ def build_model(config: TrainConfig, env: Any, log_dir: Path | None) -> Any:
             "rotations": probe.unwrapped.actions.rotations,
             "cell_size": probe.unwrapped.actions.grid.resolution,
             "command": "command" in getattr(probe.observation_space, "spaces", {}),
+            "goal": "goal_heightmap" in getattr(probe.observation_space, "spaces", {}),
             **policy_kwargs,
         }
         probe.close()
