@@ -15,6 +15,9 @@ from panda_grasp_env.tasks.tower_break import BREAK_DIRECTIONS
 
 #: Heights (metres) the uint8 height channel spans: one level per millimetre.
 HEIGHT_RANGE = 0.255
+#: Heights (metres) the uint8 height and goal planes of a goal-conditioned structure observation span: two
+#: millimetres per level, so that an eight-cube tower (0.4 m) fits.
+GOAL_HEIGHT_RANGE = 0.51
 
 
 def holding_after(info: dict[str, Any]) -> bool:
@@ -54,9 +57,10 @@ def held_kind(achieved_goal: np.ndarray, info: dict[str, Any]) -> int | None:
 
 
 def goal_plane(goal: np.ndarray) -> np.ndarray:
-    """A goal heightmap ((H, W) or (H, W, 1), metres) as the policy's goal plane: (H, W) uint8, height in mm."""
+    """A goal heightmap ((H, W) or (H, W, 1), metres) as the policy's goal plane: (H, W) uint8 over
+    ``GOAL_HEIGHT_RANGE``."""
     goal = np.asarray(goal, dtype=np.float32)
-    return np.round(np.clip(goal.reshape(goal.shape[:2]) / HEIGHT_RANGE, 0.0, 1.0) * 255).astype(np.uint8)
+    return np.round(np.clip(goal.reshape(goal.shape[:2]) / GOAL_HEIGHT_RANGE, 0.0, 1.0) * 255).astype(np.uint8)
 
 
 def command_heading(command: np.ndarray) -> float:
@@ -73,8 +77,8 @@ def encode_heightmap(
     heading: float | None = None,
     goal: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Env heightmap (H, W, 4) float32 -- colour 0-1, height metres -- as (4, H, W) uint8 (height in mm);
-    with ``holding`` given, a plane that is 255 when the hand holds something (True), else 0 (or an int: the
+    """Env heightmap (H, W, 4) float32 -- colour 0-1, height metres -- as (4, H, W) uint8 (height in mm, or
+    with a goal over ``GOAL_HEIGHT_RANGE``); with ``holding`` given, a plane that is 255 when the hand holds something (True), else 0 (or an int: the
     plane's value, ``holding_level``); with a goal heightmap (H, W) or (H, W, 1) metres, a plane of its height
     in mm; with a commanded world ``heading`` (radians) given, two planes last: its cos and sin, mapped from
     [-1, 1] to 0-254."""
@@ -82,7 +86,7 @@ def encode_heightmap(
     if heightmap.ndim != 3 or heightmap.shape[-1] != 4:
         raise ValueError(f"expected a (rows, cols, 4) heightmap observation, got shape {heightmap.shape}")
     scaled = heightmap.astype(np.float32)
-    scaled[..., 3] = scaled[..., 3] / HEIGHT_RANGE
+    scaled[..., 3] = scaled[..., 3] / (HEIGHT_RANGE if goal is None else GOAL_HEIGHT_RANGE)
     planes = [np.round(np.clip(scaled, 0.0, 1.0) * 255).astype(np.uint8).transpose(2, 0, 1)]
     if holding is not None:
         level = holding if type(holding) is int else holding_level(bool(holding))

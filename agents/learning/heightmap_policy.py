@@ -24,7 +24,8 @@ A goal-conditioned structure task adds the goal plane (the goal heightmap,
 ``encode_heightmap``'s ``goal``) after the holding plane: the network sees it
 rotated with the map, and beside it what the goal still lacks (the goal's
 height above the table's, cell by cell), and places are allowed on the goal's
-footprint as well as on occupied cells.
+footprint as well as on occupied cells.  Its heights span ``GOAL_HEIGHT_RANGE``
+(2 mm a level) instead of ``HEIGHT_RANGE``: tall towers are goals too.
 
 ``HeightmapDQN`` trains only the rotation that was taken (one network pass per
 sample instead of R), as VPG does.
@@ -46,7 +47,7 @@ from torch import nn
 
 from panda_grasp_env.actions import PixelActions
 from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory, InwardPushes
-from panda_grasp_env.agents.learning.heightmap_observations import HEIGHT_RANGE
+from panda_grasp_env.agents.learning.heightmap_observations import GOAL_HEIGHT_RANGE, HEIGHT_RANGE
 from panda_grasp_env.perception.heightmap import HeightmapGrid
 
 
@@ -201,7 +202,8 @@ class HeightmapQNetwork(nn.Module):
 
     def allowed(self, observations: th.Tensor) -> th.Tensor:
         """(B, P * R * H * W) bool: the actions worth considering on these heightmaps (see the module doc)."""
-        height = observations[:, 3:4].float() * (HEIGHT_RANGE / 255.0)
+        scale = (GOAL_HEIGHT_RANGE if self.goal else HEIGHT_RANGE) / 255.0
+        height = observations[:, 3:4].float() * scale
         occupied = height > PixelActions.OCCUPIED
         radius = self.near_cells
         # A square max filter, as a column pass then a row pass (the same maxima, far fewer comparisons).
@@ -213,7 +215,7 @@ class HeightmapQNetwork(nn.Module):
             holding = th.zeros_like(occupied[:, :, :1, :1])
         targets = occupied
         if self.goal:
-            goal_height = observations[:, self.goal_plane : self.goal_plane + 1].float() * (HEIGHT_RANGE / 255.0)
+            goal_height = observations[:, self.goal_plane : self.goal_plane + 1].float() * scale
             targets = occupied | (goal_height > PixelActions.OCCUPIED)
         by_name = {"grasp": occupied & ~holding, "place": targets & holding}
         per_primitive = th.cat([by_name.get(name, near & ~holding) for name in self.primitives], 1)

@@ -17,7 +17,7 @@ from panda_grasp_env.agents.learning.goal_building import (
     structure_outcome,
 )
 from panda_grasp_env.agents.learning.heightmap_observations import (
-    HEIGHT_RANGE,
+    GOAL_HEIGHT_RANGE,
     encode_heightmap,
     encode_observation,
     held_kind,
@@ -101,7 +101,7 @@ def test_the_goal_plane_and_the_held_kind_reach_the_policy():
     goal[20:25, 20:25] = 0.1
     encoded = encode_heightmap(heightmap, holding_level(True, KIND_CODES["plank"]), goal=goal)
     assert encoded.shape == (6, 40, 40) and encoded[4].min() == 213
-    assert encoded[5, 22, 22] == round(0.1 / HEIGHT_RANGE * 255) and encoded[5, 0, 0] == 0
+    assert encoded[5, 22, 22] == round(0.1 / GOAL_HEIGHT_RANGE * 255) and encoded[5, 0, 0] == 0
     achieved = START.copy()
     info = {"primitive": "grasp", "primitive_success": True, "primitive_object": "object_2"}
     assert held_kind(achieved, info) == KIND_CODES["plank"]
@@ -144,7 +144,7 @@ def test_the_training_env_draws_within_the_budget_and_pays_the_outcome(structure
     for seed in range(6):
         observation, info = env.reset(seed=seed)
         counts.add(info["n_targets"])
-        assert observation.shape == env.observation_space.shape == (6, 112, 112) and info["block_budget"] == 2
+        assert observation.shape == env.observation_space.shape == (6, 130, 180) and info["block_budget"] == 2
     assert counts == {2}
     observation, reward, *_, info = env.step(env.action_space.sample())
     assert {"achieved_before", "achieved_goal", "grasped_slot", "heightmap_grid"} <= set(info)
