@@ -320,7 +320,7 @@ def training_env(config: TrainConfig) -> gym.Env:
 
     torch.set_num_threads(config.torch_threads)  # worker processes: never oversubscribe the cores
     env = make_env(config, training=True)
-    if config.algo == "goal_heightmap_dqn":
+    if config.algo == "goal_heightmap_dqn" and config.env_kwargs.get("structure", "random") == "random":
         from panda_grasp_env.agents.learning.goal_building import BlockBudget
 
         env = BlockBudget(env)

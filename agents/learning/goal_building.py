@@ -214,8 +214,9 @@ class _Step:
 
 class GoalHeightmapDQN(HeightmapDQN):
     """``HeightmapDQN`` on a goal-conditioned structure task, with hindsight goals and the block-count
-    curriculum (module doc).  Its training env is wrapped in ``BlockBudget`` and ``StructureOutcomeReward``
-    (``config.training_env``).
+    curriculum (module doc).  Its training env is wrapped in ``StructureOutcomeReward`` and, where it draws
+    random structures, ``BlockBudget`` (``config.training_env``); on one fixed structure (BuilderBench's
+    "training wheels") there is no curriculum.
 
     Args beyond DQN's:
         hindsight_goals: relabelled copies stored per step, each under a goal achieved at a later step of the
@@ -253,9 +254,13 @@ class GoalHeightmapDQN(HeightmapDQN):
         # An episode under way is not resumed (the env restarts), so its steps are not saved.
         return [*super()._excluded_save_params(), "_episodes"]
 
+    def _curriculum(self) -> bool:
+        """Whether the training env draws its structures (``BlockBudget``): not on one fixed structure."""
+        return self.env is not None and self.env.has_attr("set_block_budget")
+
     def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
         self._episodes = {}
-        if self.env is not None:
+        if self._curriculum():
             self.block_budget = min(self.block_budget, max(self.env.get_attr("most")))
             self.env.env_method("set_block_budget", self.block_budget)
         return super()._setup_learn(*args, **kwargs)
@@ -317,7 +322,7 @@ class GoalHeightmapDQN(HeightmapDQN):
                 )
 
     def _follow_curriculum(self, info: dict[str, Any]) -> None:
-        if info.get("block_budget") != self.block_budget:
+        if not self._curriculum() or info.get("block_budget") != self.block_budget:
             return
         self._budget_outcomes = [*self._budget_outcomes, bool(info.get("is_success"))][-self.promote_window :]
         most = max(self.env.get_attr("most"))
