@@ -44,14 +44,21 @@ class FailureMemory:
     heightmaps (``encode_heightmap``).  Used by ``PolicyAgent(avoid_failures=True)``.
     """
 
-    def __init__(self, shape: tuple[int, int, int, int], cell_size: float, primitives: tuple[str, ...]) -> None:
+    def __init__(
+        self,
+        shape: tuple[int, int, int, int],
+        cell_size: float,
+        primitives: tuple[str, ...],
+        height_range: float = HEIGHT_RANGE,
+    ) -> None:
         """``shape``: (primitives, rotations, rows, cols) of the ``pixel`` actions; ``cell_size``: metres;
-        ``primitives``: their names, in the action layout's order."""
+        ``primitives``: their names, in the action layout's order; ``height_range``: the metres the encoded
+        height plane's 255 levels span."""
         if len(primitives) != shape[0]:
             raise ValueError(f"{len(primitives)} primitive names for an action layout of shape {shape}")
         self.shape = shape
         self.radius = max(1, round(RETRY_RADIUS / cell_size))
-        self.tolerance = RETRY_HEIGHT_CHANGE / HEIGHT_RANGE * 255  # encoded height levels
+        self.tolerance = RETRY_HEIGHT_CHANGE / height_range * 255  # encoded height levels
         rotations = shape[1]
         self.half_turn = [rotations % 2 == 0 and name not in DIRECTED_PRIMITIVES for name in primitives]
         self.failures: list[tuple[int, list[int], slice, slice, np.ndarray]] = []

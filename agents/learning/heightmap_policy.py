@@ -344,7 +344,8 @@ class HeightmapQPolicy(DQNPolicy):
 
     def failure_memory(self) -> FailureMemory:
         """An empty ``FailureMemory`` for this policy's actions (``PolicyAgent(avoid_failures=True)`` keeps one)."""
-        return FailureMemory(self.shape, self.network_args["cell_size"], self.network_args["primitives"])
+        height_range = GOAL_HEIGHT_RANGE if self.network_args["goal"] else HEIGHT_RANGE
+        return FailureMemory(self.shape, self.network_args["cell_size"], self.network_args["primitives"], height_range)
 
     def face_centring(
         self, block_size: float, base: Sequence[float] | None = None, layout: dict[str, Any] | None = None
@@ -352,6 +353,8 @@ class HeightmapQPolicy(DQNPolicy):
         """A ``FaceCentring`` for this policy's actions on blocks of edge ``block_size`` metres, with the tower
         base's centre ``base`` (world metres) if known, placed on the grid of the env's action ``layout``
         (``info["action_layout"]``) (``PolicyAgent(centre_on_faces=True)`` keeps one)."""
+        if self.network_args["goal"]:
+            raise ValueError("face_centring centres on equal cube faces of a tower; a structure policy has planks too")
         if base is not None and layout is None:
             raise ValueError("face_centring: a base position needs the env's action layout to find its cell")
         cell = None if base is None else tuple(HeightmapGrid.of_layout(layout).cell_position(base[:2]).tolist())

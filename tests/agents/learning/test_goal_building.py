@@ -123,6 +123,10 @@ def test_the_goal_plane_and_the_held_kind_reach_the_policy():
     allowed = policy.q_net.allowed(th.as_tensor(encoded[None]))[0].reshape(3, 4, 40, 40)
     assert allowed[1, :, 20:25, 20:25].all() and allowed[1].sum() == 4 * 25 and not allowed[0].any()
     assert policy.q_net(th.as_tensor(encoded[None])).shape == (1, 3 * 4 * 1600)
+    # The acting rules read heights on the goal policy's scale: a failed grasp's 5 mm is 2.5 levels, not 5.
+    assert policy.failure_memory().tolerance == pytest.approx(0.005 / GOAL_HEIGHT_RANGE * 255)
+    with pytest.raises(ValueError, match="planks"):
+        policy.face_centring(0.05)
 
 
 @pytest.fixture(scope="module")
