@@ -9,7 +9,8 @@ frame -- and reads the displacement the model plans for each block over its next
 with this check in place of ``what_if``: the same orders, scaffold search and budget.
 
 Pixels are the recorder's: a ``crop`` x ``crop`` window of the ``RENDER_SIZE`` overhead image (about 5 mm a
-pixel at the table), centred on the candidate piece.  World frame, metres.
+pixel at the table), centred on the candidate piece, labelled by height as the structure-fall recorder labels
+its sequences (``falls.structure_falls``).  World frame, metres.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import numpy as np
 from panda_grasp_env.agents.policies.registry import register_agent
 from panda_grasp_env.agents.policies.structure_views import HeightmapPieces
 from panda_grasp_env.agents.policies.structures import STRUCTURE_BENCHMARKS, StructurePlanner
+from panda_grasp_env.falls.structure_falls import CAMERA, crop_origin, height_order, ranked_labels
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.sim.rendering import CameraRenderer
 from panda_grasp_env.sim.stability import set_free_pose
@@ -36,8 +38,6 @@ DEFAULT_FALL_MODEL = "fall_convlstm_tall"
 #: Planned displacement (metres, largest over the watched pieces, summed over the model's horizon) at or
 #: above which a candidate counts as falling.  One pixel of the recorder's crop is ~5 mm.
 DEFAULT_THRESHOLD = 0.004
-#: The camera the fall model was trained on, at the recorder's image size (``falls.settings.RENDER_SIZE``).
-CAMERA = "overhead"
 
 
 @dataclass(frozen=True)
@@ -93,18 +93,12 @@ class FallModelCheck:
         geoms, depth = self._render(model, data)
         size = self.net.image_size
         camera = CameraModel.from_mujoco(model, data, CAMERA, self.width, self.height)
-        (u, v), distance = camera.world_to_pixel(np.asarray(centre, dtype=float))
-        u0 = int(np.clip(round(u) - size // 2, 0, self.width - size))
-        v0 = int(np.clip(round(v) - size // 2, 0, self.height - size))
+        u0, v0 = crop_origin(camera, centre, size)
         window = (slice(v0, v0 + size), slice(u0, u0 + size))
-        order = sorted(map(int, watched), key=lambda body: -data.xpos[body, 2])[: self.net.n_classes - 1]
-        body_of_geom = np.append(model.geom_bodyid, -1)  # geom id -1 (no geom) -> body -1
-        bodies = body_of_geom[geoms[window]]
-        labels = np.zeros(bodies.shape, dtype=np.int64)
-        for rank, body in enumerate(order):
-            labels[bodies == body] = rank + 1
+        labels = ranked_labels(model, geoms[window], height_order(data, watched, self.net.n_classes - 1))
+        _, distance = camera.world_to_pixel(np.asarray(centre, dtype=float))
         metres_per_pixel = float(distance) / camera.K[0, 0]
-        return labels, depth[window], metres_per_pixel
+        return labels.astype(np.int64), depth[window], metres_per_pixel
 
     def predict(self, labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """Each block class's planned displacement (K, 2; pixels) over the model's horizon, from one frame at

@@ -1,5 +1,7 @@
 """Record falling-tower sequences from the env:  python -m panda_grasp_env.falls --out data/falls --sequences 2000
 
+(``--scene structures`` records pieces set down on partly built structures instead: ``structure_falls.py``.)
+
 Each sequence: ``PandaTowerBreak-v0`` resets with its seed (a tower of one of
 ``tower_blocks`` heights -- 4 blocks by default, drawn per sequence -- in random
 colour order, position and yaw), one ``env.step`` breaks it -- a random
@@ -32,6 +34,8 @@ import numpy as np
 
 from panda_grasp_env.falls.settings import BREAKERS, LATER_SETTINGS, RENDER_SIZE, RecorderSettings
 from panda_grasp_env.falls.shards import SHARD_ARRAYS, split_of
+from panda_grasp_env.falls.structure_falls import StructureRecorder
+from panda_grasp_env.model.structure_generator import MAX_PIECES
 from panda_grasp_env.sim.stepping import body_speeds
 from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json
 from panda_grasp_env.tooling.runs import (
@@ -201,6 +205,20 @@ def record_sequence(envs: RecorderEnvs, seed: int, settings: RecorderSettings) -
 
 #: This process's recorder envs (a pool worker's, or the recording process's own with one worker).
 _ENVS = RecorderEnvs()
+_STRUCTURES: list[StructureRecorder] = []  # this process's structure recorder, made when first needed
+
+
+def structure_recorder() -> StructureRecorder:
+    if not _STRUCTURES:
+        _STRUCTURES.append(StructureRecorder())
+    return _STRUCTURES[0]
+
+
+def record_one(seed: int, settings: RecorderSettings) -> dict[str, np.ndarray]:
+    """Sequence ``seed`` of the settings' scene."""
+    if settings.scene == "structures":
+        return structure_recorder().record(seed, settings)
+    return record_sequence(_ENVS, seed, settings)
 
 
 def record_shard(job: tuple[Path, int, int, RecorderSettings]) -> dict[str, Any]:
@@ -208,7 +226,7 @@ def record_shard(job: tuple[Path, int, int, RecorderSettings]) -> dict[str, Any]
     out, index, count, settings = job
     began = time.perf_counter()
     first = settings.seed + index * settings.shard_size
-    sequences = [record_sequence(_ENVS, first + i, settings) for i in range(count)]
+    sequences = [record_one(first + i, settings) for i in range(count)]
     arrays = {key: np.stack([s[key] for s in sequences]) for key in SHARD_ARRAYS}
     name = f"shard_{index:05d}.npz"
     with atomic_path(out / name) as tmp, open(tmp, "wb") as handle:
@@ -303,11 +321,17 @@ def record_dataset(
 def describe(out: Path, settings: RecorderSettings, sequences: int, shards: list[dict[str, Any]]) -> dict[str, Any]:
     import importlib.metadata as md
 
-    env = make_recorder_env(max(settings.tower_blocks))  # its colours are every height's first colours
-    _, info = env.reset(seed=settings.seed)
-    camera = env.unwrapped.camera_model("overhead")
-    classes = ["background", *info["block_colours"]]
-    env.close()
+    if settings.scene == "structures":
+        camera = structure_recorder().camera()
+        classes = ["background", *(f"piece {rank} (highest first)" for rank in range(1, MAX_PIECES + 1))]
+        heights = list(range(1, MAX_PIECES + 1))
+    else:
+        env = make_recorder_env(max(settings.tower_blocks))  # its colours are every height's first colours
+        _, info = env.reset(seed=settings.seed)
+        camera = env.unwrapped.camera_model("overhead")
+        classes = ["background", *info["block_colours"]]
+        heights = list(settings.tower_blocks)
+        env.close()
     counts = {split: 0 for split in ("train", "val", "test")}
     for entry in shards:
         for seed in range(entry["first_seed"], entry["first_seed"] + entry["sequences"]):
@@ -317,7 +341,8 @@ def describe(out: Path, settings: RecorderSettings, sequences: int, shards: list
         "frames": settings.frames,
         "frame_interval": settings.frame_interval,
         "crop": settings.crop,
-        "tower_blocks": list(settings.tower_blocks),
+        "tower_blocks": heights,
+        "scene": settings.scene,
         "classes": classes,
         "settings": asdict(settings),
         "splits": {"rule": "seed % 10: 0-7 train, 8 val, 9 test", **counts},

@@ -25,8 +25,11 @@ HIGHEST_STRIKE_LEVEL = int((PRIMITIVE_Z_RANGE[1] - SceneConfig().block_size / 2)
 RENDER_SIZE = (224, 168)
 #: How a tower is broken: an impulse on a block, a push by the hand, or either (mixed: half each).
 BREAKERS = ("impulse", "push", "mixed")
+#: What is recorded: a tower broken by a strike (``recorder.py``), or a piece set down on a partly built
+#: structure, from rest (``structure_falls.py``; the tower settings do not apply).
+SCENES = ("tower", "structures")
 #: Settings added after the first recordings; their defaults record what the recorder did before them.
-LATER_SETTINGS = ("tower_blocks", "strike_levels", "start_shift")
+LATER_SETTINGS = ("tower_blocks", "strike_levels", "start_shift", "scene")
 #: The widest square crop (pixels): the rendered image's height.
 LARGEST_CROP = min(RENDER_SIZE)
 #: An impulse's magnitude (N s).
@@ -95,6 +98,7 @@ class RecorderSettings:
     # waits until a block is that far from where it stood (a tall tower touched by the pushing fingers jitters
     # at up to 0.16 m/s for seconds before it moves; see docs/falling-tower.md).
     start_shift: Annotated[StrictInt | StrictFloat, Field(ge=0, le=0.05, description="in [0, 0.05] m")] = 0.0
+    scene: Annotated[Literal[SCENES], Field(description=f"one of {list(SCENES)}")] = "tower"
 
     @model_validator(mode="after")
     def _check_strikes_hit_every_tower(self) -> RecorderSettings:

@@ -238,6 +238,8 @@ class CameraRenderer:
     def __del__(self) -> None:
         # Dropped without close(): a finaliser may run inside another renderer's draw, so it touches no GL.
         renderer = getattr(self, "_renderer", None)
+        if _OPEN is None or _DROPPED is None:  # interpreter shutdown: the module's globals are gone already
+            return
         if renderer in _OPEN and renderer not in _DROPPED:
             _DROPPED.append(renderer)
 

@@ -1,0 +1,56 @@
+"""Structure falls (``panda_grasp_env/falls/structure_falls.py``): pieces set at their targets on a partly built
+structure, recorded from rest in the falls dataset format, labelled by height as the learned check labels."""
+
+import json
+
+import numpy as np
+import pytest
+
+from panda_grasp_env.agents.learning.falls.dataset import load_split
+from panda_grasp_env.falls.recorder import record_dataset
+from panda_grasp_env.falls.settings import RecorderSettings
+from panda_grasp_env.falls.structure_falls import NOT_STRUCK, build_state
+from panda_grasp_env.model.structure_generator import MAX_PIECES
+from panda_grasp_env.model.structures import Piece
+
+SETTINGS = RecorderSettings(scene="structures", frames=8, frame_interval=0.08, crop=96, shard_size=6)
+
+
+@pytest.mark.unit
+def test_a_build_state_sets_supports_first_and_a_candidate_in_the_air_only_where_one_is_missing():
+    span = [
+        Piece("cube", (0.45, -0.045, 0.025)),
+        Piece("cube", (0.45, 0.045, 0.025)),
+        Piece("plank", (0.45, 0.0, 0.075), np.pi / 2),
+    ]
+    seen = set()
+    for seed in range(60):
+        built, candidate = build_state(span, np.random.default_rng(seed))
+        assert 2 not in built  # the plank is never set before both its cubes
+        assert candidate not in built
+        seen.add((len(built), candidate == 2))
+    assert (0, True) in seen and (2, True) in seen and (0, False) in seen  # in the air, ready, and a first cube
+    row = [Piece("cube", (0.45, y, 0.025)) for y in (-0.06, 0.0, 0.06)]
+    assert all(build_state(row, np.random.default_rng(s))[1] in range(3) for s in range(10))
+
+
+def test_structure_sequences_fall_or_stand_from_rest_and_load_as_a_fall_dataset(tmp_path):
+    meta = record_dataset(tmp_path, 24, SETTINGS, workers=1, progress=False)
+    assert meta["scene"] == "structures" and len(meta["classes"]) == MAX_PIECES + 1
+    shifts = []
+    for entry in meta["shards"]:
+        with np.load(tmp_path / entry["file"]) as shard:
+            assert shard["labels"].shape == (6, 8, 96, 96) and shard["poses"].shape == (6, 8, MAX_PIECES, 7)
+            assert (shard["breaker"] == NOT_STRUCK).all() and np.array_equal(shard["labels"], shard["colour_labels"])
+            for poses, n, labels in zip(shard["poses"], shard["n_blocks"], shard["labels"]):
+                assert np.isnan(poses[:, n:]).all() and not np.isnan(poses[:, :n]).any()
+                heights = poses[0, :n, 2]
+                assert np.all(np.diff(heights) <= 1e-6)  # class k + 1: the k-th highest piece at rest
+                assert labels.max() <= n
+                shifts.append(np.linalg.norm(poses[-1, :n, :3] - poses[0, :n, :3], axis=1).max())
+    shifts = np.array(shifts)
+    assert (shifts > 0.02).any() and (shifts < 0.002).any()  # some fell, some stood still
+    again = RecorderSettings(**{**SETTINGS.__dict__})
+    assert json.loads((tmp_path / "settings.json").read_text())["scene"] == again.scene
+    split = load_split(tmp_path, "train")
+    assert split.labels.shape[1:] == (8, 96, 96) and split.n_blocks.max() <= MAX_PIECES
