@@ -187,6 +187,9 @@ def play_episode(env: gym.Env, agent: Any, spec: EpisodeSpec, recorder: Any = No
         "transit_contacts": int(transit_contacts),
         **({"first_grasp": bool(first_grasp)} if grasping else {}),  # no grasp attempted: False
         **({"meshes": meshes} if meshes else {}),
+        **(
+            {"structure": str(task_facts["structure"]), "tier": int(task_facts["tier"])} if "tier" in task_facts else {}
+        ),
     }
     timing = {"wall_seconds": time.perf_counter() - began, "decision_seconds_median": float(np.median(decisions))}
     return {"result": result, "timing": timing}

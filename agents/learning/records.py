@@ -35,7 +35,7 @@ def read_evaluations(run_dir: Path) -> list[dict[str, Any]]:
 
 def plot_curve(run_dir: Path, title: str, steps: str = "environment steps") -> None:
     """curve.png: evaluation success (95 % CI band) against ``steps`` (what the run's steps count) and against
-    wall time."""
+    wall time; a structure task's success per tier beside it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -56,6 +56,11 @@ def plot_curve(run_dir: Path, title: str, steps: str = "environment steps") -> N
         if any(r["metrics"]["grasp_success"]["n"] for r in rows):
             axis.plot(x, [r["metrics"]["grasp_success"]["rate"] for r in rows], marker="s", label="grasp success")
             axis.plot(x, [r["metrics"]["action_efficiency"] for r in rows], marker="^", label="action efficiency")
+        tiers = sorted({tier for r in rows for tier in r["metrics"].get("trial_success_by_tier", {})}, key=int)
+        for tier in tiers:  # a structure task's validation success per tier (dashed)
+            by_tier = [r["metrics"].get("trial_success_by_tier", {}).get(tier) for r in rows]
+            points = [(xi, t["rate"]) for xi, t in zip(x, by_tier) if t is not None]
+            axis.plot(*zip(*points), linestyle="--", marker=".", label=f"tier {tier} success")
         axis.set_xlabel(label)
         axis.set_ylim(-0.02, 1.02)
         axis.grid(alpha=0.3)

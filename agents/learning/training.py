@@ -27,7 +27,7 @@ from typing import Any
 import gymnasium as gym
 
 from panda_grasp_env.agents.evaluation.episodes import play_episode
-from panda_grasp_env.agents.evaluation.metrics import aggregate
+from panda_grasp_env.agents.evaluation.metrics import aggregate, rate
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec, task_label
 from panda_grasp_env.agents.learning.config import (
     ALGORITHMS,
@@ -181,7 +181,12 @@ def evaluate_policy(
     ]
     if own_env:
         env.close()
-    return next(iter(aggregate(results).values()))
+    metrics = next(iter(aggregate(results).values()))
+    tiers = sorted({result["tier"] for result in results if "tier" in result})
+    if tiers:  # a structure task: its learning curve per tier
+        by_tier = {tier: [result["success"] for result in results if result.get("tier") == tier] for tier in tiers}
+        metrics["trial_success_by_tier"] = {str(tier): rate(sum(won), len(won)) for tier, won in by_tier.items()}
+    return metrics
 
 
 def headline(metrics: dict[str, Any]) -> dict[str, float]:

@@ -146,7 +146,8 @@ class StructureBuild(Task):
     pieces matched optimally, ``match_goal``), vectorised for hindsight relabelling; ``reward_type="dense"``
     adds nothing but distance: minus the mean distance (metres) from each target to its matched piece.
 
-    ``info`` at reset gives ``structure`` (its name), ``n_targets`` and the goal pieces' ``targets`` (centres,
+    ``info`` at reset gives ``structure`` (its name), ``tier`` (its suite tier or generated motif's; 0 for a
+    user's), ``n_targets`` and the goal pieces' ``targets`` (centres,
     world metres) and ``target_yaws`` (radians), padded with zeros to the scene's object slots; after each step
     ``structure``, ``in_place`` (targets a piece stands in), ``placed_fraction``, ``away`` (removed and scaffold
     pieces out of the goal's way, ``is_away``) and, once something went wrong and until success, ``failure_reason``,
@@ -246,6 +247,7 @@ class StructureBuild(Task):
         targets[: len(self._targets)], target_yaws[: len(self._targets)] = self._targets, self._target_yaws
         return {
             "structure": self.structure.name,
+            "tier": self.structure.tier,
             "n_targets": len(self._targets),
             "targets": targets,
             "target_yaws": target_yaws,

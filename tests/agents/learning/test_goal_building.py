@@ -190,3 +190,23 @@ def test_goal_heightmap_dqn_needs_the_structure_task_and_the_outcome_reward(stru
     assert config_from_dict({**raw, "reward": "outcome"}).algo == "goal_heightmap_dqn"
     with pytest.raises(ValueError, match="hindsight_goals"):
         GoalHeightmapDQN(HeightmapQPolicy, None, hindsight_goals=-1, _init_setup_model=False)
+
+
+def test_validation_reports_success_per_tier_and_the_curve_draws_it(structure_config, tmp_path):
+    import dataclasses
+    import json
+
+    from panda_grasp_env.agents.learning.config import make_vec_env
+    from panda_grasp_env.agents.learning.records import plot_curve
+    from panda_grasp_env.agents.learning.training import build_model, evaluate_policy
+
+    config = dataclasses.replace(structure_config, max_episode_steps=2)
+    env = make_vec_env(config)
+    metrics = evaluate_policy(build_model(config, env, None), config, 4)
+    env.close()
+    by_tier = metrics["trial_success_by_tier"]
+    assert set(by_tier) <= {"1", "2", "3", "4"} and sum(t["n"] for t in by_tier.values()) == 4
+    row = {"steps": 0, "wall_seconds": 1.0, "metrics": metrics}
+    (tmp_path / "evaluations.jsonl").write_text(json.dumps(row) + "\n")
+    plot_curve(tmp_path, "structures")
+    assert (tmp_path / "curve.png").stat().st_size > 0
