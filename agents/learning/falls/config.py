@@ -51,6 +51,9 @@ class FallConfig:
     # Epochs of fitting the track head alone on every training window's tracks before the ConvLSTM's epochs;
     # after them it is frozen and the ConvLSTM learns what it adds.  0: trained with the ConvLSTM.
     track_pretrain_epochs: Annotated[StrictInt, Field(ge=0, description="an int >= 0")] = 0
+    # The sequences start at rest (structure falls): the track head is also fitted on windows whose context
+    # is the first frame repeated, which is what the learned stability check asks about.
+    track_windows_from_rest: Annotated[StrictBool, Field(description="true or false")] = False
     # Sequences drawn per epoch (default: as many as the training split holds).
     epoch_sequences: Count | None = None
     # Validate each epoch on the first this many validation sequences (default: all).
@@ -66,6 +69,10 @@ class FallConfig:
             raise config_value_error("track_head", self.track_head, "false unless anchored_rollout is true")
         if self.track_pretrain_epochs and not self.track_head:
             raise config_value_error("track_pretrain_epochs", self.track_pretrain_epochs, "0 unless track_head is true")
+        if self.track_windows_from_rest and not self.track_pretrain_epochs:
+            raise config_value_error(
+                "track_windows_from_rest", self.track_windows_from_rest, "false unless track_pretrain_epochs > 0"
+            )
         return self
 
     @model_validator(mode="after")

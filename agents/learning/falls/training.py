@@ -84,22 +84,28 @@ def motion_loss(displacements: torch.Tensor, before: torch.Tensor, after: torch.
 
 
 def track_windows(
-    model: FallPredictor, split: FallSequences, horizon: int, chunk: int = 32
+    model: FallPredictor, split: FallSequences, horizon: int, chunk: int = 32, from_rest: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """The track head's inputs and targets over every window of a split (t with ``model.context`` frames up to
     t and at least one after it), one row per block in view at t: features (N, F), displacements from t to
     t + 1 ... t + ``horizon`` (N, horizon, 2; pixels, x then y) and whether the block is in view at each of
     those frames (N, horizon; false past the sequence's end), and where each row is from (N, 3: sequence, t,
-    block class - 1)."""
+    block class - 1).  ``from_rest``: the sequences start at rest, so the first frame also stands for the
+    context frames before it, and windows start at t = 0 (the first one is that frame repeated, what the
+    learned stability check gives the model)."""
     context, length = model.context, split.labels.shape[1]
+    before = context - 1 if from_rest else 0  # copies of the first frame put in front
     features, targets, seen_later, where = [], [], [], []
     for first in range(0, len(split.labels), chunk):
         depth = None if split.depth is None else split.depth[first : first + chunk]
         frames = model_inputs(model, split.labels[first : first + chunk], depth if model.use_depth else None)
-        centre, area, height = block_tracks(frames, model.n_classes)
+        centre, area, height = (
+            torch.cat([track[:, :1].expand(-1, before, *track.shape[2:]), track], 1)
+            for track in block_tracks(frames, model.n_classes)
+        )
         seen = F.pad(area > SEEN_AREA, (0, 0, 0, horizon))  # never in view past the end
         centre = F.pad(centre, (0, 0, 0, 0, 0, horizon))
-        for t in range(max(context - 1, 1), length - 1):
+        for t in range(max(context - 1, 1), before + length - 1):
             window, ahead = slice(t - context + 1, t + 1), slice(t + 1, t + 1 + horizon)
             rows = seen[:, t]
             features.append(
@@ -108,7 +114,7 @@ def track_windows(
             targets.append((centre[:, ahead] - centre[:, t, None]).transpose(1, 2)[rows])
             seen_later.append(seen[:, ahead].transpose(1, 2)[rows].float())
             sequence, block = rows.nonzero(as_tuple=True)
-            where.append(torch.stack([sequence + first, torch.full_like(sequence, t), block], 1))
+            where.append(torch.stack([sequence + first, torch.full_like(sequence, t - before), block], 1))
     return torch.cat(features), torch.cat(targets), torch.cat(seen_later), torch.cat(where)
 
 
@@ -150,12 +156,14 @@ def fit_track_head(
     return validation
 
 
-def pretrain_track_head(model: FallPredictor, train: FallSequences, val: FallSequences, epochs: int) -> dict[str, Any]:
-    """``fit_track_head`` of ``model.tracks`` on every window of the training and validation splits: the
-    rows counted, each epoch's validation loss and the seconds spent."""
+def pretrain_track_head(
+    model: FallPredictor, train: FallSequences, val: FallSequences, epochs: int, from_rest: bool = False
+) -> dict[str, Any]:
+    """``fit_track_head`` of ``model.tracks`` on every window of the training and validation splits
+    (``track_windows``'s ``from_rest``): the rows counted, each epoch's validation loss and the seconds spent."""
     began = time.perf_counter()
-    rows = track_windows(model, train, model.tracks.horizon)
-    val_rows = track_windows(model, val, model.tracks.horizon)
+    rows = track_windows(model, train, model.tracks.horizon, from_rest=from_rest)
+    val_rows = track_windows(model, val, model.tracks.horizon, from_rest=from_rest)
     return {
         "epochs": epochs,
         "training_rows": len(rows[0]),
@@ -293,7 +301,8 @@ def train_fall_model(
     try:
         if config.track_pretrain_epochs and not resume:
             write_json(
-                run_dir / "track_pretraining.json", pretrain_track_head(model, train, val, config.track_pretrain_epochs)
+                run_dir / "track_pretraining.json",
+                pretrain_track_head(model, train, val, config.track_pretrain_epochs, config.track_windows_from_rest),
             )
             validate(None)  # the plan alone, the ConvLSTM untrained (no correction): best.pt unless an epoch beats it
         if unvalidated_loss is not None:  # interrupted during that epoch's validation

@@ -296,6 +296,26 @@ def test_a_track_head_model_starts_as_copy_last_and_draws_every_frame_from_its_p
 
 
 @pytest.mark.unit
+def test_windows_from_rest_start_with_the_first_frame_repeated_as_the_stability_check_asks():
+    from types import SimpleNamespace
+
+    labels = moving_block_labels().to(torch.uint8).numpy()  # block 1 moves 2 px a frame, block 2 stands
+    model = FallPredictor(3, 32, context=2, hidden=8, anchored=True, track_horizon=2)
+    split = SimpleNamespace(labels=labels, depth=None)
+    plain = fall_training.track_windows(model, split, 2)
+    rested = fall_training.track_windows(model, split, 2, from_rest=True)
+    assert plain[3][:, 1].tolist() == [1, 1] and rested[3][:, 1].tolist() == [0, 0, 1, 1]
+    first = rested[0][0]  # block 1 at t = 0, its context the first frame twice: no motion yet
+    assert first[:2].tolist() == [0.0, 0.0] and first[2] == 1.0
+    assert rested[1][0].tolist() == [[2.0, 0.0], [4.0, 0.0]]  # then it moves 2 and 4 px along x
+    assert torch.equal(rested[0][2:], plain[0]) and torch.equal(rested[1][2:], plain[1])
+    with pytest.raises(ValueError, match="track_windows_from_rest=True: expected false unless track_pretrain"):
+        fall_config(
+            {"kind": "fall_dynamics", "name": "tiny", "dataset": "x", "track_windows_from_rest": True}, "tiny.yaml"
+        )
+
+
+@pytest.mark.unit
 def test_untrained_depth_model_carries_each_block_height_and_needs_depth():
     from panda_grasp_env.agents.learning.falls.model import model_inputs
 
@@ -392,6 +412,7 @@ def test_bad_fall_configs_fail_with_the_name_and_the_shipped_config_loads(fall_d
         "select_horizon": 1,
         "track_head": False,
         "track_pretrain_epochs": 0,
+        "track_windows_from_rest": False,
         "epoch_sequences": None,
         "val_sequences": None,
     }
