@@ -2,9 +2,9 @@
 every piece's pose picks, for each target from the lowest up, a loose piece of its kind, grasps it at the cell
 nearest its centre, and places it at the cell nearest the target, with the rotations nearest the grip that
 turns the piece onto the target's heading with the fingers across the direction to the nearest piece built
-beside it.  ``--coarse`` first rounds both cells to the network's
-quarter-resolution grid (every 4th cell, 16 mm), as its scores are upsampled from; the refined network scores
-every 2nd cell.
+beside it.  ``--stride 4`` first rounds both cells to the network's
+quarter-resolution grid (every 4th cell, 16 mm), as its scores are upsampled from; ``--stride 2`` to the refined
+network's (every 2nd cell, 8 mm).
 
     python benchmarks/pixel_place_ceiling.py [--episodes 20] [--seed-start 5000000] [--rotations 32] [--stride 1]
 
@@ -95,7 +95,9 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--seed-start", type=int, default=5_000_000)
     parser.add_argument("--rotations", type=int, default=32)
-    parser.add_argument("--stride", type=int, default=1, help="cells between the aims allowed: 1, or 4 (--coarse)")
+    parser.add_argument(
+        "--stride", type=int, default=1, help="cells between the aims allowed: 1, 2 (the refined network) or 4"
+    )
     args = parser.parse_args()
     env = gym.make(
         "PandaStructure-v0",
