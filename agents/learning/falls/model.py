@@ -350,11 +350,11 @@ def model_inputs(model: FallPredictor, labels: Any, depth: Any = None) -> torch.
     return torch.cat([frames, heights(torch.as_tensor(depth))], -3)
 
 
-def block_displacements(before: torch.Tensor, after: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def block_displacements(before: torch.Tensor, after: torch.Tensor, n_classes: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Each block's centroid displacement (B, K, 2) in pixels (x, y) between true labels (B, S, S) of two
     consecutive frames -- what the model's displacement should be -- and each block's area in ``after``
-    (B, K), zero where the block is missing from either frame (no displacement defined)."""
-    n_classes = int(max(before.max(), after.max())) + 1
+    (B, K), zero where the block is missing from either frame (no displacement defined).  K = ``n_classes`` - 1,
+    given rather than read off the labels: a batch need not show every block (a structure of few pieces)."""
     start, area_before = mask_centroids(one_hot(before, n_classes)[:, 1:])
     end, area_after = mask_centroids(one_hot(after, n_classes)[:, 1:])
     return end - start, area_after * (area_before > 0)

@@ -78,7 +78,7 @@ def motion_loss(displacements: torch.Tensor, before: torch.Tensor, after: torch.
     centroid displacements between true frames ``before`` and ``after`` (N, S, S), weighted by each block's
     area in ``after`` (as the IoU weighs it).  In pixels: blocks move ~1 px a frame on average, and a
     sub-pixel error costs IoU."""
-    target, area = block_displacements(before, after)
+    target, area = block_displacements(before, after, displacements.shape[1] + 1)
     distance = F.smooth_l1_loss(displacements, target, reduction="none", beta=0.1).sum(2)
     return (distance * area).sum() / area.sum().clamp_min(1.0)
 

@@ -212,10 +212,12 @@ def test_untrained_model_moves_each_block_by_its_own_velocity_and_displacement_t
     expected = torch.zeros(32, 32, dtype=torch.long)
     expected[10:16, 10:16], expected[20:26, 20:26] = 1, 2
     assert torch.equal(predicted, expected)
-    target, area = block_displacements(labels[:, 1], labels[:, 2])
+    target, area = block_displacements(labels[:, 1], labels[:, 2], 3)
     assert torch.allclose(target[0], torch.tensor([[2.0, 0.0], [0.0, 0.0]])) and area[0].tolist() == [36, 36]
+    # Classes the frames do not show still get their row (a structure of fewer pieces than the model's classes).
+    assert block_displacements(labels[:, 1], labels[:, 2], 5)[1][0].tolist() == [36, 36, 0, 0]
     labels[0, 2][labels[0, 2] == 2] = 0  # block 2 gone: no displacement to learn from
-    assert block_displacements(labels[:, 1], labels[:, 2])[1][0].tolist() == [36, 0]
+    assert block_displacements(labels[:, 1], labels[:, 2], 3)[1][0].tolist() == [36, 0]
 
 
 @pytest.mark.unit
