@@ -91,6 +91,14 @@ def tower_words(heights: list[int]) -> str:
     return ("-, ".join(names[:-1]) + "- or " if len(names) > 1 else "") + f"{names[-1]}-block"
 
 
+def scene_words(metadata: dict[str, Any]) -> str:
+    """What a fall dataset's sequences show, for the card: a falling tower of its heights, or (``--scene
+    structures``) partly built structures recorded from rest."""
+    if metadata.get("scene") == "structures":
+        return "partly built structure (up to 8 pieces, recorded from rest, standing or falling)"
+    return f"falling {tower_words(tower_heights(metadata))} tower"
+
+
 def direction_rows(direction: dict[str, Any]) -> list[str]:
     """The card's fall-direction table (``fall_directions``): each predictor over all towers, then by height."""
     groups = {"all": direction, **{f"{h} blocks": d for h, d in direction.get("by_height", {}).items()}}
@@ -138,8 +146,8 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
         [
             f"# {config.name}",
             "",
-            "ConvLSTM encoder-decoder predicting the next segmentation frames of a falling "
-            f"{tower_words(tower_heights(read_metadata(config.dataset)))} tower "
+            "ConvLSTM encoder-decoder predicting the next segmentation frames of a "
+            f"{scene_words(read_metadata(config.dataset))} "
             "(`agents/learning/falls/model.py`"
             + (", reading depth as well as labels" if config.use_depth else "")
             + "), trained by this repository's `train.py` with the resolved config below on "
