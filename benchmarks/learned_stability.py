@@ -1,14 +1,15 @@
 """Does the learned fall model know what stands?  Its verdicts on the lookahead planner's candidate places,
 scored against the simulator's.
 
-    python benchmarks/learned_stability.py [--candidates 500] [--seed-start 7000] [--tiers 2,3,4] [--resume]
+    python benchmarks/learned_stability.py [--candidates 500] [--seed-start 7000] [--tiers 2,3,4]
+        [--fall-model fall_convlstm_tall,fall_convlstm_structures] [--resume]
 
 ``planned_lookahead`` builds random structures of the generator (``structure="random"``, the training
 distribution: never the named suite) on seeds ``seed-start`` onwards.  Before each choice, every target still
 to build is a candidate: ready ones (their supports stand) and the rest (set in the air over what is missing).
 Each is judged twice on the same state: by the simulator (``sim.stability.what_if``, which the episode follows) and
-by the shipped fall model (``learned_physics.FallModelCheck``: one rendered frame, the model's planned block
-displacements).  The planner itself acts on the simulator's verdicts.  A candidate that falls is a positive.  Prints the share that falls, the model's precision
+by each shipped fall model named (``learned_physics.FallModelCheck``: one rendered frame, the model's planned
+block displacements), so that models are compared on the same candidates.  The planner itself acts on the simulator's verdicts.  A candidate that falls is a positive.  Prints the share that falls, the model's precision
 and recall at the shipped threshold, the same over thresholds picked on the first half of the seeds and
 scored on the second, and the check's median time.  Candidates are appended per episode to
 ``results/learned_stability/candidates.jsonl`` (``--resume`` keeps the episodes done).
@@ -44,21 +45,24 @@ OUT = Path("results/learned_stability")
 
 
 class RecordingCheck:
-    """The simulator's what-if (whose verdict the planner follows), with the fall model's beside it while
+    """The simulator's what-if (whose verdict the planner follows), with each fall model's beside it while
     ``recording``."""
 
-    def __init__(self, learned: FallModelCheck) -> None:
+    def __init__(self, learned: dict[str, FallModelCheck]) -> None:
         self.learned, self.rows, self.recording, self.ready = learned, [], True, True
 
     def __call__(self, model, data, moves, watched):  # noqa: ANN001, ANN204  (what_if's signature)
         truth = what_if(model, data, moves, watched)
         if not self.recording:
             return truth
-        began = time.perf_counter()
-        predicted = self.learned(model, data, moves, watched)
+        predicted, seconds = {}, {}
+        for name, check in self.learned.items():
+            began = time.perf_counter()
+            predicted[name] = check(model, data, moves, watched).shift
+            seconds[name] = time.perf_counter() - began
         self.rows.append(
             {"falls": not truth.stands, "ready": self.ready, "sim_shift": truth.shift, "sim_turn": truth.turn,
-             "predicted_shift": predicted.shift, "seconds": time.perf_counter() - began}
+             "predicted_shift": predicted, "seconds": seconds}
         )  # fmt: skip
         return truth
 
@@ -89,10 +93,11 @@ def play(seed: int, tiers: list[int], check: RecordingCheck) -> list[dict]:
     return [{**row, "seed": seed, "success": outcome["result"]["success"]} for row in check.rows]
 
 
-def scores(rows: list[dict], threshold: float) -> dict[str, float]:
-    """Precision and recall of "falls" (predicted shift >= threshold) against the simulator, and accuracy."""
+def scores(rows: list[dict], name: str, threshold: float) -> dict[str, float]:
+    """Precision and recall of "falls" (model ``name``'s predicted shift >= threshold, metres) against the
+    simulator, and accuracy."""
     falls = np.array([r["falls"] for r in rows])
-    said = np.array([r["predicted_shift"] >= threshold for r in rows])
+    said = np.array([r["predicted_shift"][name] >= threshold for r in rows])
     hits = int(np.sum(falls & said))
     return {
         "threshold": threshold,
@@ -103,10 +108,10 @@ def scores(rows: list[dict], threshold: float) -> dict[str, float]:
     }
 
 
-def best_threshold(rows: list[dict]) -> float:
-    """The threshold of greatest balanced accuracy on ``rows`` (each predicted shift tried)."""
+def best_threshold(rows: list[dict], name: str) -> float:
+    """The threshold of greatest balanced accuracy on ``rows`` (each of model ``name``'s predicted shifts tried)."""
     falls = np.array([r["falls"] for r in rows])
-    shifts = np.array([r["predicted_shift"] for r in rows])
+    shifts = np.array([r["predicted_shift"][name] for r in rows])
     if falls.all() or not falls.any():
         return DEFAULT_THRESHOLD
     candidates = np.unique(shifts)
@@ -126,17 +131,22 @@ def main() -> None:
     parser.add_argument("--candidates", type=int, default=500)
     parser.add_argument("--seed-start", type=int, default=7000)
     parser.add_argument("--tiers", default="2,3,4")
-    parser.add_argument("--fall-model", default="fall_convlstm_tall")
+    parser.add_argument(
+        "--fall-model", default="fall_convlstm_tall", help="shipped fall models, comma-separated (judged side by side)"
+    )
     parser.add_argument("--resume", action="store_true")
     args = parser.parse_args()
     torch.set_num_threads(1)
     tiers = [int(t) for t in args.tiers.split(",")]
     OUT.mkdir(parents=True, exist_ok=True)
     path = OUT / "candidates.jsonl"
+    names = args.fall_model.split(",")
     rows = [json.loads(text) for text in path.read_text().splitlines()] if args.resume and path.exists() else []
+    if any(set(r["predicted_shift"]) != set(names) for r in rows):
+        raise ValueError(f"--resume: {path} was recorded with other fall models than --fall-model {args.fall_model}")
     if not args.resume:
         path.write_text("")
-    check = RecordingCheck(FallModelCheck(args.fall_model))
+    check = RecordingCheck({name: FallModelCheck(name) for name in names})
     seed = max((r["seed"] for r in rows), default=args.seed_start - 1) + 1
     while len(rows) < args.candidates:
         played = play(seed, tiers, check)
@@ -150,20 +160,21 @@ def main() -> None:
     held_out = [r for r in rows if r["seed"] in seeds[len(seeds) // 2 :]]
     falls = sum(r["falls"] for r in rows)
     print(f"\n{len(rows)} candidate places on seeds {seeds[0]}-{seeds[-1]} (tiers {args.tiers}): {falls} fall")
-    print(f"fall model {args.fall_model}; check median {statistics.median(r['seconds'] for r in rows) * 1000:.0f} ms")
-    print(line("all, shipped threshold", scores(rows, DEFAULT_THRESHOLD)))
     ready = [r for r in rows if r["ready"]]
     print(f"ready candidates (supports standing): {len(ready)}, {sum(r['falls'] for r in ready)} fall")
-    print(line("ready, shipped threshold", scores(ready, DEFAULT_THRESHOLD)))
-    picked = best_threshold(calibration)
-    print(f"threshold picked on seeds {seeds[0]}-{seeds[len(seeds) // 2 - 1]} ({len(calibration)} candidates)")
-    print(line("held-out half, picked threshold", scores(held_out, picked)))
-    for label, group in (("falls", True), ("stands", False)):
-        shifts = [r["predicted_shift"] * 1000 for r in rows if r["falls"] == group]
-        if shifts:
-            q = np.percentile(shifts, [10, 50, 90])
-            print(f"predicted shift where the simulator says {label}: p10 {q[0]:.2f}  median {q[1]:.2f}  "
-                  f"p90 {q[2]:.2f} mm")  # fmt: skip
+    for name in names:
+        print(f"\nfall model {name}; check median {statistics.median(r['seconds'][name] for r in rows) * 1000:.0f} ms")
+        print(line("all, shipped threshold", scores(rows, name, DEFAULT_THRESHOLD)))
+        print(line("ready, shipped threshold", scores(ready, name, DEFAULT_THRESHOLD)))
+        picked = best_threshold(calibration, name)
+        print(f"threshold picked on seeds {seeds[0]}-{seeds[len(seeds) // 2 - 1]} ({len(calibration)} candidates)")
+        print(line("held-out half, picked threshold", scores(held_out, name, picked)))
+        for label, group in (("falls", True), ("stands", False)):
+            shifts = [r["predicted_shift"][name] * 1000 for r in rows if r["falls"] == group]
+            if shifts:
+                q = np.percentile(shifts, [10, 50, 90])
+                print(f"predicted shift where the simulator says {label}: p10 {q[0]:.2f}  median {q[1]:.2f}  "
+                      f"p90 {q[2]:.2f} mm")  # fmt: skip
 
 
 if __name__ == "__main__":
