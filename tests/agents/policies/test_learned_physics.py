@@ -37,6 +37,20 @@ def test_a_fall_model_without_a_track_head_is_refused():
         FallModelCheck("fall_convlstm")
 
 
+def test_the_default_model_says_a_cube_on_the_table_stands_and_one_in_the_air_falls(check):
+    """The structure-fall model, asked about a lone cube: set on the table it stands; 10 cm above it, over
+    nothing, it falls (the tall-tower model called the first "falls": 18.5 mm)."""
+    env = gym.make("panda_grasp_env:PandaStructure-v0", structure="bridge", **STRUCTURE_OPTIONS)
+    env.reset(seed=0)
+    cell = env.unwrapped.cell
+    cube = int(cell.object_ids[0])
+    on_table, in_air = (
+        check(cell.model, cell.data, {cube: (np.array([0.5, 0.1, z]), 0.0)}, [cube]) for z in (0.025, 0.125)
+    )
+    assert on_table.stands and not in_air.stands
+    env.close()
+
+
 def test_the_check_reads_a_rendered_copy_and_leaves_the_simulation_as_it_was(check):
     env = gym.make("panda_grasp_env:PandaStructure-v0", structure="bridge", **STRUCTURE_OPTIONS)
     env.reset(seed=0)
