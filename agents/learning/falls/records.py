@@ -95,7 +95,7 @@ def scene_words(metadata: dict[str, Any]) -> str:
     """What a fall dataset's sequences show, for the card: a falling tower of its heights, or (``--scene
     structures``) partly built structures recorded from rest."""
     if metadata.get("scene") == "structures":
-        return "partly built structure (up to 8 pieces, recorded from rest, standing or falling)"
+        return f"partly built structure (up to {max(tower_heights(metadata))} pieces, recorded from rest, standing or falling)"
     return f"falling {tower_words(tower_heights(metadata))} tower"
 
 

@@ -99,10 +99,12 @@ def track_windows(
     for first in range(0, len(split.labels), chunk):
         depth = None if split.depth is None else split.depth[first : first + chunk]
         frames = model_inputs(model, split.labels[first : first + chunk], depth if model.use_depth else None)
-        centre, area, height = (
-            torch.cat([track[:, :1].expand(-1, before, *track.shape[2:]), track], 1)
-            for track in block_tracks(frames, model.n_classes)
-        )
+        centre, area, height = block_tracks(frames, model.n_classes)
+        if before:
+            centre, area, height = (
+                torch.cat([track[:, :1].expand(-1, before, *track.shape[2:]), track], 1)
+                for track in (centre, area, height)
+            )
         seen = F.pad(area > SEEN_AREA, (0, 0, 0, horizon))  # never in view past the end
         centre = F.pad(centre, (0, 0, 0, 0, 0, horizon))
         for t in range(max(context - 1, 1), before + length - 1):
