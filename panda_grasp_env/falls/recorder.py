@@ -388,6 +388,8 @@ def main(argv: list[str] | None = None) -> int:
             )
         elif field == "strike_levels":
             parser.add_argument("--strike-levels", type=int, nargs=2, default=value, metavar=("LOWEST", "HIGHEST"))
+        elif isinstance(value, bool):
+            parser.add_argument(f"--{field.replace('_', '-')}", action="store_true")
         else:
             parser.add_argument(f"--{field.replace('_', '-')}", type=type(value), default=value)
     parser.add_argument("--no-progress", action="store_true")

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, ConfigDict, Field, StrictFloat, StrictInt, model_validator
+from pydantic import AfterValidator, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, model_validator
 from pydantic.dataclasses import dataclass
 
 from panda_grasp_env.config_fields import Seed, distinct
@@ -29,7 +29,7 @@ BREAKERS = ("impulse", "push", "mixed")
 #: structure, from rest (``structure_falls.py``; the tower settings do not apply).
 SCENES = ("tower", "structures")
 #: Settings added after the first recordings; their defaults record what the recorder did before them.
-LATER_SETTINGS = ("tower_blocks", "strike_levels", "start_shift", "scene")
+LATER_SETTINGS = ("tower_blocks", "strike_levels", "start_shift", "scene", "shifted_candidates")
 #: The widest square crop (pixels): the rendered image's height.
 LARGEST_CROP = min(RENDER_SIZE)
 #: An impulse's magnitude (N s).
@@ -99,6 +99,16 @@ class RecorderSettings:
     # at up to 0.16 m/s for seconds before it moves; see docs/falling-tower.md).
     start_shift: Annotated[StrictInt | StrictFloat, Field(ge=0, le=0.05, description="in [0, 0.05] m")] = 0.0
     scene: Annotated[Literal[SCENES], Field(description=f"one of {list(SCENES)}")] = "tower"
+    # Structures only: the candidate is drawn in thirds -- in the air, ready at its target, or ready and slid off
+    # its target so that it may overhang its supports (``structure_falls.shifted_off``); off: half in the air,
+    # half ready at the target (where nothing ready ever fell).
+    shifted_candidates: StrictBool = False
+
+    @model_validator(mode="after")
+    def _check_shifts_are_of_structures(self) -> RecorderSettings:
+        if self.shifted_candidates and self.scene != "structures":
+            raise config_value_error("shifted_candidates", True, 'false unless scene is "structures"')
+        return self
 
     @model_validator(mode="after")
     def _check_strikes_hit_every_tower(self) -> RecorderSettings:

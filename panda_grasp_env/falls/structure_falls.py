@@ -5,10 +5,14 @@ A sequence (``RecorderSettings(scene="structures")``): ``PandaStructure-v0`` res
 structure of the generator (tiers 1-4, up to ``MAX_PIECES`` pieces; never one resembling the named suite).
 Some of its pieces are set exactly at their targets -- a prefix of a build order in which every piece's
 supports come first -- and then one more, the candidate: half the time one whose supports are all set
-(``ready``), otherwise one that lacks a support where the structure has one (it hangs in the air).  The pieces are let go at rest, and the
-overhead camera is sampled from that instant every ``frame_interval`` seconds, cropped around the candidate as
-the check crops it; the physics runs as ``sim.stability.what_if`` runs it (the arm holds its controls).  A
-ready candidate on a balance motif may stand or fall; one in the air falls.
+(``ready``), otherwise one that lacks a support where the structure has one (it hangs in the air).  With
+``shifted_candidates`` it is drawn in thirds: in the air; ready, at its target; or ready and resting on others,
+slid off its target (``shifted_off``) so that it may overhang its supports.  The
+pieces are let go at rest, and the overhead camera is sampled from that instant every ``frame_interval``
+seconds, cropped around the candidate as the check crops it; the physics runs as ``sim.stability.what_if``
+runs it (the arm holds its controls).  A ready candidate at its target stands (the generator's structures
+stand at every build step); one in the air falls; a shifted one stands or tips as its centre of mass lies over
+its supports or beyond them -- the overhangs and counterweights a planner asks about.
 
 Labels are the check's: class k + 1 is the k-th highest piece set (at rest), 0 everything else; ``poses``
 follows the same order.  ``colour_labels`` repeats ``labels`` (the pieces' colours are not distinct);
@@ -26,7 +30,7 @@ import numpy as np
 
 from panda_grasp_env.falls.settings import RENDER_SIZE, RecorderSettings
 from panda_grasp_env.model.structure_generator import MAX_PIECES
-from panda_grasp_env.model.structures import Piece
+from panda_grasp_env.model.structures import Piece, interpenetrate
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.sim.stability import set_free_pose
 from panda_grasp_env.tasks.structure_build import resting_on
@@ -72,9 +76,12 @@ def make_structure_env() -> Any:
     )
 
 
-def build_state(pieces: list[Piece], rng: np.random.Generator) -> tuple[list[int], int]:
+def build_state(
+    pieces: list[Piece], rng: np.random.Generator, shifted: bool = False
+) -> tuple[list[int], int, np.ndarray]:
     """The pieces set before the candidate (indices into ``pieces``, world poses: a build-order prefix, each
-    piece after those it rests on) and the candidate (module doc)."""
+    piece after those it rests on), the candidate, and the candidate's offset from its target (x, y, world
+    metres; zero unless ``shifted`` draws it slid off, module doc)."""
     below = {
         j: [i for i in range(len(pieces)) if i != j and resting_on(pieces[i], [pieces[j]])] for j in range(len(pieces))
     }
@@ -85,8 +92,31 @@ def build_state(pieces: list[Piece], rng: np.random.Generator) -> tuple[list[int
     left = [j for j in range(len(pieces)) if j not in built]
     ready = [j for j in left if all(i in built for i in below[j])]
     unready = [j for j in left if j not in ready]
-    candidate = int(rng.choice(ready if not unready or rng.random() < 0.5 else unready))
-    return built, candidate
+    if not shifted:
+        return built, int(rng.choice(ready if not unready or rng.random() < 0.5 else unready)), np.zeros(2)
+    draw = rng.random()
+    if unready and draw < 1 / 3:
+        return built, int(rng.choice(unready)), np.zeros(2)
+    candidate = int(rng.choice(ready))
+    if below[candidate] and draw >= 2 / 3:
+        return built, candidate, shifted_off(pieces, built, candidate, rng)
+    return built, candidate, np.zeros(2)
+
+
+def shifted_off(pieces: list[Piece], built: list[int], candidate: int, rng: np.random.Generator) -> np.ndarray:
+    """An offset (x, y, world metres) sliding ``pieces[candidate]`` off its target: up to 1.5 of its half-length
+    along its own axes, so its centre of mass may leave its supports, and overlapping no piece of ``built``;
+    zero if none of four draws does."""
+    piece = pieces[candidate]
+    c, s = np.cos(piece.yaw), np.sin(piece.yaw)
+    for _ in range(4):
+        along, across = rng.uniform(-1.5, 1.5, 2) * piece.half_extents[:2]
+        offset = np.array([c * along - s * across, s * along + c * across])
+        x, y, z = piece.position
+        moved = Piece(piece.kind, (x + offset[0], y + offset[1], z), piece.yaw)
+        if not any(interpenetrate(moved, pieces[i]) for i in built):
+            return offset
+    return np.zeros(2)
 
 
 class StructureRecorder:
@@ -124,7 +154,9 @@ class StructureRecorder:
         centres, yaws = structure.world_poses(layout.origin, layout.heading)
         pieces = [Piece(p.kind, tuple(c), float(y)) for p, c, y in zip(structure.pieces, centres, yaws)]
         rng = np.random.default_rng([settings.seed, seed, 0x57AB])
-        built, candidate = build_state(pieces, rng)
+        built, candidate, offset = build_state(pieces, rng, settings.shifted_candidates)
+        centres = np.array(centres, dtype=float)
+        centres[candidate, :2] += offset
         bodies = cell.object_ids[: len(pieces)]
         for index in [*built, candidate]:
             set_free_pose(cell.model, cell.data, int(bodies[index]), centres[index], float(yaws[index]))

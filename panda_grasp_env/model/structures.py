@@ -179,7 +179,7 @@ class Structure:
                 raise ValueError(f"{where}: piece {index} reaches {reach:.3f} m from the origin (at most {MAX_RADIUS})")
         for i, first in enumerate(every):
             for j in range(i + 1, len(every)):
-                if _interpenetrate(first, every[j]):
+                if interpenetrate(first, every[j]):
                     raise ValueError(f"{where}: pieces {i} and {j} overlap")
 
     @property
@@ -276,7 +276,7 @@ def _indices(values: Any, n: int, what: str) -> tuple[int, ...]:
     return tuple(int(i) for i in values)
 
 
-def _interpenetrate(a: Piece, b: Piece) -> bool:
+def interpenetrate(a: Piece, b: Piece) -> bool:
     """Whether two pieces' boxes overlap by more than ``OVERLAP_TOLERANCE``: their height intervals, and their
     footprints (``footprints_within``)."""
     za, zb = a.position[2], b.position[2]

@@ -11,7 +11,7 @@ from panda_grasp_env.falls.recorder import record_dataset
 from panda_grasp_env.falls.settings import RecorderSettings
 from panda_grasp_env.falls.structure_falls import NOT_STRUCK, build_state
 from panda_grasp_env.model.structure_generator import MAX_PIECES
-from panda_grasp_env.model.structures import Piece
+from panda_grasp_env.model.structures import Piece, interpenetrate
 
 SETTINGS = RecorderSettings(scene="structures", frames=8, frame_interval=0.08, crop=96, shard_size=6)
 
@@ -24,14 +24,45 @@ def test_a_build_state_sets_supports_first_and_a_candidate_in_the_air_only_where
         Piece("plank", (0.45, 0.0, 0.075), np.pi / 2),
     ]
     seen = set()
-    for seed in range(60):
-        built, candidate = build_state(span, np.random.default_rng(seed))
+    offsets = []
+    for seed in range(90):
+        built, candidate, offset = build_state(span, np.random.default_rng(seed), shifted=True)
         assert 2 not in built  # the plank is never set before both its cubes
         assert candidate not in built
         seen.add((len(built), candidate == 2))
+        if offset.any():
+            assert candidate == 2 and len(built) == 2  # only a ready piece resting on others is slid off
+            offsets.append(offset)
     assert (0, True) in seen and (2, True) in seen and (0, False) in seen  # in the air, ready, and a first cube
+    # the plank (yaw 90 degrees: its length along world y) slides up to 1.5 half-lengths along it
+    offsets = np.array(offsets)
+    assert len(offsets) > 5 and np.abs(offsets[:, 1]).max() > 0.07 and np.abs(offsets).max(axis=0)[0] <= 0.0375
+    assert not any(build_state(span, np.random.default_rng(s))[2].any() for s in range(30))  # off by default
     row = [Piece("cube", (0.45, y, 0.025)) for y in (-0.06, 0.0, 0.06)]
     assert all(build_state(row, np.random.default_rng(s))[1] in range(3) for s in range(10))
+    assert not any(build_state(row, np.random.default_rng(s), shifted=True)[2].any() for s in range(10))  # on the table
+
+
+@pytest.mark.unit
+def test_a_shifted_candidate_never_overlaps_a_piece_already_set():
+    # two columns of two cubes side by side, touching: a top cube slid towards the other top one would overlap it
+    columns = [Piece("cube", (0.45, y, z)) for z in (0.025, 0.075) for y in (0.0, 0.05)]
+    beside = 0
+    for seed in range(200):
+        built, candidate, offset = build_state(columns, np.random.default_rng(seed), shifted=True)
+        if offset.any():
+            x, y, z = columns[candidate].position
+            moved = Piece("cube", (x + offset[0], y + offset[1], z))
+            assert not any(interpenetrate(moved, columns[i]) for i in built)
+            beside += (5 - candidate) in built  # the other top cube (2 <-> 3) is set
+    assert beside > 3
+
+
+@pytest.mark.unit
+def test_shifted_candidates_are_a_structures_setting_only():
+    assert RecorderSettings(scene="structures", shifted_candidates=True).shifted_candidates
+    with pytest.raises(ValueError, match="shifted_candidates"):
+        RecorderSettings(shifted_candidates=True)
 
 
 def test_structure_sequences_fall_or_stand_from_rest_and_load_as_a_fall_dataset(tmp_path):
