@@ -42,14 +42,15 @@ def test_seeds_played_in_either_order_give_the_same_records(agent, task, seeds):
     assert records(agent, task, seeds) == records(agent, task, seeds[::-1])
 
 
-def test_one_or_two_worker_processes_give_byte_identical_results_on_mesh_and_block_tasks(tmp_path):
-    argv = ["--agents", "random,grasp_mesh_dqn", "--tasks", "GraspMeshTest,GraspClutter", "--seeds", "3"]
+def test_one_or_two_worker_processes_give_byte_identical_results_on_a_mesh_task(tmp_path):
+    # (on a block task: tests/agents/evaluation/test_evaluate.py)
+    argv = ["--agents", "random,grasp_mesh_dqn", "--tasks", "GraspMeshTest", "--seeds", "2"]
     outs = [tmp_path / "one", tmp_path / "two"]
     assert evaluate.main([*argv, "--no-video", "--out", str(outs[0])]) == 0
     assert evaluate.main([*argv, "--no-video", "--workers", "2", "--out", str(outs[1])]) == 0
     assert (outs[0] / "results.csv").read_bytes() == (outs[1] / "results.csv").read_bytes()
     episodes = json.loads((outs[0] / "results.json").read_text())["episodes"]
-    assert len(episodes) == 12 and {e["spec"]["task"] for e in episodes} == {"GraspMeshTest", "GraspClutter"}
+    assert len(episodes) == 4 and {e["spec"]["task"] for e in episodes} == {"GraspMeshTest"}
 
 
 @pytest.mark.slow
