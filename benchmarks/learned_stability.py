@@ -13,6 +13,12 @@ block displacements), so that models are compared on the same candidates.  The p
 and recall at the shipped threshold, the same over thresholds picked on the first half of the seeds and
 scored on the second, and the check's median time.  Candidates are appended per episode to
 ``results/learned_stability/candidates.jsonl`` (``--resume`` keeps the episodes done).
+
+``--dataset data/falls_structures_...`` judges instead the test split (seed % 10 == 9) of a recorded
+structure-fall dataset (``python -m panda_grasp_env.falls --scene structures``): each sequence's first frame
+is the candidate, and it falls where a piece moves ``STILL_SHIFT`` (4 mm) or more over the sequence.  With
+``--shifted-candidates`` recordings this scores ready places that tip, which the planner's candidates on the
+generator's structures never hold.  ``--fall-model`` takes shipped names or ``model.pt``/``best.pt`` paths.
 """
 
 from __future__ import annotations
@@ -36,10 +42,11 @@ import torch
 from panda_grasp_env.agents.evaluation.benchmarks import STRUCTURE_OPTIONS
 from panda_grasp_env.agents.evaluation.episodes import play_episode
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
+from panda_grasp_env.agents.learning.falls.dataset import load_split
 from panda_grasp_env.agents.policies.learned_physics import DEFAULT_THRESHOLD, FallModelCheck
 from panda_grasp_env.agents.policies.structure_views import HeightmapPieces, Seen
 from panda_grasp_env.agents.policies.structures import StructurePlanner
-from panda_grasp_env.sim.stability import what_if
+from panda_grasp_env.sim.stability import STILL_SHIFT, what_if
 
 OUT = Path("results/learned_stability")
 
@@ -119,6 +126,26 @@ def best_threshold(rows: list[dict], name: str) -> float:
     return float(candidates[int(np.argmax(balanced))])
 
 
+def dataset_rows(root: Path, checks: dict[str, FallModelCheck]) -> list[dict]:
+    """The test split of a structure-fall dataset as candidates (module doc), each model's planned shift
+    (metres, at the depth of the crop's centre) from the first frame."""
+    split = load_split(root, "test", depth=True)
+    focal = float(np.asarray(split.camera["K"])[0][0])
+    rows = []
+    for labels, depth, poses, n, seed in zip(split.labels, split.depth, split.poses, split.n_blocks, split.seeds):
+        first = labels[0].astype(np.int64)
+        present = [k for k in range(1, int(n) + 1) if np.any(first == k)]
+        metres_per_pixel = float(depth[0][first.shape[0] // 2, first.shape[1] // 2]) / focal
+        predicted = {}
+        for name, check in checks.items():
+            planned = check.predict(first, depth[0].astype(np.float32))
+            predicted[name] = max((float(np.linalg.norm(planned[k - 1])) for k in present), default=0.0)
+            predicted[name] *= metres_per_pixel
+        moved = float(np.linalg.norm(poses[-1, :n, :3] - poses[0, :n, :3], axis=1).max())
+        rows.append({"falls": moved >= STILL_SHIFT, "seed": int(seed), "predicted_shift": predicted})
+    return rows
+
+
 def line(name: str, figures: dict[str, float]) -> str:
     return (
         f"{name:<34} threshold {figures['threshold'] * 1000:7.2f} mm  precision {figures['precision']:.3f}  "
@@ -135,8 +162,18 @@ def main() -> None:
         "--fall-model", default="fall_convlstm_tall", help="shipped fall models, comma-separated (judged side by side)"
     )
     parser.add_argument("--resume", action="store_true")
+    parser.add_argument("--dataset", type=Path, default=None, help="judge a structure-fall dataset's test split")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.dataset is not None:
+        names = args.fall_model.split(",")
+        rows = dataset_rows(args.dataset, {name: FallModelCheck(name) for name in names})
+        print(f"{len(rows)} test sequences of {args.dataset}: {sum(r['falls'] for r in rows)} fall")
+        for name in names:
+            print(f"\nfall model {name}")
+            print(line("all, shipped threshold", scores(rows, name, DEFAULT_THRESHOLD)))
+            print(line("best balanced threshold (in-sample)", scores(rows, name, best_threshold(rows, name))))
+        return
     tiers = [int(t) for t in args.tiers.split(",")]
     OUT.mkdir(parents=True, exist_ok=True)
     path = OUT / "candidates.jsonl"
