@@ -134,13 +134,11 @@ def dataset_rows(root: Path, checks: dict[str, FallModelCheck]) -> list[dict]:
     rows = []
     for labels, depth, poses, n, seed in zip(split.labels, split.depth, split.poses, split.n_blocks, split.seeds):
         first = labels[0].astype(np.int64)
-        present = [k for k in range(1, int(n) + 1) if np.any(first == k)]
         metres_per_pixel = float(depth[0][first.shape[0] // 2, first.shape[1] // 2]) / focal
-        predicted = {}
-        for name, check in checks.items():
-            planned = check.predict(first, depth[0].astype(np.float32))
-            predicted[name] = max((float(np.linalg.norm(planned[k - 1])) for k in present), default=0.0)
-            predicted[name] *= metres_per_pixel
+        predicted = {
+            name: check.largest_shift(first, depth[0].astype(np.float32), int(n)) * metres_per_pixel
+            for name, check in checks.items()
+        }
         moved = float(np.linalg.norm(poses[-1, :n, :3] - poses[0, :n, :3], axis=1).max())
         rows.append({"falls": moved >= STILL_SHIFT, "seed": int(seed), "predicted_shift": predicted})
     return rows

@@ -132,10 +132,15 @@ class FallModelCheck:
         watched = sorted({*map(int, watched), *map(int, moves)})
         centre = np.mean([np.asarray(position, dtype=float) for position, _ in moves.values()], axis=0)
         labels, depth, metres_per_pixel = self.frame(model, trial, centre, watched)
-        present = [k for k in range(1, min(len(watched), self.net.n_classes - 1) + 1) if np.any(labels == k)]
-        planned = self.predict(labels, depth)
-        shift = max((float(np.linalg.norm(planned[k - 1])) for k in present), default=0.0) * metres_per_pixel
+        shift = self.largest_shift(labels, depth, len(watched)) * metres_per_pixel
         return Prediction(shift, self.threshold, self.horizon * self.frame_interval)
+
+    def largest_shift(self, labels: np.ndarray, depth: np.ndarray, n_watched: int) -> float:
+        """The largest planned displacement (pixels) of the block classes 1..``n_watched`` that show in the frame
+        (``predict``'s inputs)."""
+        present = [k for k in range(1, min(n_watched, self.net.n_classes - 1) + 1) if np.any(labels == k)]
+        planned = self.predict(labels, depth)
+        return max((float(np.linalg.norm(planned[k - 1])) for k in present), default=0.0)
 
 
 @register_agent("planned_lookahead_learned", *STRUCTURE_BENCHMARKS, needs_learning_stack=True)
