@@ -54,6 +54,10 @@ class FallConfig:
     # The sequences start at rest (structure falls): the track head is also fitted on windows whose context
     # is the first frame repeated, which is what the learned stability check asks about.
     track_windows_from_rest: Annotated[StrictBool, Field(description="true or false")] = False
+    # Epochs of fitting a settle head (settling.py) on each training sequence's first frame against how far its
+    # blocks went by the last, after the track head and before the ConvLSTM's epochs; then frozen.  The learned
+    # stability check asks it instead of the track head.  0: no settle head.
+    settle_epochs: Annotated[StrictInt, Field(ge=0, description="an int >= 0")] = 0
     # Sequences drawn per epoch (default: as many as the training split holds).
     epoch_sequences: Count | None = None
     # Validate each epoch on the first this many validation sequences (default: all).

@@ -8,7 +8,8 @@ t - context + 1 ... t:
 * IoU of class c: sum of |pred = c and true = c| / sum of |pred = c or true = c|
   over all evaluated frames (dataset-level); mean block IoU: mean over the block classes.
 
-``test_scores``: these and the fall directions (``directions``) of a model and the baselines on a test split.
+``test_scores``: these and the fall directions (``directions``) of a model and the baselines on a test split,
+and with a settle head its stands/falls answers (``settling``).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from panda_grasp_env.agents.learning.falls.baselines import BASELINES
 from panda_grasp_env.agents.learning.falls.dataset import FallSequences
 from panda_grasp_env.agents.learning.falls.directions import fall_directions
 from panda_grasp_env.agents.learning.falls.model import FallPredictor, check_compatible, predict_batch
+from panda_grasp_env.agents.learning.falls.settling import settle_scores
 
 
 @dataclass
@@ -98,9 +100,11 @@ def evaluate(
 
 
 def test_scores(model: FallPredictor, test: FallSequences, context: int) -> dict[str, Any]:
-    """The test figures of ``model`` and the baselines on a split: ``metrics`` (``evaluate``) and ``direction``
-    (``fall_directions``)."""
+    """The test figures of ``model`` and the baselines on a split: ``metrics`` (``evaluate``), ``direction``
+    (``fall_directions``) and, for a model with a settle head, ``settle`` (``settle_scores``)."""
+    settle = {"settle": settle_scores(model, test)} if model.settle_frames else {}
     return {
+        **settle,
         "metrics": evaluate(model, test.labels, test.classes, context, depth=test.depth),
         "direction": fall_directions(
             model,

@@ -45,6 +45,13 @@ of class masks cannot tell a block about to land from one still falling.  The
 model then also predicts the next height map (each block's heights carried by
 its warp, plus a learned correction), which multi-step rollouts feed back.
 
+With ``settle_frames`` the model also answers the stability check's question outright: a settle head
+(``SettleHead``), a small convolutional network on the first frame alone, predicts the largest displacement
+any block makes over the next ``settle_frames`` frames (metres).  It is fitted on each training sequence's first
+frame against the recorded block poses (``training.fit_settle_head``): the track head plans motion from
+blocks' tracks, and from one frame at rest those carry no motion to extend, so on structure falls it missed
+about half the falls at 4 mm (docs/structures.md).
+
 Here too: the model's inputs from labels and depth images, its predictions as labels, and its checkpoints'
 loader.  The baselines it is compared with are in ``baselines``, its metrics in ``metrics`` and
 ``directions``.
@@ -101,6 +108,24 @@ class ConvLSTMCell(nn.Module):
         return h, c
 
 
+class SettleHead(nn.Module):
+    """From one frame at rest (B, C [+ 1], S, S), centred on the piece just set: ``log1p`` of the largest
+    displacement (millimetres) any block makes over the frames that follow (B,).  Four strided convolutions keep
+    where things lie relative to the centre (the candidate and what is under it), so the features are
+    flattened, not pooled."""
+
+    def __init__(self, channels: int, image_size: int) -> None:
+        super().__init__()
+        self.features = nn.Sequential(conv(channels, 16, 2), conv(16, 32, 2), conv(32, 64, 2), conv(64, 64, 2))
+        cells = image_size
+        for _ in range(4):
+            cells = (cells + 1) // 2  # 3x3, stride 2, padding 1
+        self.out = nn.Sequential(nn.Flatten(), nn.Linear(64 * cells * cells, 64), nn.ReLU(), nn.Linear(64, 1))
+
+    def forward(self, frame: torch.Tensor) -> torch.Tensor:
+        return self.out(self.features(frame))[:, 0]
+
+
 class FallPredictor(nn.Module):
     """Next-frame class logits from a sequence of frames (B, T, C [+ 1], S, S): class probabilities, then
     with ``use_depth`` a height map (``model_inputs`` builds them)."""
@@ -114,6 +139,7 @@ class FallPredictor(nn.Module):
         use_depth: bool = False,
         anchored: bool = False,
         track_horizon: int = 0,
+        settle_frames: int = 0,
     ) -> None:
         super().__init__()
         if image_size % 4:
@@ -121,8 +147,13 @@ class FallPredictor(nn.Module):
         if track_horizon < 0 or (track_horizon and not anchored):
             raise ValueError(f"track_horizon must be 0, or >= 1 with anchored=True; got {track_horizon}")
         self.n_classes, self.image_size, self.context, self.hidden = n_classes, image_size, context, hidden
+        if settle_frames < 0:
+            raise ValueError(f"settle_frames must be 0 (no settle head) or >= 1, got {settle_frames}")
         self.use_depth, self.anchored, self.track_horizon = use_depth, anchored, track_horizon
+        self.settle_frames = settle_frames
         channels = n_classes + int(use_depth)
+        if settle_frames:
+            self.settle = SettleHead(channels, image_size)
         self.e1, self.e2, self.e3 = conv(2 * channels, 16), conv(16, 32, 2), conv(32, 32)  # frame and its predecessor
         self.e4, self.e5 = conv(32, 64, 2), conv(64, 64)
         self.lstm = ConvLSTMCell(64, hidden)
@@ -315,6 +346,13 @@ class FallPredictor(nn.Module):
         """Logits (B, horizon, C, S, S) of the ``horizon`` frames after ``frames`` (B, T, C [+ 1], S, S)."""
         return self.rollout_with_motion(frames, horizon)[0]
 
+    def settle_shift(self, frame: torch.Tensor) -> torch.Tensor:
+        """(B,) the largest displacement (metres) the settle head predicts of any block over the next
+        ``settle_frames`` frames after ``frame`` (B, C [+ 1], S, S), a frame at rest."""
+        if not self.settle_frames:
+            raise ValueError("this fall model has no settle head (trained with settle_epochs: 0)")
+        return torch.expm1(self.settle(frame).clamp_min(0.0)) * 1e-3
+
     def describe(self) -> dict[str, int]:
         return {
             "n_classes": self.n_classes,
@@ -324,6 +362,7 @@ class FallPredictor(nn.Module):
             "use_depth": self.use_depth,
             "anchored": self.anchored,
             "track_horizon": self.track_horizon,
+            "settle_frames": self.settle_frames,
         }
 
 

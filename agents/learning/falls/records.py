@@ -18,6 +18,7 @@ from panda_grasp_env.agents.learning.falls.directions import DIRECTION_TOLERANCE
 from panda_grasp_env.agents.learning.falls.model import ARCHITECTURE, FallPredictor, load_fall_model, predict_batch
 from panda_grasp_env.falls.shards import read_metadata, tower_heights
 from panda_grasp_env.model.scene import DEFAULT_COLOURS
+from panda_grasp_env.sim.stability import STILL_SHIFT
 from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, MAX_LOG_BYTES, read_json, read_json_lines
 from panda_grasp_env.tooling.runs import atomic_path, resume_summary
 
@@ -129,6 +130,18 @@ def track_head_summary(run_dir: Path) -> str | None:
     )
 
 
+def settle_summary(final: dict[str, Any]) -> str | None:
+    """The settle head's test answers (``final["settle"]``), if the model has one."""
+    if "settle" not in final:
+        return None
+    s = final["settle"]
+    return (
+        f"settle head (will what was just set stand?), test split at {STILL_SHIFT * 1000:.0f} mm: precision "
+        f"{s['precision']:.3f}, recall {s['recall']:.3f}, accuracy {s['accuracy']:.3f} on {s['sequences']} "
+        f'sequences ({s["falls"]} fall; always answering "stands": {s["always_stands_accuracy"]:.3f})'
+    )
+
+
 def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
     """card.md of a finished run: what was trained on what, the test figures against the baselines, the config."""
     meta = read_json(run_dir / "meta.json", MAX_DOCUMENT_BYTES)
@@ -159,6 +172,7 @@ def fall_card(config: FallConfig, run_dir: Path, final: dict[str, Any]) -> str:
             f"- commit {meta['commit']}; {', '.join(f'{k} {v}' for k, v in meta['versions'].items())}",
             *([f"- {resumed}"] if (resumed := resume_summary(meta)) else []),
             *([f"- {fitted}"] if (fitted := track_head_summary(run_dir)) else []),
+            *([f"- {settled}"] if (settled := settle_summary(final)) else []),
             f"- test: {final['test_sequences']} held-out sequences, every t with {config.context} context frames; "
             f"{m['copy_last']['t+1']['frames']} predictions per horizon",
             "",
@@ -221,8 +235,9 @@ def ship_fall_run(run_dir: Path, name: str, strips: int = 5) -> Path:
     )
     for f in ("final.json", "card.md", "curve.png", "config.yaml", "meta.json", "evaluations.jsonl"):
         shutil.copy2(run_dir / f, staging / f)
-    if (run_dir / "track_pretraining.json").is_file():
-        shutil.copy2(run_dir / "track_pretraining.json", staging / "track_pretraining.json")
+    for fitted in ("track_pretraining.json", "settle_fitting.json"):  # the heads fitted alone, if they were
+        if (run_dir / fitted).is_file():
+            shutil.copy2(run_dir / fitted, staging / fitted)
     for strip in sorted((run_dir / "strips").glob("*.png"))[:strips]:
         shutil.copy2(strip, staging / "strips" / strip.name)
     target = FALL_CHECKPOINTS / name

@@ -14,8 +14,9 @@ scored, weighted by ``height_loss_weight``, on the heights it predicts (mean
 absolute error in blocks).  With ``track_pretrain_epochs`` the model's track
 head is fitted alone first (``pretrain_track_head``: every window of every
 training sequence, in minutes), validated as epoch 0, and frozen while the
-ConvLSTM's epochs train the rest.  The run
-folder holds config.yaml, meta.json, tb/, track_pretraining.json, evaluations.jsonl (validation
+ConvLSTM's epochs train the rest.  With ``settle_epochs`` a settle head
+(``settling``) is fitted next, on each training sequence's first frame, and frozen likewise.  The run
+folder holds config.yaml, meta.json, tb/, track_pretraining.json, settle_fitting.json, evaluations.jsonl (validation
 metrics per epoch), curve.png, latest.pt / best.pt (atomic), and at the end
 final.json (test metrics and fall directions against the baselines), card.md and
 strips/ (one PNG per test sequence: input frames, truth, prediction).
@@ -47,6 +48,7 @@ from panda_grasp_env.agents.learning.falls.model import (
     one_hot,
 )
 from panda_grasp_env.agents.learning.falls.records import fall_card, plot_fall_curve, write_strips
+from panda_grasp_env.agents.learning.falls.settling import fit_settle_head
 from panda_grasp_env.agents.learning.falls.tracks import SEEN_AREA, TrackHead, block_tracks, track_features
 from panda_grasp_env.falls.shards import read_metadata
 from panda_grasp_env.tooling.reading import MAX_DOCUMENT_BYTES, read_json, read_yaml
@@ -205,10 +207,20 @@ def train_fall_model(
     # Planned as far as a rollout from the first frames reaches (the fall direction is read at the last frame).
     track_horizon = train.labels.shape[1] - config.context if config.track_head else 0
     model = FallPredictor(
-        n_classes, size, config.context, config.hidden, config.use_depth, config.anchored_rollout, track_horizon
+        n_classes,
+        size,
+        config.context,
+        config.hidden,
+        config.use_depth,
+        config.anchored_rollout,
+        track_horizon,
+        # How far blocks went by the last frame: what the stability check asks.
+        train.labels.shape[1] - 1 if config.settle_epochs else 0,
     )
     if config.track_pretrain_epochs:  # fitted before the first epoch, then frozen
         model.tracks.requires_grad_(False)
+    if config.settle_epochs:
+        model.settle.requires_grad_(False)
     optimiser = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=config.learning_rate)
     epoch, wall_before, best = 0, 0.0, -1.0
     unvalidated_loss = None  # the last epoch's training loss while its validation has not run
@@ -306,7 +318,10 @@ def train_fall_model(
                 run_dir / "track_pretraining.json",
                 pretrain_track_head(model, train, val, config.track_pretrain_epochs, config.track_windows_from_rest),
             )
-            validate(None)  # the plan alone, the ConvLSTM untrained (no correction): best.pt unless an epoch beats it
+        if config.settle_epochs and not resume:
+            write_json(run_dir / "settle_fitting.json", fit_settle_head(model, train, val, config.settle_epochs))
+        if (config.track_pretrain_epochs or config.settle_epochs) and not resume:
+            validate(None)  # the fitted heads, the ConvLSTM untrained (no correction): best.pt unless an epoch beats it
         if unvalidated_loss is not None:  # interrupted during that epoch's validation
             validate(unvalidated_loss)
         while epoch < config.epochs:

@@ -14,11 +14,18 @@ from panda_grasp_env.agents.learning.falls import records as fall_records
 from panda_grasp_env.agents.learning.falls import training as fall_training
 from panda_grasp_env.agents.learning.falls.baselines import constant_velocity, copy_last
 from panda_grasp_env.agents.learning.falls.config import fall_config
-from panda_grasp_env.agents.learning.falls.dataset import load_split
+from panda_grasp_env.agents.learning.falls.dataset import FallSequences, load_split
 from panda_grasp_env.agents.learning.falls.directions import fall_directions, image_to_world_direction
 from panda_grasp_env.agents.learning.falls.metrics import Confusion, evaluate
 from panda_grasp_env.agents.learning.falls.model import FallPredictor, load_fall_model
 from panda_grasp_env.agents.learning.falls.records import tower_words
+from panda_grasp_env.agents.learning.falls.settling import (
+    classification,
+    dihedral,
+    fit_settle_head,
+    largest_shifts,
+    settle_scores,
+)
 from panda_grasp_env.commands import train
 from panda_grasp_env.falls.shards import split_of
 
@@ -369,6 +376,89 @@ def test_a_track_head_is_fitted_first_then_frozen_while_the_convlstm_trains_and_
         fall_config({**raw, "track_pretrain_epochs": 2}, "tiny.yaml")
 
 
+def synthetic_settles(n: int, seed: int) -> FallSequences:
+    """``n`` one-frame-at-rest sequences of 32 px frames: a square block in the middle that falls (moves 5 cm by
+    the last frame) when it is wide (12 px) and stands (0.5 mm) when it is narrow (6 px) -- a difference that no
+    turn or mirror of the frame changes."""
+    rng = np.random.default_rng(seed)
+    labels = np.zeros((n, 3, 32, 32), dtype=np.uint8)
+    poses = np.full((n, 3, 2, 7), np.nan, dtype=np.float32)
+    wide = rng.random(n) < 0.5
+    for i in range(n):
+        half = 6 if wide[i] else 3
+        centre = rng.integers(12, 20, size=2)
+        labels[i, :, centre[0] - half : centre[0] + half, centre[1] - half : centre[1] + half] = 1
+        poses[i, :, 0] = 0.0
+        poses[i, -1, 0, 0] = 0.05 if wide[i] else 0.0005
+    return FallSequences(
+        labels, np.arange(n), ["background", "block_0", "block_1"], 0.08, poses, np.ones(n, dtype=np.int64),
+        np.zeros((n, 2)), {},
+    )  # fmt: skip
+
+
+@pytest.mark.unit
+def test_a_settle_head_learns_from_the_first_frame_what_falls_and_reports_it():
+    torch.manual_seed(0)
+    train_split, val_split = synthetic_settles(128, 0), synthetic_settles(64, 1)
+    np.testing.assert_allclose(
+        largest_shifts(val_split, 2), np.where(val_split.labels[:, 0].sum((1, 2)) > 100, 0.05, 5e-4)
+    )
+    with pytest.raises(ValueError, match=r"frames must be in 1..2"):
+        largest_shifts(val_split, 3)
+    model = FallPredictor(3, 32, 2, hidden=8, settle_frames=2)
+    before = settle_scores(model, val_split)
+    fitted = fit_settle_head(model, train_split, val_split, epochs=12)
+    assert len(fitted["validation_loss"]) == 12 and fitted["training_sequences"] == 128
+    assert min(fitted["validation_loss"]) < 0.5 * fitted["validation_loss"][0]
+    after = settle_scores(model, val_split)
+    assert after["accuracy"] >= 0.95 > before["accuracy"] and after == fitted["validation"]
+    assert not any(p.requires_grad for p in model.settle.parameters())  # frozen for the ConvLSTM's epochs
+    with pytest.raises(ValueError, match="no settle head"):
+        FallPredictor(3, 32, 2, hidden=8).settle_shift(torch.zeros(1, 3, 32, 32))
+    with pytest.raises(ValueError, match="settle_frames must be 0"):
+        FallPredictor(3, 32, 2, settle_frames=-1)
+
+
+@pytest.mark.unit
+def test_stands_or_falls_is_scored_like_the_simulator_and_the_frame_symmetries_are_the_square_s():
+    scored = classification(np.array([0.001, 0.005, 0.02, 0.0]), np.array([False, False, True, True]), 0.004)
+    assert scored == {
+        "sequences": 4, "falls": 2, "said_falls": 2, "precision": 0.5, "recall": 0.5, "accuracy": 0.5,
+        "always_stands_accuracy": 0.5,
+    }  # fmt: skip
+    frame = torch.arange(16.0).view(1, 1, 4, 4)
+    images = {tuple(dihedral(frame, k).flatten().tolist()) for k in range(8)}
+    assert len(images) == 8 and tuple(frame.flatten().tolist()) in images
+    assert torch.equal(dihedral(dihedral(frame, 1), 3), frame)
+
+
+@pytest.mark.unit
+def test_a_settle_head_is_fitted_in_a_training_run_frozen_after_and_on_its_card(fall_dataset, tmp_path, monkeypatch):
+    fitted_heads = []
+
+    def fit_and_keep(model, *args):
+        result = fit_settle_head(model, *args)
+        fitted_heads.append({k: v.clone() for k, v in model.settle.state_dict().items()})
+        return result
+
+    monkeypatch.setattr(fall_training, "fit_settle_head", fit_and_keep)
+    config = "configs/fall_convlstm.yaml"
+    args = ["--config", config, "--runs", str(tmp_path), "--no-progress", *tiny_fall_run(fall_dataset, batch_size=2)]
+    assert train.main([*args, "epochs=1", "epoch_sequences=2", "val_sequences=1", "settle_epochs=2"]) == 0
+    run = tmp_path / "fall_convlstm-seed0"
+    fitted = json.loads((run / "settle_fitting.json").read_text())
+    assert fitted["epochs"] == 2 and fitted["training_sequences"] == len(load_split(fall_dataset, "train").labels)
+    model, _ = load_fall_model(run / "latest.pt")  # after the ConvLSTM's epoch
+    assert model.settle_frames == 9  # the first of 10 frames to the last
+    assert all(torch.equal(fitted_heads[0][k], v) for k, v in model.settle.state_dict().items())
+    final = json.loads((run / "final.json").read_text())
+    assert final["settle"]["sequences"] == len(load_split(fall_dataset, "test").labels)
+    assert "settle head (will what was just set stand?), test split at 4 mm" in (run / "card.md").read_text()
+    monkeypatch.setattr(fall_records, "FALL_CHECKPOINTS", tmp_path / "shipped")
+    assert train.main(["--ship", str(run), "--name", "settled"]) == 0
+    assert json.loads((tmp_path / "shipped" / "settled" / "settle_fitting.json").read_text()) == fitted
+
+
 def test_labels_only_model_trains_without_depth(fall_dataset, tmp_path):
     """The config reads depth (``use_depth: true``, covered above); with it off the model reads labels only."""
     config = "configs/fall_convlstm.yaml"
@@ -415,6 +505,7 @@ def test_bad_fall_configs_fail_with_the_name_and_the_shipped_config_loads(fall_d
         "track_head": False,
         "track_pretrain_epochs": 0,
         "track_windows_from_rest": False,
+        "settle_epochs": 0,
         "epoch_sequences": None,
         "val_sequences": None,
     }
@@ -435,6 +526,18 @@ def test_a_shipped_fall_model_loads_and_beats_copying_the_last_frame_on_its_card
     assert (
         final["metrics"]["model"][horizon]["mean_block_iou"] > final["metrics"]["copy_last"][horizon]["mean_block_iou"]
     )
+
+
+@pytest.mark.unit
+def test_the_shipped_settle_head_tells_falls_from_stands_better_than_always_answering_stands():
+    """Its card's held-out test, and the validation it was kept on (its dataset is not in the repository)."""
+    path = fall_records.FALL_CHECKPOINTS / "fall_convlstm_structures_settle"
+    model, _ = load_fall_model(path / "model.pt")
+    settle = json.loads((path / "final.json").read_text())["settle"]
+    fitted = json.loads((path / "settle_fitting.json").read_text())
+    assert model.settle_frames == 14 and settle["sequences"] == 640
+    for scored in (settle, fitted["validation"]):
+        assert scored["accuracy"] > scored["always_stands_accuracy"] and scored["recall"] > 0.8
 
 
 def test_an_epoch_interrupted_during_its_validation_is_validated_on_resume(fall_dataset, tmp_path, monkeypatch):
