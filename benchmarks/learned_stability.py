@@ -2,7 +2,7 @@
 scored against the simulator's.
 
     python benchmarks/learned_stability.py [--candidates 500] [--seed-start 7000] [--tiers 2,3,4]
-        [--fall-model fall_convlstm_tall,fall_convlstm_structures] [--resume]
+        [--fall-model fall_convlstm_structures,fall_convlstm_structures_settle] [--resume]
 
 ``planned_lookahead`` builds random structures of the generator (``structure="random"``, the training
 distribution: never the named suite) on seeds ``seed-start`` onwards.  Before each choice, every target still
@@ -43,7 +43,8 @@ from panda_grasp_env.agents.evaluation.benchmarks import STRUCTURE_OPTIONS
 from panda_grasp_env.agents.evaluation.episodes import play_episode
 from panda_grasp_env.agents.evaluation.protocol import EpisodeSpec
 from panda_grasp_env.agents.learning.falls.dataset import load_split
-from panda_grasp_env.agents.policies.learned_physics import DEFAULT_THRESHOLD, FallModelCheck
+from panda_grasp_env.agents.learning.falls.settling import classification, largest_shifts
+from panda_grasp_env.agents.policies.learned_physics import DEFAULT_FALL_MODEL, DEFAULT_THRESHOLD, FallModelCheck
 from panda_grasp_env.agents.policies.structure_views import HeightmapPieces, Seen
 from panda_grasp_env.agents.policies.structures import StructurePlanner
 from panda_grasp_env.sim.stability import STILL_SHIFT, what_if
@@ -103,16 +104,8 @@ def play(seed: int, tiers: list[int], check: RecordingCheck) -> list[dict]:
 def scores(rows: list[dict], name: str, threshold: float) -> dict[str, float]:
     """Precision and recall of "falls" (model ``name``'s predicted shift >= threshold, metres) against the
     simulator, and accuracy."""
-    falls = np.array([r["falls"] for r in rows])
-    said = np.array([r["predicted_shift"][name] >= threshold for r in rows])
-    hits = int(np.sum(falls & said))
-    return {
-        "threshold": threshold,
-        "precision": hits / max(int(said.sum()), 1),
-        "recall": hits / max(int(falls.sum()), 1),
-        "accuracy": float(np.mean(falls == said)),
-        "said_falls": int(said.sum()),
-    }
+    predicted = np.array([r["predicted_shift"][name] for r in rows])
+    return {"threshold": threshold, **classification(predicted, np.array([r["falls"] for r in rows]), threshold)}
 
 
 def best_threshold(rows: list[dict], name: str) -> float:
@@ -131,16 +124,16 @@ def dataset_rows(root: Path, checks: dict[str, FallModelCheck]) -> list[dict]:
     (metres, at the depth of the crop's centre) from the first frame."""
     split = load_split(root, "test", depth=True)
     focal = float(np.asarray(split.camera["K"])[0][0])
+    moved = largest_shifts(split, split.poses.shape[1] - 1)
     rows = []
-    for labels, depth, poses, n, seed in zip(split.labels, split.depth, split.poses, split.n_blocks, split.seeds):
+    for labels, depth, n, seed, shift in zip(split.labels, split.depth, split.n_blocks, split.seeds, moved):
         first = labels[0].astype(np.int64)
         metres_per_pixel = float(depth[0][first.shape[0] // 2, first.shape[1] // 2]) / focal
         predicted = {
-            name: check.largest_shift(first, depth[0].astype(np.float32), int(n)) * metres_per_pixel
+            name: check.largest_shift(first, depth[0].astype(np.float32), int(n), metres_per_pixel)
             for name, check in checks.items()
         }
-        moved = float(np.linalg.norm(poses[-1, :n, :3] - poses[0, :n, :3], axis=1).max())
-        rows.append({"falls": moved >= STILL_SHIFT, "seed": int(seed), "predicted_shift": predicted})
+        rows.append({"falls": bool(shift >= STILL_SHIFT), "seed": int(seed), "predicted_shift": predicted})
     return rows
 
 
@@ -157,7 +150,9 @@ def main() -> None:
     parser.add_argument("--seed-start", type=int, default=7000)
     parser.add_argument("--tiers", default="2,3,4")
     parser.add_argument(
-        "--fall-model", default="fall_convlstm_tall", help="shipped fall models, comma-separated (judged side by side)"
+        "--fall-model",
+        default=f"fall_convlstm_structures,{DEFAULT_FALL_MODEL}",
+        help="shipped fall models or model.pt/best.pt paths, comma-separated (judged side by side)",
     )
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--dataset", type=Path, default=None, help="judge a structure-fall dataset's test split")

@@ -4,8 +4,9 @@
 the simulation, but instead of running the physics it renders the overhead camera once (the simulator's
 segmentation of the watched pieces as block classes, and depth), hands that frame to the fall model
 (``agents.learning.falls.model``) as its context -- the pieces are at rest, so every context frame is that
-frame -- and reads the displacement the model plans for each block over its next frames.  A planned displacement of
-``threshold`` metres or more means "falls".  ``planned_lookahead_learned`` is the structure lookahead planner
+frame -- and reads the displacement the model plans for each block over its next frames.  A model with a settle head
+(``SettleHead``) answers instead with the largest displacement it predicts of any block from that frame alone.
+A predicted displacement of ``threshold`` metres or more means "falls".  ``planned_lookahead_learned`` is the structure lookahead planner
 with this check in place of ``what_if``: the same orders, scaffold search and budget.
 
 Pixels are the recorder's: a ``crop`` x ``crop`` window of the ``RENDER_SIZE`` overhead image (about 5 mm a
@@ -30,15 +31,15 @@ from panda_grasp_env.agents.policies.structures import STRUCTURE_BENCHMARKS, Str
 from panda_grasp_env.falls.structure_falls import CAMERA, crop_origin, height_order, ranked_labels
 from panda_grasp_env.perception.camera import CameraModel
 from panda_grasp_env.sim.rendering import CameraRenderer
-from panda_grasp_env.sim.stability import set_free_pose
+from panda_grasp_env.sim.stability import STILL_SHIFT, set_free_pose
 from panda_grasp_env.tooling.extras import require_learning_stack
 
-#: The shipped fall model the check asks by default: the one trained on structure falls (up to 8 pieces, from
-#: rest, reads depth; benchmarks/learned_stability.py compares it with the tall-tower model).
-DEFAULT_FALL_MODEL = "fall_convlstm_structures"
-#: Planned displacement (metres, largest over the watched pieces, summed over the model's horizon) at or
-#: above which a candidate counts as falling.  One pixel of the recorder's crop is ~5 mm.
-DEFAULT_THRESHOLD = 0.004
+#: The shipped fall model the check asks by default: the structure-fall model with a settle head (trained on
+#: structure falls with shifted candidates; benchmarks/learned_stability.py compares it with the others).
+DEFAULT_FALL_MODEL = "fall_convlstm_structures_settle"
+#: Predicted displacement (metres, largest over the pieces) at or above which a candidate counts as falling:
+#: the simulator's own (``sim.stability.STILL_SHIFT``).  One pixel of the recorder's crop is ~5 mm.
+DEFAULT_THRESHOLD = STILL_SHIFT
 
 
 @dataclass(frozen=True)
@@ -72,10 +73,12 @@ class FallModelCheck:
             path = FALL_CHECKPOINTS / str(fall_model) / "model.pt"
         self.net, saved = load_fall_model(path)
         self.net.eval()
-        if not self.net.track_horizon:
-            raise ValueError(f"{path}: the check reads a fall model's planned displacements (a track head)")
+        if not (self.net.track_horizon or self.net.settle_frames):
+            raise ValueError(
+                f"{path}: the check reads a fall model's settle head or planned displacements (a track head)"
+            )
         self.threshold = float(threshold)
-        self.horizon = self.net.track_horizon
+        self.horizon = self.net.settle_frames or self.net.track_horizon  # frames the answer spans
         self.frame_interval = float(saved.get("frame_interval", 0.04))
         self.width, self.height = RENDER_SIZE
         self._renderer: CameraRenderer | None = None
@@ -132,15 +135,24 @@ class FallModelCheck:
         watched = sorted({*map(int, watched), *map(int, moves)})
         centre = np.mean([np.asarray(position, dtype=float) for position, _ in moves.values()], axis=0)
         labels, depth, metres_per_pixel = self.frame(model, trial, centre, watched)
-        shift = self.largest_shift(labels, depth, len(watched)) * metres_per_pixel
+        shift = self.largest_shift(labels, depth, len(watched), metres_per_pixel)
         return Prediction(shift, self.threshold, self.horizon * self.frame_interval)
 
-    def largest_shift(self, labels: np.ndarray, depth: np.ndarray, n_watched: int) -> float:
-        """The largest planned displacement (pixels) of the block classes 1..``n_watched`` that show in the frame
-        (``predict``'s inputs)."""
+    def largest_shift(self, labels: np.ndarray, depth: np.ndarray, n_watched: int, metres_per_pixel: float) -> float:
+        """The largest displacement (metres) predicted of the block classes 1..``n_watched`` that show in the
+        frame (``predict``'s inputs; ``metres_per_pixel`` converts the track head's plan): the settle head's
+        answer if the model has one, else the largest planned displacement."""
+        if self.net.settle_frames:
+            import torch
+
+            from panda_grasp_env.agents.learning.falls.model import model_inputs
+
+            with torch.no_grad():
+                frame = model_inputs(self.net, labels[None, None], depth[None, None].astype(np.float32))[:, 0]
+                return float(self.net.settle_shift(frame)[0])
         present = [k for k in range(1, min(n_watched, self.net.n_classes - 1) + 1) if np.any(labels == k)]
         planned = self.predict(labels, depth)
-        return max((float(np.linalg.norm(planned[k - 1])) for k in present), default=0.0)
+        return max((float(np.linalg.norm(planned[k - 1])) for k in present), default=0.0) * metres_per_pixel
 
 
 @register_agent("planned_lookahead_learned", *STRUCTURE_BENCHMARKS, needs_learning_stack=True)

@@ -60,7 +60,8 @@ def test_the_check_reads_a_rendered_copy_and_leaves_the_simulation_as_it_was(che
     target = np.array([0.5, 0.1, 0.025])
     prediction = check(cell.model, cell.data, {int(cube): (target, 0.0)}, [int(plank)])
     np.testing.assert_array_equal(cell.data.qpos, before)
-    assert np.isfinite(prediction.shift) and prediction.shift >= 0 and prediction.seconds == pytest.approx(0.88)
+    # The default model answers with its settle head: how far a piece goes over 14 frames of 0.08 s.
+    assert np.isfinite(prediction.shift) and prediction.shift >= 0 and prediction.seconds == pytest.approx(1.12)
     trial = copy.copy(cell.data)
     set_free_pose(cell.model, trial, int(cube), target, 0.0)
     mujoco.mj_forward(cell.model, trial)
