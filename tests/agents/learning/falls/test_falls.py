@@ -529,6 +529,18 @@ def test_a_shipped_fall_model_loads_and_beats_copying_the_last_frame_on_its_card
 
 
 @pytest.mark.unit
+def test_every_fall_config_loads_with_its_dataset_swapped_for_a_recorded_one(fall_dataset):
+    """The configs name datasets recorded on demand (their comments say how); every other key must check."""
+    from testkit import CONFIGS
+
+    paths = [path for path in CONFIGS.glob("*.yaml") if "kind: fall_dynamics" in path.read_text()]
+    assert {"fall_convlstm_structures", "fall_convlstm_structures_settle"} <= {path.stem for path in paths}
+    for path in paths:
+        raw = {**yaml.safe_load(path.read_text()), "dataset": str(fall_dataset)}
+        assert fall_config(raw, path.name).name == path.stem
+
+
+@pytest.mark.unit
 def test_the_shipped_settle_head_tells_falls_from_stands_better_than_always_answering_stands():
     """Its card's held-out test, and the validation it was kept on (its dataset is not in the repository)."""
     path = fall_records.FALL_CHECKPOINTS / "fall_convlstm_structures_settle"
