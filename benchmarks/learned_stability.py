@@ -18,7 +18,8 @@ scored on the second, and the check's median time.  Candidates are appended per 
 structure-fall dataset (``python -m panda_grasp_env.falls --scene structures``): each sequence's first frame
 is the candidate, and it falls where a piece moves ``STILL_SHIFT`` (4 mm) or more over the sequence.  With
 ``--shifted-candidates`` recordings this scores ready places that tip, which the planner's candidates on the
-generator's structures never hold.  ``--fall-model`` takes shipped names or ``model.pt``/``best.pt`` paths.
+generator's structures never hold; datasets recorded since 2026-12-07 store each candidate's kind (in the air,
+ready, shifted), and each kind is also scored alone.  ``--fall-model`` takes shipped names or ``model.pt``/``best.pt`` paths.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ from panda_grasp_env.agents.learning.falls.settling import classification, large
 from panda_grasp_env.agents.policies.learned_physics import DEFAULT_FALL_MODEL, DEFAULT_THRESHOLD, FallModelCheck
 from panda_grasp_env.agents.policies.structure_views import HeightmapPieces, Seen
 from panda_grasp_env.agents.policies.structures import StructurePlanner
+from panda_grasp_env.falls.structure_falls import CANDIDATE_KINDS
 from panda_grasp_env.sim.stability import STILL_SHIFT, what_if
 
 OUT = Path("results/learned_stability")
@@ -125,15 +127,20 @@ def dataset_rows(root: Path, checks: dict[str, FallModelCheck]) -> list[dict]:
     split = load_split(root, "test", depth=True)
     focal = float(np.asarray(split.camera["K"])[0][0])
     moved = largest_shifts(split, split.poses.shape[1] - 1)
+    kinds = [None] * len(moved) if split.candidate_kind is None else [CANDIDATE_KINDS[k] for k in split.candidate_kind]
     rows = []
-    for labels, depth, n, seed, shift in zip(split.labels, split.depth, split.n_blocks, split.seeds, moved):
+    for labels, depth, n, seed, shift, kind in zip(
+        split.labels, split.depth, split.n_blocks, split.seeds, moved, kinds
+    ):
         first = labels[0].astype(np.int64)
         metres_per_pixel = float(depth[0][first.shape[0] // 2, first.shape[1] // 2]) / focal
         predicted = {
             name: check.largest_shift(first, depth[0].astype(np.float32), int(n), metres_per_pixel)
             for name, check in checks.items()
         }
-        rows.append({"falls": bool(shift >= STILL_SHIFT), "seed": int(seed), "predicted_shift": predicted})
+        rows.append(
+            {"falls": bool(shift >= STILL_SHIFT), "seed": int(seed), "kind": kind, "predicted_shift": predicted}
+        )
     return rows
 
 
@@ -165,6 +172,10 @@ def main() -> None:
         for name in names:
             print(f"\nfall model {name}")
             print(line("all, shipped threshold", scores(rows, name, DEFAULT_THRESHOLD)))
+            for kind in CANDIDATE_KINDS:  # recorded since 2026-12-07
+                if group := [r for r in rows if r["kind"] == kind]:
+                    falls = sum(r["falls"] for r in group)
+                    print(line(f"{kind} ({len(group)}, {falls} fall)", scores(group, name, DEFAULT_THRESHOLD)))
             print(line("best balanced threshold (in-sample)", scores(rows, name, best_threshold(rows, name))))
         return
     tiers = [int(t) for t in args.tiers.split(",")]

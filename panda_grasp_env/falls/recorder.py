@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from panda_grasp_env.falls.settings import BREAKERS, LATER_SETTINGS, RENDER_SIZE, RecorderSettings
-from panda_grasp_env.falls.shards import SHARD_ARRAYS, split_of
+from panda_grasp_env.falls.shards import SHARD_ARRAYS, STRUCTURE_ARRAYS, split_of
 from panda_grasp_env.falls.structure_falls import StructureRecorder
 from panda_grasp_env.model.structure_generator import MAX_PIECES
 from panda_grasp_env.sim.stepping import body_speeds
@@ -227,7 +227,8 @@ def record_shard(job: tuple[Path, int, int, RecorderSettings]) -> dict[str, Any]
     began = time.perf_counter()
     first = settings.seed + index * settings.shard_size
     sequences = [record_one(first + i, settings) for i in range(count)]
-    arrays = {key: np.stack([s[key] for s in sequences]) for key in SHARD_ARRAYS}
+    names = [*SHARD_ARRAYS, *(STRUCTURE_ARRAYS if settings.scene == "structures" else ())]
+    arrays = {key: np.stack([s[key] for s in sequences]) for key in names}
     name = f"shard_{index:05d}.npz"
     with atomic_path(out / name) as tmp, open(tmp, "wb") as handle:
         np.savez_compressed(handle, **arrays)

@@ -4,22 +4,25 @@ A dataset is a folder of ``shard_NNNNN.npz`` files (NumPy, zip-compressed) and
 ``metadata.json``.  Each shard holds ``sequences`` sequences of ``frames``
 top-view frames cropped around the tower:
 
-=================  ==========================  =========================================================
-array              shape, dtype                meaning
-=================  ==========================  =========================================================
-``rgb``            (N, T, S, S, 3) uint8       overhead camera colour
-``depth``          (N, T, S, S) float16        depth along the optical axis, metres
-``labels``         (N, T, S, S) uint8          true segmentation: 0 background (table, robot), 1 + block
-``colour_labels``  (N, T, S, S) uint8          the same classes from ``panda_grasp_env.perception.segmentation.colour_masks``
-``poses``          (N, T, B, 7) float32        block position (m) and quaternion (w, x, y, z), world frame;
-                                               B: the tallest tower's blocks, NaN rows past a lower one's
-``n_blocks``       (N,) uint8                  the sequence's tower height in blocks (absent before
-                                               heights were a setting: all 4)
-``seeds``          (N,) int64                  env reset seed of each sequence
-``breaker``        (N,) uint8                  0 impulse, 1 push
-``strike``         (N, 5) float32              level struck, heading (rad), impulse (N s, 0 for push), x, y (m)
-``crop_origin``    (N, 2) int32                (column, row) of the crop's corner in the rendered image
-=================  ==========================  =========================================================
+==================  ==========================  =========================================================
+array               shape, dtype                meaning
+==================  ==========================  =========================================================
+``rgb``             (N, T, S, S, 3) uint8       overhead camera colour
+``depth``           (N, T, S, S) float16        depth along the optical axis, metres
+``labels``          (N, T, S, S) uint8          true segmentation: 0 background (table, robot), 1 + block
+``colour_labels``   (N, T, S, S) uint8          the same classes from ``panda_grasp_env.perception.segmentation.colour_masks``
+``poses``           (N, T, B, 7) float32        block position (m) and quaternion (w, x, y, z), world frame;
+                                                B: the tallest tower's blocks, NaN rows past a lower one's
+``n_blocks``        (N,) uint8                  the sequence's tower height in blocks (absent before
+                                                heights were a setting: all 4)
+``seeds``           (N,) int64                  env reset seed of each sequence
+``breaker``         (N,) uint8                  0 impulse, 1 push
+``strike``          (N, 5) float32              level struck, heading (rad), impulse (N s, 0 for push), x, y (m)
+``crop_origin``     (N, 2) int32                (column, row) of the crop's corner in the rendered image
+``candidate_kind``  (N,) uint8                  structure scenes only (recorded since 2026-12-07): the
+                                                candidate's kind, an index into
+                                                ``structure_falls.CANDIDATE_KINDS``
+==================  ==========================  =========================================================
 
 NumPy shards need no extra dependency, load with memory to spare at this size
 (a 2,000-sequence set is a few hundred MB), and make resuming and parallel
@@ -50,6 +53,8 @@ SHARD_ARRAYS = (
     "strike",
     "crop_origin",
 )
+#: Arrays only the structure scene records.
+STRUCTURE_ARRAYS = ("candidate_kind",)
 SPLITS = ("train", "val", "test")
 #: The class maps a model may learn from: the simulator's segmentation, or perception's colour segmentation.
 LABEL_SOURCES = ("labels", "colour_labels")

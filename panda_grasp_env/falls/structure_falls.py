@@ -76,12 +76,18 @@ def make_structure_env() -> Any:
     )
 
 
+#: What a structure sequence's candidate is (its ``candidate_kind`` in the shards): set over a missing support;
+#: at its target with its supports set; or resting on set pieces, slid off its target (``shifted_off``).
+CANDIDATE_KINDS = ("in_the_air", "ready", "shifted")
+
+
 def build_state(
     pieces: list[Piece], rng: np.random.Generator, shifted: bool = False
-) -> tuple[list[int], int, np.ndarray]:
+) -> tuple[list[int], int, np.ndarray, int]:
     """The pieces set before the candidate (indices into ``pieces``, world poses: a build-order prefix, each
-    piece after those it rests on), the candidate, and the candidate's offset from its target (x, y, world
-    metres; zero unless ``shifted`` draws it slid off, module doc)."""
+    piece after those it rests on), the candidate, the candidate's offset from its target (x, y, world
+    metres; zero unless ``shifted`` draws it slid off, module doc) and its kind (an index into
+    ``CANDIDATE_KINDS``)."""
     below = {
         j: [i for i in range(len(pieces)) if i != j and resting_on(pieces[i], [pieces[j]])] for j in range(len(pieces))
     }
@@ -92,15 +98,18 @@ def build_state(
     left = [j for j in range(len(pieces)) if j not in built]
     ready = [j for j in left if all(i in built for i in below[j])]
     unready = [j for j in left if j not in ready]
-    if not shifted:
-        return built, int(rng.choice(ready if not unready or rng.random() < 0.5 else unready)), np.zeros(2)
-    draw = rng.random()
-    if unready and draw < 1 / 3:
-        return built, int(rng.choice(unready)), np.zeros(2)
+    if shifted:
+        draw = rng.random()
+        in_the_air = bool(unready) and draw < 1 / 3
+    else:
+        in_the_air = bool(unready) and rng.random() >= 0.5
+    if in_the_air:
+        return built, int(rng.choice(unready)), np.zeros(2), CANDIDATE_KINDS.index("in_the_air")
     candidate = int(rng.choice(ready))
-    if below[candidate] and draw >= 2 / 3:
-        return built, candidate, shifted_off(pieces, built, candidate, rng)
-    return built, candidate, np.zeros(2)
+    offset = (
+        shifted_off(pieces, built, candidate, rng) if shifted and below[candidate] and draw >= 2 / 3 else np.zeros(2)
+    )
+    return built, candidate, offset, CANDIDATE_KINDS.index("shifted" if offset.any() else "ready")
 
 
 def shifted_off(pieces: list[Piece], built: list[int], candidate: int, rng: np.random.Generator) -> np.ndarray:
@@ -154,7 +163,7 @@ class StructureRecorder:
         centres, yaws = structure.world_poses(layout.origin, layout.heading)
         pieces = [Piece(p.kind, tuple(c), float(y)) for p, c, y in zip(structure.pieces, centres, yaws)]
         rng = np.random.default_rng([settings.seed, seed, 0x57AB])
-        built, candidate, offset = build_state(pieces, rng, settings.shifted_candidates)
+        built, candidate, offset, kind = build_state(pieces, rng, settings.shifted_candidates)
         centres = np.array(centres, dtype=float)
         centres[candidate, :2] += offset
         bodies = cell.object_ids[: len(pieces)]
@@ -180,6 +189,7 @@ class StructureRecorder:
             "breaker": np.uint8(NOT_STRUCK),
             "strike": np.array([rank, yaws[candidate], 0.0, x, y], dtype=np.float32),
             "crop_origin": np.array(origin, dtype=np.int32),
+            "candidate_kind": np.uint8(kind),
         }
 
     def camera(self) -> CameraModel:

@@ -9,7 +9,7 @@ import pytest
 from panda_grasp_env.agents.learning.falls.dataset import load_split
 from panda_grasp_env.falls.recorder import record_dataset
 from panda_grasp_env.falls.settings import RecorderSettings
-from panda_grasp_env.falls.structure_falls import NOT_STRUCK, build_state
+from panda_grasp_env.falls.structure_falls import CANDIDATE_KINDS, NOT_STRUCK, build_state
 from panda_grasp_env.model.structure_generator import MAX_PIECES
 from panda_grasp_env.model.structures import Piece, interpenetrate
 
@@ -26,10 +26,12 @@ def test_a_build_state_sets_supports_first_and_a_candidate_in_the_air_only_where
     seen = set()
     offsets = []
     for seed in range(90):
-        built, candidate, offset = build_state(span, np.random.default_rng(seed), shifted=True)
+        built, candidate, offset, kind = build_state(span, np.random.default_rng(seed), shifted=True)
         assert 2 not in built  # the plank is never set before both its cubes
         assert candidate not in built
         seen.add((len(built), candidate == 2))
+        ready = candidate != 2 or len(built) == 2
+        assert CANDIDATE_KINDS[kind] == ("shifted" if offset.any() else "ready" if ready else "in_the_air")
         if offset.any():
             assert candidate == 2 and len(built) == 2  # only a ready piece resting on others is slid off
             offsets.append(offset)
@@ -49,7 +51,7 @@ def test_a_shifted_candidate_never_overlaps_a_piece_already_set():
     columns = [Piece("cube", (0.45, y, z)) for z in (0.025, 0.075) for y in (0.0, 0.05)]
     beside = 0
     for seed in range(200):
-        built, candidate, offset = build_state(columns, np.random.default_rng(seed), shifted=True)
+        built, candidate, offset, _ = build_state(columns, np.random.default_rng(seed), shifted=True)
         if offset.any():
             x, y, z = columns[candidate].position
             moved = Piece("cube", (x + offset[0], y + offset[1], z))
@@ -85,3 +87,8 @@ def test_structure_sequences_fall_or_stand_from_rest_and_load_as_a_fall_dataset(
     assert json.loads((tmp_path / "settings.json").read_text())["scene"] == again.scene
     split = load_split(tmp_path, "train")
     assert split.labels.shape[1:] == (8, 96, 96) and split.n_blocks.max() <= MAX_PIECES
+    # Each candidate's kind is stored; a piece set over a missing support always falls, here as in the planner.
+    assert split.candidate_kind is not None and set(split.candidate_kind) <= {0, 1}  # not shifted: in the air or ready
+    moved = np.linalg.norm(split.poses[:, -1, :, :3] - split.poses[:, 0, :, :3], axis=2)
+    in_the_air = split.candidate_kind == CANDIDATE_KINDS.index("in_the_air")
+    assert in_the_air.any() and (np.nanmax(moved[in_the_air], axis=1) > 0.004).all()

@@ -24,7 +24,8 @@ class FallSequences:
     ``n_blocks`` (N,) each tower's height in blocks, ``crop_origin`` (N, 2) the (column, row) of each crop's
     corner in the rendered image, ``camera`` the overhead camera of ``metadata.json`` (``render_size``, ``K``,
     ``rotation`` camera -> world in OpenCV axes, ``position`` m) and, if loaded, ``depth`` (N, T, S, S) float16
-    metres along the camera's optical axis."""
+    metres along the camera's optical axis, and for structure datasets recorded since the field existed
+    ``candidate_kind`` (N,) each candidate's kind (``structure_falls.CANDIDATE_KINDS``)."""
 
     labels: np.ndarray
     seeds: np.ndarray
@@ -35,6 +36,7 @@ class FallSequences:
     crop_origin: np.ndarray
     camera: dict[str, Any]
     depth: np.ndarray | None = None
+    candidate_kind: np.ndarray | None = None
 
     @property
     def image_size(self) -> int:
@@ -65,7 +67,9 @@ def load_split(
     root = Path(root)
     meta = read_metadata(root)
     names = [label_source, "depth"] if depth else [label_source]
-    kept: dict[str, list[np.ndarray]] = {name: [] for name in [*names, "seeds", "poses", "crop_origin", "n_blocks"]}
+    kept: dict[str, list[np.ndarray]] = {
+        name: [] for name in [*names, "seeds", "poses", "crop_origin", "n_blocks", "candidate_kind"]
+    }
     for entry in meta["shards"]:
         if verify:
             verify_shard(root, entry)
@@ -77,6 +81,8 @@ def load_split(
                     if "n_blocks" in shard.files
                     else np.full(entry["sequences"], LEGACY_TOWER_BLOCKS, dtype=np.uint8)
                 )
+                if "candidate_kind" in shard.files:
+                    arrays["candidate_kind"] = shard["candidate_kind"]
         except (OSError, ValueError, KeyError) as error:
             raise ValueError(f"shard {entry['file']} cannot be read: {error}") from error
         n, frames, crop = entry["sequences"], meta["frames"], meta["crop"]
@@ -85,11 +91,12 @@ def load_split(
             "crop_origin": (n, 2),
             "seeds": (n,),
             "n_blocks": (n,),
+            "candidate_kind": (n,),
         }
         wrong = [
             f"{name} of shape {arrays[name].shape}, expected {shape}"
             for name, shape in shapes.items()
-            if arrays[name].shape != shape
+            if name in arrays and arrays[name].shape != shape
         ]
         if wrong:
             raise ValueError(f"shard {entry['file']} has {'; '.join(wrong)}")
@@ -108,4 +115,6 @@ def load_split(
         np.concatenate(kept["crop_origin"]),
         dict(meta["camera"]),
         np.concatenate(kept["depth"]) if depth else None,
+        # Only if every shard has it (a dataset resumed across the change would not).
+        np.concatenate(kept["candidate_kind"]) if len(kept["candidate_kind"]) == len(meta["shards"]) else None,
     )
