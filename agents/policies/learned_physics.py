@@ -4,10 +4,11 @@
 the simulation, but instead of running the physics it renders the overhead camera once (the simulator's
 segmentation of the watched pieces as block classes, and depth), hands that frame to the fall model
 (``agents.learning.falls.model``) as its context -- the pieces are at rest, so every context frame is that
-frame -- and reads the displacement the model plans for each block over its next frames.  A model with a settle head
-(``SettleHead``) answers instead with the largest displacement it predicts of any block from that frame alone.
-A predicted displacement of ``threshold`` metres or more means "falls".  ``planned_lookahead_learned`` is the structure lookahead planner
-with this check in place of ``what_if``: the same orders, scaffold search and budget.
+frame -- and reads the displacement the model plans for each block over its next frames.  A model with a
+settle head (``SettleHead``) answers instead with the largest displacement it predicts of any block from that
+frame alone.  A predicted displacement of ``threshold`` metres or more means "falls".
+``planned_lookahead_learned`` is the structure lookahead planner with this check in place of ``what_if``: the
+same orders, scaffold search and budget.
 
 Pixels are the recorder's: a ``crop`` x ``crop`` window of the ``RENDER_SIZE`` overhead image (about 5 mm a
 pixel at the table), centred on the candidate piece, labelled by height as the structure-fall recorder labels

@@ -15,8 +15,9 @@ absolute error in blocks).  With ``track_pretrain_epochs`` the model's track
 head is fitted alone first (``pretrain_track_head``: every window of every
 training sequence, in minutes), validated as epoch 0, and frozen while the
 ConvLSTM's epochs train the rest.  With ``settle_epochs`` a settle head
-(``settling``) is fitted next, on each training sequence's first frame, and frozen likewise.  The run
-folder holds config.yaml, meta.json, tb/, track_pretraining.json, settle_fitting.json, evaluations.jsonl (validation
+(``settling``) is fitted next, on each training sequence's first frame, and
+frozen likewise.  The run folder holds config.yaml, meta.json, tb/,
+track_pretraining.json, settle_fitting.json, evaluations.jsonl (validation
 metrics per epoch), curve.png, latest.pt / best.pt (atomic), and at the end
 final.json (test metrics and fall directions against the baselines), card.md and
 strips/ (one PNG per test sequence: input frames, truth, prediction).
