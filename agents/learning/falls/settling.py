@@ -111,13 +111,13 @@ def fit_settle_head(
         if losses[-1] < best:
             best, kept, best_state = losses[-1], epoch, copy.deepcopy(head.state_dict())
     head.load_state_dict(best_state)
-    head.requires_grad_(False)
+    head.requires_grad_(False)  # and settle_shift below runs without building a graph
     return {
         "epochs": epochs,
         "training_sequences": len(frames),
         "validation_sequences": len(val_frames),
         "validation_loss": losses,
         "kept_epoch": kept,
-        "validation": classification(predicted_shifts(model, val), val_truth >= STILL_SHIFT),
+        "validation": classification(model.settle_shift(val_frames).numpy(), val_truth >= STILL_SHIFT),
         "seconds": round(time.perf_counter() - began, 1),
     }
