@@ -1,10 +1,7 @@
-"""How well can anything build through the ``pixel`` actions the structure learner uses?  An oracle that knows
-every piece's pose picks, for each target from the lowest up, a loose piece of its kind, grasps it at the cell
-nearest its centre, and places it at the cell nearest the target, with the rotations nearest the grip that
-turns the piece onto the target's heading with the fingers across the direction to the nearest piece built
-beside it.  ``--stride 4`` first rounds both cells to the network's
-quarter-resolution grid (every 4th cell, 16 mm), as its scores are upsampled from; ``--stride 2`` to the refined
-network's (every 2nd cell, 8 mm).
+"""How well can anything build through the ``pixel`` actions the structure learner uses?  The pixel-place oracle
+(``agents/policies/pixel_oracle.py``) knows every piece's pose and builds through those actions.  ``--stride 4``
+rounds its aims to the network's quarter-resolution grid (every 4th cell, 16 mm), as its scores are upsampled
+from; ``--stride 2`` to the refined network's (every 2nd cell, 8 mm).
 
     python benchmarks/pixel_place_ceiling.py [--episodes 20] [--seed-start 5000000] [--rotations 32] [--stride 1]
 
@@ -29,64 +26,23 @@ import gymnasium as gym
 import numpy as np
 
 from panda_grasp_env.agents.evaluation.metrics import wilson
-from panda_grasp_env.model.structures import grip_headings, symmetry, wrapped
-from panda_grasp_env.perception.heightmap import HeightmapGrid
-from panda_grasp_env.tasks.structure_build import GOAL_FIELDS, read_rows
+from panda_grasp_env.agents.policies.pixel_oracle import PixelPlaceOracle
 
 BOUNDS = ((0.24, 0.76), (-0.36, 0.36), (0.0, 0.45))
 
 
-def action(shape: tuple[int, ...], grid: HeightmapGrid, primitive: int, xy: np.ndarray, yaw: float, stride: int) -> int:
-    """The pixel action of ``primitive`` at the cell nearest world point ``xy`` (on every ``stride``-th cell) and
-    the rotation nearest heading ``yaw`` (radians).  (The network's quarter-resolution grid lies in each
-    rotation's frame; every 4th cell of the world grid has the same spacing.)"""
-    _, rotations, rows, cols = shape
-    row, col = np.round(grid.cell_position(np.asarray(xy)) / stride) * stride
-    row, col = int(np.clip(row, 0, rows - 1)), int(np.clip(col, 0, cols - 1))
-    rotation = int(round(wrapped(yaw, 2 * np.pi) / (2 * np.pi / rotations))) % rotations
-    return int(np.ravel_multi_index((primitive, rotation, row, col), shape))
-
-
-def clearest_heading(kind: str, targets: np.ndarray, yaws: np.ndarray, index: int, built: list[int]) -> float:
-    """The closing-axis heading (radians) that grips target ``index``'s piece as it stands there and points the
-    fingers away from the built targets beside it at its level: the one most across the direction to the
-    nearest of them (fingers opened along a row would strike the row's last piece)."""
-    headings = grip_headings(kind, float(yaws[index]))
-    beside = [j for j in built if abs(targets[j, 2] - targets[index, 2]) < 0.01]
-    if not beside:
-        return headings[0]
-    nearest = min(beside, key=lambda j: np.linalg.norm(targets[j, :2] - targets[index, :2]))
-    direction = np.arctan2(*(targets[nearest, 1::-1] - targets[index, 1::-1]))
-    return max(headings, key=lambda h: abs(np.sin(h - direction)))
-
-
 def play(env: gym.Env, seed: int, stride: int) -> tuple[bool, int, Counter]:
     observation, info = env.reset(seed=seed)
+    oracle = PixelPlaceOracle(stride)
+    oracle.start(observation["desired_goal"], info["action_layout"], info["n_targets"])
     tier = int(info["tier"])
-    layout = info["action_layout"]
-    shape, grid = tuple(layout["shape"]), HeightmapGrid.of_layout(layout)
-    primitives = layout["primitives"]
-    kinds, targets, target_yaws = read_rows(observation["desired_goal"].reshape(-1, GOAL_FIELDS)[: info["n_targets"]])
-    used: set[int] = set()
-    built: list[int] = []
     failures: Counter = Counter()
-    for index in np.argsort(targets[:, 2], kind="stable"):
-        rows = observation["achieved_goal"].reshape(-1, GOAL_FIELDS)
-        piece_kinds, centres, yaws = read_rows(rows[rows[:, 6] > 0.5])
-        free = [s for s, k in enumerate(piece_kinds) if k == kinds[index] and s not in used]
-        slot = free[0]
-        used.add(slot)
-        place = clearest_heading(kinds[index], targets, target_yaws, index, built)
-        built.append(index)
-        grip = place - wrapped(target_yaws[index] - yaws[slot], 2 * np.pi / symmetry(kinds[index]))
-        for primitive, xy, yaw in (("grasp", centres[slot, :2], grip), ("place", targets[index, :2], place)):
-            observation, _, terminated, truncated, info = env.step(
-                action(shape, grid, primitives.index(primitive), xy, yaw, stride)
-            )
-            if not info["primitive_success"]:
-                failures[f"{primitive}: {info['primitive_reason']}"] += 1
-            if terminated or truncated:
-                return bool(info["is_success"]), tier, failures
+    while (action := oracle.next_action(observation["achieved_goal"])) is not None:
+        observation, _, terminated, truncated, info = env.step(action)
+        if not info["primitive_success"]:
+            failures[f"{info['primitive']}: {info['primitive_reason']}"] += 1
+        if terminated or truncated:
+            break
     return bool(info["is_success"]), tier, failures
 
 
