@@ -14,8 +14,13 @@ from stable_baselines3.common.utils import polyak_update
 
 from panda_grasp_env.agents.learning.acting_rules import DIRECTED_PRIMITIVES
 from panda_grasp_env.agents.learning.heightmap_observations import encode_heightmap
-from panda_grasp_env.agents.learning.heightmap_policy import HeightmapDQN
-from panda_grasp_env.agents.learning.imitation import BufferedDemonstrationMixin, Demonstrations, check_demonstrations
+from panda_grasp_env.agents.learning.heightmap_policy import HeightmapDQN, HeightmapQNetwork
+from panda_grasp_env.agents.learning.imitation import (
+    BufferedDemonstrationMixin,
+    DemonstrationMixin,
+    Demonstrations,
+    check_demonstrations,
+)
 from panda_grasp_env.geometry import is_number
 
 #: Cells this close to the demonstrated one (metres, Euclidean on the table), with the same primitive and
@@ -29,7 +34,60 @@ FULL_MARGIN_DISTANCE = 0.04
 FULL_MARGIN_TURN = np.pi / 4
 
 
-class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
+class LargeMarginMixin(DemonstrationMixin):
+    """DQfD's supervised loss for a ``HeightmapDQN``: after each round of TD updates, one large-margin step
+    (``large_margin_loss``, weighted by ``margin_weight``) on ``batch_size`` demonstrated steps
+    (``DemonstrationMixin.demo_batch``), and ``_pretrain``: ``pretrain_steps`` such updates on the buffer alone,
+    the target network following every ``target_update_interval`` of them, as it does env steps."""
+
+    margin: float
+    margin_weight: float
+    pretrain_steps: int
+    #: Pretraining steps taken so far (saved with the model: a run stopped while pretraining goes on with it).
+    pretrained_steps: int = 0
+
+    def _set_margin(self, algorithm: str, margin: Any, margin_weight: Any, pretrain_steps: Any) -> None:
+        """Check and keep the margin's settings; ``ValueError`` naming ``algorithm`` and the bad one."""
+        for name, value in (("margin", margin), ("margin_weight", margin_weight)):
+            if not (is_number(value) and value >= 0):
+                raise ValueError(f"{algorithm}: {name} must be a number >= 0, got {value!r}")
+        if not (isinstance(pretrain_steps, int) and not isinstance(pretrain_steps, bool) and pretrain_steps >= 0):
+            raise ValueError(f"{algorithm}: pretrain_steps must be an int >= 0, got {pretrain_steps!r}")
+        self.margin, self.margin_weight, self.pretrain_steps = float(margin), float(margin_weight), pretrain_steps
+        self.pretrained_steps = 0
+
+    def _pretrain(self) -> None:
+        while self.pretrained_steps < self.pretrain_steps:
+            self._update(1, self.batch_size)
+            self.pretrained_steps += 1
+            if self.pretrained_steps % self.target_update_interval == 0 or self.pretrained_steps == self.pretrain_steps:
+                polyak_update(self.q_net.parameters(), self.q_net_target.parameters(), 1.0)
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        self._update(gradient_steps, batch_size)
+
+    def _update(self, gradient_steps: int, batch_size: int) -> None:
+        """``gradient_steps`` TD updates, then one large-margin step."""
+        super().train(gradient_steps, batch_size)
+        if self.margin_weight == 0:
+            return
+        loss, met = self.margin_loss(*self.demo_batch(batch_size))
+        self.policy.optimizer.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+        self.policy.optimizer.step()
+        self.logger.record("train/margin_loss", loss.item())
+        self.logger.record("train/margin_met", met)
+
+    def margin_loss(self, observations: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, float]:
+        """(the weighted ``large_margin_loss`` of demonstrated ``actions`` (B,) on encoded heightmaps
+        ``observations``, the share of them that already beat every other allowed action by the margin)."""
+        cell = self.policy.network_args["cell_size"]
+        loss, met = large_margin_loss(self.q_net, observations, actions, self.margin, cell, self._demo_generator)
+        return self.margin_weight * loss, met
+
+
+class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, LargeMarginMixin, HeightmapDQN):
     """``HeightmapDQN`` with demonstrations (DQfD, Hester et al. 2018, "Deep Q-learning from demonstrations"):
     the demonstrated transitions start in the replay buffer, where they stay (a ``buffer_size`` below them and
     the run's steps is refused), and after each round of TD updates the Q-network takes one large-margin step
@@ -62,15 +120,8 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
     ) -> None:
         if kwargs.get("_init_setup_model", True):
             check_demonstrations(demonstrations, "heightmap_dqn_demos")
-        for name, value in (("margin", margin), ("margin_weight", margin_weight)):
-            if not (is_number(value) and value >= 0):
-                raise ValueError(f"heightmap_dqn_demos: {name} must be a number >= 0, got {value!r}")
-        if not (isinstance(pretrain_steps, int) and not isinstance(pretrain_steps, bool) and pretrain_steps >= 0):
-            raise ValueError(f"heightmap_dqn_demos: pretrain_steps must be an int >= 0, got {pretrain_steps!r}")
-        self.demonstrations, self.margin, self.margin_weight = demonstrations, float(margin), float(margin_weight)
-        self.pretrain_steps = pretrain_steps
-        #: Pretraining steps taken so far (saved with the model: a run stopped while pretraining goes on with it).
-        self.pretrained_steps = 0
+        self._set_margin("heightmap_dqn_demos", margin, margin_weight, pretrain_steps)
+        self.demonstrations = demonstrations
         super().__init__(policy, env, **kwargs)
 
     def _setup_model(self) -> None:
@@ -132,70 +183,56 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, HeightmapDQN):
                     [{"TimeLimit.truncated": truncated and not terminated}],
                 )
 
-    def _pretrain(self) -> None:
-        """DQfD's pretraining: before the first env step, ``pretrain_steps`` updates (a TD step and a
-        large-margin step each) on the buffer, which then holds the demonstrations alone; the target network
-        follows every ``target_update_interval`` of them, as it does env steps."""
-        while self.pretrained_steps < self.pretrain_steps:
-            self.train(1, self.batch_size)
-            self.pretrained_steps += 1
-            if self.pretrained_steps % self.target_update_interval == 0 or self.pretrained_steps == self.pretrain_steps:
-                polyak_update(self.q_net.parameters(), self.q_net_target.parameters(), 1.0)
 
-    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
-        super().train(gradient_steps, batch_size)
-        if self.margin_weight == 0:
-            return
-        loss, met = self.margin_loss(*self.demo_batch(batch_size))
-        self.policy.optimizer.zero_grad()
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
-        self.policy.optimizer.step()
-        self.logger.record("train/margin_loss", loss.item())
-        self.logger.record("train/margin_met", met)
+def large_margin_loss(
+    q_net: HeightmapQNetwork,
+    observations: torch.Tensor,
+    actions: torch.Tensor,
+    margin: float,
+    cell_size: float,
+    generator: torch.Generator,
+) -> tuple[torch.Tensor, float]:
+    """DQfD's large-margin loss of demonstrated ``actions`` (B,) on encoded heightmaps ``observations``,
+    ``mean(max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E))``, graded as ``HeightmapDQNFromDemonstrations`` says (cells
+    ``cell_size`` metres apart) over the demonstrated heading's map and one other drawn from ``generator``; and
+    the share of the demonstrated
+    actions that already beat every other allowed action by the margin at the headings tried."""
+    rotations, rows, cols = q_net.rotations, q_net.rows, q_net.cols
+    shape = (q_net.n_primitives, rotations, rows, cols)
+    primitive, rotation, row, col = (torch.as_tensor(i) for i in np.unravel_index(actions.cpu().numpy(), shape))
+    index = torch.arange(len(actions))
+    allowed = q_net.allowed(observations).view(len(actions), *shape)[:, :, 0]  # alike at every heading
+    allowed[index, primitive, row, col] = True
 
-    def margin_loss(self, observations: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, float]:
-        """(the weighted large-margin loss of demonstrated ``actions`` (B,) on encoded heightmaps
-        ``observations``, the share of them that already beat every other allowed action by the margin at the
-        headings tried)."""
-        q_net = self.q_net
-        rotations, rows, cols = q_net.rotations, q_net.rows, q_net.cols
-        shape = (q_net.n_primitives, rotations, rows, cols)
-        primitive, rotation, row, col = (torch.as_tensor(i) for i in np.unravel_index(actions.cpu().numpy(), shape))
-        index = torch.arange(len(actions))
-        allowed = q_net.allowed(observations).view(len(actions), *shape)[:, :, 0]  # alike at every heading
-        allowed[index, primitive, row, col] = True
+    def best_allowed(scores: torch.Tensor) -> torch.Tensor:
+        return scores.masked_fill(~allowed, -torch.inf).flatten(1).amax(1)
 
-        def best_allowed(scores: torch.Tensor) -> torch.Tensor:
-            return scores.masked_fill(~allowed, -torch.inf).flatten(1).amax(1)
+    demonstrated = q_net.q_maps(observations, rotation)
+    chosen = demonstrated[index, primitive, row, col]
+    distance = cell_size * torch.hypot(
+        (torch.arange(rows)[None, :, None] - row[:, None, None]).float(),
+        (torch.arange(cols)[None, None, :] - col[:, None, None]).float(),
+    )
+    apart = ((distance - SAME_ACTION_RADIUS) / (FULL_MARGIN_DISTANCE - SAME_ACTION_RADIUS)).clamp(0.0, 1.0)
 
-        demonstrated = q_net.q_maps(observations, rotation)
-        chosen = demonstrated[index, primitive, row, col]
-        cell = self.policy.network_args["cell_size"]
-        distance = cell * torch.hypot(
-            (torch.arange(rows)[None, :, None] - row[:, None, None]).float(),
-            (torch.arange(cols)[None, None, :] - col[:, None, None]).float(),
-        )
-        apart = ((distance - SAME_ACTION_RADIUS) / (FULL_MARGIN_DISTANCE - SAME_ACTION_RADIUS)).clamp(0.0, 1.0)
+    def margins(turned: torch.Tensor) -> torch.Tensor:
+        """(B, P, H, W) margins on a map turned by ``turned`` (B,) of ``FULL_MARGIN_TURN``s from a_E's."""
+        graded = torch.full_like(demonstrated, margin)
+        graded[index, primitive] = margin * torch.maximum(apart, turned.clamp(max=1.0)[:, None, None])
+        return graded
 
-        def margins(turned: torch.Tensor) -> torch.Tensor:
-            """(B, P, H, W) margins on a map turned by ``turned`` (B,) of ``FULL_MARGIN_TURN``s from a_E's."""
-            graded = torch.full_like(demonstrated, self.margin)
-            graded[index, primitive] = self.margin * torch.maximum(apart, turned.clamp(max=1.0)[:, None, None])
-            return graded
-
-        best = best_allowed(demonstrated + margins(torch.zeros(len(actions))))
-        # One other heading, never one that is the same action: a grasp turned by half a turn is.
-        symmetric = torch.tensor(
-            [rotations % 2 == 0 and q_net.primitives[p] not in DIRECTED_PRIMITIVES for p in primitive.tolist()]
-        )
-        choices = rotations - 1 - symmetric.long()
-        if bool((choices > 0).any()):
-            turn = 1 + (torch.rand(len(actions), generator=self._demo_generator) * choices).long()
-            turn = turn + (symmetric & (turn >= rotations // 2)).long()
-            period = torch.where(symmetric, rotations // 2, rotations)  # headings until the same action again
-            steps = turn % period
-            turned = torch.minimum(steps, period - steps) * (2 * np.pi / rotations) / FULL_MARGIN_TURN
-            elsewhere = best_allowed(q_net.q_maps(observations, (rotation + turn) % rotations) + margins(turned))
-            best = torch.where(choices > 0, torch.maximum(best, elsewhere), best)
-        return self.margin_weight * (best - chosen).mean(), float((best - chosen <= 1e-6).float().mean())
+    best = best_allowed(demonstrated + margins(torch.zeros(len(actions))))
+    # One other heading, never one that is the same action: a grasp turned by half a turn is.
+    symmetric = torch.tensor(
+        [rotations % 2 == 0 and q_net.primitives[p] not in DIRECTED_PRIMITIVES for p in primitive.tolist()]
+    )
+    choices = rotations - 1 - symmetric.long()
+    if bool((choices > 0).any()):
+        turn = 1 + (torch.rand(len(actions), generator=generator) * choices).long()
+        turn = turn + (symmetric & (turn >= rotations // 2)).long()
+        period = torch.where(symmetric, rotations // 2, rotations)  # headings until the same action again
+        steps = turn % period
+        turned = torch.minimum(steps, period - steps) * (2 * np.pi / rotations) / FULL_MARGIN_TURN
+        elsewhere = best_allowed(q_net.q_maps(observations, (rotation + turn) % rotations) + margins(turned))
+        best = torch.where(choices > 0, torch.maximum(best, elsewhere), best)
+    return (best - chosen).mean(), float((best - chosen <= 1e-6).float().mean())
