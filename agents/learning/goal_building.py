@@ -24,8 +24,10 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.buffers import ReplayBuffer
 
+from panda_grasp_env.agents.learning.heightmap_imitation import LargeMarginMixin
 from panda_grasp_env.agents.learning.heightmap_observations import goal_plane, held_slot
 from panda_grasp_env.agents.learning.heightmap_policy import HeightmapDQN
+from panda_grasp_env.agents.policies.pixel_oracle import PixelPlaceOracle
 from panda_grasp_env.model.structure_generator import random_structure
 from panda_grasp_env.model.structures import BLOCK_KINDS, Piece
 from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_of_boxes
@@ -122,9 +124,9 @@ def _structure_task(env: gym.Env) -> Any:
 
 class StructureOutcomeReward(gym.Wrapper):
     """Pays each primitive ``structure_outcome`` toward the env's goal, and leaves in ``info`` what hindsight
-    relabelling needs: ``achieved_before``/``achieved_goal`` (the step's goal vectors before and after it),
-    ``grasped_slot`` (the slot held after a successful grasp, else -1) and ``heightmap_grid`` (the grid's
-    layout).  Needs a structure task with ``pixel`` actions on ``heightmap`` observations."""
+    relabelling and the teacher need: ``achieved_before``/``achieved_goal`` (the step's goal vectors before and
+    after it; at reset, ``achieved_goal`` alone), ``desired_goal``, ``grasped_slot`` (the slot held after a
+    successful grasp, else -1) and ``heightmap_grid`` (the grid's layout).  Needs a structure task with ``pixel`` actions on ``heightmap`` observations."""
 
     def __init__(self, env: gym.Env) -> None:
         super().__init__(env)
@@ -141,7 +143,14 @@ class StructureOutcomeReward(gym.Wrapper):
         observation, info = self.env.reset(**kwargs)
         self._achieved = np.asarray(observation["achieved_goal"], dtype=float)
         self._grid = dict(info["heightmap_grid"])
-        return observation, info
+        return observation, {**info, **self._goals(observation)}
+
+    @staticmethod
+    def _goals(observation: dict[str, Any]) -> dict[str, np.ndarray]:
+        return {
+            "achieved_goal": np.asarray(observation["achieved_goal"], dtype=float),
+            "desired_goal": observation["desired_goal"],
+        }
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         observation, _, terminated, truncated, info = self.env.step(action)
@@ -150,8 +159,8 @@ class StructureOutcomeReward(gym.Wrapper):
         reward = structure_outcome(self._achieved, after, observation["desired_goal"], slot)
         info = {
             **info,
+            **self._goals(observation),
             "achieved_before": self._achieved,
-            "achieved_goal": after,
             "grasped_slot": -1 if slot is None else slot,
             "heightmap_grid": self._grid,
         }
@@ -212,11 +221,19 @@ class _Step:
     done: bool
 
 
-class GoalHeightmapDQN(HeightmapDQN):
+class GoalHeightmapDQN(LargeMarginMixin, HeightmapDQN):
     """``HeightmapDQN`` on a goal-conditioned structure task, with hindsight goals and the block-count
-    curriculum (module doc).  Its training env is wrapped in ``StructureOutcomeReward`` and, where it draws
-    random structures, ``BlockBudget`` (``config.training_env``); on one fixed structure (BuilderBench's
-    "training wheels") there is no curriculum.
+    curriculum (module doc), and optionally a teacher.  Its training env is wrapped in
+    ``StructureOutcomeReward`` and, where it draws random structures, ``BlockBudget``
+    (``config.training_env``); on one fixed structure (BuilderBench's "training wheels") there is no curriculum.
+
+    The teacher is the pixel-place oracle (``policies.pixel_oracle``), which reads the true poses: it plays the
+    run's first ``teacher_episodes`` episodes in the training env, drawn at the whole block budget and stored
+    like any others (relabelled too), then hands over.  No update is taken while it plays.  Its steps that were
+    paid (a useful grasp, a filled target) are the demonstrations of DQfD's large-margin loss
+    (``LargeMarginMixin``): ``pretrain_steps`` updates on the buffer come when it hands over, and a margin step
+    follows every round of TD updates after.  They are found again in the replay buffer on ``--resume``, which
+    therefore must never wrap (``buffer_size`` must hold the whole run).
 
     Args beyond DQN's:
         hindsight_goals: relabelled copies stored per step, each under a goal achieved at a later step of the
@@ -224,6 +241,9 @@ class GoalHeightmapDQN(HeightmapDQN):
         first_budget: the block budget the curriculum starts at.
         promote_at, promote_window: the budget rises by one once the last ``promote_window`` episodes drawn at
             it succeeded at least ``promote_at`` of the time.
+        teacher_episodes: episodes the teacher plays first (0: none, and no margin loss).
+        teacher_stride: the teacher aims at every ``teacher_stride``-th cell (2: the refined network's grid).
+        margin, margin_weight, pretrain_steps: DQfD's, as ``heightmap_dqn_demos``.
     """
 
     def __init__(
@@ -233,8 +253,20 @@ class GoalHeightmapDQN(HeightmapDQN):
         first_budget: int = 2,
         promote_at: float = 0.7,
         promote_window: int = 20,
+        teacher_episodes: int = 0,
+        teacher_stride: int = 2,
+        margin: float = 0.2,
+        margin_weight: float = 1.0,
+        pretrain_steps: int = 0,
         **kwargs: Any,
     ) -> None:
+        if not (isinstance(teacher_episodes, int) and teacher_episodes >= 0):
+            raise ValueError(f"teacher_episodes must be an int >= 0, got {teacher_episodes!r}")
+        self._set_margin("goal_heightmap_dqn", margin, margin_weight, pretrain_steps)
+        self.teacher_episodes, self.teacher_stride = teacher_episodes, teacher_stride
+        self.teacher = PixelPlaceOracle(teacher_stride)  # checks the stride; made again by each learn
+        #: Episodes the teacher has finished, and the replay-buffer rows of its paid steps (saved with the model).
+        self.taught_episodes, self.taught_rows = 0, []
         if not (isinstance(hindsight_goals, int) and 0 <= hindsight_goals <= 8):
             raise ValueError(f"hindsight_goals must be an int in [0, 8], got {hindsight_goals!r}")
         if not (isinstance(first_budget, int) and first_budget >= 2):
@@ -249,21 +281,71 @@ class GoalHeightmapDQN(HeightmapDQN):
         self._episodes: dict[int, list[_Step]] = {}
         super().__init__(*args, **kwargs)
         self._her_rng = np.random.default_rng(self.seed)
+        self._teacher_plan_done = True
 
     def _excluded_save_params(self) -> list[str]:
-        # An episode under way is not resumed (the env restarts), so its steps are not saved.
-        return [*super()._excluded_save_params(), "_episodes"]
+        # An episode under way is not resumed (the env restarts), so its steps and the teacher's plan are not saved.
+        return [*super()._excluded_save_params(), "_episodes", "teacher", "_teacher_plan_done"]
+
+    @property
+    def teaching(self) -> bool:
+        """Whether the teacher plays the episode under way."""
+        return self.taught_episodes < self.teacher_episodes
 
     def _curriculum(self) -> bool:
         """Whether the training env draws its structures (``BlockBudget``): not on one fixed structure."""
         return self.env is not None and self.env.has_attr("set_block_budget")
 
-    def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
+    def _setup_learn(
+        self, total_timesteps: int, callback: Any = None, reset_num_timesteps: bool = True, *args: Any, **kwargs: Any
+    ) -> Any:
+        # SB3 restarts the env on a fresh count or a loaded model; a later learn() goes on with the episode.
+        fresh_episode = reset_num_timesteps or self._last_obs is None
         self._episodes = {}
+        if self.teaching and self.n_envs != 1:
+            raise ValueError(f"goal_heightmap_dqn: the teacher plays one env, got n_envs {self.n_envs}")
         if self._curriculum():
             self.block_budget = min(self.block_budget, max(self.env.get_attr("most")))
-            self.env.env_method("set_block_budget", self.block_budget)
-        return super()._setup_learn(*args, **kwargs)
+            self.env.env_method(
+                "set_block_budget", max(self.env.get_attr("most")) if self.teaching else self.block_budget
+            )
+        result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, *args, **kwargs)
+        if self.teacher_episodes and self.buffer_size < result[0] * (1 + self.hindsight_goals):
+            raise ValueError(
+                f"goal_heightmap_dqn: buffer_size {self.buffer_size} cannot keep the run's {result[0]} steps and "
+                f"their {self.hindsight_goals} relabelled copies each (the teacher's steps are found in it again)"
+            )
+        if self.taught_rows:
+            rows = np.array(self.taught_rows)
+            self._keep_demonstrations(self.replay_buffer.observations[rows, 0], self.replay_buffer.actions[rows, 0, 0])
+        if fresh_episode:
+            self.teacher = PixelPlaceOracle(self.teacher_stride)
+            self._start_teacher(self.env.reset_infos[0])
+        return result
+
+    def _start_teacher(self, info: dict[str, Any]) -> None:
+        if self.teaching:
+            self.teacher.start(info["desired_goal"], info["action_layout"], int(info["n_targets"]))
+            self._teacher_achieved, self._teacher_plan_done = info["achieved_goal"], False
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        if self.teaching and not self._teacher_plan_done:
+            action = self.teacher.next_action(self._teacher_achieved)
+            if action is not None:
+                return np.array([action]), np.array([action])
+            self._teacher_plan_done = True  # a failed plan: the learner plays the episode out
+        return super()._sample_action(learning_starts, action_noise, n_envs)
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        if self.teaching:
+            return
+        if self.teacher_episodes:
+            self._pretrain()
+            self._update(gradient_steps, batch_size)
+        else:
+            HeightmapDQN.train(self, gradient_steps, batch_size)
 
     def _store_transition(
         self,
@@ -276,6 +358,8 @@ class GoalHeightmapDQN(HeightmapDQN):
     ) -> None:
         observations = np.array(self._last_obs)
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
+        if self.teaching and not self._teacher_plan_done and reward[0] > 0:
+            self.taught_rows.append((replay_buffer.pos - 1) % replay_buffer.buffer_size)
         for env_index, info in enumerate(infos):
             done = bool(dones[env_index])
             following = info.get("terminal_observation") if done else None
@@ -293,7 +377,24 @@ class GoalHeightmapDQN(HeightmapDQN):
             if done:
                 self._relabel(replay_buffer, episode, HeightmapGrid.of_layout(info["heightmap_grid"]))
                 self._episodes[env_index] = []
-                self._follow_curriculum(info)
+                if self.teaching:
+                    self._finish_teaching_episode()
+                else:
+                    self._follow_curriculum(info)
+            elif self.teaching:
+                self._teacher_achieved = info["achieved_goal"]
+
+    def _finish_teaching_episode(self) -> None:
+        self.taught_episodes += 1
+        if self.teaching:
+            self._start_teacher(self.env.reset_infos[0])
+            return
+        rows = np.array(self.taught_rows)
+        if not len(rows):
+            raise ValueError("goal_heightmap_dqn: the teacher's episodes were never paid, nothing to learn from")
+        self._keep_demonstrations(self.replay_buffer.observations[rows, 0], self.replay_buffer.actions[rows, 0, 0])
+        if self._curriculum():
+            self.env.env_method("set_block_budget", self.block_budget)
 
     def _relabel(self, replay_buffer: ReplayBuffer, episode: list[_Step], grid: HeightmapGrid) -> None:
         """Store each step again under ``hindsight_goals`` goals the episode achieved at that step or later."""

@@ -180,6 +180,46 @@ def test_the_learner_stores_hindsight_copies_and_keeps_its_budget_across_a_save(
     env.close()
 
 
+def test_the_teacher_plays_first_and_its_paid_steps_are_the_demonstrations_again_after_a_save(
+    structure_config, tmp_path
+):
+    from panda_grasp_env.agents.learning.config import make_vec_env
+    from panda_grasp_env.agents.learning.training import build_model
+
+    config = load_config(
+        "configs/structure_builder_dqn.yaml",
+        [
+            "env_kwargs.rotations=4",
+            "algo_kwargs.buffer_size=300",
+            "algo_kwargs.learning_starts=1",
+            "env_kwargs.max_pieces=3",
+            "max_episode_steps=8",
+            "algo_kwargs.teacher_episodes=2",
+            "algo_kwargs.pretrain_steps=2",
+            "algo_kwargs.batch_size=2",
+        ],
+    )
+    env = make_vec_env(config)
+    model = build_model(config, env, None)
+    model.learn(20)
+    assert model.taught_episodes == 2 and not model.teaching and model.pretrained_steps == 2
+    rows = np.array(model.taught_rows)
+    # Every paid step is a grasp or place that achieved something: its stored reward is positive.
+    assert len(rows) >= 2 and (model.replay_buffer.rewards[rows, 0] > 0).all()
+    assert model.demonstration_steps == len(rows)
+    # The teacher's structures were drawn at the whole budget, the learner's at the curriculum's again.
+    assert env.get_attr("budget") == [model.block_budget]
+    model.save(tmp_path / "model.zip")
+    model.save_replay_buffer(tmp_path / "replay.pkl")
+    loaded = GoalHeightmapDQN.load(tmp_path / "model.zip", env=env)
+    loaded.load_replay_buffer(tmp_path / "replay.pkl")
+    loaded.learn(1, reset_num_timesteps=False)
+    assert loaded.taught_rows == model.taught_rows and loaded.teacher.stride == 2
+    assert th.equal(loaded._demo_actions, model._demo_actions)
+    assert th.equal(loaded._demo_observations, model._demo_observations)
+    env.close()
+
+
 @pytest.mark.unit
 def test_goal_heightmap_dqn_needs_the_structure_task_and_the_outcome_reward(structure_config):
     raw = {"name": "x", "env_id": "PandaStructure-v0", "algo": "goal_heightmap_dqn", "total_steps": 10}
@@ -190,6 +230,12 @@ def test_goal_heightmap_dqn_needs_the_structure_task_and_the_outcome_reward(stru
     assert config_from_dict({**raw, "reward": "outcome"}).algo == "goal_heightmap_dqn"
     with pytest.raises(ValueError, match="hindsight_goals"):
         GoalHeightmapDQN(HeightmapQPolicy, None, hindsight_goals=-1, _init_setup_model=False)
+    with pytest.raises(ValueError, match="teacher_episodes"):
+        GoalHeightmapDQN(HeightmapQPolicy, None, teacher_episodes=-1, _init_setup_model=False)
+    with pytest.raises(ValueError, match="stride"):
+        GoalHeightmapDQN(HeightmapQPolicy, None, teacher_stride=0, _init_setup_model=False)
+    with pytest.raises(ValueError, match="goal_heightmap_dqn: margin"):
+        GoalHeightmapDQN(HeightmapQPolicy, None, margin=-1, _init_setup_model=False)
 
 
 def test_validation_reports_success_per_tier_and_the_curve_draws_it(structure_config, tmp_path):
