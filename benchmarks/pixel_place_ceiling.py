@@ -23,7 +23,6 @@ import panda_grasp_env  # noqa: E402, F401  (first: it chooses MUJOCO_GL before 
 # isort: split
 
 import gymnasium as gym
-import numpy as np
 
 from panda_grasp_env.agents.evaluation.metrics import wilson
 from panda_grasp_env.agents.policies.pixel_oracle import PixelPlaceOracle
