@@ -379,7 +379,10 @@ RESUME_CHANGEABLE = (
 
 def check_policy_resume(saved: TrainConfig, resumed: TrainConfig) -> None:
     """``ValueError`` naming the keys a resumed run changed that it cannot (see ``RESUME_CHANGEABLE``)."""
-    buffer_changed = saved.algo_kwargs.get("buffer_size") != resumed.algo_kwargs.get("buffer_size")  # saved buffer
+    before, after = saved.algo_kwargs.get("buffer_size"), resumed.algo_kwargs.get("buffer_size")
+    # The saved buffer is loaded as it was; goal_heightmap_dqn grows it (GoalHeightmapDQN.load_replay_buffer).
+    grows = resumed.algo == "goal_heightmap_dqn" and isinstance(after, int) and after > (before or 0)
+    buffer_changed = before != after and not grows
     check_resume_changes(saved, resumed, RESUME_CHANGEABLE, ["algo_kwargs.buffer_size"] if buffer_changed else [])
 
 

@@ -287,6 +287,30 @@ class GoalHeightmapDQN(LargeMarginMixin, HeightmapDQN):
         # An episode under way is not resumed (the env restarts), so its steps and the teacher's plan are not saved.
         return [*super()._excluded_save_params(), "_episodes", "teacher", "_teacher_plan_done"]
 
+    def load_replay_buffer(self, path: Any, truncate_last_traj: bool = True) -> None:
+        """SB3's, and a buffer saved smaller than ``buffer_size`` (a resumed run given more steps) is grown to it,
+        its rows kept where they were (the teacher's rows are found by index)."""
+        super().load_replay_buffer(path, truncate_last_traj)
+        saved = self.replay_buffer
+        if saved.buffer_size >= self.buffer_size:
+            return
+        if saved.full:
+            raise ValueError(
+                f"goal_heightmap_dqn: the saved replay buffer has wrapped; it cannot grow to {self.buffer_size}"
+            )
+        grown = type(saved)(
+            self.buffer_size,
+            saved.observation_space,
+            saved.action_space,
+            device=saved.device,
+            n_envs=saved.n_envs,
+            handle_timeout_termination=saved.handle_timeout_termination,
+        )
+        for name in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts"):
+            getattr(grown, name)[: saved.pos] = getattr(saved, name)[: saved.pos]
+        grown.pos = saved.pos
+        self.replay_buffer = grown
+
     @property
     def teaching(self) -> bool:
         """Whether the teacher plays the episode under way."""
@@ -310,10 +334,12 @@ class GoalHeightmapDQN(LargeMarginMixin, HeightmapDQN):
                 "set_block_budget", max(self.env.get_attr("most")) if self.teaching else self.block_budget
             )
         result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, *args, **kwargs)
-        if self.teacher_episodes and self.buffer_size < result[0] * (1 + self.hindsight_goals):
+        ahead = (result[0] - self.num_timesteps) * (1 + self.hindsight_goals)
+        if self.teacher_episodes and self.replay_buffer.size() + ahead > self.replay_buffer.buffer_size:
             raise ValueError(
-                f"goal_heightmap_dqn: buffer_size {self.buffer_size} cannot keep the run's {result[0]} steps and "
-                f"their {self.hindsight_goals} relabelled copies each (the teacher's steps are found in it again)"
+                f"goal_heightmap_dqn: a replay buffer of {self.replay_buffer.buffer_size} cannot keep its "
+                f"{self.replay_buffer.size()} rows and the run's {ahead} to come (steps and their "
+                f"{self.hindsight_goals} relabelled copies each): the teacher's rows are found in it again"
             )
         if self.taught_rows:
             rows = np.array(self.taught_rows)

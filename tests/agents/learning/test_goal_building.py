@@ -211,13 +211,31 @@ def test_the_teacher_plays_first_and_its_paid_steps_are_the_demonstrations_again
     assert env.get_attr("budget") == [model.block_budget]
     model.save(tmp_path / "model.zip")
     model.save_replay_buffer(tmp_path / "replay.pkl")
-    loaded = GoalHeightmapDQN.load(tmp_path / "model.zip", env=env)
+    # A resumed run given more steps grows its buffer, the rows where they were.
+    loaded = GoalHeightmapDQN.load(tmp_path / "model.zip", env=env, buffer_size=400)
     loaded.load_replay_buffer(tmp_path / "replay.pkl")
+    filled = model.replay_buffer.pos
+    assert loaded.replay_buffer.buffer_size == 400 and loaded.replay_buffer.pos == filled
+    assert np.array_equal(loaded.replay_buffer.observations[:filled], model.replay_buffer.observations[:filled])
     loaded.learn(1, reset_num_timesteps=False)
     assert loaded.taught_rows == model.taught_rows and loaded.teacher.stride == 2
     assert th.equal(loaded._demo_actions, model._demo_actions)
     assert th.equal(loaded._demo_observations, model._demo_observations)
     env.close()
+
+
+@pytest.mark.unit
+def test_a_resumed_builder_may_grow_its_buffer_and_never_shrink_it(structure_config):
+    from dataclasses import replace
+
+    from panda_grasp_env.agents.learning.config import check_policy_resume
+
+    def sized(config, size):
+        return replace(config, algo_kwargs={**config.algo_kwargs, "buffer_size": size})
+
+    check_policy_resume(structure_config, sized(structure_config, 500))
+    with pytest.raises(ValueError, match="buffer_size"):
+        check_policy_resume(structure_config, sized(structure_config, 100))
 
 
 @pytest.mark.unit
