@@ -133,7 +133,13 @@ def test_the_goal_plane_and_the_held_kind_reach_the_policy():
 def structure_config():
     return load_config(
         "configs/structure_builder_dqn.yaml",
-        ["env_kwargs.rotations=4", "algo_kwargs.buffer_size=200", "algo_kwargs.learning_starts=4"],
+        # The learner alone: the teacher has its own test.
+        [
+            "env_kwargs.rotations=4",
+            "algo_kwargs.buffer_size=200",
+            "algo_kwargs.learning_starts=4",
+            "algo_kwargs.teacher_episodes=0",
+        ],
     )
 
 
