@@ -25,7 +25,8 @@ from panda_grasp_env.geometry import is_number
 
 #: Cells this close to the demonstrated one (metres, Euclidean on the table), with the same primitive and
 #: heading, count as the demonstrated action itself: the Q-maps are scored at a quarter of the heightmap's
-#: resolution and upsampled, so no margin can part neighbouring cells.
+#: resolution and upsampled, so no margin can part neighbouring cells, and the demonstrated action is worth the
+#: best of them.
 SAME_ACTION_RADIUS = 0.012
 #: The margin grows linearly from nothing at ``SAME_ACTION_RADIUS`` to the whole ``margin`` at this distance
 #: (metres): a cell 2 cm away is nearly the same grasp, and a Q-map smooth at 16 mm cannot rank it far below.
@@ -95,8 +96,9 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, LargeMarginMixi
     (DQfD's supervised loss).  The margin ``l`` is graded, as the actions are alike: ``margin`` against
     another primitive; for the same primitive, ``margin`` times the larger of how far (0 within
     ``SAME_ACTION_RADIUS``, rising to 1 at ``FULL_MARGIN_DISTANCE``) and how much turned (rising to 1 at
-    ``FULL_MARGIN_TURN``) it is from a_E.  A flat margin against neighbouring cells and headings, which the
-    Q-maps cannot part, is never met and only flattens them.  The maximum runs over the demonstrated
+    ``FULL_MARGIN_TURN``) it is from a_E, whose value is that of the best cell within ``SAME_ACTION_RADIUS``.
+    A flat margin against neighbouring cells and headings, which the Q-maps cannot part, is never met and
+    only flattens them.  The maximum runs over the demonstrated
     heading's map and one other heading drawn at random (two network passes per sample, not all
     ``rotations``; never the half-turned grasp, which is the same grasp), so over the run every heading
     is held below the demonstrated action.  With ``pretrain_steps``, that many such updates on the
@@ -194,9 +196,9 @@ def large_margin_loss(
 ) -> tuple[torch.Tensor, float]:
     """DQfD's large-margin loss of demonstrated ``actions`` (B,) on encoded heightmaps ``observations``,
     ``mean(max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E))``, graded as ``HeightmapDQNFromDemonstrations`` says (cells
-    ``cell_size`` metres apart) over the demonstrated heading's map and one other drawn from ``generator``; and
-    the share of the demonstrated
-    actions that already beat every other allowed action by the margin at the headings tried."""
+    ``cell_size`` metres apart) over the demonstrated heading's map and one other drawn from ``generator``, with
+    ``Q(s, a_E)`` the best allowed cell within ``SAME_ACTION_RADIUS`` of a_E on its map; and the share of the
+    demonstrated actions that already beat every other allowed action by the margin at the headings tried."""
     rotations, rows, cols = q_net.rotations, q_net.rows, q_net.cols
     shape = (q_net.n_primitives, rotations, rows, cols)
     primitive, rotation, row, col = (torch.as_tensor(i) for i in np.unravel_index(actions.cpu().numpy(), shape))
@@ -208,11 +210,14 @@ def large_margin_loss(
         return scores.masked_fill(~allowed, -torch.inf).flatten(1).amax(1)
 
     demonstrated = q_net.q_maps(observations, rotation)
-    chosen = demonstrated[index, primitive, row, col]
     distance = cell_size * torch.hypot(
         (torch.arange(rows)[None, :, None] - row[:, None, None]).float(),
         (torch.arange(cols)[None, None, :] - col[:, None, None]).float(),
     )
+    # a_E's value is the best of its own disk: the upsampled maps peak where they will, and an argmax anywhere
+    # in the disk takes the demonstrated action.
+    same_action = (distance <= SAME_ACTION_RADIUS) & allowed[index, primitive]
+    chosen = demonstrated[index, primitive].masked_fill(~same_action, -torch.inf).flatten(1).amax(1)
     apart = ((distance - SAME_ACTION_RADIUS) / (FULL_MARGIN_DISTANCE - SAME_ACTION_RADIUS)).clamp(0.0, 1.0)
 
     def margins(turned: torch.Tensor) -> torch.Tensor:
