@@ -22,6 +22,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
 
 from panda_grasp_env.agents.learning.heightmap_imitation import LargeMarginMixin
@@ -265,8 +266,9 @@ class GoalHeightmapDQN(LargeMarginMixin, HeightmapDQN):
         self._set_margin("goal_heightmap_dqn", margin, margin_weight, pretrain_steps)
         self.teacher_episodes, self.teacher_stride = teacher_episodes, teacher_stride
         self.teacher = PixelPlaceOracle(teacher_stride)  # checks the stride; made again by each learn
-        #: Episodes the teacher has finished, and the replay-buffer rows of its paid steps (saved with the model).
-        self.taught_episodes, self.taught_rows = 0, []
+        #: Episodes the teacher has finished, the replay-buffer rows of its paid steps and, per row, the headings
+        #: after which its action is the same again (the oracle's ``repeat_turn``); saved with the model.
+        self.taught_episodes, self.taught_rows, self.taught_periods = 0, [], []
         if not (isinstance(hindsight_goals, int) and 0 <= hindsight_goals <= 8):
             raise ValueError(f"hindsight_goals must be an int in [0, 8], got {hindsight_goals!r}")
         if not (isinstance(first_budget, int) and first_budget >= 2):
@@ -342,8 +344,7 @@ class GoalHeightmapDQN(LargeMarginMixin, HeightmapDQN):
                 f"{self.hindsight_goals} relabelled copies each): the teacher's rows are found in it again"
             )
         if self.taught_rows:
-            rows = np.array(self.taught_rows)
-            self._keep_demonstrations(self.replay_buffer.observations[rows, 0], self.replay_buffer.actions[rows, 0, 0])
+            self._keep_taught()
         if fresh_episode:
             self.teacher = PixelPlaceOracle(self.teacher_stride)
             self._start_teacher(self.env.reset_infos[0])
@@ -386,6 +387,9 @@ class GoalHeightmapDQN(LargeMarginMixin, HeightmapDQN):
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
         if self.teaching and not self._teacher_plan_done and reward[0] > 0:
             self.taught_rows.append((replay_buffer.pos - 1) % replay_buffer.buffer_size)
+            headings = self.q_net.rotations * self.teacher.repeat_turn / (2 * np.pi)
+            whole = abs(headings - round(headings)) < 1e-6
+            self.taught_periods.append(int(round(headings)) if whole else self.q_net.rotations)
         for env_index, info in enumerate(infos):
             done = bool(dones[env_index])
             following = info.get("terminal_observation") if done else None
@@ -415,12 +419,17 @@ class GoalHeightmapDQN(LargeMarginMixin, HeightmapDQN):
         if self.teaching:
             self._start_teacher(self.env.reset_infos[0])
             return
-        rows = np.array(self.taught_rows)
-        if not len(rows):
+        if not self.taught_rows:
             raise ValueError("goal_heightmap_dqn: the teacher's episodes were never paid, nothing to learn from")
-        self._keep_demonstrations(self.replay_buffer.observations[rows, 0], self.replay_buffer.actions[rows, 0, 0])
+        self._keep_taught()
         if self._curriculum():
             self.env.env_method("set_block_budget", self.block_budget)
+
+    def _keep_taught(self) -> None:
+        """The teacher's paid steps, found in the replay buffer, are the margin loss's demonstrations."""
+        rows = np.array(self.taught_rows)
+        self._keep_demonstrations(self.replay_buffer.observations[rows, 0], self.replay_buffer.actions[rows, 0, 0])
+        self._demo_periods = th.as_tensor(self.taught_periods)
 
     def _relabel(self, replay_buffer: ReplayBuffer, episode: list[_Step], grid: HeightmapGrid) -> None:
         """Store each step again under ``hindsight_goals`` goals the episode achieved at that step or later."""

@@ -46,6 +46,9 @@ class LargeMarginMixin(DemonstrationMixin):
     pretrain_steps: int
     #: Pretraining steps taken so far (saved with the model: a run stopped while pretraining goes on with it).
     pretrained_steps: int = 0
+    #: Per demonstrated step, the headings after which its action is the same again (``large_margin_loss``'s
+    #: ``periods``); None: a half turn, or a whole one for ``DIRECTED_PRIMITIVES``.
+    _demo_periods: torch.Tensor | None = None
 
     def _set_margin(self, algorithm: str, margin: Any, margin_weight: Any, pretrain_steps: Any) -> None:
         """Check and keep the margin's settings; ``ValueError`` naming ``algorithm`` and the bad one."""
@@ -56,6 +59,9 @@ class LargeMarginMixin(DemonstrationMixin):
             raise ValueError(f"{algorithm}: pretrain_steps must be an int >= 0, got {pretrain_steps!r}")
         self.margin, self.margin_weight, self.pretrain_steps = float(margin), float(margin_weight), pretrain_steps
         self.pretrained_steps = 0
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_demo_periods"]
 
     def _pretrain(self) -> None:
         while self.pretrained_steps < self.pretrain_steps:
@@ -72,7 +78,9 @@ class LargeMarginMixin(DemonstrationMixin):
         super().train(gradient_steps, batch_size)
         if self.margin_weight == 0:
             return
-        loss, met = self.margin_loss(*self.demo_batch(batch_size))
+        index = self.demo_index(batch_size)
+        periods = None if self._demo_periods is None else self._demo_periods[index]
+        loss, met = self.margin_loss(*self.demo_rows(index), periods)
         self.policy.optimizer.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
@@ -80,11 +88,15 @@ class LargeMarginMixin(DemonstrationMixin):
         self.logger.record("train/margin_loss", loss.item())
         self.logger.record("train/margin_met", met)
 
-    def margin_loss(self, observations: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, float]:
+    def margin_loss(
+        self, observations: torch.Tensor, actions: torch.Tensor, periods: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, float]:
         """(the weighted ``large_margin_loss`` of demonstrated ``actions`` (B,) on encoded heightmaps
         ``observations``, the share of them that already beat every other allowed action by the margin)."""
         cell = self.policy.network_args["cell_size"]
-        loss, met = large_margin_loss(self.q_net, observations, actions, self.margin, cell, self._demo_generator)
+        loss, met = large_margin_loss(
+            self.q_net, observations, actions, self.margin, cell, self._demo_generator, periods
+        )
         return self.margin_weight * loss, met
 
 
@@ -193,12 +205,15 @@ def large_margin_loss(
     margin: float,
     cell_size: float,
     generator: torch.Generator,
+    periods: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, float]:
     """DQfD's large-margin loss of demonstrated ``actions`` (B,) on encoded heightmaps ``observations``,
     ``mean(max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E))``, graded as ``HeightmapDQNFromDemonstrations`` says (cells
     ``cell_size`` metres apart) over the demonstrated heading's map and one other drawn from ``generator``, with
     ``Q(s, a_E)`` the best allowed cell within ``SAME_ACTION_RADIUS`` of a_E on its map; and the share of the
-    demonstrated actions that already beat every other allowed action by the margin at the headings tried."""
+    demonstrated actions that already beat every other allowed action by the margin at the headings tried.
+    ``periods`` (B,): the headings after which each demonstrated action is the same again (default: a half
+    turn, or a whole one for ``DIRECTED_PRIMITIVES``); the other heading is never one of those."""
     rotations, rows, cols = q_net.rotations, q_net.rows, q_net.cols
     shape = (q_net.n_primitives, rotations, rows, cols)
     primitive, rotation, row, col = (torch.as_tensor(i) for i in np.unravel_index(actions.cpu().numpy(), shape))
@@ -227,17 +242,20 @@ def large_margin_loss(
         return graded
 
     best = best_allowed(demonstrated + margins(torch.zeros(len(actions))))
-    # One other heading, never one that is the same action: a grasp turned by half a turn is.
-    symmetric = torch.tensor(
-        [rotations % 2 == 0 and q_net.primitives[p] not in DIRECTED_PRIMITIVES for p in primitive.tolist()]
-    )
-    choices = rotations - 1 - symmetric.long()
+    if periods is None:
+        periods = torch.tensor(
+            [
+                rotations // 2 if rotations % 2 == 0 and q_net.primitives[p] not in DIRECTED_PRIMITIVES else rotations
+                for p in primitive.tolist()
+            ]
+        )
+    # One other heading, never one that is the same action (a multiple of the period away).
+    choices = rotations - rotations // periods
     if bool((choices > 0).any()):
-        turn = 1 + (torch.rand(len(actions), generator=generator) * choices).long()
-        turn = turn + (symmetric & (turn >= rotations // 2)).long()
-        period = torch.where(symmetric, rotations // 2, rotations)  # headings until the same action again
-        steps = turn % period
-        turned = torch.minimum(steps, period - steps) * (2 * np.pi / rotations) / FULL_MARGIN_TURN
+        drawn = (torch.rand(len(actions), generator=generator) * choices).long()
+        turn = drawn + 1 + drawn // (periods - 1).clamp(min=1)  # skips the multiples of the period
+        steps = turn % periods
+        turned = torch.minimum(steps, periods - steps) * (2 * np.pi / rotations) / FULL_MARGIN_TURN
         elsewhere = best_allowed(q_net.q_maps(observations, (rotation + turn) % rotations) + margins(turned))
         best = torch.where(choices > 0, torch.maximum(best, elsewhere), best)
     return (best - chosen).mean(), float((best - chosen <= 1e-6).float().mean())

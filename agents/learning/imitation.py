@@ -206,8 +206,16 @@ class DemonstrationMixin:
 
     def demo_batch(self, size: int) -> tuple[Any, torch.Tensor]:
         """``size`` demonstrated (observations, actions), drawn uniformly with replacement."""
-        index = torch.randint(0, self.demonstration_steps, (size,), generator=self._demo_generator)
-        return _rows(self._demo_observations, index.to(self.device)), self._demo_actions[index.to(self.device)]
+        return self.demo_rows(self.demo_index(size))
+
+    def demo_index(self, size: int) -> torch.Tensor:
+        """``size`` indices of demonstrated steps, drawn uniformly with replacement."""
+        return torch.randint(0, self.demonstration_steps, (size,), generator=self._demo_generator)
+
+    def demo_rows(self, index: torch.Tensor) -> tuple[Any, torch.Tensor]:
+        """The demonstrated (observations, actions) at ``index``."""
+        index = index.to(self.device)
+        return _rows(self._demo_observations, index), self._demo_actions[index]
 
 
 def check_demonstrations(value: Any, algorithm: str) -> None:

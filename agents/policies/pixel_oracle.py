@@ -35,12 +35,17 @@ def pixel_action(
     return int(np.ravel_multi_index((primitive, rotation, row, col), shape))
 
 
+def built_beside(targets: np.ndarray, index: int, built: list[int]) -> list[int]:
+    """The built targets at target ``index``'s level (centres within 1 cm in height, world metres)."""
+    return [j for j in built if abs(targets[j, 2] - targets[index, 2]) < 0.01]
+
+
 def clearest_heading(kind: str, targets: np.ndarray, yaws: np.ndarray, index: int, built: list[int]) -> float:
     """The closing-axis heading (radians) that grips target ``index``'s piece as it stands there and points the
     fingers away from the built targets beside it at its level: the one most across the direction to the
     nearest of them (fingers opened along a row would strike the row's last piece)."""
     headings = grip_headings(kind, float(yaws[index]))
-    beside = [j for j in built if abs(targets[j, 2] - targets[index, 2]) < 0.01]
+    beside = built_beside(targets, index, built)
     if not beside:
         return headings[0]
     nearest = min(beside, key=lambda j: np.linalg.norm(targets[j, :2] - targets[index, :2]))
@@ -51,7 +56,12 @@ def clearest_heading(kind: str, targets: np.ndarray, yaws: np.ndarray, index: in
 class PixelPlaceOracle:
     """Plays one episode at a time: ``start`` it on the reset's goal vectors and action layout, then ask
     ``next_action`` with the achieved goal before each step.  It follows its plan whatever happens (a failed
-    grasp is followed by its place), and answers None once every target has had its place."""
+    grasp is followed by its place), and answers None once every target has had its place.
+
+    ``repeat_turn`` is the turn (radians) after which its last action is the same action again: a grasp of a
+    cube works across either pair of faces (a quarter turn), a plank's only across its width (a half turn, the
+    fingers' own symmetry); so does a place, except that a cube placed beside a built piece must keep its
+    fingers off it (a half turn)."""
 
     def __init__(self, stride: int = 1) -> None:
         if not (isinstance(stride, int) and stride >= 1):
@@ -59,6 +69,7 @@ class PixelPlaceOracle:
         self.stride = stride
         self._plan: list[int] = []
         self._step = 0
+        self.repeat_turn = np.pi
 
     def start(self, desired_goal: np.ndarray, action_layout: dict[str, Any], n_targets: int) -> None:
         """A new episode: its goal vector (``goal_rows`` per slot), ``info["action_layout"]`` and its target count."""
@@ -76,7 +87,7 @@ class PixelPlaceOracle:
     def next_action(self, achieved_goal: np.ndarray) -> int | None:
         """The pixel action for the next step, given the pieces' goal vector now; None when the plan is done."""
         if self._place is not None:
-            xy, yaw = self._place
+            xy, yaw, self.repeat_turn = self._place
             self._place = None
             return self._action("place", xy, yaw)
         if self._step >= len(self._plan):
@@ -90,10 +101,13 @@ class PixelPlaceOracle:
             return None
         slot = free[0]
         self._used.add(slot)
-        place = clearest_heading(self._kinds[index], self._targets, self._target_yaws, index, self._built)
+        kind = self._kinds[index]
+        place = clearest_heading(kind, self._targets, self._target_yaws, index, self._built)
+        place_repeats = np.pi if built_beside(self._targets, index, self._built) else symmetry(kind)
         self._built.append(index)
-        turn = wrapped(self._target_yaws[index] - yaws[slot], 2 * np.pi / symmetry(self._kinds[index]))
-        self._place = (self._targets[index, :2], place)
+        turn = wrapped(self._target_yaws[index] - yaws[slot], 2 * np.pi / symmetry(kind))
+        self._place = (self._targets[index, :2], place, place_repeats)
+        self.repeat_turn = symmetry(kind)
         return self._action("grasp", centres[slot, :2], place - turn)
 
     def _action(self, primitive: str, xy: np.ndarray, yaw: float) -> int:

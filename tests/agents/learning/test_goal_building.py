@@ -213,6 +213,8 @@ def test_the_teacher_plays_first_and_its_paid_steps_are_the_demonstrations_again
     # Every paid step is a grasp or place that achieved something: its stored reward is positive.
     assert len(rows) >= 2 and (model.replay_buffer.rewards[rows, 0] > 0).all()
     assert model.demonstration_steps == len(rows)
+    # A cube's actions repeat after a quarter turn (one of the 4 headings), a plank's after a half.
+    assert len(model.taught_periods) == len(rows) and set(model.taught_periods) <= {1, 2}
     # The teacher's structures were drawn at the whole budget, the learner's at the curriculum's again.
     assert env.get_attr("budget") == [model.block_budget]
     model.save(tmp_path / "model.zip")
@@ -227,6 +229,7 @@ def test_the_teacher_plays_first_and_its_paid_steps_are_the_demonstrations_again
     assert loaded.taught_rows == model.taught_rows and loaded.teacher.stride == 2
     assert th.equal(loaded._demo_actions, model._demo_actions)
     assert th.equal(loaded._demo_observations, model._demo_observations)
+    assert th.equal(loaded._demo_periods, th.as_tensor(model.taught_periods))
     env.close()
 
 

@@ -298,11 +298,11 @@ def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_th
     primitive, rotation, row, col = np.unravel_index(actions.numpy(), shape)
     rows, cols = np.meshgrid(np.arange(q_net.rows), np.arange(q_net.cols), indexing="ij")
 
-    def cones(slope, shift=0):  # Q (per metre from a_E, moved ``shift`` cells) on a_E's map, -10 elsewhere
+    def cones(slope, shift=0, every_heading=False):  # Q (per metre from a_E, moved ``shift`` cells) on a_E's map
         def q_maps(observations, rotations):
             maps = torch.full((len(observations), *shape[:1], *shape[2:]), -10.0)
             for i, turned in enumerate(rotations.tolist()):
-                if turned == rotation[i]:
+                if turned == rotation[i] or every_heading:
                     peak = min(row[i] + shift, q_net.rows - 1)
                     metres = PIXEL_OPTIONS["heightmap_resolution"] * np.hypot(rows - peak, cols - col[i])
                     maps[i, primitive[i]] = torch.as_tensor(-slope * metres, dtype=torch.float32)
@@ -318,6 +318,13 @@ def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_th
     assert model.margin_loss(observations, actions) == (pytest.approx(0.0, abs=1e-6), 1.0)
     monkeypatch.setattr(q_net, "q_maps", cones(3 * steepest_margin, shift=4))  # 16 mm off: a margin is owed
     assert model.margin_loss(observations, actions)[1] < 1.0
+    # The same cone at every heading is owed the whole margin at a quarter turn (4 headings here), unless the
+    # action repeats after one (a period of 1 heading: a cube's grasp).
+    monkeypatch.setattr(q_net, "q_maps", cones(3 * steepest_margin, every_heading=True))
+    loss, met = model.margin_loss(observations, actions)
+    assert met == 0.0 and loss.item() == pytest.approx(model.margin)
+    quarter = torch.ones(len(actions), dtype=torch.long)
+    assert model.margin_loss(observations, actions, quarter) == (pytest.approx(0.0, abs=1e-6), 1.0)
     monkeypatch.setattr(q_net, "q_maps", cones(0.5 * steepest_margin))
     loss, met = model.margin_loss(observations, actions)
     assert met < 1.0 and 0 < loss.item() <= 0.5 * model.margin + 1e-6
