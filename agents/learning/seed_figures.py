@@ -33,7 +33,11 @@ def study_metrics(config: TrainConfig) -> list[str]:
 
 
 def score(final: dict[str, Any], metric: str) -> float:
-    value = final["metrics"][metric]
+    return rate_of(final["metrics"][metric])
+
+
+def rate_of(value: dict[str, Any] | float) -> float:
+    """A figure's rate: a rate's ``rate``, or the number itself."""
     return float(value["rate"] if isinstance(value, dict) else value)
 
 
@@ -79,10 +83,23 @@ def aggregate_runs(scores: np.ndarray) -> dict[str, Any]:
     }
 
 
+def tier_metrics(outcomes: list[dict[str, Any]]) -> dict[str, str]:
+    """``trial_success_tier_<t>`` for each tier every run's test played (structure tasks), and the tier."""
+    tiers = [set(o["final"]["metrics"].get("trial_success_by_tier", {})) for o in outcomes]
+    return {f"trial_success_tier_{t}": t for t in sorted(set.intersection(*tiers), key=int)} if tiers else {}
+
+
 def study_summary(config: TrainConfig, outcomes: list[dict[str, Any]]) -> dict[str, Any]:
     """study.json's content: the config (seed aside), each run's held-out figures, and per metric rliable's
-    aggregates and performance profile over the runs."""
+    aggregates and performance profile over the runs; on structure tasks also trial success per tier."""
     shared = {k: v for k, v in dataclasses.asdict(config).items() if k != "seed"}
+    by_tier = tier_metrics(outcomes)
+
+    def figures(final: dict[str, Any]) -> dict[str, Any]:
+        metrics = final["metrics"]
+        tiers = {name: metrics["trial_success_by_tier"][tier] for name, tier in by_tier.items()}
+        return {**{m: metrics[m] for m in study_metrics(config)}, **tiers}
+
     runs = [
         {
             "seed": o["seed"],
@@ -91,11 +108,13 @@ def study_summary(config: TrainConfig, outcomes: list[dict[str, Any]]) -> dict[s
             "wall_seconds": o["final"]["wall_seconds"],
             "test_seeds": o["final"]["test_seeds"],
             "test_commit": o["final"].get("test_commit"),
-            **{m: o["final"]["metrics"][m] for m in study_metrics(config)},
+            **figures(o["final"]),
         }
         for o in outcomes
     ]
-    by_metric = {m: aggregate_runs(np.array([[score(o["final"], m)] for o in outcomes])) for m in study_metrics(config)}
+    by_metric = {
+        m: aggregate_runs(np.array([[rate_of(run[m])] for run in runs])) for m in [*study_metrics(config), *by_tier]
+    }
     return {
         "name": config.name,
         "env_id": config.env_id,

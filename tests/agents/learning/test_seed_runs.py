@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 from testkit import CONFIGS, TINY_DQN
 
-from panda_grasp_env.agents.learning.seed_figures import aggregate_runs, study_html, study_markdown
+from panda_grasp_env.agents.evaluation.metrics import rate
+from panda_grasp_env.agents.learning.config import load_config
+from panda_grasp_env.agents.learning.seed_figures import aggregate_runs, study_html, study_markdown, study_summary
 from panda_grasp_env.agents.learning.seed_runs import parse_seeds
 from panda_grasp_env.agents.policies import learned
 from panda_grasp_env.commands import train
@@ -33,6 +35,25 @@ def test_aggregates_are_rliables_with_stratified_bootstrap_intervals():
     before = np.random.get_state()[1].copy()
     assert aggregate_runs(scores) == figures
     assert np.array_equal(np.random.get_state()[1], before)
+
+
+@pytest.mark.unit
+def test_a_structure_study_aggregates_each_tier_that_every_run_played():
+    def final(tiers):  # tier -> (successes, episodes)
+        by_tier = {t: rate(won, n) for t, (won, n) in tiers.items()}
+        won, n = sum(w for w, _ in tiers.values()), sum(n for _, n in tiers.values())
+        metrics = {"trial_success": rate(won, n), "action_efficiency": 0.1, "trial_success_by_tier": by_tier}
+        return {"steps": 10, "wall_seconds": 60.0, "test_seeds": [1, 4], "metrics": metrics}
+
+    outcomes = [
+        {"seed": 0, "run_dir": "a", "final": final({"1": (1, 2), "2": (2, 2)})},
+        {"seed": 1, "run_dir": "b", "final": final({"1": (0, 2), "3": (1, 1)})},
+    ]
+    study = study_summary(load_config(CONFIGS / "structure_builder_dqn.yaml"), outcomes)
+    assert set(study["metrics"]) == {"trial_success", "action_efficiency", "trial_success_tier_1"}
+    assert study["metrics"]["trial_success_tier_1"]["aggregates"]["mean"][0] == pytest.approx(0.25)
+    assert [run["trial_success_tier_1"]["successes"] for run in study["runs"]] == [1, 0]
+    assert "| trial success tier 1 | 25.0 % " in study_markdown(study)
 
 
 @pytest.mark.unit
