@@ -117,15 +117,13 @@ def main() -> None:
         )
     )
     score(0)
-    model._keep_demonstrations(observations[:cut], actions[:cut])
-    model._demo_periods = torch.as_tensor(periods[:cut]) if periods else None
+    model.keep_taught(first=cut)
+    if not periods:  # a run from before commit 8dfa327: the loss's default periods
+        model._demo_periods = None
     optimiser = torch.optim.Adam(model.q_net.parameters(), lr=args.learning_rate)
     losses, met = [], []
     for update in range(1, args.updates + 1):
-        index = model.demo_index(model.batch_size)
-        loss, share = model.margin_loss(
-            *model.demo_rows(index), None if model._demo_periods is None else model._demo_periods[index]
-        )
+        loss, share = model.margin_loss(*model.margin_batch(model.batch_size))
         optimiser.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.q_net.parameters(), model.max_grad_norm)

@@ -344,7 +344,7 @@ class GoalHeightmapDQN(LargeMarginMixin, HeightmapDQN):
                 f"{self.hindsight_goals} relabelled copies each): the teacher's rows are found in it again"
             )
         if self.taught_rows:
-            self._keep_taught()
+            self.keep_taught()
         if fresh_episode:
             self.teacher = PixelPlaceOracle(self.teacher_stride)
             self._start_teacher(self.env.reset_infos[0])
@@ -421,15 +421,16 @@ class GoalHeightmapDQN(LargeMarginMixin, HeightmapDQN):
             return
         if not self.taught_rows:
             raise ValueError("goal_heightmap_dqn: the teacher's episodes were never paid, nothing to learn from")
-        self._keep_taught()
+        self.keep_taught()
         if self._curriculum():
             self.env.env_method("set_block_budget", self.block_budget)
 
-    def _keep_taught(self) -> None:
-        """The teacher's paid steps, found in the replay buffer, are the margin loss's demonstrations."""
-        rows = np.array(self.taught_rows)
+    def keep_taught(self, first: int | None = None) -> None:
+        """The teacher's paid steps (its ``first`` ones, or all), found in the replay buffer, are the margin
+        loss's demonstrations."""
+        rows = np.array(self.taught_rows[:first])
         self._keep_demonstrations(self.replay_buffer.observations[rows, 0], self.replay_buffer.actions[rows, 0, 0])
-        self._demo_periods = th.as_tensor(self.taught_periods)
+        self._demo_periods = th.as_tensor(self.taught_periods[:first])
 
     def _relabel(self, replay_buffer: ReplayBuffer, episode: list[_Step], grid: HeightmapGrid) -> None:
         """Store each step again under ``hindsight_goals`` goals the episode achieved at that step or later."""

@@ -78,15 +78,18 @@ class LargeMarginMixin(DemonstrationMixin):
         super().train(gradient_steps, batch_size)
         if self.margin_weight == 0:
             return
-        index = self.demo_index(batch_size)
-        periods = None if self._demo_periods is None else self._demo_periods[index]
-        loss, met = self.margin_loss(*self.demo_rows(index), periods)
+        loss, met = self.margin_loss(*self.margin_batch(batch_size))
         self.policy.optimizer.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
         self.policy.optimizer.step()
         self.logger.record("train/margin_loss", loss.item())
         self.logger.record("train/margin_met", met)
+
+    def margin_batch(self, size: int) -> tuple[Any, torch.Tensor, torch.Tensor | None]:
+        """``size`` demonstrated (observations, actions, periods or None), drawn uniformly with replacement."""
+        index = self.demo_index(size)
+        return *self.demo_rows(index), None if self._demo_periods is None else self._demo_periods[index]
 
     def margin_loss(
         self, observations: torch.Tensor, actions: torch.Tensor, periods: torch.Tensor | None = None
