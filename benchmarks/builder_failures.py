@@ -148,7 +148,7 @@ def main() -> None:
         "success": f"{wins}/{args.episodes}",
         "actions": dict(sorted(totals.items())),
         "misses": dict(sorted(Counter(m["piece"] for m in misses).items())),
-        "tipped_over": sum(abs(m["tilt"]) > TURN_TOLERANCE for m in misses),
+        "tipped_over": int(sum(abs(m["tilt"]) > TURN_TOLERANCE for m in misses)),
         **{
             f"miss_{key}_quartiles": np.percentile([abs(m[key]) for m in misses], [25, 50, 75]).round(4).tolist()
             for key in ("xy", "z", "heading", "tilt")
