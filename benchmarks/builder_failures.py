@@ -50,7 +50,7 @@ from panda_grasp_env.agents.learning.config import (
 from panda_grasp_env.agents.learning.records import load_best_policy
 from panda_grasp_env.agents.policies.policy_agent import PolicyAgent
 from panda_grasp_env.model.structures import symmetry
-from panda_grasp_env.tasks.structure_build import GOAL_FIELDS, TURN_TOLERANCE, read_rows
+from panda_grasp_env.tasks.structure_build import GOAL_FIELDS, TURN_TOLERANCE, heading_misses, read_rows
 
 
 def landing_error(observation: dict, slot: int) -> dict[str, float]:
@@ -62,15 +62,12 @@ def landing_error(observation: dict, slot: int) -> dict[str, float]:
     piece = pieces[slot]
     targets = goal[np.round(goal[:, 6]) == np.round(piece[6])]
     nearest = targets[np.argmin(np.linalg.norm(targets[:, :3] - piece[:3], axis=1))]
-    cross = nearest[3] * piece[4] - nearest[4] * piece[3]
-    dot = nearest[3] * piece[3] + nearest[4] * piece[4]
     kind = read_rows(piece[None])[0][0]
-    turns = 2 * np.pi / symmetry(kind)
     return {
         "piece": kind,
         "xy": float(np.hypot(*(piece[:2] - nearest[:2]))),
         "z": float(piece[2] - nearest[2]),
-        "heading": float(abs(np.arctan2(cross, dot)) / turns),
+        "heading": float(heading_misses(nearest[None], piece[None], 2 * np.pi / symmetry(kind))[0, 0]),
         "tilt": float(piece[5]),
     }
 

@@ -118,8 +118,6 @@ def main() -> None:
     )
     score(0)
     model.keep_taught(first=cut)
-    if not periods:  # a run from before commit 8dfa327: the loss's default periods
-        model._demo_periods = None
     optimiser = torch.optim.Adam(model.q_net.parameters(), lr=args.learning_rate)
     losses, met = [], []
     for update in range(1, args.updates + 1):

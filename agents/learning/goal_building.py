@@ -430,7 +430,8 @@ class GoalHeightmapDQN(LargeMarginMixin, HeightmapDQN):
         loss's demonstrations."""
         rows = np.array(self.taught_rows[:first])
         self._keep_demonstrations(self.replay_buffer.observations[rows, 0], self.replay_buffer.actions[rows, 0, 0])
-        self._demo_periods = th.as_tensor(self.taught_periods[:first])
+        # A run from before the periods were recorded has none: the margin loss's default then.
+        self._demo_periods = th.as_tensor(self.taught_periods[:first]) if self.taught_periods else None
 
     def _relabel(self, replay_buffer: ReplayBuffer, episode: list[_Step], grid: HeightmapGrid) -> None:
         """Store each step again under ``hindsight_goals`` goals the episode achieved at that step or later."""

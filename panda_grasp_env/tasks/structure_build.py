@@ -73,6 +73,14 @@ def read_rows(rows: np.ndarray) -> tuple[list[str], np.ndarray, np.ndarray]:
     return kinds, rows[:, :3], np.arctan2(rows[:, 4], rows[:, 3]) / turns
 
 
+def heading_misses(targets: np.ndarray, pieces: np.ndarray, turns: float) -> np.ndarray:
+    """(targets, pieces) radians between each target's and each piece's heading, modulo the kind's symmetry
+    (``turns``: 2 pi over it), from goal-vector rows (``goal_rows``) of one kind."""
+    cross = targets[:, None, 3] * pieces[None, :, 4] - targets[:, None, 4] * pieces[None, :, 3]
+    dot = targets[:, None, 3] * pieces[None, :, 3] + targets[:, None, 4] * pieces[None, :, 4]
+    return np.abs(np.arctan2(cross, dot)) / turns
+
+
 def match_goal(achieved: np.ndarray, desired: np.ndarray) -> tuple[list[tuple[int, int]], float]:
     """Match pieces to targets, given as goal-vector rows (``goal_rows``): each kind's pieces to its targets by
     the assignment of least total distance (Hungarian), preferring pieces within ``PLACE_TOLERANCE``,
@@ -87,9 +95,7 @@ def match_goal(achieved: np.ndarray, desired: np.ndarray) -> tuple[list[tuple[in
         turns = 2 * np.pi / symmetry(list(KIND_CODES)[code - 1])
         ours = achieved[pieces]
         cost = np.linalg.norm(ours[None, :, :3] - targets[:, None, :3], axis=2)
-        cross = targets[:, None, 3] * ours[None, :, 4] - targets[:, None, 4] * ours[None, :, 3]
-        dot = targets[:, None, 3] * ours[None, :, 3] + targets[:, None, 4] * ours[None, :, 4]
-        turn = np.abs(np.arctan2(cross, dot)) / turns
+        turn = heading_misses(targets, ours, turns)
         fits = (cost <= PLACE_TOLERANCE) & (turn <= TURN_TOLERANCE) & (ours[None, :, 5] <= TURN_TOLERANCE)
         rows, columns = linear_sum_assignment(np.where(fits, cost, 1.0 + cost))
         distance += float(cost[rows, columns].sum()) + 1.0 * (len(targets) - len(rows))  # a piece short: 1 m
