@@ -20,7 +20,7 @@ from panda_grasp_env.model.structures import Piece, Structure, grip_headings, ro
 from panda_grasp_env.primitives.parameters import PrimitiveSettings
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.primitives.top_down import grasp, place, push
-from panda_grasp_env.sim.stacking import HAND_REACH, least_crowded
+from panda_grasp_env.sim.stacking import HAND_REACH, least_crowded, wrap_quarter_turn
 from panda_grasp_env.sim.structure_layout import StructureLayout
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.structure_build import PLACE_TOLERANCE, TURN_TOLERANCE, is_away, resting_on
@@ -89,9 +89,11 @@ class StructureBuilder:
         return result.success
 
     def _held_turn(self, index: int) -> float:
-        """The held piece's heading relative to the hand's closing axis, radians."""
+        """The held piece's heading relative to the hand's closing axis, radians, in whole quarter turns: the
+        place takes back the rest (``in_hand_turn``)."""
         xmat = self.cell.data.xmat[self.slots[index]]
-        return float(np.arctan2(xmat[3], xmat[0])) - self.cell.robot.ee_yaw
+        turn = float(np.arctan2(xmat[3], xmat[0])) - self.cell.robot.ee_yaw
+        return turn - float(wrap_quarter_turn(turn))
 
     def place_piece(self, index: int) -> bool:
         """Grasp piece ``index`` (a scaffold's numbered after the structure's) where it lies and place it at its

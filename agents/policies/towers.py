@@ -394,10 +394,9 @@ def build_tower(cell: Workcell, act: Act) -> TowerOutcome:
         outcome.steps.append(result)
         if not result.success:
             return outcome
-        # Turn the hand so the held block's yaw matches the base's (modulo 90 degrees).
-        held_relative_yaw = float(wrap_quarter_turn(cell.block_yaws()[index] - cell.robot.ee_yaw))
         top = cell.block_positions()[stacked, 2].max() + cell.config.block_size / 2
-        result = act(PlaceParameters(base_xy[0], base_xy[1], top, base_yaw - held_relative_yaw))
+        # The place takes back the block's turn in the fingers: it lands at the base's yaw (modulo 90 degrees).
+        result = act(PlaceParameters(base_xy[0], base_xy[1], top, base_yaw))
         outcome.steps.append(result)
         if not result.success:
             return outcome

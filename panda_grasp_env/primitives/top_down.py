@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import mujoco
 import numpy as np
 
 from panda_grasp_env.primitives.parameters import (
@@ -28,6 +29,7 @@ from panda_grasp_env.primitives.parameters import (
 from panda_grasp_env.primitives.result import HOLD_TIME, PrimitiveResult, closed_on, lifted_and_held, run_motion
 from panda_grasp_env.sim.extents import body_bottom_height, body_extent_along
 from panda_grasp_env.sim.motion import WORKSPACE
+from panda_grasp_env.sim.stacking import wrap_quarter_turn
 from panda_grasp_env.sim.workcell import Workcell
 
 APPROACH_HEIGHT = 0.10  # pre-grasp / pre-place hover above the target, metres
@@ -137,13 +139,17 @@ def place_motion(cell: Workcell, parameters: PlaceParameters) -> PrimitiveResult
     straight up; then home.  If (x, y) cannot be reached the object stays in the hand
     and the arm goes home.  Success: the object was released, rests with its
     centre within a quarter of the block size of (x, y) and its bottom within
-    1 cm of ``z``.  ``yaw`` is the closing-axis heading during the place.
+    1 cm of ``z``.  ``yaw`` is the closing-axis heading during the place, measured on the held piece: a box
+    that turned in the fingers (its nearest face axis off the closing axis, ``in_hand_turn``) is turned back by
+    the hand, so that it lands as if the fingers had closed square on its faces.  The centre is re-aimed the
+    same way, from where the piece hangs.
     """
     x, y, z, yaw = parameters.values()
     body = cell.robot.body_between_fingers()
     if body is None:
         return PrimitiveResult("place", False, "not_holding")
     name = cell.name_of(body)
+    yaw -= in_hand_turn(cell, body)
 
     def site_goal(height_above: float) -> np.ndarray:
         """Grasp-site position that puts the held object's bottom ``height_above`` over (x, y, z)."""
@@ -177,6 +183,21 @@ def place_motion(cell: Workcell, parameters: PlaceParameters) -> PrimitiveResult
     if body in cell.robot.bodies_between_fingers() or centre_error > cell.config.block_size / 4 or bottom_error > 0.01:
         return PrimitiveResult("place", False, "placed_off", object=name, targets={body})
     return PrimitiveResult("place", True, "ok", object=name, targets={body})
+
+
+def in_hand_turn(cell: Workcell, body: int) -> float:
+    """How far (radians, in [-pi/4, pi/4)) the held ``body``'s nearest horizontal face axis is turned about
+    world z away from the closing axis: the turn a place takes back.  0 for a body whose collision shape is not a
+    box (a cylinder's or a mesh's heading means nothing).  The box's axis nearest world z is its up; one of the
+    other two gives its heading (any of the four, modulo a quarter turn)."""
+    geom = int(cell.model.body_geomadr[body])
+    box = int(cell.model.geom_type[geom]) == int(mujoco.mjtGeom.mjGEOM_BOX)
+    if not box or not (cell.model.geom_contype[geom] or cell.model.geom_conaffinity[geom]):
+        return 0.0
+    axes = cell.data.xmat[body].reshape(3, 3)
+    up = int(np.argmax(np.abs(axes[2])))
+    side = axes[:, (up + 1) % 3]
+    return float(wrap_quarter_turn(np.arctan2(side[1], side[0]) - cell.robot.ee_yaw))
 
 
 def push_motion(cell: Workcell, parameters: PushParameters) -> PrimitiveResult:

@@ -6,7 +6,6 @@ import pytest
 
 from panda_grasp_env.actions import LOW_LEVEL_BOUNDS
 from panda_grasp_env.model.robot import HOME_QPOS
-from panda_grasp_env.sim.stacking import wrap_quarter_turn
 
 SMALL = {"image_size": (32, 24), "heightmap_resolution": 0.008}
 
@@ -25,8 +24,7 @@ def build_tower_through_env(env) -> dict:
         position, yaw = cell.block_positions()[i], cell.block_yaws()[i]
         _, _, _, _, info = env.step(encode("grasp", position[0], position[1], yaw))
         assert info["primitive_reason"] == "ok"
-        held = float(wrap_quarter_turn(cell.block_yaws()[i] - cell.robot.ee_yaw))
-        _, _, terminated, _, info = env.step(encode("place", base[0], base[1], base_yaw - held))
+        _, _, terminated, _, info = env.step(encode("place", base[0], base[1], base_yaw))
         assert info["primitive_reason"] == "ok"
     return info | {"terminated": terminated}
 
