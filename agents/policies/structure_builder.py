@@ -19,8 +19,8 @@ import numpy as np
 from panda_grasp_env.model.structures import Piece, Structure, grip_headings, roomiest, slide_outs, symmetry, wrapped
 from panda_grasp_env.primitives.parameters import PrimitiveSettings
 from panda_grasp_env.primitives.result import PrimitiveResult
-from panda_grasp_env.primitives.top_down import grasp, place, push
-from panda_grasp_env.sim.stacking import HAND_REACH, least_crowded, wrap_quarter_turn
+from panda_grasp_env.primitives.top_down import grasp, in_hand_turn, place, push
+from panda_grasp_env.sim.stacking import HAND_REACH, least_crowded
 from panda_grasp_env.sim.structure_layout import StructureLayout
 from panda_grasp_env.sim.workcell import Workcell
 from panda_grasp_env.tasks.structure_build import PLACE_TOLERANCE, TURN_TOLERANCE, is_away, resting_on
@@ -91,9 +91,9 @@ class StructureBuilder:
     def _held_turn(self, index: int) -> float:
         """The held piece's heading relative to the hand's closing axis, radians, in whole quarter turns: the
         place takes back the rest (``in_hand_turn``)."""
-        xmat = self.cell.data.xmat[self.slots[index]]
-        turn = float(np.arctan2(xmat[3], xmat[0])) - self.cell.robot.ee_yaw
-        return turn - float(wrap_quarter_turn(turn))
+        body = self.slots[index]
+        turn = float(np.arctan2(self.cell.data.xmat[body][3], self.cell.data.xmat[body][0])) - self.cell.robot.ee_yaw
+        return turn - in_hand_turn(self.cell, body)
 
     def place_piece(self, index: int) -> bool:
         """Grasp piece ``index`` (a scaffold's numbered after the structure's) where it lies and place it at its
