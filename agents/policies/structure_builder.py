@@ -16,7 +16,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from panda_grasp_env.model.structures import Piece, Structure, grip_headings, roomiest, slide_outs, symmetry, wrapped
+from panda_grasp_env.model.structures import (
+    Piece,
+    Structure,
+    grip_headings,
+    resting_pose,
+    roomiest,
+    slide_outs,
+    symmetry,
+    wrapped,
+)
 from panda_grasp_env.primitives.parameters import PrimitiveSettings
 from panda_grasp_env.primitives.result import PrimitiveResult
 from panda_grasp_env.primitives.top_down import grasp, in_hand_turn, place, push
@@ -82,7 +91,7 @@ class StructureBuilder:
     def _grasp(self, index: int) -> bool:
         body, piece = self.slots[index], self.every[index]
         position = self.cell.data.xpos[body].copy()
-        yaw = float(np.arctan2(self.cell.data.xmat[body][3], self.cell.data.xmat[body][0]))
+        yaw = resting_pose(piece.kind, self.cell.data.xmat[body])[0]
         heading = self._clearest(position, grip_headings(piece.kind, yaw), position[2] - piece.half_extents[2], index)
         result = grasp(self.cell, *position, heading)
         self.outcome.steps.append(result)
@@ -121,9 +130,8 @@ class StructureBuilder:
 
     def standing(self, index: int) -> Piece:
         """Piece ``index`` where it stands now, world frame."""
-        body = self.slots[index]
-        yaw = float(np.arctan2(self.cell.data.xmat[body][3], self.cell.data.xmat[body][0]))
-        return Piece(self.every[index].kind, tuple(self.cell.data.xpos[body]), yaw)
+        body, kind = self.slots[index], self.every[index].kind
+        return Piece(kind, tuple(self.cell.data.xpos[body]), resting_pose(kind, self.cell.data.xmat[body])[0])
 
     def slide_out(self, index: int) -> bool:
         """Push scaffold piece ``index`` out from under the pieces resting on it (``structures.slide_outs``),
@@ -145,9 +153,8 @@ class StructureBuilder:
             if index in self.structure.removed:
                 continue
             body = self.slots[index]
-            yaw = float(np.arctan2(data.xmat[body][3], data.xmat[body][0]))
+            yaw, tilt = resting_pose(piece.kind, data.xmat[body])
             turn = abs(wrapped(yaw - self.target_yaws[index], symmetry(piece.kind)))
-            tilt = np.arccos(np.clip(data.xmat[body][8], -1.0, 1.0))
             shift = np.linalg.norm(data.xpos[body] - self.targets[index])
             if shift > PLACE_TOLERANCE or turn > TURN_TOLERANCE or tilt > TURN_TOLERANCE:
                 off.append(index)

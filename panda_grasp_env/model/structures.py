@@ -19,6 +19,7 @@ Beyond the target pieces a structure may say how an episode starts and what a bu
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -237,6 +238,35 @@ def symmetry(kind: str) -> float:
     """The turn (radians) that maps a piece of ``kind`` onto itself: a quarter for a cube, a half for a plank or
     a prop."""
     return np.pi / 2 if kind == "cube" else np.pi
+
+
+def resting_pose(kind: str, rotation: np.ndarray) -> tuple[float, float]:
+    """(heading, tilt) in radians of a piece of ``kind`` whose body-to-world rotation is ``rotation`` (3 x 3, or
+    MuJoCo's flat ``xmat`` row).
+
+    A piece looks the same resting on any face that has the bottom face's size (a cube on any of its six, a plank
+    or a prop on any of its four long ones, upside down included), so ``tilt`` is the angle between world z and
+    the nearest normal of those faces: 0 for a cube rolled onto a side.  ``heading`` is the turn about world z of
+    the body axis that lies along the piece's x extent when it is upright (a plank's or a prop's length; for a
+    cube, the first horizontal one), meaningful modulo ``symmetry(kind)``."""
+    axes = np.asarray(rotation, dtype=float).reshape(3, 3)  # columns: the body axes in the world frame
+    faces, along = _resting_axes(kind)
+    best = int(np.argmax(np.abs(axes[2, list(faces)])))
+    tilt = float(np.arccos(np.clip(abs(axes[2, faces[best]]), 0.0, 1.0)))
+    return float(np.arctan2(axes[1, along[best]], axes[0, along[best]])), tilt
+
+
+@functools.cache
+def _resting_axes(kind: str) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The body axes normal to the faces a piece of ``kind`` may rest on (the bottom face's thickness above them,
+    the footprint's two extents beside them), and for each the body axis that then plays the x extent's part."""
+    half = np.asarray(BLOCK_KINDS[kind])
+    footprint = sorted(half[:2])
+    faces = tuple(
+        a for a in range(3) if np.isclose(half[a], half[2]) and np.allclose(sorted(np.delete(half, a)), footprint)
+    )
+    along = tuple(next(b for b in range(3) if b != a and np.isclose(half[b], half[0])) for a in faces)
+    return faces, along
 
 
 def grip_headings(kind: str, yaw: float) -> list[float]:

@@ -25,6 +25,7 @@ from panda_grasp_env.model.structures import (
     Structure,
     footprint_distance,
     footprints_within,
+    resting_pose,
     symmetry,
 )
 from panda_grasp_env.perception.heightmap import HeightmapGrid, heightmap_of_boxes
@@ -261,11 +262,9 @@ class StructureBuild(Task):
 
     # --- goals ----------------------------------------------------------------------
     def achieved_goal(self, cell: Workcell) -> np.ndarray:
-        data, bodies = cell.data, self._slots
-        xmat = data.xmat[bodies]
-        yaws = np.arctan2(xmat[:, 3], xmat[:, 0])
-        tilts = np.arccos(np.clip(xmat[:, 8], -1.0, 1.0))
-        return goal_rows(list(self.structure.kinds), data.xpos[bodies], yaws, tilts, self.n_slots).ravel()
+        data, bodies, kinds = cell.data, self._slots, list(self.structure.kinds)
+        poses = np.array([resting_pose(kind, data.xmat[body]) for kind, body in zip(kinds, bodies)]).reshape(-1, 2)
+        return goal_rows(kinds, data.xpos[bodies], poses[:, 0], poses[:, 1], self.n_slots).ravel()
 
     def desired_goal(self) -> np.ndarray:
         upright = np.zeros(len(self._targets))

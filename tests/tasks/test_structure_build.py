@@ -1,6 +1,7 @@
 """StructureBuild: a target structure built, or pieces taken off one, judged with identical pieces matched
 optimally; random actions build nothing."""
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -77,6 +78,43 @@ def test_goals_are_observed_in_the_primitive_mode_and_relabel_as_hindsight_needs
     assert env.compute_reward(one.ravel(), observation["desired_goal"], {}) == pytest.approx(-2 / 3)
     one[0, 5] = 0.5  # tilted 29 degrees: not in place
     assert env.compute_reward(one.ravel(), observation["desired_goal"], {}) == -1.0
+    env.close()
+
+
+def _rolled(about_x: float, about_y: float, yaw: float) -> np.ndarray:
+    """The (w, x, y, z) quaternion of a body rolled about its x axis, then its y axis (degrees), then turned
+    ``yaw`` radians about world z."""
+    roll, turn, quaternion = np.zeros(4), np.zeros(4), np.zeros(4)
+    mujoco.mju_euler2Quat(roll, np.deg2rad([about_x, about_y, 0.0]), "XYZ")
+    mujoco.mju_euler2Quat(turn, [0.0, 0.0, yaw], "xyz")
+    mujoco.mju_mulQuat(quaternion, turn, roll)
+    return quaternion
+
+
+def test_a_piece_resting_on_a_face_like_its_bottom_stands_in_its_target():
+    """A cube looks the same on any face and a plank on any long one: rolled so, each still fills its target;
+    a plank stood on its end does not."""
+    env = PandaEnv(task="StructureBuild", structure="bridge", obs_mode="state")
+    env.reset(seed=0)
+    task, model, data = env.task, env.cell.model, env.cell.data
+    assert task.structure.kinds == ("cube", "cube", "plank")
+    slots = env.cell.object_ids[: len(task.structure.pieces)]
+    addresses = [model.jnt_qposadr[model.body_jntadr[body]] for body in slots]
+
+    def put(rolls: list[tuple[float, float]]) -> int:
+        for address, target, yaw, (about_x, about_y) in zip(addresses, task._targets, task._target_yaws, rolls):
+            data.qpos[address : address + 3], data.qpos[address + 3 : address + 7] = (
+                target,
+                _rolled(about_x, about_y, yaw),
+            )
+        mujoco.mj_forward(model, data)
+        return task.in_place(env.cell)
+
+    assert put([(0.0, 0.0), (0.0, 0.0), (0.0, 0.0)]) == 3
+    assert put([(0.0, 90.0), (90.0, 0.0), (180.0, 0.0)]) == 3  # cubes on their sides, the plank upside down
+    assert put([(0.0, 90.0), (90.0, 0.0), (90.0, 0.0)]) == 3  # the plank on a long side
+    assert put([(0.0, 30.0), (0.0, 0.0), (0.0, 0.0)]) == 2  # a cube leaning on an edge
+    assert put([(0.0, 0.0), (0.0, 0.0), (0.0, 90.0)]) == 2  # the plank on its end
     env.close()
 
 
