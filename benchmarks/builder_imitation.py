@@ -4,13 +4,16 @@ first ``1 - held_out`` of them as the learner saw them in training, the rest hel
 For each step it compares the greedy action over every allowed cell and heading with the demonstrated one.
 
     python benchmarks/builder_imitation.py runs/<run> [--held-out 0.2] [--updates 0] [--learning-rate 1e-3]
+        [--loss margin|cross_entropy] [--temperature 0.05] [--fresh]
 
 Prints a JSON line per scoring: the share of steps whose greedy action has the demonstrated primitive; lies
 within ``SAME_ACTION_RADIUS`` (12 mm) of the demonstrated cell; and also within one heading of it, counted
 over a whole turn, modulo a half turn, modulo a quarter turn and (runs from commit 8dfa327 on) modulo the turn
-after which that demonstration repeats.  With ``--updates N`` it then takes N large-margin steps (the
-learner's own loss, ``LargeMarginMixin.margin_loss``) on the seen part alone, scoring every ``--every``; the
-run folder is only read.
+after which that demonstration repeats.  With ``--updates N`` it then takes N supervised steps on the seen part
+alone, scoring every ``--every``: ``--loss margin``, DQfD's large-margin loss (``large_margin_loss``), or
+``--loss cross_entropy``, behaviour cloning on the Q-maps (``demonstration_cross_entropy`` at
+``--temperature``): the learner's own ``LargeMarginMixin.supervised_loss``.  ``--fresh`` starts those steps from a newly initialised network (seeded by ``--seed``)
+instead of the run's, as a run's pretraining does.  The run folder is only read.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ import torch
 
 from panda_grasp_env.agents.learning.config import load_config, make_vec_env
 from panda_grasp_env.agents.learning.goal_building import GoalHeightmapDQN
-from panda_grasp_env.agents.learning.heightmap_imitation import SAME_ACTION_RADIUS
+from panda_grasp_env.agents.learning.heightmap_imitation import IMITATION_LOSSES, SAME_ACTION_RADIUS
 
 
 def within_one_heading(near: bool, turn: int, period: int) -> bool:
@@ -80,9 +83,15 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=0, help="large-margin steps on the seen part")
     parser.add_argument("--learning-rate", type=float, default=1e-3)
     parser.add_argument("--every", type=int, default=200, help="updates between scorings")
+    parser.add_argument("--loss", choices=IMITATION_LOSSES, default="margin")
+    parser.add_argument("--temperature", type=float, default=0.05, help="--loss cross_entropy: Q-value units")
+    parser.add_argument("--fresh", action="store_true", help="update a newly initialised network")
+    parser.add_argument("--seed", type=int, default=0, help="--fresh: the initialisation's seed")
     args = parser.parse_args()
     if not 0 < args.held_out < 1:
         raise ValueError(f"--held-out must lie in (0, 1), got {args.held_out}")
+    if not args.temperature > 0:
+        raise ValueError(f"--temperature must be > 0, got {args.temperature}")
     torch.set_num_threads(1)
     config = load_config(args.run / "config.yaml")
     env = make_vec_env(config)
@@ -116,12 +125,18 @@ def main() -> None:
             {"run": str(args.run), "steps": int(model.num_timesteps), "taught": len(rows), "held_out": len(held)}
         )
     )
+    if args.fresh:
+        torch.manual_seed(args.seed)
+        for layer in model.q_net.modules():
+            if hasattr(layer, "reset_parameters"):
+                layer.reset_parameters()
     score(0)
     model.keep_taught(first=cut)
     optimiser = torch.optim.Adam(model.q_net.parameters(), lr=args.learning_rate)
+    model.imitation_loss, model.temperature = args.loss, args.temperature
     losses, met = [], []
     for update in range(1, args.updates + 1):
-        loss, share = model.margin_loss(*model.margin_batch(model.batch_size))
+        loss, share = model.supervised_loss(*model.margin_batch(model.batch_size))
         optimiser.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.q_net.parameters(), model.max_grad_norm)
@@ -129,7 +144,7 @@ def main() -> None:
         losses.append(loss.item())
         met.append(share)
         if update % args.every == 0 or update == args.updates:
-            score(update, margin_loss=round(float(np.mean(losses)), 4), margin_met=round(float(np.mean(met)), 3))
+            score(update, loss=round(float(np.mean(losses)), 4), met=round(float(np.mean(met)), 3))
             losses, met = [], []
 
 

@@ -244,7 +244,8 @@ class GoalHeightmapDQN(LargeMarginMixin, HeightmapDQN):
             it succeeded at least ``promote_at`` of the time.
         teacher_episodes: episodes the teacher plays first (0: none, and no margin loss).
         teacher_stride: the teacher aims at every ``teacher_stride``-th cell (2: the refined network's grid).
-        margin, margin_weight, pretrain_steps: DQfD's, as ``heightmap_dqn_demos``.
+        margin, margin_weight, pretrain_steps, imitation_loss, temperature: the supervised loss on the
+            teacher's paid steps, as ``heightmap_dqn_demos`` (``LargeMarginMixin``).
     """
 
     def __init__(
@@ -259,11 +260,13 @@ class GoalHeightmapDQN(LargeMarginMixin, HeightmapDQN):
         margin: float = 0.2,
         margin_weight: float = 1.0,
         pretrain_steps: int = 0,
+        imitation_loss: str = "margin",
+        temperature: float = 0.05,
         **kwargs: Any,
     ) -> None:
         if not (isinstance(teacher_episodes, int) and teacher_episodes >= 0):
             raise ValueError(f"teacher_episodes must be an int >= 0, got {teacher_episodes!r}")
-        self._set_margin("goal_heightmap_dqn", margin, margin_weight, pretrain_steps)
+        self._set_margin("goal_heightmap_dqn", margin, margin_weight, pretrain_steps, imitation_loss, temperature)
         self.teacher_episodes, self.teacher_stride = teacher_episodes, teacher_stride
         self.teacher = PixelPlaceOracle(teacher_stride)  # checks the stride; made again by each learn
         #: Episodes the teacher has finished, the replay-buffer rows of its paid steps and, per row, the headings

@@ -6,6 +6,7 @@ demonstrations do (``imitation.Demonstrations``).  Distances are metres on the t
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -35,29 +36,50 @@ FULL_MARGIN_DISTANCE = 0.04
 FULL_MARGIN_TURN = np.pi / 4
 
 
+#: The supervised losses on demonstrations a ``LargeMarginMixin`` learner may take (``imitation_loss``).
+IMITATION_LOSSES = ("margin", "cross_entropy")
+
+
 class LargeMarginMixin(DemonstrationMixin):
-    """DQfD's supervised loss for a ``HeightmapDQN``: after each round of TD updates, one large-margin step
-    (``large_margin_loss``, weighted by ``margin_weight``) on ``batch_size`` demonstrated steps
-    (``DemonstrationMixin.demo_batch``), and ``_pretrain``: ``pretrain_steps`` such updates on the buffer alone,
-    the target network following every ``target_update_interval`` of them, as it does env steps."""
+    """DQfD's supervised loss for a ``HeightmapDQN``: after each round of TD updates, one supervised step
+    (weighted by ``margin_weight``) on ``batch_size`` demonstrated steps (``DemonstrationMixin.demo_batch``),
+    and ``_pretrain``: ``pretrain_steps`` such updates on the buffer alone, the target network following every
+    ``target_update_interval`` of them, as it does env steps.  The step is DQfD's large margin
+    (``imitation_loss="margin"``, ``large_margin_loss``) or behaviour cloning on the Q-maps
+    (``"cross_entropy"``, ``demonstration_cross_entropy`` at ``temperature``)."""
 
     margin: float
     margin_weight: float
     pretrain_steps: int
+    imitation_loss: str = "margin"
+    temperature: float = 0.05
     #: Pretraining steps taken so far (saved with the model: a run stopped while pretraining goes on with it).
     pretrained_steps: int = 0
     #: Per demonstrated step, the headings after which its action is the same again (``large_margin_loss``'s
     #: ``periods``); None: a half turn, or a whole one for ``DIRECTED_PRIMITIVES``.
     _demo_periods: torch.Tensor | None = None
 
-    def _set_margin(self, algorithm: str, margin: Any, margin_weight: Any, pretrain_steps: Any) -> None:
-        """Check and keep the margin's settings; ``ValueError`` naming ``algorithm`` and the bad one."""
+    def _set_margin(
+        self,
+        algorithm: str,
+        margin: Any,
+        margin_weight: Any,
+        pretrain_steps: Any,
+        imitation_loss: Any = "margin",
+        temperature: Any = 0.05,
+    ) -> None:
+        """Check and keep the supervised loss's settings; ``ValueError`` naming ``algorithm`` and the bad one."""
         for name, value in (("margin", margin), ("margin_weight", margin_weight)):
             if not (is_number(value) and value >= 0):
                 raise ValueError(f"{algorithm}: {name} must be a number >= 0, got {value!r}")
         if not (isinstance(pretrain_steps, int) and not isinstance(pretrain_steps, bool) and pretrain_steps >= 0):
             raise ValueError(f"{algorithm}: pretrain_steps must be an int >= 0, got {pretrain_steps!r}")
+        if imitation_loss not in IMITATION_LOSSES:
+            raise ValueError(f"{algorithm}: imitation_loss must be one of {IMITATION_LOSSES}, got {imitation_loss!r}")
+        if not (is_number(temperature) and temperature > 0):
+            raise ValueError(f"{algorithm}: temperature must be a number > 0, got {temperature!r}")
         self.margin, self.margin_weight, self.pretrain_steps = float(margin), float(margin_weight), pretrain_steps
+        self.imitation_loss, self.temperature = imitation_loss, float(temperature)
         self.pretrained_steps = 0
 
     def _excluded_save_params(self) -> list[str]:
@@ -74,17 +96,18 @@ class LargeMarginMixin(DemonstrationMixin):
         self._update(gradient_steps, batch_size)
 
     def _update(self, gradient_steps: int, batch_size: int) -> None:
-        """``gradient_steps`` TD updates, then one large-margin step."""
+        """``gradient_steps`` TD updates, then one supervised step."""
         super().train(gradient_steps, batch_size)
         if self.margin_weight == 0:
             return
-        loss, met = self.margin_loss(*self.margin_batch(batch_size))
+        loss, met = self.supervised_loss(*self.margin_batch(batch_size))
         self.policy.optimizer.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
         self.policy.optimizer.step()
-        self.logger.record("train/margin_loss", loss.item())
-        self.logger.record("train/margin_met", met)
+        name = "margin" if self.imitation_loss == "margin" else "imitation"
+        self.logger.record(f"train/{name}_loss", loss.item())
+        self.logger.record(f"train/{name}_met", met)
 
     def margin_batch(self, size: int) -> tuple[Any, torch.Tensor, torch.Tensor | None]:
         """``size`` demonstrated (observations, actions, periods or None), drawn uniformly with replacement."""
@@ -99,6 +122,20 @@ class LargeMarginMixin(DemonstrationMixin):
         cell = self.policy.network_args["cell_size"]
         loss, met = large_margin_loss(
             self.q_net, observations, actions, self.margin, cell, self._demo_generator, periods
+        )
+        return self.margin_weight * loss, met
+
+    def supervised_loss(
+        self, observations: torch.Tensor, actions: torch.Tensor, periods: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, float]:
+        """The ``imitation_loss`` of demonstrated ``actions`` (B,) on encoded heightmaps ``observations``,
+        weighted by ``margin_weight``, and the share of them that the Q-maps already rank first (by the margin,
+        for ``"margin"``)."""
+        if self.imitation_loss == "margin":
+            return self.margin_loss(observations, actions, periods)
+        cell = self.policy.network_args["cell_size"]
+        loss, met = demonstration_cross_entropy(
+            self.q_net, observations, actions, self.temperature, cell, self._demo_generator, periods
         )
         return self.margin_weight * loss, met
 
@@ -133,11 +170,13 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, LargeMarginMixi
         margin: float = 0.2,
         margin_weight: float = 1.0,
         pretrain_steps: int = 0,
+        imitation_loss: str = "margin",
+        temperature: float = 0.05,
         **kwargs: Any,
     ) -> None:
         if kwargs.get("_init_setup_model", True):
             check_demonstrations(demonstrations, "heightmap_dqn_demos")
-        self._set_margin("heightmap_dqn_demos", margin, margin_weight, pretrain_steps)
+        self._set_margin("heightmap_dqn_demos", margin, margin_weight, pretrain_steps, imitation_loss, temperature)
         self.demonstrations = demonstrations
         super().__init__(policy, env, **kwargs)
 
@@ -201,6 +240,63 @@ class HeightmapDQNFromDemonstrations(BufferedDemonstrationMixin, LargeMarginMixi
                 )
 
 
+@dataclass(frozen=True)
+class _Demonstrated:
+    """Demonstrated actions (B,) unpacked against a Q-network's maps, as both supervised losses read them."""
+
+    primitive: torch.Tensor
+    rotation: torch.Tensor
+    #: (B, P, H, W) bool: the actions worth considering (alike at every heading), a_E's own cell always among them
+    allowed: torch.Tensor
+    #: (B, H, W) bool: the allowed cells of a_E's primitive within ``SAME_ACTION_RADIUS`` of a_E's cell
+    same_action: torch.Tensor
+    #: (B, H, W) how far past ``SAME_ACTION_RADIUS`` each cell lies, as a share of the margin's ramp (0 to 1)
+    apart: torch.Tensor
+    #: (B,) headings turned from a_E's for the other map each loss reads, and whether one exists
+    turn: torch.Tensor
+    has_other: torch.Tensor
+    #: (B,) that turn in ``FULL_MARGIN_TURN``s, up to the nearest heading after which a_E repeats
+    turned: torch.Tensor
+
+
+def _demonstrated(
+    q_net: HeightmapQNetwork,
+    observations: torch.Tensor,
+    actions: torch.Tensor,
+    cell_size: float,
+    generator: torch.Generator,
+    periods: torch.Tensor | None,
+) -> _Demonstrated:
+    """Unpack ``actions`` (B,) on ``observations`` and draw, per action, one other heading that is never the same
+    action (a multiple of ``periods`` away; default a half turn, or a whole one for ``DIRECTED_PRIMITIVES``)."""
+    rotations, rows, cols = q_net.rotations, q_net.rows, q_net.cols
+    shape = (q_net.n_primitives, rotations, rows, cols)
+    primitive, rotation, row, col = (torch.as_tensor(i) for i in np.unravel_index(actions.cpu().numpy(), shape))
+    index = torch.arange(len(actions))
+    allowed = q_net.allowed(observations).view(len(actions), *shape)[:, :, 0]  # alike at every heading
+    allowed[index, primitive, row, col] = True
+    distance = cell_size * torch.hypot(
+        (torch.arange(rows)[None, :, None] - row[:, None, None]).float(),
+        (torch.arange(cols)[None, None, :] - col[:, None, None]).float(),
+    )
+    same_action = (distance <= SAME_ACTION_RADIUS) & allowed[index, primitive]
+    apart = ((distance - SAME_ACTION_RADIUS) / (FULL_MARGIN_DISTANCE - SAME_ACTION_RADIUS)).clamp(0.0, 1.0)
+    if periods is None:
+        periods = torch.tensor(
+            [
+                rotations // 2 if rotations % 2 == 0 and q_net.primitives[p] not in DIRECTED_PRIMITIVES else rotations
+                for p in primitive.tolist()
+            ]
+        )
+    choices = rotations - rotations // periods
+    # Drawn only where some action has another heading, so that the generator's stream is the margin's as before.
+    drawn = (torch.rand(len(actions), generator=generator) * choices).long() if bool((choices > 0).any()) else choices
+    turn = drawn + 1 + drawn // (periods - 1).clamp(min=1)  # skips the multiples of the period
+    steps = turn % periods
+    turned = torch.minimum(steps, periods - steps) * (2 * np.pi / rotations) / FULL_MARGIN_TURN
+    return _Demonstrated(primitive, rotation, allowed, same_action, apart, turn, choices > 0, turned)
+
+
 def large_margin_loss(
     q_net: HeightmapQNetwork,
     observations: torch.Tensor,
@@ -217,48 +313,59 @@ def large_margin_loss(
     demonstrated actions that already beat every other allowed action by the margin at the headings tried.
     ``periods`` (B,): the headings after which each demonstrated action is the same again (default: a half
     turn, or a whole one for ``DIRECTED_PRIMITIVES``); the other heading is never one of those."""
-    rotations, rows, cols = q_net.rotations, q_net.rows, q_net.cols
-    shape = (q_net.n_primitives, rotations, rows, cols)
-    primitive, rotation, row, col = (torch.as_tensor(i) for i in np.unravel_index(actions.cpu().numpy(), shape))
+    shown = _demonstrated(q_net, observations, actions, cell_size, generator, periods)
     index = torch.arange(len(actions))
-    allowed = q_net.allowed(observations).view(len(actions), *shape)[:, :, 0]  # alike at every heading
-    allowed[index, primitive, row, col] = True
 
     def best_allowed(scores: torch.Tensor) -> torch.Tensor:
-        return scores.masked_fill(~allowed, -torch.inf).flatten(1).amax(1)
+        return scores.masked_fill(~shown.allowed, -torch.inf).flatten(1).amax(1)
 
-    demonstrated = q_net.q_maps(observations, rotation)
-    distance = cell_size * torch.hypot(
-        (torch.arange(rows)[None, :, None] - row[:, None, None]).float(),
-        (torch.arange(cols)[None, None, :] - col[:, None, None]).float(),
-    )
+    demonstrated = q_net.q_maps(observations, shown.rotation)
     # a_E's value is the best of its own disk: the upsampled maps peak where they will, and an argmax anywhere
     # in the disk takes the demonstrated action.
-    same_action = (distance <= SAME_ACTION_RADIUS) & allowed[index, primitive]
-    chosen = demonstrated[index, primitive].masked_fill(~same_action, -torch.inf).flatten(1).amax(1)
-    apart = ((distance - SAME_ACTION_RADIUS) / (FULL_MARGIN_DISTANCE - SAME_ACTION_RADIUS)).clamp(0.0, 1.0)
+    chosen = demonstrated[index, shown.primitive].masked_fill(~shown.same_action, -torch.inf).flatten(1).amax(1)
 
     def margins(turned: torch.Tensor) -> torch.Tensor:
         """(B, P, H, W) margins on a map turned by ``turned`` (B,) of ``FULL_MARGIN_TURN``s from a_E's."""
         graded = torch.full_like(demonstrated, margin)
-        graded[index, primitive] = margin * torch.maximum(apart, turned.clamp(max=1.0)[:, None, None])
+        graded[index, shown.primitive] = margin * torch.maximum(shown.apart, turned.clamp(max=1.0)[:, None, None])
         return graded
 
     best = best_allowed(demonstrated + margins(torch.zeros(len(actions))))
-    if periods is None:
-        periods = torch.tensor(
-            [
-                rotations // 2 if rotations % 2 == 0 and q_net.primitives[p] not in DIRECTED_PRIMITIVES else rotations
-                for p in primitive.tolist()
-            ]
-        )
-    # One other heading, never one that is the same action (a multiple of the period away).
-    choices = rotations - rotations // periods
-    if bool((choices > 0).any()):
-        drawn = (torch.rand(len(actions), generator=generator) * choices).long()
-        turn = drawn + 1 + drawn // (periods - 1).clamp(min=1)  # skips the multiples of the period
-        steps = turn % periods
-        turned = torch.minimum(steps, periods - steps) * (2 * np.pi / rotations) / FULL_MARGIN_TURN
-        elsewhere = best_allowed(q_net.q_maps(observations, (rotation + turn) % rotations) + margins(turned))
-        best = torch.where(choices > 0, torch.maximum(best, elsewhere), best)
+    if bool(shown.has_other.any()):
+        rotated = (shown.rotation + shown.turn) % q_net.rotations
+        elsewhere = best_allowed(q_net.q_maps(observations, rotated) + margins(shown.turned))
+        best = torch.where(shown.has_other, torch.maximum(best, elsewhere), best)
     return (best - chosen).mean(), float((best - chosen <= 1e-6).float().mean())
+
+
+def demonstration_cross_entropy(
+    q_net: HeightmapQNetwork,
+    observations: torch.Tensor,
+    actions: torch.Tensor,
+    temperature: float,
+    cell_size: float,
+    generator: torch.Generator,
+    periods: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, float]:
+    """Behaviour cloning on the Q-maps: ``-log`` of the probability that ``softmax(Q / temperature)`` over every
+    allowed action of the demonstrated heading's map and one other heading's (drawn as ``large_margin_loss``
+    draws it) gives to a_E's disk (the allowed cells within ``SAME_ACTION_RADIUS`` of it, on its map), averaged
+    over the batch; and the share of the demonstrated actions whose disk already holds the best of those
+    actions.  Unlike the margin, which moves only a_E's best cell and the single best rival, every allowed
+    cell gets a gradient, in proportion to the probability it takes from a_E."""
+    shown = _demonstrated(q_net, observations, actions, cell_size, generator, periods)
+    index = torch.arange(len(actions))
+    demonstrated = q_net.q_maps(observations, shown.rotation).masked_fill(~shown.allowed, -torch.inf)
+    disk = torch.zeros_like(shown.allowed)
+    disk[index, shown.primitive] = shown.same_action
+    logits = [demonstrated.flatten(1) / temperature]
+    if bool(shown.has_other.any()):
+        rotated = (shown.rotation + shown.turn) % q_net.rotations
+        elsewhere = q_net.q_maps(observations, rotated).masked_fill(~shown.allowed, -torch.inf)
+        elsewhere = elsewhere.masked_fill(~shown.has_other[:, None, None, None], -torch.inf)
+        logits.append(elsewhere.flatten(1) / temperature)
+    every = torch.cat(logits, 1)
+    in_disk = logits[0].masked_fill(~disk.flatten(1), -torch.inf)
+    loss = (torch.logsumexp(every, 1) - torch.logsumexp(in_disk, 1)).mean()
+    met = (in_disk.amax(1) >= every.amax(1)).float().mean()
+    return loss, float(met)

@@ -243,12 +243,32 @@ def pixel_dataset_path(tmp_path_factory):
     return str(out)
 
 
+def _pixel_dqfd(dataset_path: str, **extra):
+    """``heightmap_dqn_demos`` on one recorded oracle episode (``PIXEL_DATASET``), small enough for a test."""
+    from panda_grasp_env.agents.learning.heightmap_imitation import HeightmapDQNFromDemonstrations
+    from panda_grasp_env.agents.learning.heightmap_observations import EncodedHeightmap
+    from panda_grasp_env.agents.learning.heightmap_policy import HeightmapQPolicy
+
+    demos = {"dataset": PIXEL_DATASET, "episodes": 1, "path": dataset_path}
+    env = EncodedHeightmap(gym.make("PandaGraspAdversarial-v0", **PIXEL_OPTIONS))
+    arguments = {
+        "buffer_size": 100,
+        "learning_starts": 1,
+        "train_freq": 1,
+        "batch_size": 4,
+        "gamma": 0.5,
+        "learning_rate": 3e-3,
+        "seed": 0,
+        "policy_kwargs": {"rotations": 4, "cell_size": 0.008, "width": 8},
+    } | extra
+    return HeightmapDQNFromDemonstrations(HeightmapQPolicy, env, demonstrations=demos, **arguments)
+
+
 def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_them_first(
     pixel_dataset_path, monkeypatch
 ):
-    from panda_grasp_env.agents.learning.heightmap_imitation import FULL_MARGIN_DISTANCE, HeightmapDQNFromDemonstrations
-    from panda_grasp_env.agents.learning.heightmap_observations import EncodedHeightmap, encode_heightmap
-    from panda_grasp_env.agents.learning.heightmap_policy import HeightmapQPolicy
+    from panda_grasp_env.agents.learning.heightmap_imitation import FULL_MARGIN_DISTANCE
+    from panda_grasp_env.agents.learning.heightmap_observations import encode_heightmap
 
     demos = {"dataset": PIXEL_DATASET, "episodes": 1, "path": pixel_dataset_path}
     episode = Demonstrations.of(demos).episodes_data()[0]
@@ -256,18 +276,7 @@ def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_th
     assert steps >= 4 and np.asarray(episode.actions).dtype.kind in "iu"  # the oracle cleared 4 cubes in pixel mode
 
     def make(**extra):
-        env = EncodedHeightmap(gym.make("PandaGraspAdversarial-v0", **PIXEL_OPTIONS))
-        arguments = {
-            "buffer_size": 100,
-            "learning_starts": 1,
-            "train_freq": 1,
-            "batch_size": 4,
-            "gamma": 0.5,
-            "learning_rate": 3e-3,
-            "seed": 0,
-            "policy_kwargs": {"rotations": 4, "cell_size": 0.008, "width": 8},
-        } | extra
-        return HeightmapDQNFromDemonstrations(HeightmapQPolicy, env, demonstrations=demos, **arguments)
+        return _pixel_dqfd(pixel_dataset_path, **extra)
 
     model = make()
     model.learn(2)
@@ -352,3 +361,54 @@ def test_heightmap_dqn_with_demonstrations_keeps_them_in_the_buffer_and_ranks_th
         config_from_dict(
             {"name": "x", "env_id": "PandaGraspAdversarial-v0", "algo": "heightmap_dqn_demos", "total_steps": 10}
         )
+
+
+def test_cross_entropy_on_the_q_maps_clones_the_demonstrations(pixel_dataset_path, monkeypatch):
+    from panda_grasp_env.agents.learning.heightmap_imitation import SAME_ACTION_RADIUS
+
+    model = _pixel_dqfd(pixel_dataset_path, imitation_loss="cross_entropy", temperature=0.1)
+    model.learn(2)
+    model.train(gradient_steps=1, batch_size=4)  # a TD step, then a cross-entropy step
+    assert 0 < model.logger.name_to_value["train/imitation_loss"]
+    observations, actions = model.demo_batch(model.demonstration_steps)
+    q_net = model.q_net
+    shape = (q_net.n_primitives, q_net.rotations, q_net.rows, q_net.cols)
+    primitive, rotation, row, col = np.unravel_index(actions.numpy(), shape)
+    cell = model.policy.network_args["cell_size"]
+
+    def peaks(shift: int):  # Q 1 at a cell ``shift`` cells from a_E on its map, -1 at every other action
+        def q_maps(observations, rotations):
+            maps = torch.full((len(observations), shape[0], *shape[2:]), -1.0)
+            for i, turned in enumerate(rotations.tolist()):
+                if turned == rotation[i]:
+                    maps[i, primitive[i], min(row[i] + shift, q_net.rows - 1), col[i]] = 1.0
+            return maps
+
+        return q_maps
+
+    inside = int(SAME_ACTION_RADIUS // cell)
+    monkeypatch.setattr(q_net, "q_maps", peaks(inside))  # the peak within a_E's disk: a_E is first
+    loss, met = model.supervised_loss(observations, actions)
+    assert met == 1.0 and 0 < loss.item() < 1.0
+    monkeypatch.setattr(q_net, "q_maps", peaks(inside + 2))  # past it: a_E is not
+    assert model.supervised_loss(observations, actions)[1] == 0.0
+    monkeypatch.undo()
+    # Trained on it alone, each demonstrated step's best allowed action on its heading's maps lies in its disk.
+    optimiser = torch.optim.Adam(q_net.parameters(), lr=3e-3)
+    first, _ = model.supervised_loss(observations, actions)
+    for _ in range(300):
+        loss, met = model.supervised_loss(observations, actions)
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+    assert loss.item() < 0.3 * first.item()
+    allowed = q_net.allowed(observations).view(len(actions), *shape)[:, :, 0]
+    with torch.no_grad():
+        maps = q_net.q_maps(observations, torch.as_tensor(rotation)).masked_fill(~allowed, -torch.inf)
+    best = np.unravel_index(maps.flatten(1).argmax(1).numpy(), (shape[0], *shape[2:]))
+    apart = cell * np.hypot(best[1] - row, best[2] - col)
+    assert np.all(best[0] == primitive) and np.all(apart <= SAME_ACTION_RADIUS), apart
+    with pytest.raises(ValueError, match="imitation_loss must be one of"):
+        _pixel_dqfd(pixel_dataset_path, imitation_loss="hinge")
+    with pytest.raises(ValueError, match="temperature must be a number > 0"):
+        _pixel_dqfd(pixel_dataset_path, imitation_loss="cross_entropy", temperature=0)
