@@ -2,11 +2,12 @@
 validated policy (``best_policy``) on generated structures and sorts every action by what it did to the goal.
 
     python benchmarks/builder_failures.py runs/<run> [--episodes 12] [--seeds validation|selection]
-                                          [--avoid-failures]
+                                          [--avoid-failures] [--place-where-lacking]
 
 It plays the run's validation seeds (``eval_seed`` ...) or its selection seeds (``eval_seed +
 SELECTION_SEED_OFFSET`` ...), never its test seeds.  ``--avoid-failures``: the agent keeps its
-``FailureMemory`` (``PolicyAgent``'s ``avoid_failures``), an acting rule chosen on the selection seeds.
+``FailureMemory`` (``PolicyAgent``'s ``avoid_failures``), and ``--place-where-lacking``: it places only where
+the goal heightmap stands above the scene's (``LackingPlaces``): acting rules chosen on the selection seeds.
 
 Each action is one of:
 
@@ -120,6 +121,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=12)
     parser.add_argument("--seeds", choices=("validation", "selection"), default="validation")
     parser.add_argument("--avoid-failures", action="store_true")
+    parser.add_argument("--place-where-lacking", action="store_true")
     args = parser.parse_args()
     if args.episodes < 1:
         raise ValueError(f"--episodes must be at least 1, got {args.episodes}")
@@ -127,7 +129,13 @@ def main() -> None:
     policy, best = load_best_policy(args.run)
     env = make_env(config)
     first_seed = config.eval_seed + (SELECTION_SEED_OFFSET if args.seeds == "selection" else 0)
-    agent = PolicyAgent(policy, observation_transform(config), config.name, avoid_failures=args.avoid_failures)
+    agent = PolicyAgent(
+        policy,
+        observation_transform(config),
+        config.name,
+        avoid_failures=args.avoid_failures,
+        place_where_lacking=args.place_where_lacking,
+    )
     totals: Counter[str] = Counter()
     misses, wins = [], 0
     for i in range(args.episodes):
@@ -141,6 +149,7 @@ def main() -> None:
         "run": str(args.run),
         "best_steps": best["steps"],
         "avoid_failures": args.avoid_failures,
+        "place_where_lacking": args.place_where_lacking,
         "seeds": [first_seed, first_seed + args.episodes - 1],
         "success": f"{wins}/{args.episodes}",
         "actions": dict(sorted(totals.items())),

@@ -6,6 +6,8 @@
   block face it chose, and a place on a tower onto the tower's axis.
 * ``InwardPushes`` (``PolicyAgent(inward_pushes=True)``): push a tower over only towards the heightmap's
   middle, so its blocks land in view.
+* ``LackingPlaces`` (``PolicyAgent(place_where_lacking=True)``): a goal-conditioned policy places only where the
+  goal heightmap still stands above the scene's.
 
 The policy still chooses the primitive, the heading and which block or tower; a rule only changes where on
 that block the action lands, or forbids some actions (the best of the others is taken).  They work on encoded heightmaps (``encode_heightmap``:
@@ -19,7 +21,7 @@ import math
 import cv2
 import numpy as np
 
-from panda_grasp_env.agents.learning.heightmap_observations import HEIGHT_RANGE
+from panda_grasp_env.agents.learning.heightmap_observations import GOAL_HEIGHT_RANGE, HEIGHT_RANGE
 
 #: An acting policy does not try a primitive again within this many metres of a cell where it failed while
 #: the heights there stay within ``RETRY_HEIGHT_CHANGE`` metres of what they were (``FailureMemory``).
@@ -242,3 +244,47 @@ class InwardPushes:
     def excluded(self) -> np.ndarray:
         """(P * R * H * W,) bool: the pushes that head away from the heightmap's middle."""
         return self.outward
+
+
+#: A place may aim where the goal stands at least this much (metres) above the scene: under half a block, so a
+#: piece resting where the goal wants it, or a few millimetres off, leaves no room there (``LackingPlaces``).
+LACKING_HEIGHT = 0.02
+#: ... and at least this far (metres) inside the region where it does: a piece set down nearer that region's
+#: edge overhangs what is built beside it, or the goal's edge (the learner's same-action radius).
+LACKING_INSET = 0.012
+
+
+class LackingPlaces:
+    """The places that would put a piece where the goal heightmap does not stand above the scene, to be forbidden.
+
+    Why: a goal-conditioned builder's failed places mostly landed a whole block above or below the nearest
+    target of their kind (on a built piece, or on a loose one), or a centimetre or two off across it
+    (``benchmarks/builder_failures.py``, docs/structures.md).  Allowed: a place at a cell where the goal stands
+    at least ``LACKING_HEIGHT`` above the scene, ``LACKING_INSET`` or more inside the region where it does.
+    Where no cell is, every place stays allowed (the rule then does not choose for the policy); other
+    primitives are never forbidden.  Works on encoded heightmaps with a goal plane (``GoalHeightmap``:
+    channel 3 the scene's height, channel ``goal_plane`` the goal's, both over ``GOAL_HEIGHT_RANGE``)."""
+
+    def __init__(
+        self, shape: tuple[int, int, int, int], cell_size: float, primitives: tuple[str, ...], goal_plane: int
+    ) -> None:
+        """``shape``: (primitives, rotations, rows, cols) of the ``pixel`` actions; ``cell_size``: metres;
+        ``primitives``: their names, in the action layout's order; ``goal_plane``: the goal's channel."""
+        if len(primitives) != shape[0]:
+            raise ValueError(f"{len(primitives)} primitive names for an action layout of shape {shape}")
+        if "place" not in primitives:
+            raise ValueError(f"LackingPlaces needs a place primitive, got {primitives}")
+        self.shape, self.place, self.goal_plane = shape, primitives.index("place"), goal_plane
+        inset = round(LACKING_INSET / cell_size)
+        self.kernel = np.ones((2 * inset + 1, 2 * inset + 1), np.uint8)
+
+    def excluded(self, observation: np.ndarray) -> np.ndarray:
+        """(P * R * H * W,) bool: the places outside the inset region where the goal still stands above the
+        scene in ``observation`` (C, H, W), encoded."""
+        scale = GOAL_HEIGHT_RANGE / 255.0
+        lacking = observation[self.goal_plane].astype(float) * scale - observation[3].astype(float) * scale
+        room = cv2.erode((lacking >= LACKING_HEIGHT).astype(np.uint8), self.kernel, borderType=cv2.BORDER_REPLICATE)
+        excluded = np.zeros(self.shape, dtype=bool)
+        if room.any():
+            excluded[self.place] = ~room.astype(bool)[None]
+        return excluded.ravel()

@@ -46,7 +46,7 @@ from stable_baselines3.dqn.policies import DQNPolicy
 from torch import nn
 
 from panda_grasp_env.actions import PixelActions
-from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory, InwardPushes
+from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory, InwardPushes, LackingPlaces
 from panda_grasp_env.agents.learning.heightmap_observations import GOAL_HEIGHT_RANGE, HEIGHT_RANGE
 from panda_grasp_env.perception.heightmap import HeightmapGrid
 
@@ -364,6 +364,14 @@ class HeightmapQPolicy(DQNPolicy):
     def inward_pushes(self) -> InwardPushes:
         """``InwardPushes`` for this policy's actions (``PolicyAgent(inward_pushes=True)`` keeps one)."""
         return InwardPushes(self.shape, self.network_args["cell_size"], self.network_args["primitives"])
+
+    def lacking_places(self) -> LackingPlaces:
+        """``LackingPlaces`` for this goal-conditioned policy's actions (``PolicyAgent(place_where_lacking=True)``
+        keeps one)."""
+        args = self.network_args
+        if not args["goal"]:
+            raise ValueError("lacking_places reads the goal heightmap; this policy sees none")
+        return LackingPlaces(self.shape, args["cell_size"], args["primitives"], self.q_net.goal_plane)
 
     def on_grid(self, rows: int, cols: int) -> HeightmapQPolicy:
         """This policy's weights acting on a heightmap of ``rows`` x ``cols`` cells at the same resolution (a

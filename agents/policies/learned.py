@@ -7,7 +7,7 @@ A checkpoint is a folder ``agents/checkpoints/<name>/`` written by
     policy.json         its class and constructor arguments, as data (``panda_grasp_env.agents.learning.policy_files``)
     checkpoint.json     env id, evaluation task, policy class, the step it was saved at, and the rules the
                         policy acts by (``PolicyAgent``'s ``ACTING_RULES``, set by ``--ship`` with
-                        ``--avoid-failures``, ``--centre-on-faces`` or ``--inward-pushes``)
+                        ``--avoid-failures``, ``--centre-on-faces``, ``--inward-pushes`` or ``--place-where-lacking``)
     config.yaml         the training config
     card.md             the model card: config, seed, steps, wall time, machine, metrics with 95 % CIs
     curve.png           the learning curve; evaluations.jsonl, final.json, meta.json: its data
@@ -65,6 +65,7 @@ CHECKPOINT_FACTS: dict[str, type | tuple[type, ...]] = {
     "avoid_failures": bool,
     "centre_on_faces": bool,
     "inward_pushes": bool,
+    "place_where_lacking": bool,
 }
 #: Largest checkpoint.json and config.yaml read, in bytes.
 MAX_FACTS_BYTES = 64 << 10

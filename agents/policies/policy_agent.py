@@ -13,6 +13,7 @@ ACTING_RULES = {
     "avoid_failures": "its `FailureMemory`",
     "centre_on_faces": "`FaceCentring`",
     "inward_pushes": "`InwardPushes`",
+    "place_where_lacking": "`LackingPlaces`",
 }
 
 
@@ -35,7 +36,9 @@ class PolicyAgent:
     * ``centre_on_faces``: ``FaceCentring`` moves its grasps and places onto the centre of the block face
       chosen, and places on a tower onto the tower's axis (docs/tall-towers.md);
     * ``inward_pushes``: ``InwardPushes`` forbids pushes that would topple a tower away from the heightmap's
-      middle (``build_and_break_dqn``'s breaker acts with it).
+      middle (``build_and_break_dqn``'s breaker acts with it);
+    * ``place_where_lacking``: ``LackingPlaces`` lets a goal-conditioned policy place only where the goal
+      heightmap stands above the scene's (``benchmarks/builder_failures.py --place-where-lacking``).
     """
 
     def __init__(
@@ -46,6 +49,7 @@ class PolicyAgent:
         avoid_failures: bool = False,
         centre_on_faces: bool = False,
         inward_pushes: bool = False,
+        place_where_lacking: bool = False,
     ) -> None:
         self.model, self.transform, self.name = model, transform, name
         self.policy = getattr(model, "policy", model)  # an SB3 model's policy, or the policy itself
@@ -56,6 +60,9 @@ class PolicyAgent:
         self.centring = None  # made at reset, for the episode's block size
         self.facts: dict[str, Any] = {}  # the env's reset facts FaceCentring reads (block_size, action_layout)
         self.inward = self.policy.inward_pushes() if inward_pushes and hasattr(self.policy, "inward_pushes") else None
+        self.lacking = (
+            self.policy.lacking_places() if place_where_lacking and hasattr(self.policy, "lacking_places") else None
+        )
         self._chosen: tuple[int, np.ndarray] | None = None  # the last action and what it was chosen on
 
     def reset(self, observation: Any, info: dict[str, Any]) -> None:
@@ -75,10 +82,13 @@ class PolicyAgent:
 
     def act(self, observation: Any, info: dict[str, Any]) -> Any:
         seen = self.transform(observation, info)
-        if self.memory is None and self.centring is None and self.inward is None:
+        if self.memory is None and self.centring is None and self.inward is None and self.lacking is None:
             action, _ = self.model.predict(seen, deterministic=True)
             return action
         excluded = None if self.inward is None else self.inward.excluded()
+        if self.lacking is not None:
+            lacking = self.lacking.excluded(seen)
+            excluded = lacking if excluded is None else excluded | lacking
         if self.memory is not None:
             if self._chosen is not None and not info.get("primitive_success", True):
                 self.memory.record_failure(*self._chosen)

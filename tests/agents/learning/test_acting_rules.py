@@ -1,12 +1,18 @@
 """The rules a heightmap Q-policy can act by (``agents/learning/acting_rules.py``): ``FailureMemory``,
-``FaceCentring`` and ``InwardPushes``."""
+``FaceCentring``, ``InwardPushes`` and ``LackingPlaces``."""
 
 import numpy as np
 import pytest
 from testkit import blob_observation
 
-from panda_grasp_env.agents.learning.acting_rules import FaceCentring, FailureMemory, InwardPushes
-from panda_grasp_env.agents.learning.heightmap_observations import encode_heightmap
+from panda_grasp_env.agents.learning.acting_rules import (
+    LACKING_INSET,
+    FaceCentring,
+    FailureMemory,
+    InwardPushes,
+    LackingPlaces,
+)
+from panda_grasp_env.agents.learning.heightmap_observations import GOAL_HEIGHT_RANGE, encode_heightmap
 
 pytestmark = pytest.mark.unit  # every test here is fast: the unit tier (python -m pytest -m unit)
 
@@ -112,3 +118,32 @@ def test_a_base_the_env_gave_is_the_axis_until_a_place_chooses_a_one_block_face(
     leftover = blocks((20, 30, 13, BLOCK), (22, 32, 13, 2 * BLOCK))  # a break left a block on the base, 2 cells off
     assert cell(rules.centred(action(1, 29, 39), leftover)) == (1, 1, 26, 36)  # onto the base, not that block
     assert cell(centring().centred(action(1, 29, 39), leftover)) == (1, 1, 28, 38)  # without it: onto that block
+
+
+def test_lacking_places_aim_only_inside_what_the_goal_still_lacks():
+    shape = (2, 4, 60, 60)  # grasp, place; 4 headings; 4 mm cells
+    scene, goal = np.zeros((60, 60)), np.zeros((60, 60))
+    goal[10:23, 10:23] = 0.05  # a cube's target on the table, 13 cells (52 mm) square
+    goal[30:43, 30:43] = 0.10  # a two-cube stack's footprint, its bottom cube built
+    scene[30:43, 30:43] = 0.05
+    scene[10:23, 40:53] = 0.05  # a loose cube off the goal
+
+    def encoded(metres: np.ndarray) -> np.ndarray:
+        return np.round(metres / GOAL_HEIGHT_RANGE * 255).astype(np.uint8)
+
+    observation = np.stack([np.full((60, 60), 128, np.uint8)] * 3 + [encoded(scene), encoded(goal)])
+    rule = LackingPlaces(shape, CELL, ("grasp", "place"), goal_plane=4)
+    excluded = rule.excluded(observation).reshape(shape)
+    inset = round(LACKING_INSET / CELL)
+    allowed = ~excluded[1, 0]
+    # Each target's middle, inset by 12 mm from its edge, is open; its rim, the loose cube and the table are not.
+    assert allowed[10 + inset : 23 - inset, 10 + inset : 23 - inset].all()
+    assert allowed[30 + inset : 43 - inset, 30 + inset : 43 - inset].all()
+    assert allowed.sum() == 2 * (13 - 2 * inset) ** 2
+    assert not allowed[10:23, 40:53].any() and not allowed[50, 5]
+    assert (excluded[1] == excluded[1, :1]).all() and not excluded[0].any()  # every heading alike; grasps never
+    # Once the goal stands everywhere, nothing is forbidden: the rule does not choose for the policy.
+    built = np.stack([*observation[:3], encoded(goal), encoded(goal)])
+    assert not rule.excluded(built).any()
+    with pytest.raises(ValueError, match="place primitive"):
+        LackingPlaces(shape, CELL, ("grasp", "push"), goal_plane=4)
