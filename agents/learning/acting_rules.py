@@ -281,8 +281,7 @@ class LackingPlaces:
     def excluded(self, observation: np.ndarray) -> np.ndarray:
         """(P * R * H * W,) bool: the places outside the inset region where the goal still stands above the
         scene in ``observation`` (C, H, W), encoded."""
-        scale = GOAL_HEIGHT_RANGE / 255.0
-        lacking = observation[self.goal_plane].astype(float) * scale - observation[3].astype(float) * scale
+        lacking = (observation[self.goal_plane].astype(float) - observation[3]) * (GOAL_HEIGHT_RANGE / 255.0)
         room = cv2.erode((lacking >= LACKING_HEIGHT).astype(np.uint8), self.kernel, borderType=cv2.BORDER_REPLICATE)
         excluded = np.zeros(self.shape, dtype=bool)
         if room.any():

@@ -252,8 +252,9 @@ class _Demonstrated:
     same_action: torch.Tensor
     #: (B, H, W) how far past ``SAME_ACTION_RADIUS`` each cell lies, as a share of the margin's ramp (0 to 1)
     apart: torch.Tensor
-    #: (B,) headings turned from a_E's for the other map each loss reads, and whether one exists
-    turn: torch.Tensor
+    #: (B,) the rotation index of the other map each loss reads (never one after which a_E repeats), and
+    #: whether one exists
+    other_rotation: torch.Tensor
     has_other: torch.Tensor
     #: (B,) that turn in ``FULL_MARGIN_TURN``s, up to the nearest heading after which a_E repeats
     turned: torch.Tensor
@@ -294,7 +295,9 @@ def _demonstrated(
     turn = drawn + 1 + drawn // (periods - 1).clamp(min=1)  # skips the multiples of the period
     steps = turn % periods
     turned = torch.minimum(steps, periods - steps) * (2 * np.pi / rotations) / FULL_MARGIN_TURN
-    return _Demonstrated(primitive, rotation, allowed, same_action, apart, turn, choices > 0, turned)
+    return _Demonstrated(
+        primitive, rotation, allowed, same_action, apart, (rotation + turn) % rotations, choices > 0, turned
+    )
 
 
 def large_margin_loss(
@@ -332,8 +335,7 @@ def large_margin_loss(
 
     best = best_allowed(demonstrated + margins(torch.zeros(len(actions))))
     if bool(shown.has_other.any()):
-        rotated = (shown.rotation + shown.turn) % q_net.rotations
-        elsewhere = best_allowed(q_net.q_maps(observations, rotated) + margins(shown.turned))
+        elsewhere = best_allowed(q_net.q_maps(observations, shown.other_rotation) + margins(shown.turned))
         best = torch.where(shown.has_other, torch.maximum(best, elsewhere), best)
     return (best - chosen).mean(), float((best - chosen <= 1e-6).float().mean())
 
@@ -360,8 +362,7 @@ def demonstration_cross_entropy(
     disk[index, shown.primitive] = shown.same_action
     logits = [demonstrated.flatten(1) / temperature]
     if bool(shown.has_other.any()):
-        rotated = (shown.rotation + shown.turn) % q_net.rotations
-        elsewhere = q_net.q_maps(observations, rotated).masked_fill(~shown.allowed, -torch.inf)
+        elsewhere = q_net.q_maps(observations, shown.other_rotation).masked_fill(~shown.allowed, -torch.inf)
         elsewhere = elsewhere.masked_fill(~shown.has_other[:, None, None, None], -torch.inf)
         logits.append(elsewhere.flatten(1) / temperature)
     every = torch.cat(logits, 1)
